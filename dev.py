@@ -1,0 +1,67 @@
+#!/usr/bin/env python3
+"""Set up the project's virtual environment on first use, then run a command in it.
+
+    python3 dev.py demo            # sarbot demo on the built-in scene
+    python3 dev.py test            # the test suite (what CI runs)
+    python3 dev.py bench           # the benchmarks, figures to docs/results/
+    python3 dev.py sarbot ARGS...  # any sarbot command
+
+Only the Python standard library is used here, so this works on a fresh machine with Python 3.11+.
+The environment lives in .venv/ and is reinstalled when pyproject.toml changes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import sys
+import venv
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent
+VENV = ROOT / ".venv"
+STAMP = VENV / ".sarbot-installed"
+BIN = VENV / ("Scripts" if os.name == "nt" else "bin")
+
+
+def _pyproject_digest() -> str:
+    return hashlib.sha256((ROOT / "pyproject.toml").read_bytes()).hexdigest()
+
+
+def ensure_environment() -> None:
+    if sys.version_info < (3, 11):
+        sys.exit(f"dev.py: sarbot needs Python 3.11 or newer, this is {sys.version.split()[0]}")
+    if not (BIN / "python").exists():
+        print(f"dev.py: creating virtual environment in {VENV}", flush=True)
+        venv.EnvBuilder(with_pip=True).create(VENV)
+    if STAMP.exists() and STAMP.read_text() == _pyproject_digest():
+        return
+    print("dev.py: installing sarbot and its dependencies (once)", flush=True)
+    subprocess.run([str(BIN / "python"), "-m", "pip", "install", "--quiet", "--upgrade", "pip"], check=True)
+    subprocess.run([str(BIN / "python"), "-m", "pip", "install", "--quiet", "-e", f"{ROOT}[test]"], check=True)
+    STAMP.write_text(_pyproject_digest())
+
+
+def main(argv: list[str]) -> int:
+    if not argv or argv[0] in {"-h", "--help"}:
+        print(__doc__)
+        return 0 if argv else 2
+    ensure_environment()
+    command, rest = argv[0], argv[1:]
+    if command == "test":
+        cmd = [str(BIN / "python"), "-m", "pytest", *rest]
+    elif command == "bench":
+        cmd = [str(BIN / "python"), str(ROOT / "benchmarks" / "run_all.py"), *rest]
+    elif command == "demo":
+        cmd = [str(BIN / "sarbot"), "demo", *rest]
+    elif command == "sarbot":
+        cmd = [str(BIN / "sarbot"), *rest]
+    else:
+        print(f"dev.py: unknown command {command!r} (use demo, test, bench or sarbot)", file=sys.stderr)
+        return 2
+    return subprocess.run(cmd, cwd=ROOT).returncode
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,293 @@
+"""The recording file: HDF5 schema "sarbot.recording" version 1 (DESIGN.md), writer and reader.
+
+Written by the recorder, the simulator and the bag importer; read by replay, RIO and imaging. The writer
+creates every group and dataset up front and then switches to SWMR, so a reader (or a crash) always sees
+a consistent file up to the last flush.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as _dt
+from importlib import metadata
+from pathlib import Path
+from typing import Iterable
+
+import h5py
+import numpy as np
+
+from .errors import FileFormatError
+from .rig import AntennaArray, ImuConfig, Mount, RadarConfig
+from .trajectory import SampledTrajectory, TrajectorySample
+from .waveform import Waveform
+
+SCHEMA = "sarbot.recording"
+SCHEMA_VERSION = 1
+
+# Recording attribute -> Waveform field (the same names, kept explicit as the file contract).
+_WAVEFORM_ATTRS = {name: name for name in (
+    "f0_hz", "bandwidth_hz", "chirp_duration_s", "chirp_interval_s", "chirps_per_frame",
+    "frame_interval_s", "sample_rate_hz", "n_tx", "n_rx")}
+
+
+def software_version() -> str:
+    try:
+        return metadata.version("sarbot")
+    except metadata.PackageNotFoundError:  # running from a source tree
+        return "0+unknown"
+
+
+def _str_dtype():
+    return h5py.string_dtype(encoding="utf-8")
+
+
+class RecordingWriter:
+    """Append-only writer for one run.
+
+    Parameters
+    ----------
+    path : str or Path
+        File to create (an existing file is an error unless ``overwrite``).
+    radars : iterable of RadarConfig
+        Radars whose groups to create.
+    imu : ImuConfig, optional
+        Creates ``/imu`` when given.
+    truth : bool
+        Creates ``/truth`` (simulation only).
+    wire_format : str
+        Stored as each radar's ``wire_format`` attribute ("SRF1", "DCA1000", "simulated").
+    adc_dtype : "complex64" or "int16"
+        ``int16`` stores [F, chirps, rx, samples, 2] (I, Q) as received from the wire.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        radars: Iterable[RadarConfig],
+        imu: ImuConfig | None = None,
+        truth: bool = False,
+        wire_format: str = "simulated",
+        adc_dtype: str = "complex64",
+        overwrite: bool = False,
+        detections: Iterable[str] = (),
+    ):
+        self.path = Path(path)
+        if self.path.exists() and not overwrite:
+            raise FileFormatError(f"{self.path}: exists already (refusing to overwrite a recording)")
+        self.radars = {r.name: r for r in radars}
+        self._f = h5py.File(self.path, "w", libver="latest")
+        f = self._f
+        f.attrs["schema"] = SCHEMA
+        f.attrs["schema_version"] = SCHEMA_VERSION
+        f.attrs["created_utc"] = _dt.datetime.now(_dt.timezone.utc).isoformat()
+        f.attrs["software_version"] = software_version()
+        for r in self.radars.values():
+            g = f.create_group(f"radar/{r.name}")
+            wf = r.waveform
+            for attr, field in _WAVEFORM_ATTRS.items():
+                g.attrs[attr] = getattr(wf, field)
+            g.attrs["tx_positions_m"] = r.array.tx_positions_m
+            g.attrs["rx_positions_m"] = r.array.rx_positions_m
+            g.attrs["mount_translation_m"] = r.mount.translation_m
+            g.attrs["mount_rotation_xyzw"] = r.mount.rotation_xyzw
+            g.attrs["tdm_tx_order"] = np.asarray(wf.tdm_tx_order(), dtype=np.int32)
+            g.attrs["wire_format"] = wire_format
+            shape = (wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)
+            if adc_dtype == "complex64":
+                g.create_dataset("adc", (0, *shape), np.complex64, maxshape=(None, *shape), chunks=(1, *shape))
+            elif adc_dtype == "int16":
+                g.create_dataset("adc", (0, *shape, 2), np.int16, maxshape=(None, *shape, 2), chunks=(1, *shape, 2))
+            else:
+                raise ValueError(f"adc_dtype must be complex64 or int16, got {adc_dtype!r}")
+            for name, dtype in (("frame_time_ns", np.int64), ("frame_counter", np.uint32),
+                                ("host_time_ns", np.int64), ("valid", np.uint8)):
+                g.create_dataset(name, (0,), dtype, maxshape=(None,), chunks=(1024,))
+            if r.name in set(detections):
+                d = g.create_group("detections")
+                for name, dtype, tail in (("time_ns", np.int64, ()), ("scan", np.uint32, ()), ("xyz_m", np.float32, (3,)),
+                                          ("doppler_mps", np.float32, ()), ("snr_db", np.float32, ())):
+                    d.create_dataset(name, (0, *tail), dtype, maxshape=(None, *tail), chunks=(4096, *tail))
+        if imu is not None:
+            g = f.create_group("imu")
+            g.attrs["rate_hz"] = imu.rate_hz
+            g.attrs["mount_translation_m"] = imu.mount.translation_m
+            g.attrs["mount_rotation_xyzw"] = imu.mount.rotation_xyzw
+            for fld in dataclasses.fields(imu):
+                if fld.name.endswith("sqrt_hz"):
+                    g.attrs[fld.name] = getattr(imu, fld.name)
+            for name, dtype, tail in (("time_ns", np.int64, ()), ("gyro_radps", np.float64, (3,)),
+                                      ("accel_mps2", np.float64, (3,)), ("counter", np.uint32, ()),
+                                      ("host_time_ns", np.int64, ())):
+                g.create_dataset(name, (0, *tail), dtype, maxshape=(None, *tail), chunks=(4096, *tail))
+        g = f.create_group("trigger")
+        g.create_dataset("time_ns", (0,), np.int64, maxshape=(None,), chunks=(256,))
+        g.create_dataset("source", (0,), _str_dtype(), maxshape=(None,), chunks=(256,))
+        g = f.create_group("can")
+        g.create_dataset("time_ns", (0,), np.int64, maxshape=(None,), chunks=(1024,))
+        g.create_dataset("arbitration_id", (0,), np.uint32, maxshape=(None,), chunks=(1024,))
+        g.create_dataset("dlc", (0,), np.uint8, maxshape=(None,), chunks=(1024,))
+        g.create_dataset("data", (0, 64), np.uint8, maxshape=(None, 64), chunks=(1024, 64))
+        if truth:
+            g = f.create_group("truth")
+            for name, tail in (("time_ns", ()), ("position_m", (3,)), ("orientation_xyzw", (4,)), ("velocity_mps", (3,))):
+                g.create_dataset(name, (0, *tail), np.int64 if name == "time_ns" else np.float64,
+                                 maxshape=(None, *tail), chunks=(4096, *tail))
+        g = f.create_group("events")
+        g.create_dataset("time_ns", (0,), np.int64, maxshape=(None,), chunks=(256,))
+        for name in ("source", "level", "message"):
+            g.create_dataset(name, (0,), _str_dtype(), maxshape=(None,), chunks=(256,))
+        f.swmr_mode = True
+
+    # -- appending --------------------------------------------------------------------------------
+    @staticmethod
+    def _append(ds: h5py.Dataset, values) -> None:
+        values = np.asarray(values) if ds.dtype.kind != "O" else np.asarray(values, dtype=object)
+        n = ds.shape[0]
+        ds.resize(n + values.shape[0], axis=0)
+        ds[n:] = values
+
+    def append_frames(self, radar: str, adc, frame_time_ns, frame_counter, host_time_ns, valid=None) -> None:
+        """Append F frames of one radar; ``adc`` complex [F, chirps, rx, samples] (or int16 with trailing 2)."""
+        g = self._f[f"radar/{radar}"]
+        adc = np.asarray(adc)
+        frame_time_ns = np.atleast_1d(np.asarray(frame_time_ns, np.int64))
+        if adc.shape[1:] != g["adc"].shape[1:] or adc.shape[0] != frame_time_ns.size:
+            raise ValueError(f"radar {radar}: adc shape {adc.shape} does not fit {g['adc'].shape[1:]} x {frame_time_ns.size} frames")
+        self._append(g["adc"], adc.astype(g["adc"].dtype, copy=False))
+        self._append(g["frame_time_ns"], frame_time_ns)
+        self._append(g["frame_counter"], np.atleast_1d(frame_counter).astype(np.uint32))
+        self._append(g["host_time_ns"], np.atleast_1d(np.asarray(host_time_ns, np.int64)))
+        if valid is None:
+            valid = np.ones(frame_time_ns.size, np.uint8)
+        self._append(g["valid"], np.atleast_1d(valid).astype(np.uint8))
+
+    def append_truth(self, sample: TrajectorySample) -> None:
+        g = self._f["truth"]
+        self._append(g["time_ns"], sample.time_ns)
+        self._append(g["position_m"], sample.position_m)
+        self._append(g["orientation_xyzw"], sample.orientation_xyzw)
+        self._append(g["velocity_mps"], sample.velocity_mps)
+
+    def append_imu(self, time_ns, gyro_radps, accel_mps2, counter, host_time_ns) -> None:
+        g = self._f["imu"]
+        self._append(g["time_ns"], np.asarray(time_ns, np.int64))
+        self._append(g["gyro_radps"], gyro_radps)
+        self._append(g["accel_mps2"], accel_mps2)
+        self._append(g["counter"], np.asarray(counter).astype(np.uint32))
+        self._append(g["host_time_ns"], np.asarray(host_time_ns, np.int64))
+
+    def append_trigger(self, time_ns, source: str | list[str]) -> None:
+        time_ns = np.atleast_1d(np.asarray(time_ns, np.int64))
+        sources = [source] * time_ns.size if isinstance(source, str) else list(source)
+        self._append(self._f["trigger/time_ns"], time_ns)
+        self._append(self._f["trigger/source"], sources)
+
+    def append_event(self, time_ns: int, source: str, level: str, message: str) -> None:
+        g = self._f["events"]
+        self._append(g["time_ns"], [time_ns])
+        self._append(g["source"], [source])
+        self._append(g["level"], [level])
+        self._append(g["message"], [message])
+
+    def flush(self) -> None:
+        self._f.flush()
+
+    def close(self) -> None:
+        if self._f.id.valid:
+            self._f.flush()
+            self._f.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class Recording:
+    """Read access to a recording; checks the schema on open.
+
+    Raises FileFormatError naming the file when it is missing, not HDF5 or not schema v1.
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        if not self.path.exists():
+            raise FileFormatError(f"{self.path}: no such file")
+        try:
+            self._f = h5py.File(self.path, "r", libver="latest", swmr=True)
+        except OSError as exc:
+            raise FileFormatError(f"{self.path}: not a readable HDF5 file ({exc.__class__.__name__})") from None
+        schema = self._f.attrs.get("schema")
+        if isinstance(schema, bytes):
+            schema = schema.decode()
+        if schema != SCHEMA:
+            self._f.close()
+            raise FileFormatError(f"{self.path}: not a sarbot recording (schema attribute is {schema!r}, expected {SCHEMA!r})")
+        version = int(self._f.attrs.get("schema_version", -1))
+        if version != SCHEMA_VERSION:
+            self._f.close()
+            raise FileFormatError(f"{self.path}: recording schema version {version} is not supported (this is version {SCHEMA_VERSION})")
+
+    def close(self) -> None:
+        self._f.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    @property
+    def file(self) -> h5py.File:
+        return self._f
+
+    @property
+    def radar_names(self) -> list[str]:
+        return list(self._f["radar"].keys()) if "radar" in self._f else []
+
+    def _radar_group(self, name: str) -> h5py.Group:
+        if name not in self.radar_names:
+            known = ", ".join(self.radar_names) or "none"
+            raise FileFormatError(f"{self.path}: no radar named {name!r} (radars in this file: {known})")
+        return self._f[f"radar/{name}"]
+
+    def radar(self, name: str) -> RadarConfig:
+        """The radar's configuration as stored in the file."""
+        g = self._radar_group(name)
+        try:
+            integer = ("chirps_per_frame", "n_tx", "n_rx")
+            wf = Waveform(**{field: int(g.attrs[attr]) if field in integer else float(g.attrs[attr])
+                             for attr, field in _WAVEFORM_ATTRS.items()})
+            array = AntennaArray(np.asarray(g.attrs["tx_positions_m"]), np.asarray(g.attrs["rx_positions_m"]))
+            mount = Mount(np.asarray(g.attrs["mount_translation_m"]), np.asarray(g.attrs["mount_rotation_xyzw"]))
+        except KeyError as exc:
+            raise FileFormatError(f"{self.path}: /radar/{name} lacks attribute {exc.args[0]}") from None
+        return RadarConfig(name, wf, array, mount)
+
+    def tdm_tx_order(self, name: str) -> np.ndarray:
+        g = self._radar_group(name)
+        return np.asarray(g.attrs["tdm_tx_order"], dtype=np.int64)
+
+    def n_frames(self, name: str) -> int:
+        return int(self._radar_group(name)["frame_time_ns"].shape[0])
+
+    def frame_time_ns(self, name: str, frames: slice = slice(None)) -> np.ndarray:
+        return np.asarray(self._radar_group(name)["frame_time_ns"][frames], np.int64)
+
+    def valid(self, name: str, frames: slice = slice(None)) -> np.ndarray:
+        return np.asarray(self._radar_group(name)["valid"][frames], bool)
+
+    def adc(self, name: str, frames: slice = slice(None)) -> np.ndarray:
+        """ADC samples as complex64 [F, chirps, rx, samples] (int16 I/Q is converted)."""
+        ds = self._radar_group(name)["adc"]
+        data = ds[frames]
+        if ds.dtype == np.int16:
+            data = data[..., 0].astype(np.float32) + 1j * data[..., 1].astype(np.float32)
+        return np.asarray(data, dtype=np.complex64)
+
+    def truth(self) -> SampledTrajectory | None:
+        if "truth" not in self._f or self._f["truth/time_ns"].shape[0] < 2:
+            return None
+        g = self._f["truth"]
+        return SampledTrajectory(g["time_ns"][:], g["position_m"][:], g["orientation_xyzw"][:], g["velocity_mps"][:], source="truth")
