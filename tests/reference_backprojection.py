@@ -20,14 +20,17 @@ def backproject_reference(profiles, tx_m, rx_m, grid_m, reference_range_m=None, 
             freqs = profiles.f0_hz + profiles.frequency_step_hz * np.arange(profiles.samples.shape[-1])
             value = np.exp(-2j * np.pi * np.outer(dr, freqs) / C) @ profiles.samples[p].astype(complex)
         else:
-            row = profiles.data[p].astype(complex)
+            # Outside its axis a profile is zero; linear interpolation runs down to zero over one bin.
+            step = profiles.range_step_m
+            row = np.concatenate([[0], profiles.data[p].astype(complex), [0]])
+            ext = np.concatenate([[axis[0] - step], axis, [axis[-1] + step]])
             if mode == "linear":
-                inside = (dr >= axis[0]) & (dr < axis[-1])
-                value = np.interp(dr, axis, row.real) + 1j * np.interp(dr, axis, row.imag)
+                inside = (dr > ext[0]) & (dr < ext[-1])
+                value = np.interp(dr, ext, row.real) + 1j * np.interp(dr, ext, row.imag)
             elif mode == "nearest":
-                idx = np.round((dr - axis[0]) / profiles.range_step_m).astype(int)
+                idx = np.round((dr - axis[0]) / step).astype(int)
                 inside = (idx >= 0) & (idx < axis.size)
-                value = row[np.clip(idx, 0, axis.size - 1)]
+                value = row[1:-1][np.clip(idx, 0, axis.size - 1)]
             else:
                 raise ValueError(mode)
             value = np.where(inside, value, 0.0) * np.exp(-2j * np.pi * profiles.carrier_hz * dr / C)
