@@ -122,3 +122,61 @@ def simulate_frames(
         noise = rng.standard_normal(out.shape + (2,), dtype=np.float32) * np.float32(sigma)
         out += noise.view(np.complex64)[..., 0]
     return out.reshape(frame_time_ns.size, wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)
+
+
+#: TAI - UTC (s): the PTP time base runs ahead of the hosts' CLOCK_REALTIME by this much.
+TAI_MINUS_UTC_S = 37
+#: Simulated delay between the end of a frame and the kernel receiving its last datagram.
+RECEIVE_LATENCY_NS = 1_000_000
+
+
+def simulate_recording(scene, path, *, frames_per_block: int = 16, progress=None, overwrite: bool = False):
+    """Simulate ``scene`` into a recording file (schema v1, with ``/truth``).
+
+    Parameters
+    ----------
+    scene : imaging.scene.Scene
+    path : str or Path
+        Output file.
+    frames_per_block : int
+        Frames simulated and written at a time (bounds memory).
+    progress : callable(done, total), optional
+        Called after every block with frames done and frames in total.
+
+    Returns
+    -------
+    dict
+        Frames written per radar.
+    """
+    from .recording import RecordingWriter
+    from .scene import frame_times_ns
+
+    radars = [scene.rig.radar(name) for name in scene.radars]
+    times = {r.name: frame_times_ns(scene, r.name) for r in radars}
+    total = sum(t.size for t in times.values())
+    done = 0
+    rng = np.random.default_rng(scene.seed)
+    with RecordingWriter(path, radars, imu=None, truth=True, overwrite=overwrite) as writer:
+        writer.append_trigger(scene.start_time_ns, "simulator")
+        for r in radars:
+            ft = times[r.name]
+            wf = r.waveform
+            frame_end = int(round(wf.chirps_per_frame * wf.chirp_interval_s * 1e9))
+            for b in range(0, ft.size, frames_per_block):
+                block = ft[b:b + frames_per_block]
+                adc = simulate_frames(
+                    r, scene.trajectory, scene.targets, block,
+                    vibration=scene.vibration, vibration_t0_ns=scene.start_time_ns, snr_db=scene.snr_db,
+                    intra_chirp_motion=scene.intra_chirp_motion, rng=rng,
+                )
+                host = block + frame_end + RECEIVE_LATENCY_NS - TAI_MINUS_UTC_S * 1_000_000_000
+                writer.append_frames(r.name, adc, block, np.arange(b, b + block.size), host)
+                writer.flush()
+                done += block.size
+                if progress is not None:
+                    progress(done, total)
+        end_ns = scene.start_time_ns + int(scene.duration_s * 1e9)
+        step_ns = int(round(1e9 / scene.truth_rate_hz))
+        truth_times = np.arange(scene.start_time_ns, end_ns + step_ns, step_ns, dtype=np.int64)
+        writer.append_truth(scene.trajectory.sample(truth_times))
+    return {name: t.size for name, t in times.items()}

@@ -1,0 +1,181 @@
+"""Forming an image from a recording: read frames, range-compress, place antennas, backproject."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+
+import numpy as np
+
+from .backprojection import backproject
+from .errors import SarbotError
+from .geometry import antenna_track, chirp_times_ns
+from .grid import Grid
+from .imagefile import SarImage
+from .range_compression import range_compress
+from .recording import Recording
+from .rig import RadarConfig
+from .trajectory import Trajectory
+
+log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass
+class ImagingOptions:
+    """How to form an image. ``tx``/``rx``: channel indices to use (None: all)."""
+
+    mode: str = "linear"
+    window: str = "hann"
+    oversample: int = 8
+    tx: tuple[int, ...] | None = None
+    rx: tuple[int, ...] | None = None
+    frames_per_block: int = 8
+
+
+def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajectory, tx_order, options: ImagingOptions,
+                   time_window_ns: tuple[int, int] | None = None):
+    """Range profiles and bistatic antenna positions of a block of frames.
+
+    Parameters
+    ----------
+    adc : ndarray, complex, shape (F, chirps, n_rx, samples)
+    frame_time_ns : ndarray, shape (F,)
+    tx_order : ndarray, shape (chirps,)
+        TX index of each chirp within a frame.
+    time_window_ns : (start, stop), optional
+        Keep only chirps starting in [start, stop).
+
+    Returns
+    -------
+    profiles : RangeProfiles with data [P, bins]; tx_m, rx_m : [P, 3]; along with chirp times [P].
+    """
+    wf = radar.waveform
+    n_f = adc.shape[0]
+    times = chirp_times_ns(frame_time_ns, wf.chirps_per_frame, wf.chirp_interval_s).ravel()
+    tx_index = np.tile(np.asarray(tx_order), n_f)
+    keep = np.ones(times.size, bool)
+    if options.tx is not None:
+        keep &= np.isin(tx_index, options.tx)
+    if time_window_ns is not None:
+        keep &= (times >= time_window_ns[0]) & (times < time_window_ns[1])
+    rx_sel = np.arange(wf.n_rx) if options.rx is None else np.asarray(options.rx)
+    track = antenna_track(radar, trajectory, times[keep], tx_index[keep])
+    samples = adc.reshape(n_f * wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)[keep][:, rx_sel, :]
+    n_keep = samples.shape[0]
+    profiles = range_compress(
+        samples.reshape(n_keep * rx_sel.size, wf.samples_per_chirp), wf.f0_hz, wf.frequency_step_hz,
+        window=options.window, oversample=options.oversample, keep_samples=options.mode == "exact",
+    )
+    tx_m = np.repeat(track.tx_m, rx_sel.size, axis=0)
+    rx_m = track.rx_m[:, rx_sel, :].reshape(-1, 3)
+    return profiles, tx_m, rx_m, np.repeat(times[keep], rx_sel.size), track
+
+
+def _parse_frames(frames, n_frames: int, path) -> slice:
+    if isinstance(frames, slice):
+        start, stop, _ = frames.indices(n_frames)
+        if frames.start is not None and not 0 <= frames.start < n_frames:
+            raise SarbotError(f"{path}: frames {frames.start}:{frames.stop} out of range (the radar has {n_frames} frames)")
+        if frames.stop is not None and frames.stop > n_frames:
+            raise SarbotError(f"{path}: frames {frames.start}:{frames.stop} out of range (the radar has {n_frames} frames)")
+        if stop <= start:
+            raise SarbotError(f"{path}: frames {frames.start}:{frames.stop} select no frame")
+        return slice(start, stop)
+    raise TypeError("frames must be a slice")
+
+
+def form_image(
+    recording: Recording,
+    radar_name: str,
+    grid: Grid,
+    trajectory: Trajectory | None = None,
+    frames: slice = slice(None),
+    options: ImagingOptions | None = None,
+    time_window_ns: tuple[int, int] | None = None,
+    progress=None,
+) -> SarImage:
+    """Backproject one radar's frames onto ``grid``.
+
+    Frames flagged invalid in the recording (data lost on the wire) are left out and logged. The image
+    attributes record what theory needs: aperture length, look direction, speed, wavelength, bandwidth.
+    """
+    options = options or ImagingOptions()
+    radar = recording.radar(radar_name)
+    if trajectory is None:
+        trajectory = recording.truth()
+        if trajectory is None:
+            raise SarbotError(f"{recording.path}: no /truth trajectory in this recording; give a trajectory file")
+    n_frames = recording.n_frames(radar_name)
+    sel = _parse_frames(frames, n_frames, recording.path)
+    wf = radar.waveform
+    for name, chans, n in (("tx", options.tx, wf.n_tx), ("rx", options.rx, wf.n_rx)):
+        if chans is not None and (len(chans) == 0 or min(chans) < 0 or max(chans) >= n):
+            raise SarbotError(f"{name} channels {list(chans)} out of range: radar {radar_name} has {n}")
+    tx_order = recording.tdm_tx_order(radar_name)
+    image = np.zeros(grid.shape, np.complex128)
+    points = grid.points()
+    valid = recording.valid(radar_name, sel)
+    if not np.all(valid):
+        log.warning("radar %s: leaving out %d invalid frame(s)", radar_name, int(np.sum(~valid)))
+    mids, tracks_times, speeds = [], [], []
+    boresights = []
+    n_profiles = 0
+    step = options.frames_per_block
+    frame_indices = np.arange(sel.start, sel.stop)[valid]
+    for b in range(0, frame_indices.size, step):
+        idx = frame_indices[b:b + step]
+        block = slice(int(idx[0]), int(idx[-1]) + 1)
+        adc = recording.adc(radar_name, block)
+        ftimes = recording.frame_time_ns(radar_name, block)
+        keep = np.isin(np.arange(block.start, block.stop), idx)
+        profiles, tx_m, rx_m, times, track = frame_profiles(adc[keep], ftimes[keep], radar, trajectory, tx_order,
+                                                            options, time_window_ns)
+        if profiles.data.shape[0] and profiles.data.size:
+            backproject(profiles, tx_m, rx_m, points, mode=options.mode, out=image)
+            n_profiles += profiles.data.shape[0]
+            mids.append(0.5 * (tx_m + rx_m))
+            tracks_times.append(times)
+            boresights.append(track.boresight)
+            speeds.append(np.linalg.norm(trajectory.sample(track.time_ns).velocity_mps, axis=1))
+        if progress is not None:
+            progress(min(b + step, frame_indices.size), frame_indices.size)
+    if n_profiles == 0:
+        raise SarbotError(f"{recording.path}: radar {radar_name}: no chirp falls in the selected frames and time window")
+    mid = np.concatenate(mids)
+    attrs = {
+        "radar": radar_name,
+        "frames": f"{sel.start}:{sel.stop}",
+        "trajectory_source": getattr(trajectory, "source", "unknown"),
+        "method": f"tdbp-{options.mode}",
+        "window": options.window,
+        "oversample": options.oversample,
+        "wavelength_m": wf.wavelength_m,
+        "centre_frequency_hz": wf.centre_frequency_hz,
+        "bandwidth_hz": wf.sampled_bandwidth_hz,
+        "n_frames": int(frame_indices.size),
+        "n_profiles": int(n_profiles),
+        "aperture_length_m": aperture_length_m(mid),
+        "look_direction": _horizontal_unit(np.concatenate(boresights).mean(axis=0)),
+        "aperture_centre_m": mid.mean(axis=0),
+        "speed_mps": float(np.concatenate(speeds).mean()),
+        "source_file": str(recording.path),
+    }
+    return SarImage(image, grid.x_m, grid.y_m, grid.z_m if grid.z_m.size > 1 else grid.z_m[:1], attrs)
+
+
+def _horizontal_unit(v: np.ndarray) -> np.ndarray:
+    h = np.array([v[0], v[1], 0.0])
+    return h / np.linalg.norm(h)
+
+
+def aperture_length_m(phase_centres_m: np.ndarray) -> float:
+    """Length of a synthetic aperture: extent of the phase centres along their main direction, plus the
+    mean spacing of distinct positions (N samples spaced d make an aperture N*d long)."""
+    c = phase_centres_m - phase_centres_m.mean(axis=0)
+    if c.shape[0] < 2:
+        return 0.0
+    _, _, vt = np.linalg.svd(c, full_matrices=False)
+    along = np.sort(c @ vt[0])
+    extent = along[-1] - along[0]
+    distinct = np.unique(np.round(along, 9))
+    return float(extent + (extent / (distinct.size - 1) if distinct.size > 1 else 0.0))

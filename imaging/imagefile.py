@@ -1,0 +1,68 @@
+"""The image file: HDF5 schema "sarbot.image" version 1 (DESIGN.md)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from .errors import FileFormatError
+
+SCHEMA = "sarbot.image"
+SCHEMA_VERSION = 1
+
+
+@dataclasses.dataclass
+class SarImage:
+    """A complex image on a world-frame grid with what it was made from."""
+
+    image: np.ndarray  # complex [ny, nx] or [nz, ny, nx]
+    x_m: np.ndarray
+    y_m: np.ndarray
+    z_m: np.ndarray | None = None
+    attrs: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    @property
+    def wavelength_m(self) -> float:
+        return float(self.attrs["wavelength_m"])
+
+
+def write_image(path: str | Path, img: SarImage) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with h5py.File(path, "w") as f:
+        f.attrs["schema"] = SCHEMA
+        f.attrs["schema_version"] = SCHEMA_VERSION
+        for key, value in img.attrs.items():
+            f.attrs[key] = value
+        f.create_dataset("image", data=img.image.astype(np.complex64))
+        f.create_dataset("x_m", data=img.x_m)
+        f.create_dataset("y_m", data=img.y_m)
+        if img.z_m is not None:
+            f.create_dataset("z_m", data=np.atleast_1d(img.z_m))
+    return path
+
+
+def read_image(path: str | Path) -> SarImage:
+    path = Path(path)
+    if not path.exists():
+        raise FileFormatError(f"{path}: no such file")
+    try:
+        f = h5py.File(path, "r")
+    except OSError:
+        raise FileFormatError(f"{path}: not a readable HDF5 file") from None
+    with f:
+        schema = f.attrs.get("schema")
+        schema = schema.decode() if isinstance(schema, bytes) else schema
+        if schema != SCHEMA:
+            raise FileFormatError(f"{path}: not a sarbot image (schema attribute is {schema!r}, expected {SCHEMA!r})")
+        if int(f.attrs.get("schema_version", -1)) != SCHEMA_VERSION:
+            raise FileFormatError(f"{path}: image schema version {f.attrs.get('schema_version')} is not supported")
+        for name in ("image", "x_m", "y_m"):
+            if name not in f:
+                raise FileFormatError(f"{path}: dataset /{name} is missing")
+        attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+        return SarImage(f["image"][()], f["x_m"][()], f["y_m"][()], f["z_m"][()] if "z_m" in f else None, attrs)

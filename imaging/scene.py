@@ -1,0 +1,169 @@
+"""Simulation scenes: a rig, a trajectory, targets, vibration and noise, from TOML; a few built in.
+
+A scene file::
+
+    name = "my_pass"
+    duration_s = 6.0
+    radars = ["left_front"]        # default: every radar of the rig
+    snr_db = 30.0                  # per-sample SNR of an amplitude-1 return; omit for no noise
+    rig = "default"                # or a rig TOML path, relative to the scene file
+
+    [trajectory]
+    kind = "straight"              # or "path" with segments = [["straight", 2.0], ["arc", 1.0, 90.0]]
+    start_m = [-1.2, -0.2, 0.0]
+    speed_mps = 0.4
+
+    [vibration]                    # optional: displacement along every radar's boresight
+    frequency_hz = 4.2
+    amplitude_m = 0.35e-3
+
+    [[target]]
+    kind = "point"                 # point | rod | corner
+    position_m = [0.0, 2.0, 0.3]
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .config import ConfigError, from_dict, read_toml
+from .geometry import Vibration
+from .rig import Rig, default_rig, load_rig
+from .targets import TARGET_KINDS
+from .trajectory import PathWithTurns, StraightLine, Trajectory
+
+DEFAULT_START_TIME_NS = 1_700_000_000_000_000_000  # a TAI time in November 2023; any epoch works
+
+
+@dataclasses.dataclass
+class Scene:
+    """Everything the simulator needs for one run."""
+
+    name: str
+    rig: Rig
+    trajectory: Trajectory
+    targets: list
+    duration_s: float
+    radars: list[str]
+    description: str = ""
+    snr_db: float | None = None
+    vibration: Vibration | None = None
+    intra_chirp_motion: bool = True
+    seed: int = 0
+    start_time_ns: int = DEFAULT_START_TIME_NS
+    truth_rate_hz: float = 1000.0
+
+
+def builtin_scene_names() -> list[str]:
+    return sorted(p.name[:-5] for p in resources.files("imaging.scenes").iterdir() if p.name.endswith(".toml"))
+
+
+def load_scene(name_or_path: str | Path) -> Scene:
+    """A scene from a TOML file, or a built-in scene by name (see ``builtin_scene_names()``)."""
+    path = Path(name_or_path)
+    if path.suffix == ".toml" or path.exists():
+        return scene_from_dict(read_toml(path), source=str(path), base=path.parent)
+    if str(name_or_path) in builtin_scene_names():
+        res = resources.files("imaging.scenes") / f"{name_or_path}.toml"
+        with resources.as_file(res) as p:
+            return scene_from_dict(read_toml(p), source=f"built-in scene {name_or_path}", base=p.parent)
+    raise ConfigError(
+        "<scene>", f"{name_or_path!r} is neither a file nor a built-in scene (built-in: {', '.join(builtin_scene_names())})"
+    )
+
+
+def _trajectory_from_table(t: dict[str, Any], start_time_ns: int) -> Trajectory:
+    t = dict(t)
+    kind = t.pop("kind", "straight")
+    common = {
+        "start_m": tuple(float(v) for v in t.pop("start_m", (0.0, 0.0, 0.0))),
+        "heading_deg": float(t.pop("heading_deg", 0.0)),
+        "speed_mps": float(t.pop("speed_mps", 0.4)),
+        "t0_ns": start_time_ns,
+    }
+    if len(common["start_m"]) != 3:
+        raise ConfigError("trajectory.start_m", "expected [x, y, z]")
+    if kind == "straight":
+        traj: Trajectory = StraightLine(**common)
+    elif kind == "path":
+        segments = t.pop("segments", None)
+        if not segments:
+            raise ConfigError("trajectory.segments", "a path needs segments, e.g. [[\"straight\", 2.0], [\"arc\", 1.0, 90.0]]")
+        traj = PathWithTurns(segments=[tuple(s) for s in segments], **common)
+    else:
+        raise ConfigError("trajectory.kind", f"unknown kind {kind!r} (straight, path)")
+    if t:
+        raise ConfigError(f"trajectory.{sorted(t)[0]}", "unknown setting")
+    return traj
+
+
+def scene_from_dict(table: dict[str, Any], source: str | None = None, base: Path | None = None) -> Scene:
+    """Build and validate a Scene from a parsed TOML table."""
+    try:
+        table = dict(table)
+        name = str(table.pop("name", "scene"))
+        rig_spec = table.pop("rig", "default")
+        if isinstance(rig_spec, str) and rig_spec != "default":
+            rig = load_rig((base or Path(".")) / rig_spec)
+        elif rig_spec == "default":
+            rig = default_rig()
+        else:
+            raise ConfigError("rig", "expected \"default\" or the path of a rig TOML file")
+        start_time_ns = table.pop("start_time_ns", DEFAULT_START_TIME_NS)
+        if not isinstance(start_time_ns, int) or start_time_ns < 0:
+            raise ConfigError("start_time_ns", f"expected a non-negative integer, got {start_time_ns!r}")
+        trajectory = _trajectory_from_table(table.pop("trajectory", {}), start_time_ns)
+        radars = table.pop("radars", rig.radar_names)
+        for i, r in enumerate(radars):
+            if r not in rig.radar_names:
+                raise ConfigError(f"radars[{i}]", f"no radar {r!r} in the rig (radars: {', '.join(rig.radar_names)})")
+        targets = []
+        for i, tt in enumerate(table.pop("target", [])):
+            tt = dict(tt)
+            kind = tt.pop("kind", "point")
+            if kind not in TARGET_KINDS:
+                raise ConfigError(f"target[{i}].kind", f"unknown kind {kind!r} ({', '.join(TARGET_KINDS)})")
+            targets.append(from_dict(TARGET_KINDS[kind], tt, prefix=f"target[{i}]"))
+        vibration = None
+        if "vibration" in table:
+            vibration = from_dict(Vibration, table.pop("vibration"), prefix="vibration")
+        duration_s = float(table.pop("duration_s", 5.0))
+        if duration_s <= 0:
+            raise ConfigError("duration_s", f"must be positive, got {duration_s}")
+        snr = table.pop("snr_db", None)
+        if snr is not None and (isinstance(snr, bool) or not isinstance(snr, (int, float))):
+            raise ConfigError("snr_db", f"expected a number, got {snr!r}")
+        scene = Scene(
+            name=name,
+            description=str(table.pop("description", "")),
+            rig=rig,
+            trajectory=trajectory,
+            targets=targets,
+            duration_s=duration_s,
+            radars=list(radars),
+            snr_db=None if snr is None else float(snr),
+            vibration=vibration,
+            intra_chirp_motion=bool(table.pop("intra_chirp_motion", True)),
+            seed=int(table.pop("seed", 0)),
+            start_time_ns=start_time_ns,
+            truth_rate_hz=float(table.pop("truth_rate_hz", 1000.0)),
+        )
+        if table:
+            raise ConfigError(sorted(table)[0], "unknown setting")
+        return scene
+    except ConfigError as exc:
+        if source and exc.source is None:
+            raise ConfigError(exc.field, str(exc).split(": ", 1)[-1], source=source) from None
+        raise
+
+
+def frame_times_ns(scene: Scene, radar: str) -> np.ndarray:
+    """Frame start times of one radar over the scene's duration."""
+    wf = scene.rig.radar(radar).waveform
+    n = int(np.floor(scene.duration_s / wf.frame_interval_s + 1e-9))
+    return scene.start_time_ns + np.round(np.arange(n) * wf.frame_interval_s * 1e9).astype(np.int64)
