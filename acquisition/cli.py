@@ -1,0 +1,239 @@
+"""The ``sarbot`` command line.
+
+Every user mistake (a missing file, a wrong schema, a bad grid, frames out of range, an unknown radar,
+an invalid configuration value) ends with one line ``sarbot: error: ...`` naming it, and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from imaging.errors import SarbotError
+
+log = logging.getLogger("sarbot")
+
+EXIT_OK = 0
+EXIT_USAGE = 2  # bad input: arguments, files, configuration
+EXIT_INTERRUPTED = 130
+
+
+def _parse_frames(text: str | None) -> slice:
+    if not text:
+        return slice(None)
+    parts = text.split(":")
+    try:
+        if len(parts) == 1:
+            a = int(parts[0])
+            return slice(a, a + 1)
+        if len(parts) == 2:
+            return slice(int(parts[0]) if parts[0] else None, int(parts[1]) if parts[1] else None)
+    except ValueError:
+        pass
+    raise SarbotError(f"--frames {text!r}: expected A:B (frame indices, B excluded)")
+
+
+def _parse_channels(text: str | None, name: str) -> tuple[int, ...] | None:
+    if text is None or text == "all":
+        return None
+    try:
+        return tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise SarbotError(f"--{name} {text!r}: expected comma-separated channel indices or 'all'") from None
+
+
+def _parse_xy(text: str, option: str) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in text.split(","))
+        return x, y
+    except ValueError:
+        raise SarbotError(f"{option} {text!r}: expected x,y in metres") from None
+
+
+def _json_default(obj):
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    raise TypeError(type(obj))
+
+
+# -- commands -------------------------------------------------------------------------------------------
+def cmd_simulate(args) -> int:
+    from imaging.scene import builtin_scene_names, load_scene
+    from imaging.simulator import simulate_recording
+
+    from .progress import Progress
+
+    if args.list:
+        for name in builtin_scene_names():
+            scene = load_scene(name)
+            print(f"{name:18s} {scene.description.splitlines()[0] if scene.description else ''}")
+        return EXIT_OK
+    if not args.scene or not args.output:
+        raise SarbotError("simulate needs a SCENE and -o OUTPUT (or --list)")
+    scene = load_scene(args.scene)
+    out = Path(args.output)
+    if out.exists() and not args.overwrite:
+        raise SarbotError(f"{out}: exists already (use --overwrite to replace it)")
+    counts = simulate_recording(scene, out, progress=Progress("simulate"), overwrite=args.overwrite)
+    print(f"wrote {out}: scene {scene.name}, " + ", ".join(f"{n} frames of {r}" for r, n in counts.items()))
+    return EXIT_OK
+
+
+def cmd_image(args) -> int:
+    from imaging.grid import Grid
+    from imaging.image_formation import ImagingOptions, form_image
+    from imaging.imagefile import write_image
+    from imaging.plot import save_image_png
+    from imaging.recording import Recording
+    from imaging.trajectory_file import read_trajectory
+
+    from .progress import Progress
+
+    with Recording(args.recording) as rec:
+        radar = args.radar or (rec.radar_names[0] if len(rec.radar_names) == 1 else None)
+        if radar is None:
+            raise SarbotError(f"{args.recording}: several radars ({', '.join(rec.radar_names)}); choose one with --radar")
+        config = rec.radar(radar)  # checks the name
+        trajectory = None if args.trajectory == "truth" else read_trajectory(args.trajectory)
+        truth = rec.truth() if trajectory is None else None
+        if trajectory is None and truth is None:
+            raise SarbotError(f"{args.recording}: no /truth in this recording; give --trajectory FILE")
+        traj = trajectory or truth
+        frames = _parse_frames(args.frames)
+        # Default grid height: the radar's mean height over the recording.
+        z0 = float(np.mean(traj.position_m[:, 2])) + float(config.mount.translation_m[2]) if hasattr(traj, "position_m") else 0.0
+        grid = Grid.parse(args.grid, default_z_m=z0)
+        options = ImagingOptions(mode=args.mode, window=args.window, oversample=args.oversample,
+                                 tx=_parse_channels(args.tx, "tx"), rx=_parse_channels(args.rx, "rx"))
+        img = form_image(rec, radar, grid, traj, frames, options, progress=Progress("backproject"))
+    path = write_image(args.output, img)
+    png = Path(args.png) if args.png else path.with_suffix(".png")
+    if img.image.ndim == 2 or args.png:
+        save_image_png(png, img.image, img.x_m, img.y_m, title=f"{radar} frames {img.attrs['frames']} ({img.attrs['method']})")
+    print(f"wrote {path} and {png}")
+    return EXIT_OK
+
+
+def cmd_analyze(args) -> int:
+    from imaging import metrics
+    from imaging.imagefile import read_image
+
+    results = []
+    for name in args.images:
+        img = read_image(name)
+        if img.image.ndim != 2:
+            raise SarbotError(f"{name}: analyze works on 2-D images; this one is {img.image.ndim}-D")
+        near = _parse_xy(args.at, "--at") if args.at else None
+        look = img.attrs.get("look_direction", [0.0, 1.0, 0.0])
+        try:
+            res = metrics.analyze_target(img.image, img.x_m, img.y_m, look, near_m=near, radius_m=args.radius)
+        except ValueError as exc:
+            raise SarbotError(f"{name}: {exc}") from None
+        res["file"] = str(name)
+        res["n_frames"] = int(img.attrs.get("n_frames", 0))
+        if "aperture_centre_m" in img.attrs and "aperture_length_m" in img.attrs:
+            centre = np.asarray(img.attrs["aperture_centre_m"])
+            r0 = float(np.hypot(res["peak_m"][0] - centre[0], res["peak_m"][1] - centre[1]))
+            res["range_to_target_m"] = r0
+            res["theory"] = {
+                "range_half_power_width_m": metrics.range_resolution_theory_m(float(img.attrs["bandwidth_hz"]), str(img.attrs.get("window", "hann"))),
+                "cross_range_half_power_width_m": metrics.cross_range_resolution_theory_m(
+                    img.wavelength_m, r0, float(img.attrs["aperture_length_m"])),
+                "aperture_length_m": float(img.attrs["aperture_length_m"]),
+            }
+            res["range"]["ratio_to_theory"] = res["range"]["half_power_width_m"] / res["theory"]["range_half_power_width_m"]
+            res["cross_range"]["ratio_to_theory"] = res["cross_range"]["half_power_width_m"] / res["theory"]["cross_range_half_power_width_m"]
+            if args.vibration:
+                look2 = np.asarray(look, float)[:2] / np.linalg.norm(np.asarray(look, float)[:2])
+                s, v = metrics.cut(img.image, img.x_m, img.y_m, res["peak_m"], (-look2[1], look2[0]), args.half_length, 2001)
+                offset, level, _ = metrics.paired_sidelobes(s, v, min_offset_m=2 * res["cross_range"]["half_power_width_m"])
+                speed = float(img.attrs.get("speed_mps", 0.0))
+                res["vibration"] = {
+                    "sidelobe_offset_m": offset, "sidelobe_level_db": level,
+                    "frequency_hz": metrics.vibration_frequency_hz(offset, r0, speed, img.wavelength_m),
+                    "amplitude_m": metrics.vibration_amplitude_m(level, img.wavelength_m),
+                }
+        results.append(res)
+    output: dict = {"images": results}
+    counts = [r["n_frames"] for r in results]
+    if len(set(counts)) >= 2:
+        alpha, g0 = metrics.fit_integration_gain(counts, [r["snr_db"] for r in results])
+        output["integration_gain"] = {"alpha": alpha, "snr_db_at_one_frame": g0, "n_frames": counts}
+    print(json.dumps(output if len(results) > 1 else {**results[0], **{k: v for k, v in output.items() if k != "images"}},
+                     indent=2, default=_json_default))
+    return EXIT_OK
+
+
+def cmd_demo(args) -> int:
+    from .demo import run_demo
+
+    return run_demo(Path(args.output))
+
+
+# -- parser ---------------------------------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="sarbot", description="SAR imaging and radar-inertial odometry for mobile robots.")
+    p.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    s = sub.add_parser("simulate", help="simulate a scene into a recording")
+    s.add_argument("scene", nargs="?", help="built-in scene name or scene TOML file")
+    s.add_argument("-o", "--output", help="recording file to write (.h5)")
+    s.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    s.add_argument("--list", action="store_true", help="list the built-in scenes")
+    s.set_defaults(func=cmd_simulate)
+
+    s = sub.add_parser("image", help="form a SAR image by backprojection")
+    s.add_argument("recording")
+    s.add_argument("-o", "--output", required=True, help="image file to write (.h5); a PNG goes beside it")
+    s.add_argument("--radar", help="radar name (needed when the recording has several)")
+    s.add_argument("--frames", help="frame range A:B (B excluded); all by default")
+    s.add_argument("--grid", required=True, help="x0:x1:dx,y0:y1:dy[,z or z0:z1:dz] in metres, world frame")
+    s.add_argument("--trajectory", default="truth", help="'truth' or a trajectory HDF5 file")
+    s.add_argument("--mode", default="linear", choices=["nearest", "linear", "exact"])
+    s.add_argument("--window", default="hann", choices=["rectangular", "hann", "hamming", "taylor"])
+    s.add_argument("--oversample", type=int, default=8, help="range FFT zero-padding factor (default 8)")
+    s.add_argument("--tx", help="TX channels, e.g. 0,2 (default all)")
+    s.add_argument("--rx", help="RX channels, e.g. 0 (default all)")
+    s.add_argument("--png", help="where to write the PNG (default: beside the image)")
+    s.set_defaults(func=cmd_image)
+
+    s = sub.add_parser("analyze", help="image quality metrics as JSON")
+    s.add_argument("images", nargs="+", help="image file(s); several with different frame counts also fit the integration gain")
+    s.add_argument("--at", help="x,y: analyse the peak nearest this point (default: the strongest)")
+    s.add_argument("--radius", type=float, default=0.1, help="search radius around --at, metres")
+    s.add_argument("--vibration", action="store_true", help="infer f_vib and A_vib from paired cross-range side lobes")
+    s.add_argument("--half-length", type=float, default=0.3, help="half length of the cuts, metres")
+    s.set_defaults(func=cmd_analyze)
+
+    s = sub.add_parser("demo", help="simulate the built-in scene, image it and compare with theory")
+    s.add_argument("-o", "--output", default="sarbot-demo", help="output folder (default ./sarbot-demo)")
+    s.set_defaults(func=cmd_demo)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose >= 2 else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger("sarbot").setLevel(logging.DEBUG if args.verbose else logging.INFO)
+    try:
+        return args.func(args)
+    except SarbotError as exc:
+        print(f"sarbot: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("sarbot: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Radar-inertial odometry: point clouds, ego velocity, EKF, trajectory tools (pure computation)."""
