@@ -26,7 +26,7 @@ class ImagingOptions:
 
     mode: str = "linear"
     window: str = "hann"
-    oversample: int = 8
+    oversample: int = 16
     tx: tuple[int, ...] | None = None
     rx: tuple[int, ...] | None = None
     frames_per_block: int = 8

@@ -58,13 +58,17 @@ def _refine(values: np.ndarray, k: int, axis: np.ndarray) -> float:
 def cut(image: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, centre_m, direction, half_length_m: float, n: int = 801):
     """Complex values along a line through ``centre_m`` (x, y) in ``direction`` (x, y), cubic-spline interpolated.
 
-    Returns (s_m [n], values [n]) with s the signed distance from the centre.
+    Returns (s_m, values) with s the signed distance from the centre; samples that would fall outside
+    the image are left out.
     """
     d = np.asarray(direction, float)[:2]
     d = d / np.linalg.norm(d)
     s = np.linspace(-half_length_m, half_length_m, n)
     px = (centre_m[0] + s * d[0] - x_m[0]) / (x_m[1] - x_m[0])
     py = (centre_m[1] + s * d[1] - y_m[0]) / (y_m[1] - y_m[0])
+    # Only the part of the line inside the image counts.
+    inside = (px >= 0) & (px <= x_m.size - 1) & (py >= 0) & (py <= y_m.size - 1)
+    s, px, py = s[inside], px[inside], py[inside]
     coords = np.vstack([py, px])
     re = scipy.ndimage.map_coordinates(image.real, coords, order=3, mode="constant", cval=0.0)
     im = scipy.ndimage.map_coordinates(image.imag, coords, order=3, mode="constant", cval=0.0)

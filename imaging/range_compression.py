@@ -47,7 +47,7 @@ def range_compress(
     f0_hz: float,
     frequency_step_hz: float,
     window: str = "hann",
-    oversample: int = 8,
+    oversample: int = 16,
     n_fft: int | None = None,
     centred: bool = True,
     signed: bool = False,
