@@ -73,7 +73,7 @@ def test_vibration_side_lobes_and_their_inverse(sim_dir):
     speed, wavelength = 0.4, 0.0038445
     f_vib = metrics.vibration_frequency_hz(0.04, R0, speed, wavelength)
     a_vib = metrics.vibration_amplitude_m(-4.3, wavelength)
-    duration = 1.8
+    duration = 3.0
     path = sim_dir / "vibration.h5"
     simulate_recording(point_pass(speed, duration, vibration=Vibration(f_vib, a_vib, 0.7)), path)
     grid = Grid.from_ranges((-0.12, 0.12, 0.0005), (R0 - 0.02, R0 + 0.02, 0.002), LEFT_FRONT_OFFSET[2])
@@ -85,7 +85,7 @@ def test_vibration_side_lobes_and_their_inverse(sim_dir):
     s, v = metrics.cut(img.image, img.x_m, img.y_m, a["peak_m"], (1.0, 0.0), 0.1, 2001)
     offset, level, sides = metrics.paired_sidelobes(s, v, min_offset_m=0.02)
     (left_off, left_db), (right_off, right_db) = sides
-    assert left_off == pytest.approx(right_off, rel=0.03) and left_db == pytest.approx(right_db, abs=0.5)  # paired
+    assert left_off == pytest.approx(right_off, rel=0.05) and left_db == pytest.approx(right_db, abs=0.5)  # paired
     assert offset == pytest.approx(0.04, rel=0.02)
     assert metrics.vibration_frequency_hz(offset, R0, img.attrs["speed_mps"], img.wavelength_m) == pytest.approx(f_vib, rel=0.05)
     assert metrics.vibration_amplitude_m(level, img.wavelength_m) == pytest.approx(a_vib, rel=0.05)
