@@ -163,7 +163,10 @@ def cmd_analyze(args) -> int:
         results.append(res)
     output: dict = {"images": results}
     counts = [r["n_frames"] for r in results]
-    if len(set(counts)) >= 2:
+    snrs = [r["snr_db"] for r in results]
+    if len(set(counts)) >= 2 and not np.all(np.isfinite(snrs)):
+        output["integration_gain"] = {"note": "an image has no background outside the target to measure SNR on; use a larger grid"}
+    elif len(set(counts)) >= 2:
         alpha, g0 = metrics.fit_integration_gain(counts, [r["snr_db"] for r in results])
         output["integration_gain"] = {"alpha": alpha, "snr_db_at_one_frame": g0, "n_frames": counts}
     print(json.dumps(output if len(results) > 1 else {**results[0], **{k: v for k, v in output.items() if k != "images"}},
@@ -219,9 +222,27 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+#: Options whose values often start with a minus sign (negative coordinates), which argparse would
+#: otherwise take for an option: ``--grid -1:1:0.01,...`` is joined to ``--grid=-1:1:0.01,...``.
+_NEGATIVE_VALUE_OPTIONS = ("--grid", "--at")
+
+
+def _join_negative_values(argv: list[str]) -> list[str]:
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        if argv[i] in _NEGATIVE_VALUE_OPTIONS and i + 1 < len(argv):
+            out.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(argv[i])
+            i += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_join_negative_values(sys.argv[1:] if argv is None else list(argv)))
     logging.basicConfig(level=logging.DEBUG if args.verbose >= 2 else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("sarbot").setLevel(logging.DEBUG if args.verbose else logging.INFO)

@@ -1,0 +1,133 @@
+"""The sarbot command line, run as a real process: the happy path and every user mistake."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+SARBOT = [sys.executable, "-m", "acquisition.cli"]
+
+
+def sarbot(*args, cwd=None):
+    return subprocess.run([*SARBOT, *map(str, args)], capture_output=True, text=True, cwd=cwd, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cli") / "point.h5"
+    res = sarbot("simulate", "point_target", "-o", path)
+    assert res.returncode == 0, res.stderr
+    assert "wrote" in res.stdout and "38 frames of left_front" in res.stdout
+    return path
+
+
+def test_simulate_image_analyze(recording, tmp_path):
+    out = tmp_path / "img.h5"
+    res = sarbot("image", recording, "-o", out, "--radar", "left_front", "--frames", "10:28",
+                 "--grid", "-0.1:0.1:0.002,1.85:2.15:0.004", "--tx", "0", "--rx", "0")
+    assert res.returncode == 0, res.stderr
+    assert out.exists() and out.with_suffix(".png").stat().st_size > 10_000
+    with h5py.File(out) as f:
+        assert f.attrs["schema"] == "sarbot.image" and f.attrs["schema_version"] == 1
+        assert f["image"].shape == (76, 101) and f["image"].dtype == np.complex64
+        assert f.attrs["frames"] == "10:28" and f.attrs["trajectory_source"] == "truth"
+        assert f.attrs["radar"] == "left_front" and f.attrs["method"] == "tdbp-linear"
+        # default plane height: the radar's height (0.3 m above the body origin)
+        assert f["z_m"][0] == pytest.approx(0.3)
+    res = sarbot("analyze", out)
+    assert res.returncode == 0, res.stderr
+    report = json.loads(res.stdout)
+    assert report["peak_m"][0] == pytest.approx(0.0, abs=0.002) and report["peak_m"][1] == pytest.approx(2.0, abs=0.004)
+    assert report["range"]["ratio_to_theory"] == pytest.approx(1.0, abs=0.05)
+    assert report["cross_range"]["ratio_to_theory"] == pytest.approx(1.0, abs=0.05)
+
+
+def test_analyze_several_images_fits_integration_gain(tmp_path):
+    scene = tmp_path / "noisy.toml"
+    scene.write_text(
+        'duration_s = 2.0\nradars = ["left_front"]\nsnr_db = -10.0\n'
+        '[trajectory]\nstart_m = [-0.55, -0.2, 0.0]\nspeed_mps = 0.4\n'
+        '[[target]]\nkind = "point"\nposition_m = [0.0, 2.0, 0.3]\n'
+    )
+    rec = tmp_path / "noisy.h5"
+    assert sarbot("simulate", scene, "-o", rec).returncode == 0
+    paths = []
+    for n in (4, 8, 16):
+        p = tmp_path / f"img{n}.h5"
+        res = sarbot("image", rec, "-o", p, "--frames", f"{19 - n // 2}:{19 - n // 2 + n}",
+                     "--grid", "-0.8:0.8:0.01,1.5:2.5:0.01", "--tx", "0", "--rx", "0")
+        assert res.returncode == 0, res.stderr
+        paths.append(p)
+    res = sarbot("analyze", *paths, "--at", "0,2")
+    assert res.returncode == 0, res.stderr
+    gain = json.loads(res.stdout)["integration_gain"]
+    assert gain["n_frames"] == [4, 8, 16]
+    assert 0.7 < gain["alpha"] < 1.3  # coherent integration on the true trajectory
+
+
+def assert_user_error(res, *fragments):
+    assert res.returncode == 2, (res.returncode, res.stderr)
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("sarbot: error:"), res.stderr
+    assert "Traceback" not in res.stderr
+    for fragment in fragments:
+        assert fragment in lines[0], lines[0]
+
+
+def test_unreadable_file(tmp_path):
+    junk = tmp_path / "junk.h5"
+    junk.write_bytes(b"not hdf5 at all")
+    assert_user_error(sarbot("image", junk, "-o", tmp_path / "x.h5", "--grid", "0:1:0.1,0:1:0.1"), "junk.h5", "not a readable HDF5")
+    assert_user_error(sarbot("analyze", tmp_path / "missing.h5"), "missing.h5", "no such file")
+
+
+def test_wrong_schema(tmp_path, recording):
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as f:
+        f.attrs["schema"] = "something.else"
+    assert_user_error(sarbot("image", other, "-o", tmp_path / "x.h5", "--grid", "0:1:0.1,0:1:0.1"), "other.h5", "not a sarbot recording")
+    # A recording is not an image.
+    assert_user_error(sarbot("analyze", recording), "not a sarbot image")
+
+
+def test_grid_without_points(recording, tmp_path):
+    assert_user_error(sarbot("image", recording, "-o", tmp_path / "x.h5", "--grid", "1:0:0.1,0:1:0.1"), "no points")
+    assert_user_error(sarbot("image", recording, "-o", tmp_path / "x.h5", "--grid", "0:1:0,0:1:0.1"), "step must be positive")
+    assert_user_error(sarbot("image", recording, "-o", tmp_path / "x.h5", "--grid", "0:1"), "expected x0:x1:dx")
+
+
+def test_frames_out_of_range(recording, tmp_path):
+    assert_user_error(sarbot("image", recording, "-o", tmp_path / "x.h5", "--grid", "0:1:0.1,0:1:0.1", "--frames", "30:60"),
+                      "frames 30:60 out of range", "38 frames")
+    assert_user_error(sarbot("image", recording, "-o", tmp_path / "x.h5", "--grid", "0:1:0.1,0:1:0.1", "--frames", "x:y"), "--frames")
+
+
+def test_unknown_radar(recording, tmp_path):
+    assert_user_error(sarbot("image", recording, "-o", tmp_path / "x.h5", "--grid", "0:1:0.1,0:1:0.1", "--radar", "rear"),
+                      "no radar named 'rear'", "left_front")
+
+
+def test_bad_scene_names_the_field(tmp_path):
+    scene = tmp_path / "scene.toml"
+    scene.write_text('duration_s = 1.0\n[[target]]\nkind = "point"\nposition_m = [0, 2, "high"]\n')
+    assert_user_error(sarbot("simulate", scene, "-o", tmp_path / "r.h5"), "scene.toml", "target[0].position_m[2]")
+    scene.write_text('duration_s = -1.0\n')
+    assert_user_error(sarbot("simulate", scene, "-o", tmp_path / "r.h5"), "duration_s", "must be positive")
+    assert_user_error(sarbot("simulate", "no_such_scene", "-o", tmp_path / "r.h5"), "no_such_scene", "built-in")
+
+
+def test_existing_output_is_not_overwritten(recording):
+    before = recording.stat().st_size
+    assert_user_error(sarbot("simulate", "point_target", "-o", recording), "exists already")
+    assert recording.stat().st_size == before
+
+
+def test_list_scenes():
+    res = sarbot("simulate", "--list")
+    assert res.returncode == 0 and "paper_pass_0.4" in res.stdout and "point_target" in res.stdout

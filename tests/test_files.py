@@ -1,0 +1,129 @@
+"""Recording, trajectory and image files: round trips, schema checks, crash-safety of SWMR writes."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+
+from imaging.errors import FileFormatError
+from imaging.imagefile import SarImage, read_image, write_image
+from imaging.recording import Recording, RecordingWriter
+from imaging.rig import default_rig
+from imaging.trajectory import PathWithTurns, SampledTrajectory, StraightLine
+from imaging.trajectory_file import read_trajectory, write_trajectory, write_tum
+
+
+def test_recording_round_trip_complex_and_int16(tmp_path):
+    rig = default_rig()
+    radar = rig.radar("right_rear")
+    wf = radar.waveform
+    rng = np.random.default_rng(0)
+    shape = (3, wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)
+    iq = rng.integers(-2000, 2000, size=shape + (2,), dtype=np.int16)
+    for dtype in ("complex64", "int16"):
+        path = tmp_path / f"{dtype}.h5"
+        with RecordingWriter(path, [radar], imu=rig.imu, truth=True, adc_dtype=dtype, wire_format="SRF1") as w:
+            data = iq if dtype == "int16" else (iq[..., 0] + 1j * iq[..., 1]).astype(np.complex64)
+            w.append_frames("right_rear", data, [10, 20, 30], [7, 8, 9], [11, 21, 31], [1, 0, 1])
+            w.append_event(15, "radar.right_rear", "warning", "frame 8: 3 datagrams lost")
+            w.append_truth(StraightLine().sample(np.array([0, 10, 20])))
+        with Recording(path) as rec:
+            assert rec.radar_names == ["right_rear"]
+            back = rec.radar("right_rear")
+            assert back.waveform == wf
+            np.testing.assert_allclose(back.mount.rotation_xyzw, radar.mount.rotation_xyzw)
+            np.testing.assert_allclose(back.array.tx_positions_m, radar.array.tx_positions_m)
+            np.testing.assert_array_equal(rec.adc("right_rear"), (iq[..., 0] + 1j * iq[..., 1]).astype(np.complex64))
+            np.testing.assert_array_equal(rec.valid("right_rear"), [True, False, True])
+            np.testing.assert_array_equal(rec.frame_time_ns("right_rear"), [10, 20, 30])
+            assert rec.file["events/message"][0].decode() == "frame 8: 3 datagrams lost"
+            assert rec.file["radar/right_rear"].attrs["wire_format"] == "SRF1"
+            assert rec.truth().source == "truth"
+
+
+def test_recording_refuses_to_overwrite(tmp_path):
+    path = tmp_path / "r.h5"
+    RecordingWriter(path, default_rig().radars).close()
+    with pytest.raises(FileFormatError, match="exists already"):
+        RecordingWriter(path, default_rig().radars)
+
+
+def test_recording_schema_errors(tmp_path):
+    with pytest.raises(FileFormatError, match="no such file"):
+        Recording(tmp_path / "none.h5")
+    p = tmp_path / "v2.h5"
+    with h5py.File(p, "w") as f:
+        f.attrs["schema"] = "sarbot.recording"
+        f.attrs["schema_version"] = 2
+    with pytest.raises(FileFormatError, match="version 2 is not supported"):
+        Recording(p)
+
+
+def test_killed_writer_leaves_a_readable_file(tmp_path):
+    # A writer SIGKILLed after flushing 5 frames: the file opens and holds those 5 frames.
+    path = tmp_path / "killed.h5"
+    code = f"""
+import os, signal, numpy as np
+from imaging.recording import RecordingWriter
+from imaging.rig import default_rig
+r = default_rig().radar("left_front"); wf = r.waveform
+w = RecordingWriter({str(path)!r}, [r])
+adc = np.ones((1, wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp), np.complex64)
+for k in range(5):
+    w.append_frames("left_front", adc * k, [k], [k], [k])
+w.flush()
+w.append_frames("left_front", adc * 99, [99], [99], [99])  # not flushed
+os.kill(os.getpid(), signal.SIGKILL)
+"""
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True)
+    assert res.returncode == -9
+    with Recording(path) as rec:
+        n = rec.n_frames("left_front")
+        assert n >= 5
+        np.testing.assert_array_equal(rec.frame_time_ns("left_front")[:5], np.arange(5))
+        assert rec.adc("left_front", slice(4, 5))[0, 0, 0, 0] == 4
+
+
+def test_trajectory_file_round_trip_and_tum(tmp_path):
+    truth = PathWithTurns(segments=[("straight", 1.0), ("arc", 0.5, 90.0)], speed_mps=0.5, t0_ns=1_700_000_000_000_000_000)
+    times = truth.t0_ns + np.arange(0, 4_000_000_000, 10_000_000)
+    traj = SampledTrajectory.from_trajectory(truth, times, source="truth")
+    write_trajectory(tmp_path / "t.h5", traj)
+    back = read_trajectory(tmp_path / "t.h5")
+    np.testing.assert_array_equal(back.time_ns, traj.time_ns)
+    np.testing.assert_allclose(back.position_m, traj.position_m)
+    assert back.source == "truth"
+    write_tum(tmp_path / "t.txt", traj)
+    first = (tmp_path / "t.txt").read_text().splitlines()[0].split()
+    assert first[0] == "1700000000.000000000" and len(first) == 8
+    with pytest.raises(FileFormatError, match="not a sarbot trajectory"):
+        write_image(tmp_path / "i.h5", SarImage(np.zeros((2, 2)), np.arange(2.0), np.arange(2.0), None, {"wavelength_m": 1.0}))
+        read_trajectory(tmp_path / "i.h5")
+
+
+def test_sampled_trajectory_interpolates_a_turn():
+    truth = PathWithTurns(segments=[("straight", 0.5), ("arc", 0.5, 180.0), ("straight", 0.5)], speed_mps=0.5)
+    times = np.arange(0, 5_000_000_000, 1_000_000)
+    sampled = SampledTrajectory.from_trajectory(truth, times)
+    query = np.array([123_456_789, 1_777_777_777, 3_000_000_001])
+    a, b = truth.sample(query), sampled.sample(query)
+    np.testing.assert_allclose(b.position_m, a.position_m, atol=1e-6)
+    np.testing.assert_allclose(b.angular_velocity_body_radps, a.angular_velocity_body_radps, atol=1e-3)
+    np.testing.assert_allclose(np.abs(np.sum(b.orientation_xyzw * a.orientation_xyzw, axis=1)), 1.0, atol=1e-9)
+    # The path's geometry: after a half circle of radius 0.5 the robot is 1 m to the left, heading back.
+    end = truth.sample(np.array([10_000_000_000]))
+    np.testing.assert_allclose(end.position_m[0], [0.0, 1.0, 0.0], atol=1e-12)
+    assert end.velocity_mps[0] == pytest.approx([0, 0, 0])
+
+
+def test_image_file_round_trip(tmp_path):
+    img = SarImage((np.arange(6) * (1 + 1j)).reshape(2, 3), np.arange(3.0), np.arange(2.0), np.array([0.3]),
+                   {"radar": "a", "frames": "0:4", "trajectory_source": "truth", "method": "tdbp-linear", "wavelength_m": 0.0038})
+    write_image(tmp_path / "i.h5", img)
+    back = read_image(tmp_path / "i.h5")
+    np.testing.assert_array_equal(back.image, img.image)
+    assert back.attrs["method"] == "tdbp-linear" and back.wavelength_m == 0.0038
