@@ -30,6 +30,7 @@ from .range_compression import RangeProfiles
 
 MODES = ("nearest", "linear", "exact")
 BLOCK = 256  # grid points per work item: the accumulators (2 KiB) stay in L1 beside a profile row
+PROFILE_CHUNK = 256  # profiles per parallel sweep over the grid (their rows stay in L2/L3)
 
 _TWO_PI = 2.0 * math.pi
 
@@ -54,14 +55,13 @@ def _cos_sin(phase):
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
-def _bp_interp(rows, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, linear, out):
-    """rows: [P, n_bins + 3] complex64 profiles with one zero guard bin before and two after.
+def _bp_interp(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, linear, out):
+    """Profiles p0..p1-1 of rows [P, n_bins + 3] (complex64, one zero guard bin before, two after) into out.
 
     Three passes per (block, profile), because LLVM will not vectorise a loop that gathers on this CPU:
     geometry and phase (vectorised), the gather (scalar, loads and stores only), interpolation and
     accumulation (vectorised).
     """
-    n_p = rows.shape[0]
     n_g = gx.size
     hi = np.float64(rows.shape[1] - 2)  # largest position: j + 1 stays inside the trailing guard
     n_blocks = (n_g + BLOCK - 1) // BLOCK
@@ -70,7 +70,7 @@ def _bp_interp(rows, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, linear, out):
         nb = min(g0 + BLOCK, n_g) - g0
         acc_re = np.zeros(nb, np.float32)
         acc_im = np.zeros(nb, np.float32)
-        idx = np.empty(nb, np.int32)
+        idx = np.empty(nb, np.uint32)  # unsigned: no negative-index wrap-around code in the gather
         frac = np.empty(nb, np.float32)
         cos_ = np.empty(nb, np.float32)
         sin_ = np.empty(nb, np.float32)
@@ -79,7 +79,7 @@ def _bp_interp(rows, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, linear, out):
         bx = gx[g0:g0 + nb]
         by = gy[g0:g0 + nb]
         bz = gz[g0:g0 + nb]
-        for p in range(n_p):
+        for p in range(p0, p1):
             tx0, tx1, tx2 = tx[p, 0], tx[p, 1], tx[p, 2]
             rx0, rx1, rx2 = rx[p, 0], rx[p, 1], rx[p, 2]
             ref = r_ref[p]
@@ -97,10 +97,10 @@ def _bp_interp(rows, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, linear, out):
                 pos = pos if pos < hi else hi
                 if linear:
                     fl = np.floor(pos)
-                    idx[i] = np.int32(fl)
+                    idx[i] = np.uint32(fl)
                     frac[i] = np.float32(pos - fl)
                 else:
-                    idx[i] = np.int32(pos + 0.5)
+                    idx[i] = np.uint32(pos + 0.5)
                 c, s = _cos_sin(k * dr)
                 cos_[i] = c
                 sin_[i] = s
@@ -109,7 +109,7 @@ def _bp_interp(rows, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, linear, out):
                 for i in range(nb):
                     j = idx[i]
                     v0[i] = row[j]
-                    v1[i] = row[j + 1]
+                    v1[i] = row[j + np.uint32(1)]
                 for i in range(nb):
                     t = frac[i]
                     vr = v0[i].real + t * (v1[i].real - v0[i].real)
@@ -228,6 +228,10 @@ def backproject(
         _bp_exact(samples, profiles.f0_hz, profiles.frequency_step_hz, tx, rx, r_ref, gx, gy, gz, flat_out)
         return out
     k = 2.0 * math.pi * profiles.carrier_hz / SPEED_OF_LIGHT_MPS
-    _bp_interp(_guarded(data), profiles.range_start_m, 1.0 / profiles.range_step_m, k,
-               tx, rx, r_ref, gx, gy, gz, mode == "linear", flat_out)
+    rows = _guarded(data)
+    # Profiles in chunks, all grid blocks per chunk: the chunk's rows stay in cache while every block
+    # reads them, instead of every block streaming all profiles from memory.
+    for p0 in range(0, n_p, PROFILE_CHUNK):
+        _bp_interp(rows, p0, min(p0 + PROFILE_CHUNK, n_p), profiles.range_start_m, 1.0 / profiles.range_step_m, k,
+                   tx, rx, r_ref, gx, gy, gz, mode == "linear", flat_out)
     return out
