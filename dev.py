@@ -39,7 +39,8 @@ def ensure_environment() -> None:
         return
     print("dev.py: installing sarbot and its dependencies (once)", flush=True)
     subprocess.run([str(BIN / "python"), "-m", "pip", "install", "--quiet", "--upgrade", "pip"], check=True)
-    subprocess.run([str(BIN / "python"), "-m", "pip", "install", "--quiet", "-e", f"{ROOT}[test]"], check=True)
+    subprocess.run([str(BIN / "python"), "-m", "pip", "install", "--quiet", "--disable-pip-version-check", "-e", f"{ROOT}[test]"],
+                   check=True)
     STAMP.write_text(_pyproject_digest())
 
 
