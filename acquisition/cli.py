@@ -115,8 +115,8 @@ def cmd_image(args) -> int:
         img = form_image(rec, radar, grid, traj, frames, options, progress=Progress("backproject"))
     path = write_image(args.output, img)
     png = Path(args.png) if args.png else path.with_suffix(".png")
-    if img.image.ndim == 2 or args.png:
-        save_image_png(png, img.image, img.x_m, img.y_m, title=f"{radar} frames {img.attrs['frames']} ({img.attrs['method']})")
+    # A volume is shown as its maximum over height.
+    save_image_png(png, img.image, img.x_m, img.y_m, title=f"{radar} frames {img.attrs['frames']} ({img.attrs['method']})")
     print(f"wrote {path} and {png}")
     return EXIT_OK
 

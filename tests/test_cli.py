@@ -131,3 +131,29 @@ def test_existing_output_is_not_overwritten(recording):
 def test_list_scenes():
     res = sarbot("simulate", "--list")
     assert res.returncode == 0 and "paper_pass_0.4" in res.stdout and "point_target" in res.stdout
+
+
+def test_vibration_inverse_from_the_command_line(tmp_path):
+    rec, img = tmp_path / "vib.h5", tmp_path / "vib_img.h5"
+    assert sarbot("simulate", "paper_vibration", "-o", rec).returncode == 0
+    # 29 frames around broadside: a 0.6 m aperture, six vibration periods.
+    res = sarbot("image", rec, "-o", img, "--frames", "14:43", "--grid", "-0.12:0.12:0.0005,1.98:2.02:0.002",
+                 "--tx", "0", "--rx", "0")
+    assert res.returncode == 0, res.stderr
+    res = sarbot("analyze", img, "--vibration", "--half-length", "0.1")
+    assert res.returncode == 0, res.stderr
+    vib = json.loads(res.stdout)["vibration"]
+    assert vib["sidelobe_offset_m"] == pytest.approx(0.04, rel=0.05)
+    assert vib["frequency_hz"] == pytest.approx(4.161, rel=0.05)
+    assert vib["amplitude_m"] == pytest.approx(3.196e-4, rel=0.05)
+
+
+def test_volume_grid(recording, tmp_path):
+    out = tmp_path / "vol.h5"
+    res = sarbot("image", recording, "-o", out, "--frames", "14:24", "--grid", "-0.1:0.1:0.01,1.9:2.1:0.01,0.1:0.5:0.1",
+                 "--tx", "0", "--rx", "0")
+    assert res.returncode == 0, res.stderr
+    with h5py.File(out) as f:
+        assert f["image"].shape == (5, 21, 21)
+        np.testing.assert_allclose(f["z_m"][()], [0.1, 0.2, 0.3, 0.4, 0.5])
+    assert_user_error(sarbot("analyze", out), "2-D")
