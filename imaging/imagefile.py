@@ -10,6 +10,7 @@ import h5py
 import numpy as np
 
 from .errors import FileFormatError
+from .hdf5_schema import open_checked
 
 SCHEMA = "sarbot.image"
 SCHEMA_VERSION = 1
@@ -48,19 +49,7 @@ def write_image(path: str | Path, img: SarImage) -> Path:
 
 def read_image(path: str | Path) -> SarImage:
     path = Path(path)
-    if not path.exists():
-        raise FileFormatError(f"{path}: no such file")
-    try:
-        f = h5py.File(path, "r")
-    except OSError:
-        raise FileFormatError(f"{path}: not a readable HDF5 file") from None
-    with f:
-        schema = f.attrs.get("schema")
-        schema = schema.decode() if isinstance(schema, bytes) else schema
-        if schema != SCHEMA:
-            raise FileFormatError(f"{path}: not a sarbot image (schema attribute is {schema!r}, expected {SCHEMA!r})")
-        if int(f.attrs.get("schema_version", -1)) != SCHEMA_VERSION:
-            raise FileFormatError(f"{path}: image schema version {f.attrs.get('schema_version')} is not supported")
+    with open_checked(path, SCHEMA, SCHEMA_VERSION, "image") as f:
         for name in ("image", "x_m", "y_m"):
             if name not in f:
                 raise FileFormatError(f"{path}: dataset /{name} is missing")

@@ -17,6 +17,7 @@ import h5py
 import numpy as np
 
 from .errors import FileFormatError
+from .hdf5_schema import open_checked
 from .rig import AntennaArray, ImuConfig, Mount, RadarConfig
 from .trajectory import SampledTrajectory, TrajectorySample
 from .waveform import Waveform
@@ -212,22 +213,7 @@ class Recording:
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
-        if not self.path.exists():
-            raise FileFormatError(f"{self.path}: no such file")
-        try:
-            self._f = h5py.File(self.path, "r", libver="latest", swmr=True)
-        except OSError as exc:
-            raise FileFormatError(f"{self.path}: not a readable HDF5 file ({exc.__class__.__name__})") from None
-        schema = self._f.attrs.get("schema")
-        if isinstance(schema, bytes):
-            schema = schema.decode()
-        if schema != SCHEMA:
-            self._f.close()
-            raise FileFormatError(f"{self.path}: not a sarbot recording (schema attribute is {schema!r}, expected {SCHEMA!r})")
-        version = int(self._f.attrs.get("schema_version", -1))
-        if version != SCHEMA_VERSION:
-            self._f.close()
-            raise FileFormatError(f"{self.path}: recording schema version {version} is not supported (this is version {SCHEMA_VERSION})")
+        self._f = open_checked(self.path, SCHEMA, SCHEMA_VERSION, "recording", libver="latest", swmr=True)
 
     def close(self) -> None:
         self._f.close()

@@ -8,6 +8,7 @@ import h5py
 import numpy as np
 
 from .errors import FileFormatError
+from .hdf5_schema import open_checked
 from .trajectory import SampledTrajectory
 
 SCHEMA = "sarbot.trajectory"
@@ -32,19 +33,7 @@ def write_trajectory(path: str | Path, traj: SampledTrajectory, covariance_diag:
 
 def read_trajectory(path: str | Path) -> SampledTrajectory:
     path = Path(path)
-    if not path.exists():
-        raise FileFormatError(f"{path}: no such trajectory file")
-    try:
-        f = h5py.File(path, "r")
-    except OSError:
-        raise FileFormatError(f"{path}: not a readable HDF5 trajectory file") from None
-    with f:
-        schema = f.attrs.get("schema")
-        schema = schema.decode() if isinstance(schema, bytes) else schema
-        if schema != SCHEMA:
-            raise FileFormatError(f"{path}: not a sarbot trajectory (schema attribute is {schema!r}, expected {SCHEMA!r})")
-        if int(f.attrs.get("schema_version", -1)) != SCHEMA_VERSION:
-            raise FileFormatError(f"{path}: trajectory schema version {f.attrs.get('schema_version')} is not supported")
+    with open_checked(path, SCHEMA, SCHEMA_VERSION, "trajectory") as f:
         g = f["trajectory"]
         try:
             return SampledTrajectory(g["time_ns"][()], g["position_m"][()], g["orientation_xyzw"][()],
