@@ -162,6 +162,24 @@ class RecordingWriter:
             valid = np.ones(frame_time_ns.size, np.uint8)
         self._append(g["valid"], np.atleast_1d(valid).astype(np.uint8))
 
+    def append_scans(self, radar: str, frame_time_ns, frame_counter, host_time_ns, valid=None) -> None:
+        """Frame (scan) bookkeeping of a radar that delivers point clouds and no ADC."""
+        g = self._f[f"radar/{radar}"]
+        frame_time_ns = np.atleast_1d(np.asarray(frame_time_ns, np.int64))
+        self._append(g["frame_time_ns"], frame_time_ns)
+        self._append(g["frame_counter"], np.atleast_1d(frame_counter).astype(np.uint32))
+        self._append(g["host_time_ns"], np.atleast_1d(np.asarray(host_time_ns, np.int64)))
+        self._append(g["valid"], np.ones(frame_time_ns.size, np.uint8) if valid is None else np.atleast_1d(valid).astype(np.uint8))
+
+    def append_detections(self, radar: str, time_ns, scan, xyz_m, doppler_mps, snr_db) -> None:
+        """Detections [D] of one or more scans (sensor frame)."""
+        d = self._f[f"radar/{radar}/detections"]
+        self._append(d["time_ns"], np.atleast_1d(np.asarray(time_ns, np.int64)))
+        self._append(d["scan"], np.atleast_1d(scan).astype(np.uint32))
+        self._append(d["xyz_m"], np.asarray(xyz_m, np.float32).reshape(-1, 3))
+        self._append(d["doppler_mps"], np.atleast_1d(doppler_mps).astype(np.float32))
+        self._append(d["snr_db"], np.atleast_1d(snr_db).astype(np.float32))
+
     def append_truth(self, sample: TrajectorySample) -> None:
         g = self._f["truth"]
         self._append(g["time_ns"], sample.time_ns)
@@ -264,9 +282,35 @@ class Recording:
     def valid(self, name: str, frames: slice = slice(None)) -> np.ndarray:
         return np.asarray(self._radar_group(name)["valid"][frames], bool)
 
+    def has_adc(self, name: str) -> bool:
+        return self._radar_group(name)["adc"].shape[0] > 0
+
+    def has_detections(self, name: str) -> bool:
+        return "detections" in self._radar_group(name)
+
+    def detections(self, name: str) -> dict[str, np.ndarray]:
+        """All detections of a radar: time_ns, scan, xyz_m (sensor frame), doppler_mps, snr_db."""
+        g = self._radar_group(name)
+        if "detections" not in g:
+            raise FileFormatError(f"{self.path}: radar {name} has no /detections")
+        return {k: g["detections"][k][()] for k in ("time_ns", "scan", "xyz_m", "doppler_mps", "snr_db")}
+
+    def imu(self) -> dict[str, np.ndarray] | None:
+        if "imu" not in self._f or self._f["imu/time_ns"].shape[0] == 0:
+            return None
+        g = self._f["imu"]
+        out = {k: g[k][()] for k in ("time_ns", "gyro_radps", "accel_mps2", "counter", "host_time_ns")}
+        out.update({k: v for k, v in g.attrs.items()})
+        return out
+
+    def triggers(self) -> np.ndarray:
+        return self._f["trigger/time_ns"][()] if "trigger" in self._f else np.zeros(0, np.int64)
+
     def adc(self, name: str, frames: slice = slice(None)) -> np.ndarray:
         """ADC samples as complex64 [F, chirps, rx, samples] (int16 I/Q is converted)."""
         ds = self._radar_group(name)["adc"]
+        if ds.shape[0] == 0 and self.n_frames(name) > 0:
+            raise FileFormatError(f"{self.path}: radar {name} delivers point clouds only (no ADC frames to image)")
         data = ds[frames]
         if ds.dtype == np.int16:
             data = data[..., 0].astype(np.float32) + 1j * data[..., 1].astype(np.float32)

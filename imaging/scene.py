@@ -32,7 +32,9 @@ from typing import Any
 import numpy as np
 
 from .config import ConfigError, from_dict, read_toml
+from .detection_simulator import DetectionModel, Person, room_scatterers
 from .geometry import Vibration
+from .imu_simulator import ImuErrors
 from .rig import Rig, default_rig, load_rig
 from .targets import TARGET_KINDS
 from .trajectory import PathWithTurns, StraightLine, Trajectory
@@ -57,6 +59,12 @@ class Scene:
     seed: int = 0
     start_time_ns: int = DEFAULT_START_TIME_NS
     truth_rate_hz: float = 1000.0
+    imu: bool = False
+    imu_errors: ImuErrors | None = None
+    #: When set, radars deliver point clouds (detections) instead of ADC frames.
+    detection_model: DetectionModel | None = None
+    static_points_m: np.ndarray | None = None
+    people: list = dataclasses.field(default_factory=list)
 
 
 def builtin_scene_names() -> list[str]:
@@ -86,15 +94,24 @@ def _trajectory_from_table(t: dict[str, Any], start_time_ns: int) -> Trajectory:
         "speed_mps": float(t.pop("speed_mps", 0.4)),
         "t0_ns": start_time_ns,
     }
+    profile = {}
+    if "accel_mps2" in t:
+        profile["accel_mps2"] = float(t.pop("accel_mps2"))
+    if "start_delay_s" in t:
+        profile["start_delay_s"] = float(t.pop("start_delay_s"))
+    if "stops" in t:
+        profile["stops"] = [tuple(st) for st in t.pop("stops")]
     if len(common["start_m"]) != 3:
         raise ConfigError("trajectory.start_m", "expected [x, y, z]")
+    if kind == "straight" and profile:
+        raise ConfigError("trajectory.kind", "a speed profile (accel_mps2, stops) needs kind = \"path\"")
     if kind == "straight":
         traj: Trajectory = StraightLine(**common)
     elif kind == "path":
         segments = t.pop("segments", None)
         if not segments:
             raise ConfigError("trajectory.segments", "a path needs segments, e.g. [[\"straight\", 2.0], [\"arc\", 1.0, 90.0]]")
-        traj = PathWithTurns(segments=[tuple(s) for s in segments], **common)
+        traj = PathWithTurns(segments=[tuple(s) for s in segments], **common, **profile)
     else:
         raise ConfigError("trajectory.kind", f"unknown kind {kind!r} (straight, path)")
     if t:
@@ -132,6 +149,24 @@ def scene_from_dict(table: dict[str, Any], source: str | None = None, base: Path
         vibration = None
         if "vibration" in table:
             vibration = from_dict(Vibration, table.pop("vibration"), prefix="vibration")
+        imu = bool(table.pop("imu", False))
+        imu_errors = from_dict(ImuErrors, table.pop("imu_errors"), prefix="imu_errors") if "imu_errors" in table else None
+        detection_model = None
+        if "detections" in table:
+            detection_model = from_dict(DetectionModel, table.pop("detections"), prefix="detections")
+        static_points = None
+        if "room" in table:
+            room = dict(table.pop("room"))
+            try:
+                static_points = room_scatterers(
+                    size_m=tuple(room.pop("size_m", (12.0, 8.0))), centre_m=tuple(room.pop("centre_m", (0.0, 0.0))),
+                    height_m=float(room.pop("height_m", 2.5)), spacing_m=float(room.pop("spacing_m", 0.3)),
+                    clutter=int(room.pop("clutter", 80)), rng=np.random.default_rng(int(room.pop("seed", 0))))
+            except (TypeError, ValueError) as exc:
+                raise ConfigError("room", str(exc)) from None
+            if room:
+                raise ConfigError(f"room.{sorted(room)[0]}", "unknown setting")
+        people = [from_dict(Person, p, prefix=f"person[{i}]") for i, p in enumerate(table.pop("person", []))]
         duration_s = float(table.pop("duration_s", 5.0))
         if duration_s <= 0:
             raise ConfigError("duration_s", f"must be positive, got {duration_s}")
@@ -152,7 +187,14 @@ def scene_from_dict(table: dict[str, Any], source: str | None = None, base: Path
             seed=int(table.pop("seed", 0)),
             start_time_ns=start_time_ns,
             truth_rate_hz=float(table.pop("truth_rate_hz", 1000.0)),
+            imu=imu,
+            imu_errors=imu_errors,
+            detection_model=detection_model,
+            static_points_m=static_points,
+            people=people,
         )
+        if detection_model is not None and static_points is None and not targets:
+            raise ConfigError("detections", "a detection-level scene needs a [room] or point targets to detect")
         if table:
             raise ConfigError(sorted(table)[0], "unknown setting")
         return scene

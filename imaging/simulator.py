@@ -156,12 +156,23 @@ def simulate_recording(scene, path, *, frames_per_block: int = 16, progress=None
     total = sum(t.size for t in times.values())
     done = 0
     rng = np.random.default_rng(scene.seed)
-    with RecordingWriter(path, radars, imu=None, truth=True, overwrite=overwrite) as writer:
-        writer.append_trigger(scene.start_time_ns, "simulator")
+    detections = scene.detection_model is not None
+    with RecordingWriter(path, radars, imu=scene.rig.imu if scene.imu else None, truth=True, overwrite=overwrite,
+                         wire_format="detections" if detections else "simulated",
+                         detections=scene.radars if detections else ()) as writer:
+        # The hardware trigger marks the first chirp of the run.
+        writer.append_trigger(scene.start_time_ns, "radar_first_chirp")
         for r in radars:
             ft = times[r.name]
             wf = r.waveform
             frame_end = int(round(wf.chirps_per_frame * wf.chirp_interval_s * 1e9))
+            host = ft + frame_end + RECEIVE_LATENCY_NS - TAI_MINUS_UTC_S * 1_000_000_000
+            if detections:
+                _simulate_scans(writer, scene, r, ft, frame_end, host, rng)
+                done += ft.size
+                if progress is not None:
+                    progress(done, total)
+                continue
             for b in range(0, ft.size, frames_per_block):
                 block = ft[b:b + frames_per_block]
                 adc = simulate_frames(
@@ -169,14 +180,34 @@ def simulate_recording(scene, path, *, frames_per_block: int = 16, progress=None
                     vibration=scene.vibration, vibration_t0_ns=scene.start_time_ns, snr_db=scene.snr_db,
                     intra_chirp_motion=scene.intra_chirp_motion, rng=rng,
                 )
-                host = block + frame_end + RECEIVE_LATENCY_NS - TAI_MINUS_UTC_S * 1_000_000_000
-                writer.append_frames(r.name, adc, block, np.arange(b, b + block.size), host)
+                writer.append_frames(r.name, adc, block, np.arange(b, b + block.size), host[b:b + block.size])
                 writer.flush()
                 done += block.size
                 if progress is not None:
                     progress(done, total)
         end_ns = scene.start_time_ns + int(scene.duration_s * 1e9)
+        if scene.imu:
+            from .imu_simulator import simulate_imu
+
+            imu = simulate_imu(scene.trajectory, scene.rig.imu, scene.start_time_ns, end_ns, errors=scene.imu_errors, rng=rng)
+            writer.append_imu(imu.time_ns, imu.gyro_radps, imu.accel_mps2, imu.counter,
+                              imu.time_ns + 200_000 - TAI_MINUS_UTC_S * 1_000_000_000)
         step_ns = int(round(1e9 / scene.truth_rate_hz))
         truth_times = np.arange(scene.start_time_ns, end_ns + step_ns, step_ns, dtype=np.int64)
         writer.append_truth(scene.trajectory.sample(truth_times))
     return {name: t.size for name, t in times.items()}
+
+
+def _simulate_scans(writer, scene, radar, frame_times, frame_end_ns, host, rng) -> None:
+    from .detection_simulator import simulate_scan
+
+    static = scene.static_points_m if scene.static_points_m is not None else np.zeros((0, 3))
+    if scene.targets:
+        extra = [np.asarray(t.position_m, float) for t in scene.targets if len(getattr(t, "position_m", ())) == 3]
+        static = np.concatenate([static, np.asarray(extra).reshape(-1, 3)])
+    writer.append_scans(radar.name, frame_times, np.arange(frame_times.size), host)
+    for k, ft in enumerate(frame_times):
+        mid = int(ft + frame_end_ns // 2)  # a scan's measurements describe the middle of the frame
+        scan = simulate_scan(radar, scene.trajectory, mid, static, scene.people, scene.detection_model, rng, scene.start_time_ns)
+        d = scan.doppler_mps.size
+        writer.append_detections(radar.name, np.full(d, mid), np.full(d, k), scan.xyz_m, scan.doppler_mps, scan.snr_db)

@@ -28,6 +28,7 @@ class TrajectorySample:
     orientation_xyzw: np.ndarray  # [N, 4], body -> world
     velocity_mps: np.ndarray  # [N, 3]
     angular_velocity_body_radps: np.ndarray  # [N, 3]
+    acceleration_mps2: np.ndarray | None = None  # [N, 3] world, kinematic (gravity not included)
 
     @property
     def rotation(self) -> Rotation:
@@ -53,14 +54,19 @@ def _seconds(time_ns: np.ndarray, t0_ns: int) -> np.ndarray:
     return (np.asarray(time_ns, dtype=np.int64).ravel() - np.int64(t0_ns)).astype(np.float64) * 1e-9
 
 
-def _planar_sample(time_ns, xy, heading, speed, yaw_rate, z) -> TrajectorySample:
+def _planar_sample(time_ns, xy, heading, speed, yaw_rate, z, accel_along=None) -> TrajectorySample:
     n = xy.shape[0]
     position = np.column_stack([xy, np.full(n, z)])
-    velocity = np.column_stack([speed * np.cos(heading), speed * np.sin(heading), np.zeros(n)])
+    c, s = np.cos(heading), np.sin(heading)
+    velocity = np.column_stack([speed * c, speed * s, np.zeros(n)])
     orientation = Rotation.from_euler("z", heading[:, None]).as_quat()
     omega = np.zeros((n, 3))
     omega[:, 2] = yaw_rate
-    return TrajectorySample(np.asarray(time_ns, np.int64).ravel(), position, orientation, velocity, omega)
+    # Tangential plus centripetal (v * yaw rate, towards the inside of the turn).
+    a_t = np.zeros(n) if accel_along is None else accel_along
+    a_n = speed * yaw_rate
+    accel = np.column_stack([a_t * c - a_n * s, a_t * s + a_n * c, np.zeros(n)])
+    return TrajectorySample(np.asarray(time_ns, np.int64).ravel(), position, orientation, velocity, omega, accel)
 
 
 @dataclasses.dataclass
@@ -77,16 +83,20 @@ class StraightLine(Trajectory):
         t = _seconds(time_ns, self.t0_ns)
         h = math.radians(self.heading_deg)
         start = np.asarray(self.start_m, dtype=np.float64)
-        xy = start[:2] + np.outer(self.speed_mps * t, [math.cos(h), math.sin(h)])
+        xy = start[:2] + np.outer(self.speed_mps * t, [math.cos(h), math.sin(h)])  # no acceleration
         return _planar_sample(time_ns, xy, np.full(t.size, h), np.full(t.size, self.speed_mps), np.zeros(t.size), start[2])
 
 
 @dataclasses.dataclass
 class PathWithTurns(Trajectory):
-    """Straight segments and circular arcs driven at constant speed on a level floor.
+    """Straight segments and circular arcs on a level floor, driven with an optional speed profile.
 
     ``segments``: sequence of ``("straight", length_m)`` or ``("arc", radius_m, angle_deg)``; a positive
-    angle turns left. Before the start and after the end the robot stands still at the end points.
+    angle turns left. Without ``accel_mps2`` the robot moves at ``speed_mps`` from t0 to the end (the
+    constant-speed pass SAR theory assumes). With ``accel_mps2`` it starts after ``start_delay_s``
+    standing still, speeds up and slows down with a smooth (raised-cosine) speed ramp whose peak
+    acceleration is ``accel_mps2``, and halts for every ``(at_distance_m, duration_s)`` in ``stops``.
+    Before the start and after the end it stands still.
     """
 
     segments: Sequence[tuple] = (("straight", 1.0),)
@@ -95,10 +105,17 @@ class PathWithTurns(Trajectory):
     speed_mps: float = 0.4
     t0_ns: int = 0
     source: str = "truth"
+    accel_mps2: float | None = None
+    start_delay_s: float = 0.0
+    stops: Sequence[tuple[float, float]] = ()
 
     def __post_init__(self) -> None:
         if self.speed_mps <= 0:
             raise ConfigError("trajectory.speed_mps", f"must be positive, got {self.speed_mps}")
+        if self.accel_mps2 is not None and self.accel_mps2 <= 0:
+            raise ConfigError("trajectory.accel_mps2", f"must be positive, got {self.accel_mps2}")
+        if self.accel_mps2 is None and (self.stops or self.start_delay_s):
+            raise ConfigError("trajectory.stops", "stops and a start delay need accel_mps2 (a speed profile)")
         # Pre-compute the start state (x, y, heading) and cumulative length of every segment.
         x, y, h = float(self.start_m[0]), float(self.start_m[1]), math.radians(self.heading_deg)
         self._starts = []
@@ -127,25 +144,87 @@ class PathWithTurns(Trajectory):
             s += length
         self.length_m = s
         self._end = (x, y, h)
+        self._phases = self._speed_profile()
+
+    def _speed_profile(self) -> list[tuple]:
+        """Phases (t_start, duration, s_start, kind, V): kind "still", "cruise", "up", "down"."""
+        if self.accel_mps2 is None:
+            return [(0.0, self.length_m / self.speed_mps, 0.0, "cruise", self.speed_mps)]
+        phases = []
+        t = 0.0
+        if self.start_delay_s > 0:
+            phases.append((0.0, self.start_delay_s, 0.0, "still", 0.0))
+            t = self.start_delay_s
+        legs, s_prev = [], 0.0
+        for i, (at, duration) in enumerate(sorted(tuple(map(float, st)) for st in self.stops)):
+            if not 0 < at < self.length_m or duration < 0:
+                raise ConfigError(f"trajectory.stops[{i}]", f"must be (distance inside the path, duration >= 0), got {(at, duration)}")
+            legs.append((s_prev, at, duration))
+            s_prev = at
+        legs.append((s_prev, self.length_m, 0.0))
+        for s0, s1, pause in legs:
+            length = s1 - s0
+            v = self.speed_mps
+            ramp_t = v * math.pi / (2 * self.accel_mps2)
+            if v * ramp_t > length:  # too short to reach cruise speed: lower the peak speed
+                v = math.sqrt(2 * self.accel_mps2 * length / math.pi)
+                ramp_t = v * math.pi / (2 * self.accel_mps2)
+            ramp_s = v * ramp_t / 2
+            phases.append((t, ramp_t, s0, "up", v))
+            t += ramp_t
+            cruise = (length - 2 * ramp_s) / v
+            if cruise > 0:
+                phases.append((t, cruise, s0 + ramp_s, "cruise", v))
+                t += cruise
+            phases.append((t, ramp_t, s1 - ramp_s, "down", v))
+            t += ramp_t
+            if pause > 0:
+                phases.append((t, pause, s1, "still", 0.0))
+                t += pause
+        return phases
 
     @property
     def duration_s(self) -> float:
-        return self.length_m / self.speed_mps
+        t0, dt, *_ = self._phases[-1]
+        return t0 + dt
+
+    def _arc_length(self, t: np.ndarray):
+        """Distance along the path, speed and tangential acceleration at times t (s from t0)."""
+        s = np.where(t <= 0, 0.0, self.length_m)
+        v = np.zeros(t.size)
+        a = np.zeros(t.size)
+        for t0, dt, s0, kind, vmax in self._phases:
+            m = (t >= t0) & (t < t0 + dt) if kind != "cruise" or self.accel_mps2 else (t >= t0) & (t <= t0 + dt)
+            if not np.any(m):
+                continue
+            u = t[m] - t0
+            if kind == "still":
+                s[m] = s0
+            elif kind == "cruise":
+                s[m] = s0 + vmax * u
+                v[m] = vmax
+            else:
+                w = math.pi / dt
+                # raised-cosine speed: up v = V/2 (1 - cos w u), down v = V/2 (1 + cos w u)
+                sign = 1.0 if kind == "up" else -1.0
+                v[m] = 0.5 * vmax * (1 - sign * np.cos(w * u))
+                s[m] = s0 + 0.5 * vmax * (u - sign * np.sin(w * u) / w)
+                a[m] = sign * 0.5 * vmax * w * np.sin(w * u)
+        return s, v, a
 
     def sample(self, time_ns: np.ndarray) -> TrajectorySample:
         t = _seconds(time_ns, self.t0_ns)
-        s_all = np.clip(t, 0.0, self.duration_s) * self.speed_mps
-        moving = (t >= 0) & (t <= self.duration_s)
+        s_all, speed, accel = self._arc_length(t)
         xy = np.empty((t.size, 2))
         heading = np.empty(t.size)
-        yaw_rate = np.zeros(t.size)
+        curvature_all = np.zeros(t.size)
         starts = np.array([st[0] for st in self._starts])
         idx = np.clip(np.searchsorted(starts, s_all, side="right") - 1, 0, len(self._starts) - 1)
         for k, (s0, x0, y0, h0, kind, length, curvature) in enumerate(self._starts):
             m = idx == k
             if not np.any(m):
                 continue
-            ds = s_all[m] - s0
+            ds = np.minimum(s_all[m] - s0, length)
             if kind == "straight":
                 xy[m, 0] = x0 + ds * math.cos(h0)
                 xy[m, 1] = y0 + ds * math.sin(h0)
@@ -155,10 +234,8 @@ class PathWithTurns(Trajectory):
                 xy[m, 0] = x0 + (np.sin(h) - math.sin(h0)) / curvature
                 xy[m, 1] = y0 - (np.cos(h) - math.cos(h0)) / curvature
                 heading[m] = h
-                yaw_rate[m] = curvature * self.speed_mps
-        speed = np.where(moving, self.speed_mps, 0.0)
-        yaw_rate = np.where(moving, yaw_rate, 0.0)
-        return _planar_sample(time_ns, xy, heading, speed, yaw_rate, float(self.start_m[2]))
+                curvature_all[m] = curvature
+        return _planar_sample(time_ns, xy, heading, speed, curvature_all * speed, float(self.start_m[2]), accel)
 
 
 class SampledTrajectory(Trajectory):
@@ -181,6 +258,7 @@ class SampledTrajectory(Trajectory):
         if velocity_mps is None:
             velocity_mps = np.gradient(self.position_m, self._t, axis=0)
         self.velocity_mps = np.asarray(velocity_mps, dtype=np.float64)
+        self._accel = np.gradient(self.velocity_mps, self._t, axis=0)
         self._rotations = Rotation.from_quat(self.orientation_xyzw)
         self._slerp = Slerp(self._t, self._rotations)
         # Body angular rate per interval from consecutive attitudes: log(R_k^T R_{k+1}) / dt.
@@ -194,7 +272,8 @@ class SampledTrajectory(Trajectory):
         vel = np.column_stack([np.interp(t, self._t, self.velocity_mps[:, k]) for k in range(3)])
         quat = self._slerp(t).as_quat()
         k = np.clip(np.searchsorted(self._t, t, side="right") - 1, 0, self._omega_body.shape[0] - 1)
-        return TrajectorySample(np.asarray(time_ns, np.int64).ravel(), pos, quat, vel, self._omega_body[k])
+        acc = np.column_stack([np.interp(t, self._t, self._accel[:, j]) for j in range(3)])
+        return TrajectorySample(np.asarray(time_ns, np.int64).ravel(), pos, quat, vel, self._omega_body[k], acc)
 
     @classmethod
     def from_trajectory(cls, trajectory: Trajectory, time_ns: np.ndarray, source: str | None = None):

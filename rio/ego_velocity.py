@@ -1,0 +1,136 @@
+"""Radar ego velocity from the Doppler of static detections: RANSAC, then least squares.
+
+For a static point seen in direction u (unit, sensor frame) the range rate is d = -u . v_s, with v_s the
+sensor's velocity. Moving targets and false alarms break this relation and are rejected as outliers.
+Several radars at once: each detection's equation is expressed in the body velocity through the radar's
+mount and the angular rate (lever arm), and all are solved together.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+
+import numpy as np
+
+
+class EgoStatus(enum.Enum):
+    OK = "ok"
+    ZERO_VELOCITY = "zero_velocity"
+    TOO_FEW = "too_few_detections"
+    NO_CONSENSUS = "no_consensus"
+    ILL_CONDITIONED = "ill_conditioned"
+    NOISY = "noisy"
+
+
+@dataclasses.dataclass(frozen=True)
+class EgoVelocityConfig:
+    """RANSAC and rejection settings (SI units)."""
+
+    min_detections: int = 6
+    min_range_m: float = 0.2
+    ransac_iterations: int = 40
+    inlier_threshold_mps: float = 0.08
+    min_inlier_ratio: float = 0.35
+    zero_velocity_threshold_mps: float = 0.03
+    zero_velocity_ratio: float = 0.6
+    max_sigma_mps: float = 0.15
+    max_condition: float = 1e4
+    min_sigma_mps: float = 0.01  # floor on the per-detection Doppler noise used for the covariance
+
+
+@dataclasses.dataclass
+class EgoVelocity:
+    """The estimate, its covariance and which detections were inliers."""
+
+    status: EgoStatus
+    velocity_mps: np.ndarray | None  # [3]
+    covariance: np.ndarray | None  # [3, 3]
+    inliers: np.ndarray  # [D] bool
+    sigma_mps: float = float("nan")
+
+    @property
+    def ok(self) -> bool:
+        return self.status in (EgoStatus.OK, EgoStatus.ZERO_VELOCITY)
+
+
+def solve_ego_velocity(a: np.ndarray, b: np.ndarray, config: EgoVelocityConfig = EgoVelocityConfig(),
+                       rng: np.random.Generator | None = None) -> EgoVelocity:
+    """Solve a v = b robustly: rows of ``a`` [D, 3] are the equations, ``b`` [D] the right-hand sides.
+
+    For one radar, ``a = -u`` (unit directions) and ``b`` the Doppler; ``v`` is then the sensor velocity.
+    """
+    rng = rng or np.random.default_rng(0)
+    n = b.size
+    none = np.zeros(n, bool)
+    if n < config.min_detections:
+        return EgoVelocity(EgoStatus.TOO_FEW, None, None, none)
+    # Standstill: most detections (the static world) have no Doppler at all.
+    still = np.abs(b) < config.zero_velocity_threshold_mps
+    if still.mean() >= config.zero_velocity_ratio:
+        sigma = max(config.min_sigma_mps, float(np.std(b[still])))
+        cov = np.eye(3) * (sigma ** 2) / max(still.sum() / 3.0, 1.0)
+        return EgoVelocity(EgoStatus.ZERO_VELOCITY, np.zeros(3), cov, still, sigma)
+    # All RANSAC hypotheses at once: minimal sets of 3 equations, solved as a batch.
+    picks = rng.integers(0, n, (2 * config.ransac_iterations, 3))
+    distinct = (picks[:, 0] != picks[:, 1]) & (picks[:, 0] != picks[:, 2]) & (picks[:, 1] != picks[:, 2])
+    picks = picks[distinct][: config.ransac_iterations]
+    mats = a[picks]
+    ok = np.abs(np.linalg.det(mats)) > 1e-9
+    best = none
+    if ok.any():
+        hyps = np.linalg.solve(mats[ok], b[picks[ok]][..., None])[..., 0]  # [H, 3]
+        inl = np.abs(hyps @ a.T - b) < config.inlier_threshold_mps  # [H, D]
+        best = inl[int(np.argmax(inl.sum(axis=1)))]
+    if best.sum() < max(config.min_detections, config.min_inlier_ratio * n):
+        return EgoVelocity(EgoStatus.NO_CONSENSUS, None, None, best)
+    # Refit on the inliers, then once more on the inliers of the refit.
+    for _ in range(2):
+        v, *_ = np.linalg.lstsq(a[best], b[best], rcond=None)
+        best = np.abs(a @ v - b) < config.inlier_threshold_mps
+        if best.sum() < config.min_detections:
+            return EgoVelocity(EgoStatus.NO_CONSENSUS, None, None, best)
+    ai, bi = a[best], b[best]
+    v, *_ = np.linalg.lstsq(ai, bi, rcond=None)
+    ata = ai.T @ ai
+    if np.linalg.cond(ata) > config.max_condition:
+        return EgoVelocity(EgoStatus.ILL_CONDITIONED, None, None, best)
+    dof = max(int(best.sum()) - 3, 1)
+    sigma = max(config.min_sigma_mps, float(np.sqrt(np.sum((ai @ v - bi) ** 2) / dof)))
+    if sigma > config.max_sigma_mps:
+        return EgoVelocity(EgoStatus.NOISY, None, None, best, sigma)
+    return EgoVelocity(EgoStatus.OK, v, sigma ** 2 * np.linalg.inv(ata), best, sigma)
+
+
+def sensor_velocity(xyz_m: np.ndarray, doppler_mps: np.ndarray, config: EgoVelocityConfig = EgoVelocityConfig(),
+                    rng: np.random.Generator | None = None) -> EgoVelocity:
+    """One radar's velocity in its own frame from detections xyz_m [D, 3] and range rates [D]."""
+    r = np.linalg.norm(xyz_m, axis=1)
+    keep = r > config.min_range_m
+    u = xyz_m[keep] / r[keep, None]
+    est = solve_ego_velocity(-u, doppler_mps[keep], config, rng)
+    inliers = np.zeros(r.size, bool)
+    inliers[keep] = est.inliers
+    est.inliers = inliers
+    return est
+
+
+def body_velocity(scans, angular_velocity_body_radps: np.ndarray, config: EgoVelocityConfig = EgoVelocityConfig(),
+                  rng: np.random.Generator | None = None) -> EgoVelocity:
+    """Body-frame velocity from several radars' detections at (nearly) the same time.
+
+    ``scans``: sequence of (mount, xyz_m [D, 3], doppler_mps [D]) with ``mount`` an imaging.rig.Mount.
+    Each detection: d = -u . R_m^T (v_b + w x l)  ->  (-u^T R_m^T) v_b = d + u . R_m^T (w x l).
+    """
+    rows, rhs = [], []
+    for mount, xyz, dop in scans:
+        r = np.linalg.norm(xyz, axis=1)
+        keep = r > config.min_range_m
+        u = xyz[keep] / r[keep, None]
+        rm = mount.rotation.as_matrix()
+        lever_vel_s = rm.T @ np.cross(angular_velocity_body_radps, mount.translation_m)
+        rows.append(-u @ rm.T)
+        rhs.append(dop[keep] + u @ lever_vel_s)
+    a = np.concatenate(rows) if rows else np.zeros((0, 3))
+    b = np.concatenate(rhs) if rhs else np.zeros(0)
+    return solve_ego_velocity(a, b, config, rng)

@@ -1,0 +1,222 @@
+"""Error-state EKF radar-inertial odometry (in the spirit of Doer & Trommer's EKF-RIO, 2020).
+
+Nominal state: position p and velocity v in the world frame n (z up), attitude R (body -> world),
+accelerometer bias b_a and gyro bias b_g. Error state (15): dp, dv, dtheta (body frame, R = R_hat Exp(dtheta)),
+db_a, db_g. Strapdown propagation at IMU rate; radar ego-velocity updates (sensor frame, lever arm and
+angular rate included) with chi-square gating and the Joseph form; zero-velocity and zero-rate updates at
+standstill; static initialisation of roll, pitch and gyro bias. Pure computation: arrays in, states out.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numba
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+GRAVITY = np.array([0.0, 0.0, -9.80665])
+#: 99.9 % chi-square quantiles, by degrees of freedom.
+CHI2_999 = {1: 10.83, 2: 13.82, 3: 16.27}
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def exp_so3(phi: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a rotation vector (Rodrigues)."""
+    angle = math.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
+    K = skew(phi)
+    if angle < 1e-8:
+        return np.eye(3) + K + 0.5 * K @ K
+    return np.eye(3) + (math.sin(angle) / angle) * K + ((1.0 - math.cos(angle)) / (angle * angle)) * (K @ K)
+
+
+@dataclasses.dataclass(frozen=True)
+class EkfConfig:
+    """Noise densities (continuous, SI) and filter settings."""
+
+    accel_noise_density: float = 2e-3
+    gyro_noise_density: float = 2e-4
+    accel_bias_random_walk: float = 2e-4
+    gyro_bias_random_walk: float = 2e-5
+    init_position_sigma_m: float = 1e-3
+    init_velocity_sigma_mps: float = 0.02
+    init_attitude_sigma_rad: float = math.radians(2.0)
+    init_yaw_sigma_rad: float = math.radians(0.5)
+    init_accel_bias_sigma: float = 0.1
+    init_gyro_bias_sigma: float = 0.01
+    zero_velocity_sigma_mps: float = 0.01
+    zero_rate_sigma_radps: float = 2e-3
+    gate_chi2: float = CHI2_999[3]
+    planar: bool = False  # pseudo-measurement: no vertical velocity (robots on flat floors)
+    planar_sigma_mps: float = 0.05
+
+
+@dataclasses.dataclass
+class EkfState:
+    time_ns: int
+    p: np.ndarray
+    v: np.ndarray
+    R: np.ndarray
+    ba: np.ndarray
+    bg: np.ndarray
+    P: np.ndarray  # [15, 15]
+
+    @property
+    def quaternion_xyzw(self) -> np.ndarray:
+        return Rotation.from_matrix(self.R).as_quat()
+
+
+@dataclasses.dataclass
+class UpdateResult:
+    accepted: bool
+    chi2: float
+
+
+@numba.njit(cache=True)
+def _exp_so3_nb(phi):
+    angle = math.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
+    K = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
+    if angle < 1e-8:
+        return np.eye(3) + K + 0.5 * K @ K
+    return np.eye(3) + (math.sin(angle) / angle) * K + ((1.0 - math.cos(angle)) / (angle * angle)) * (K @ K)
+
+
+@numba.njit(cache=True)
+def _strapdown(p, v, R, P, f, w, dt, q_density):
+    """One IMU step: nominal state (bias-corrected specific force f and rate w held over dt) and covariance
+    P <- F P F^T + Q dt for the error state [dp, dv, dtheta, dba, dbg]."""
+    a = R @ f
+    a[2] -= 9.80665
+    p_new = p + v * dt + 0.5 * a * dt * dt
+    v_new = v + a * dt
+    R_new = R @ _exp_so3_nb(w * dt)
+    sf = np.array([[0.0, -f[2], f[1]], [f[2], 0.0, -f[0]], [-f[1], f[0], 0.0]])
+    E = _exp_so3_nb(-w * dt)
+    F = np.eye(15)
+    F[0:3, 3:6] = np.eye(3) * dt
+    F[3:6, 6:9] = -(R @ sf) * dt
+    F[3:6, 9:12] = -R * dt
+    F[6:9, 6:9] = E
+    F[6:9, 12:15] = -np.eye(3) * dt
+    out = F @ P @ F.T
+    for i in range(15):
+        out[i, i] += q_density[i] * dt
+    return p_new, v_new, R_new, 0.5 * (out + out.T)
+
+
+class RadarInertialEkf:
+    """The filter. Call ``initialise_static`` once, then feed IMU samples and radar measurements in time order."""
+
+    def __init__(self, config: EkfConfig = EkfConfig()):
+        self.config = config
+        self._q_density = np.concatenate([np.zeros(3), np.full(3, config.accel_noise_density ** 2),
+                                          np.full(3, config.gyro_noise_density ** 2), np.full(3, config.accel_bias_random_walk ** 2),
+                                          np.full(3, config.gyro_bias_random_walk ** 2)])
+        self.state: EkfState | None = None
+        self._last_gyro = np.zeros(3)
+        self._last_accel = np.zeros(3)
+
+    # -- initialisation -----------------------------------------------------------------------------
+    def initialise_static(self, time_ns: int, accel_mps2: np.ndarray, gyro_radps: np.ndarray,
+                          position_m=(0.0, 0.0, 0.0), yaw_rad: float = 0.0) -> EkfState:
+        """Roll and pitch from the mean specific force, gyro bias from the mean rate, while standing still.
+
+        ``accel_mps2``, ``gyro_radps``: [N, 3] samples of the static period.
+        """
+        f = np.mean(accel_mps2, axis=0)
+        roll = math.atan2(f[1], f[2])
+        pitch = math.atan2(-f[0], math.hypot(f[1], f[2]))
+        R = Rotation.from_euler("ZYX", [yaw_rad, pitch, roll]).as_matrix()
+        c = self.config
+        P = np.diag(np.concatenate([
+            np.full(3, c.init_position_sigma_m ** 2), np.full(3, c.init_velocity_sigma_mps ** 2),
+            [c.init_attitude_sigma_rad ** 2, c.init_attitude_sigma_rad ** 2, c.init_yaw_sigma_rad ** 2],
+            np.full(3, c.init_accel_bias_sigma ** 2), np.full(3, c.init_gyro_bias_sigma ** 2)]))
+        self.state = EkfState(int(time_ns), np.asarray(position_m, float).copy(), np.zeros(3), R, np.zeros(3),
+                              np.mean(gyro_radps, axis=0), P)
+        self._last_gyro = np.mean(gyro_radps, axis=0)
+        self._last_accel = f
+        return self.state
+
+    # -- propagation ------------------------------------------------------------------------------------
+    def propagate(self, time_ns: int, accel_mps2: np.ndarray | None = None, gyro_radps: np.ndarray | None = None) -> None:
+        """Strapdown from the state time to ``time_ns`` with the IMU sample taken at the state time, then
+        remember the new sample (zero-order hold between samples)."""
+        s = self.state
+        dt = (int(time_ns) - s.time_ns) * 1e-9
+        if dt < 0:
+            raise ValueError(f"measurement at {time_ns} is older than the filter state at {s.time_ns}")
+        if dt > 0:
+            s.p, s.v, s.R, s.P = _strapdown(s.p, s.v, s.R, s.P, self._last_accel - s.ba, self._last_gyro - s.bg, dt, self._q_density)
+            s.time_ns = int(time_ns)
+        if accel_mps2 is not None:
+            self._last_accel = np.asarray(accel_mps2, float)
+            self._last_gyro = np.asarray(gyro_radps, float)
+
+    # -- updates ------------------------------------------------------------------------------------------
+    def _update(self, residual: np.ndarray, H: np.ndarray, R_meas: np.ndarray, gate: float | None) -> UpdateResult:
+        s = self.state
+        S = H @ s.P @ H.T + R_meas
+        try:
+            S_inv = np.linalg.inv(S)
+        except np.linalg.LinAlgError:
+            return UpdateResult(False, float("inf"))
+        chi2 = float(residual @ S_inv @ residual)
+        if not np.isfinite(chi2) or (gate is not None and chi2 > gate):
+            return UpdateResult(False, chi2)
+        K = s.P @ H.T @ S_inv
+        dx = K @ residual
+        I_KH = np.eye(15) - K @ H
+        s.P = I_KH @ s.P @ I_KH.T + K @ R_meas @ K.T  # Joseph form: stays symmetric positive definite
+        s.P = 0.5 * (s.P + s.P.T)
+        s.p = s.p + dx[0:3]
+        s.v = s.v + dx[3:6]
+        s.R = s.R @ exp_so3(dx[6:9])
+        s.ba = s.ba + dx[9:12]
+        s.bg = s.bg + dx[12:15]
+        return UpdateResult(True, chi2)
+
+    def update_radar_velocity(self, velocity_sensor_mps: np.ndarray, covariance: np.ndarray, mount) -> UpdateResult:
+        """Sensor-frame ego velocity from one radar: v_s = R_m^T (R^T v + w x l), w = gyro - b_g."""
+        s = self.state
+        Rm = mount.rotation.as_matrix()
+        lever = mount.translation_m
+        w = self._last_gyro - s.bg
+        v_body = s.R.T @ s.v
+        predicted = Rm.T @ (v_body + np.cross(w, lever))
+        H = np.zeros((3, 15))
+        H[:, 3:6] = Rm.T @ s.R.T
+        H[:, 6:9] = Rm.T @ skew(v_body)
+        H[:, 12:15] = Rm.T @ skew(lever)
+        return self._update(np.asarray(velocity_sensor_mps) - predicted, H, covariance, self.config.gate_chi2)
+
+    def update_body_velocity(self, velocity_body_mps: np.ndarray, covariance: np.ndarray) -> UpdateResult:
+        """Body-frame velocity (several radars solved together)."""
+        s = self.state
+        v_body = s.R.T @ s.v
+        H = np.zeros((3, 15))
+        H[:, 3:6] = s.R.T
+        H[:, 6:9] = skew(v_body)
+        return self._update(np.asarray(velocity_body_mps) - v_body, H, covariance, self.config.gate_chi2)
+
+    def update_zero_velocity(self) -> UpdateResult:
+        """Standstill: world velocity zero and angular rate zero (makes the gyro bias observable)."""
+        s = self.state
+        c = self.config
+        H = np.zeros((6, 15))
+        H[0:3, 3:6] = np.eye(3)
+        H[3:6, 12:15] = -np.eye(3)  # measured rate - b_g = 0
+        residual = np.concatenate([-s.v, -(self._last_gyro - s.bg)])
+        R_meas = np.diag(np.concatenate([np.full(3, c.zero_velocity_sigma_mps ** 2), np.full(3, c.zero_rate_sigma_radps ** 2)]))
+        return self._update(residual, H, R_meas, None)
+
+    def update_planar(self) -> UpdateResult:
+        """No vertical velocity in the world frame (a robot on a flat floor)."""
+        s = self.state
+        H = np.zeros((1, 15))
+        H[0, 5] = 1.0
+        return self._update(np.array([-s.v[2]]), H, np.array([[self.config.planar_sigma_mps ** 2]]), CHI2_999[1])

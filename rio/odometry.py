@@ -1,0 +1,205 @@
+"""Radar-inertial odometry over a recording: scans -> ego velocity -> EKF -> trajectory."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections import Counter
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from imaging.recording import Recording
+from imaging.rig import Mount
+from imaging.trajectory import SampledTrajectory
+
+from .ego_velocity import EgoStatus, EgoVelocityConfig, body_velocity, sensor_velocity
+from .ekf import EkfConfig, RadarInertialEkf
+
+log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass
+class RadarScan:
+    """One radar's detections at one measurement time (mid-frame, on the PTP/IMU time base)."""
+
+    time_ns: int
+    radar: str
+    mount: Mount
+    xyz_m: np.ndarray  # [D, 3] sensor frame
+    doppler_mps: np.ndarray  # [D]
+
+
+@dataclasses.dataclass
+class ImuData:
+    time_ns: np.ndarray
+    gyro_radps: np.ndarray
+    accel_mps2: np.ndarray
+
+
+@dataclasses.dataclass
+class RioOptions:
+    ekf: EkfConfig = dataclasses.field(default_factory=EkfConfig)
+    ego: EgoVelocityConfig = dataclasses.field(default_factory=EgoVelocityConfig)
+    radars: tuple[str, ...] | None = None  # None: all radars with detections
+    joint_radars: bool = False  # solve scans of all radars at one time together (body velocity)
+    static_init_s: float = 1.0
+    output_rate_hz: float = 100.0
+    coast_warning_s: float = 0.5
+    imu_decimation: int = 1  # use every n-th IMU sample (speed against accuracy)
+    seed: int = 0
+
+
+@dataclasses.dataclass
+class RioResult:
+    trajectory: SampledTrajectory
+    covariance_diag: np.ndarray  # [N, 15]
+    stats: dict
+    #: Time of every radar scan and whether the radar helped (for diagnostics and tests).
+    scan_status: list[tuple[int, str, str]]
+
+    @property
+    def zero_velocity_times_ns(self) -> np.ndarray:
+        return np.array([t for t, _, s in self.scan_status if s == EgoStatus.ZERO_VELOCITY.value], np.int64)
+
+
+def run_rio(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOptions(), progress=None) -> RioResult:
+    """Run the filter over IMU samples and radar scans (both sorted by time here)."""
+    rng = np.random.default_rng(options.seed)
+    step = max(1, int(options.imu_decimation))
+    t_imu = imu.time_ns[::step]
+    acc = imu.accel_mps2[::step]
+    gyr = imu.gyro_radps[::step]
+    if t_imu.size < 10:
+        raise ValueError("too few IMU samples to run odometry")
+    scans = sorted(scans, key=lambda s: s.time_ns)
+    ekf = RadarInertialEkf(options.ekf)
+    init_end = t_imu[0] + int(options.static_init_s * 1e9)
+    still = t_imu <= init_end
+    if np.std(np.linalg.norm(acc[still], axis=1)) > 0.2 or np.max(np.std(gyr[still], axis=0)) > 0.02:
+        log.warning("the first %.1f s do not look static: initial attitude and gyro bias may be off", options.static_init_s)
+    k0 = int(np.argmax(~still)) if (~still).any() else t_imu.size - 1
+    ekf.initialise_static(t_imu[k0], acc[still], gyr[still])
+    ekf.propagate(t_imu[k0], acc[k0], gyr[k0])
+    out_every = max(1, int(round((1e9 / np.median(np.diff(t_imu))) / options.output_rate_hz)))
+    times, pos, quat, vel, cov = [], [], [], [], []
+    stats: Counter = Counter()
+    status_log: list[tuple[int, str, str]] = []
+    j = 0
+    while j < len(scans) and scans[j].time_ns < t_imu[k0]:
+        j += 1
+    last_help_ns = t_imu[k0]
+    coasting = False
+    total = t_imu.size - k0
+    for k in range(k0 + 1, t_imu.size):
+        # Radar scans that fall before this IMU sample: propagate to each scan's time, then update.
+        while j < len(scans) and scans[j].time_ns <= t_imu[k]:
+            group = [scans[j]]
+            j += 1
+            if options.joint_radars:
+                while j < len(scans) and scans[j].time_ns - group[0].time_ns < 5_000_000:
+                    group.append(scans[j])
+                    j += 1
+            ekf.propagate(group[-1].time_ns)
+            helped, reason = _radar_update(ekf, group, options, rng, stats)
+            status_log.extend((g.time_ns, g.radar, reason) for g in group)
+            if options.ekf.planar:
+                ekf.update_planar()
+            if helped:
+                last_help_ns = group[-1].time_ns
+                if coasting:
+                    log.info("radar helps again at t=%.2f s", (group[-1].time_ns - t_imu[k0]) * 1e-9)
+                coasting = False
+            elif not coasting and group[-1].time_ns - last_help_ns > options.coast_warning_s * 1e9:
+                coasting = True
+                stats["coast_episodes"] += 1
+                log.warning("radar cannot help (%s) for %.1f s: coasting on the IMU", reason,
+                            (group[-1].time_ns - last_help_ns) * 1e-9)
+        ekf.propagate(t_imu[k], acc[k], gyr[k])
+        s = ekf.state
+        if (k - k0) % out_every == 0:
+            if not (np.all(np.isfinite(s.p)) and np.all(np.isfinite(s.P))):
+                raise FloatingPointError(f"filter diverged at IMU sample {k}")
+            times.append(s.time_ns)
+            pos.append(s.p.copy())
+            quat.append(s.R.copy())
+            vel.append(s.v.copy())
+            cov.append(np.diag(s.P).copy())
+        if progress is not None and (k - k0) % 20000 == 0:
+            progress(k - k0, total)
+    if progress is not None:
+        progress(total, total)
+    quat = Rotation.from_matrix(np.array(quat)).as_quat()
+    traj = SampledTrajectory(np.array(times), np.array(pos), quat, np.array(vel), source="rio")
+    stats["scans"] = len(scans)
+    stats["imu_samples"] = int(t_imu.size)
+    return RioResult(traj, np.array(cov), dict(stats), status_log)
+
+
+def _radar_update(ekf: RadarInertialEkf, group: list[RadarScan], options: RioOptions, rng, stats: Counter):
+    if options.joint_radars and len(group) > 1:
+        w = ekf._last_gyro - ekf.state.bg
+        est = body_velocity([(g.mount, g.xyz_m, g.doppler_mps) for g in group], w, options.ego, rng)
+        return _apply(ekf, est, None, stats)
+    helped, reason = False, ""
+    for g in group:
+        est = sensor_velocity(g.xyz_m, g.doppler_mps, options.ego, rng)
+        h, reason = _apply(ekf, est, g.mount, stats)
+        helped |= h
+    return helped, reason
+
+
+def _imu_still(ekf: RadarInertialEkf) -> bool:
+    """The IMU agrees the robot stands still: no rotation beyond noise, specific force of gravity alone."""
+    w = ekf._last_gyro - ekf.state.bg
+    f = ekf._last_accel - ekf.state.ba
+    return bool(np.linalg.norm(w) < 0.01 and abs(np.linalg.norm(f) - 9.80665) < 0.15)
+
+
+def _apply(ekf: RadarInertialEkf, est, mount, stats: Counter):
+    stats[f"ego_{est.status.value}"] += 1
+    if est.status is EgoStatus.ZERO_VELOCITY:
+        if _imu_still(ekf):
+            ekf.update_zero_velocity()
+            stats["zero_velocity_updates"] += 1
+            return True, est.status.value
+        # Creeping (Doppler below the threshold) but the IMU sees motion: an ordinary velocity update.
+        stats["zero_velocity_vetoed_by_imu"] += 1
+    if est.status is not EgoStatus.OK:
+        return False, est.status.value
+    res = ekf.update_radar_velocity(est.velocity_mps, est.covariance, mount) if mount is not None else \
+        ekf.update_body_velocity(est.velocity_mps, est.covariance)
+    stats["radar_updates" if res.accepted else "radar_rejected_by_gate"] += 1
+    return res.accepted, est.status.value if res.accepted else "rejected_by_gate"
+
+
+# -- reading a recording -------------------------------------------------------------------------------------
+def imu_from_recording(rec: Recording) -> ImuData:
+    imu = rec.imu()
+    if imu is None:
+        from imaging.errors import FileFormatError
+
+        raise FileFormatError(f"{rec.path}: no /imu samples: odometry needs the IMU")
+    return ImuData(imu["time_ns"], imu["gyro_radps"], imu["accel_mps2"])
+
+
+def scans_from_recording(rec: Recording, radars: tuple[str, ...] | None = None, time_offset_ns: int = 0) -> list[RadarScan]:
+    """Every radar's detections grouped by scan (radars without /detections are skipped)."""
+    names = radars or tuple(n for n in rec.radar_names if rec.has_detections(n))
+    scans = []
+    for name in names:
+        if not rec.has_detections(name):
+            from imaging.errors import FileFormatError
+
+            raise FileFormatError(f"{rec.path}: radar {name} has no detections (point clouds from raw ADC come with rio.pointcloud)")
+        mount = rec.radar(name).mount
+        d = rec.detections(name)
+        if d["scan"].size == 0:
+            continue
+        order = np.argsort(d["scan"], kind="stable")
+        scan_ids = d["scan"][order]
+        cuts = np.flatnonzero(np.diff(scan_ids)) + 1
+        for idx in np.split(order, cuts):
+            scans.append(RadarScan(int(d["time_ns"][idx[0]]) + time_offset_ns, name, mount,
+                                   d["xyz_m"][idx].astype(np.float64), d["doppler_mps"][idx].astype(np.float64)))
+    return sorted(scans, key=lambda s: s.time_ns)
