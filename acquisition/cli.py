@@ -174,6 +174,54 @@ def cmd_analyze(args) -> int:
     return EXIT_OK
 
 
+def cmd_rio(args) -> int:
+    from imaging.recording import Recording
+    from imaging.trajectory_file import write_trajectory, write_tum
+    from rio.ekf import EkfConfig
+    from rio.odometry import RioOptions, imu_from_recording, run_rio, scans_from_recording
+
+    from .progress import Progress
+
+    with Recording(args.recording) as rec:
+        radars = tuple(args.radar) if args.radar else None
+        for name in radars or ():
+            rec.radar(name)  # a clear error for an unknown name
+        imu = imu_from_recording(rec)
+        scans = scans_from_recording(rec, radars)
+        if not scans:
+            raise SarbotError(f"{args.recording}: no radar detections to run odometry on")
+        truth = rec.truth()
+    options = RioOptions(ekf=EkfConfig(planar=args.planar), joint_radars=args.joint, static_init_s=args.static_init)
+    try:
+        result = run_rio(imu, scans, options, progress=Progress("rio"))
+    except FloatingPointError as exc:
+        print(f"sarbot: odometry failed: {exc}", file=sys.stderr)
+        return 1
+    path = write_trajectory(args.output, result.trajectory, result.covariance_diag)
+    if args.tum:
+        write_tum(args.tum, result.trajectory)
+    summary = {"trajectory": str(path), "poses": int(result.trajectory.time_ns.size), **result.stats}
+    if truth is not None:
+        from rio.evaluation import drift_report
+
+        summary["against_truth"] = drift_report(result.trajectory, truth)
+    print(json.dumps(summary, indent=2, default=_json_default))
+    return EXIT_OK
+
+
+def cmd_import_bag(args) -> int:
+    from .bag_import import import_bag
+    from .progress import Progress
+
+    out = Path(args.output)
+    if out.exists() and not args.overwrite:
+        raise SarbotError(f"{out}: exists already (use --overwrite to replace it)")
+    counts = import_bag(args.bag, args.calib, out, radar_name=args.radar_name, overwrite=args.overwrite,
+                        progress=Progress("import"))
+    print(f"wrote {out}: " + ", ".join(f"{k} {v:.6g}" for k, v in counts.items()))
+    return EXIT_OK
+
+
 def cmd_demo(args) -> int:
     from .demo import run_demo
 
@@ -215,6 +263,24 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--vibration", action="store_true", help="infer f_vib and A_vib from paired cross-range side lobes")
     s.add_argument("--half-length", type=float, default=0.3, help="half length of the cuts, metres")
     s.set_defaults(func=cmd_analyze)
+
+    s = sub.add_parser("rio", help="radar-inertial odometry: a trajectory from IMU and radar detections")
+    s.add_argument("recording")
+    s.add_argument("-o", "--output", required=True, help="trajectory file to write (.h5)")
+    s.add_argument("--tum", help="also write TUM text (t x y z qx qy qz qw) for evo")
+    s.add_argument("--radar", action="append", help="radar to use (repeat; default all with detections)")
+    s.add_argument("--joint", action="store_true", help="solve simultaneous scans of all radars together")
+    s.add_argument("--planar", action="store_true", help="robot on a flat floor: no vertical velocity")
+    s.add_argument("--static-init", type=float, default=1.0, help="seconds of standstill at the start (default 1)")
+    s.set_defaults(func=cmd_rio)
+
+    s = sub.add_parser("import-bag", help="convert a ROS1 bag (IMU, radar point clouds, trigger) to a recording")
+    s.add_argument("bag")
+    s.add_argument("--calib", required=True, help="calibration YAML (topics, radar extrinsics, frame length)")
+    s.add_argument("-o", "--output", required=True)
+    s.add_argument("--radar-name", default="radar")
+    s.add_argument("--overwrite", action="store_true")
+    s.set_defaults(func=cmd_import_bag)
 
     s = sub.add_parser("demo", help="simulate the built-in scene, image it and compare with theory")
     s.add_argument("-o", "--output", default="sarbot-demo", help="output folder (default ./sarbot-demo)")

@@ -51,6 +51,9 @@ class EkfConfig:
     zero_velocity_sigma_mps: float = 0.01
     zero_rate_sigma_radps: float = 2e-3
     gate_chi2: float = CHI2_999[3]
+    gate_recovery_rejections: int = 8  # radar updates refused in a row before the velocity is re-opened
+    recovery_velocity_sigma_mps: float = 1.0
+    bias_step_updates: int = 20  # standstill updates whose mean rate innovation is tested for a gyro bias step
     planar: bool = False  # pseudo-measurement: no vertical velocity (robots on flat floors)
     planar_sigma_mps: float = 0.05
 
@@ -117,6 +120,11 @@ class RadarInertialEkf:
                                           np.full(3, config.gyro_noise_density ** 2), np.full(3, config.accel_bias_random_walk ** 2),
                                           np.full(3, config.gyro_bias_random_walk ** 2)])
         self.state: EkfState | None = None
+        self._rate_sum = np.zeros(3)
+        self._rate_count = 0
+        self._gyro_seq = 0
+        self._rate_seq = -1
+        self.bias_resets = 0
         self._last_gyro = np.zeros(3)
         self._last_accel = np.zeros(3)
 
@@ -154,6 +162,7 @@ class RadarInertialEkf:
             s.p, s.v, s.R, s.P = _strapdown(s.p, s.v, s.R, s.P, self._last_accel - s.ba, self._last_gyro - s.bg, dt, self._q_density)
             s.time_ns = int(time_ns)
         if accel_mps2 is not None:
+            self._gyro_seq += 1
             self._last_accel = np.asarray(accel_mps2, float)
             self._last_gyro = np.asarray(gyro_radps, float)
 
@@ -203,10 +212,38 @@ class RadarInertialEkf:
         H[:, 6:9] = skew(v_body)
         return self._update(np.asarray(velocity_body_mps) - v_body, H, covariance, self.config.gate_chi2)
 
+    def inflate_velocity_uncertainty(self) -> None:
+        """Reset the velocity block of P (and its correlations) to a wide prior."""
+        P = self.state.P
+        P[3:6, :] = 0.0
+        P[:, 3:6] = 0.0
+        P[3:6, 3:6] = np.eye(3) * self.config.recovery_velocity_sigma_mps ** 2
+
     def update_zero_velocity(self) -> UpdateResult:
-        """Standstill: world velocity zero and angular rate zero (makes the gyro bias observable)."""
+        """Standstill: world velocity zero and angular rate zero (makes the gyro bias observable).
+
+        If the rate innovations stay far outside their covariance for several updates in a row, the gyro
+        bias has stepped (a temperature jump, a knock): its uncertainty is re-opened so the standstill can
+        learn the new value instead of creeping towards it.
+        """
         s = self.state
         c = self.config
+        # Test the mean rate innovation over a batch of standstill updates: one sample is too noisy to
+        # tell a bias step from noise, the mean of twenty is not.
+        if self._gyro_seq != self._rate_seq:  # each IMU sample once, however many radars see the standstill
+            self._rate_seq = self._gyro_seq
+            self._rate_sum += self._last_gyro - s.bg
+            self._rate_count += 1
+        if self._rate_count >= c.bias_step_updates:
+            mean = self._rate_sum / self._rate_count
+            cov = s.P[12:15, 12:15] + np.eye(3) * c.zero_rate_sigma_radps ** 2 / self._rate_count
+            if float(mean @ np.linalg.solve(cov, mean)) > CHI2_999[3]:
+                s.P[12:15, :] = 0.0
+                s.P[:, 12:15] = 0.0
+                s.P[12:15, 12:15] = np.eye(3) * c.init_gyro_bias_sigma ** 2
+                self.bias_resets += 1
+            self._rate_sum = np.zeros(3)
+            self._rate_count = 0
         H = np.zeros((6, 15))
         H[0:3, 3:6] = np.eye(3)
         H[3:6, 12:15] = -np.eye(3)  # measured rate - b_g = 0

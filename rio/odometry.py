@@ -57,6 +57,8 @@ class RioResult:
     stats: dict
     #: Time of every radar scan and whether the radar helped (for diagnostics and tests).
     scan_status: list[tuple[int, str, str]]
+    gyro_bias_radps: np.ndarray | None = None  # [N, 3] at the trajectory's times
+    accel_bias_mps2: np.ndarray | None = None
 
     @property
     def zero_velocity_times_ns(self) -> np.ndarray:
@@ -82,7 +84,7 @@ def run_rio(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOptio
     ekf.initialise_static(t_imu[k0], acc[still], gyr[still])
     ekf.propagate(t_imu[k0], acc[k0], gyr[k0])
     out_every = max(1, int(round((1e9 / np.median(np.diff(t_imu))) / options.output_rate_hz)))
-    times, pos, quat, vel, cov = [], [], [], [], []
+    times, pos, quat, vel, cov, bgs, bas = [], [], [], [], [], [], []
     stats: Counter = Counter()
     status_log: list[tuple[int, str, str]] = []
     j = 0
@@ -125,26 +127,31 @@ def run_rio(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOptio
             quat.append(s.R.copy())
             vel.append(s.v.copy())
             cov.append(np.diag(s.P).copy())
+            bgs.append(s.bg.copy())
+            bas.append(s.ba.copy())
         if progress is not None and (k - k0) % 20000 == 0:
             progress(k - k0, total)
     if progress is not None:
         progress(total, total)
     quat = Rotation.from_matrix(np.array(quat)).as_quat()
     traj = SampledTrajectory(np.array(times), np.array(pos), quat, np.array(vel), source="rio")
+    stats.pop("_rejected_in_row", None)
+    if ekf.bias_resets:
+        stats["gyro_bias_resets"] = ekf.bias_resets
     stats["scans"] = len(scans)
     stats["imu_samples"] = int(t_imu.size)
-    return RioResult(traj, np.array(cov), dict(stats), status_log)
+    return RioResult(traj, np.array(cov), dict(stats), status_log, np.array(bgs), np.array(bas))
 
 
 def _radar_update(ekf: RadarInertialEkf, group: list[RadarScan], options: RioOptions, rng, stats: Counter):
     if options.joint_radars and len(group) > 1:
         w = ekf._last_gyro - ekf.state.bg
         est = body_velocity([(g.mount, g.xyz_m, g.doppler_mps) for g in group], w, options.ego, rng)
-        return _apply(ekf, est, None, stats)
+        return _apply(ekf, est, None, stats, options.ego)
     helped, reason = False, ""
     for g in group:
         est = sensor_velocity(g.xyz_m, g.doppler_mps, options.ego, rng)
-        h, reason = _apply(ekf, est, g.mount, stats)
+        h, reason = _apply(ekf, est, g.mount, stats, options.ego)
         helped |= h
     return helped, reason
 
@@ -156,20 +163,33 @@ def _imu_still(ekf: RadarInertialEkf) -> bool:
     return bool(np.linalg.norm(w) < 0.01 and abs(np.linalg.norm(f) - 9.80665) < 0.15)
 
 
-def _apply(ekf: RadarInertialEkf, est, mount, stats: Counter):
+def _apply(ekf: RadarInertialEkf, est, mount, stats: Counter, ego: EgoVelocityConfig):
     stats[f"ego_{est.status.value}"] += 1
     if est.status is EgoStatus.ZERO_VELOCITY:
         if _imu_still(ekf):
             ekf.update_zero_velocity()
             stats["zero_velocity_updates"] += 1
             return True, est.status.value
-        # Creeping (Doppler below the threshold) but the IMU sees motion: an ordinary velocity update.
+        # Creeping (Doppler below the threshold) but the IMU sees motion: an ordinary velocity update
+        # with the near-zero velocity the radar measured.
         stats["zero_velocity_vetoed_by_imu"] += 1
+        # The measurement says "slower than the zero-velocity threshold": that is its uncertainty.
+        est = dataclasses.replace(est, status=EgoStatus.OK, covariance=np.eye(3) * ego.zero_velocity_threshold_mps ** 2)
     if est.status is not EgoStatus.OK:
         return False, est.status.value
     res = ekf.update_radar_velocity(est.velocity_mps, est.covariance, mount) if mount is not None else \
         ekf.update_body_velocity(est.velocity_mps, est.covariance)
     stats["radar_updates" if res.accepted else "radar_rejected_by_gate"] += 1
+    if res.accepted:
+        stats["_rejected_in_row"] = 0
+    else:
+        stats["_rejected_in_row"] += 1
+        if stats["_rejected_in_row"] >= ekf.config.gate_recovery_rejections:
+            # The gate has refused the radar for a while: more likely the state drifted than every scan is
+            # wrong. Re-open the velocity uncertainty so the next consistent scan can pull it back.
+            ekf.inflate_velocity_uncertainty()
+            stats["gate_recoveries"] += 1
+            stats["_rejected_in_row"] = 0
     return res.accepted, est.status.value if res.accepted else "rejected_by_gate"
 
 
