@@ -157,3 +157,28 @@ def test_volume_grid(recording, tmp_path):
         assert f["image"].shape == (5, 21, 21)
         np.testing.assert_allclose(f["z_m"][()], [0.1, 0.2, 0.3, 0.4, 0.5])
     assert_user_error(sarbot("analyze", out), "2-D")
+
+
+def test_rio_from_the_command_line(tmp_path):
+    scene = tmp_path / "drive.toml"
+    scene.write_text(
+        'duration_s = 20.0\nimu = true\nradars = ["left_front", "right_front"]\n'
+        '[trajectory]\nkind = "path"\nstart_m = [-3.0, -2.0, 0.0]\nspeed_mps = 0.5\naccel_mps2 = 0.4\nstart_delay_s = 3.0\n'
+        'segments = [["straight", 3.0], ["arc", 1.0, 90.0], ["straight", 2.0]]\n'
+        '[detections]\ndetection_probability = 0.5\n[room]\nsize_m = [12.0, 9.0]\nspacing_m = 0.5\n'
+    )
+    rec, traj, tum = tmp_path / "drive.h5", tmp_path / "traj.h5", tmp_path / "traj.txt"
+    res = sarbot("simulate", scene, "-o", rec)
+    assert res.returncode == 0, res.stderr
+    res = sarbot("rio", rec, "-o", traj, "--tum", tum)
+    assert res.returncode == 0, res.stderr
+    report = json.loads(res.stdout)
+    assert report["against_truth"]["distance_m"] > 6
+    assert report["against_truth"]["final_drift_percent"] < 1.0
+    assert len(tum.read_text().splitlines()) == report["poses"]
+    with h5py.File(traj) as f:
+        assert f.attrs["schema"] == "sarbot.trajectory" and f.attrs["source"] == "rio"
+    # A recording with ADC but no detections cannot run odometry yet: one clear line.
+    adc = tmp_path / "adc.h5"
+    assert sarbot("simulate", "point_target", "-o", adc).returncode == 0
+    assert_user_error(sarbot("rio", adc, "-o", tmp_path / "t2.h5"), "no /imu")

@@ -1,0 +1,66 @@
+"""The real ROS1 recording (TI IWR6843AOP point clouds, ADIS16448 IMU, hardware trigger): what can be
+asserted without ground truth."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import SHARED_DATA
+from imaging.recording import Recording
+from rio.ego_velocity import EgoStatus
+from rio.odometry import RioOptions, imu_from_recording, run_rio, scans_from_recording
+
+BAG = SHARED_DATA / "ti_mmwave_rospkg_demo"
+
+
+@pytest.fixture(scope="module")
+def imported(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bag") / "demo.h5"
+    res = subprocess.run([sys.executable, "-m", "acquisition.cli", "import-bag", str(BAG / "ti_mmwave_rospkg_demo.bag"),
+                          "--calib", str(BAG / "calib_ti_mmwave_rospkg_dataset.yaml"), "-o", str(out)],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert "scans 412" in res.stdout and "imu_samples 8270" in res.stdout
+    return out
+
+
+def test_import_keeps_every_message_on_one_clock(imported):
+    with Recording(imported) as rec:
+        imu = rec.imu()
+        trig = rec.triggers()
+        det = rec.detections("radar")
+        frames = rec.frame_time_ns("radar")
+        mount = rec.radar("radar").mount
+    assert imu["time_ns"].size == 8270 and trig.size == 413 and frames.size == 412
+    assert np.all(np.diff(imu["time_ns"]) > 0)
+    assert 200 < imu["rate_hz"] < 210
+    # Each scan starts at a trigger; its detections are stamped mid-frame (18.5 ms frames).
+    assert np.all(np.isin(frames, trig))
+    scan_time = det["time_ns"][np.searchsorted(det["scan"], np.arange(frames.size))]
+    np.testing.assert_array_equal(scan_time - frames, 9_250_000)
+    # Triggers and IMU share the sensor clock: they overlap in time.
+    assert imu["time_ns"][0] < trig[0] < imu["time_ns"][-1]
+    assert 19 <= np.bincount(det["scan"]).min() and np.bincount(det["scan"]).max() <= 87
+    np.testing.assert_allclose(mount.translation_m, [0.03, 0.03, -0.06])
+
+
+def test_static_start_and_end_are_recognised(imported):
+    with Recording(imported) as rec:
+        imu = imu_from_recording(rec)
+        scans = scans_from_recording(rec)
+    res = run_rio(imu, scans, RioOptions(static_init_s=1.0))
+    assert np.all(np.isfinite(res.trajectory.position_m))
+    # Initial attitude from gravity: the rig rests tilted by the mean specific force's direction.
+    f = imu.accel_mps2[imu.time_ns < imu.time_ns[0] + 1_000_000_000].mean(axis=0)
+    roll, pitch = res.trajectory.sample(res.trajectory.time_ns[:1]).rotation.as_euler("xyz")[0, :2]
+    assert roll == pytest.approx(np.arctan2(f[1], f[2]), abs=0.01)
+    assert pitch == pytest.approx(np.arctan2(-f[0], np.hypot(f[1], f[2])), abs=0.01)
+    status = [s for _, _, s in res.scan_status]
+    n = len(status)
+    zv = np.array([s == EgoStatus.ZERO_VELOCITY.value for s in status])
+    # Standing at the start (about 4 s) and set down for the last half second (the IMU still shakes before).
+    assert zv[: n // 10].mean() > 0.8 and zv[-4:].all()
+    assert zv[n // 3: 2 * n // 3].mean() < 0.3  # carried around in between
