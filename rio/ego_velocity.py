@@ -34,6 +34,7 @@ class EgoVelocityConfig:
     min_inlier_ratio: float = 0.35
     zero_velocity_threshold_mps: float = 0.03
     zero_velocity_ratio: float = 0.6
+    creep_chi2: float = 16.27  # 99.9 % of chi2(3): a near-zero velocity this far from zero is creeping, not standing
     max_sigma_mps: float = 0.15
     max_condition: float = 1e4
     min_sigma_mps: float = 0.01  # floor on the per-detection Doppler noise used for the covariance
@@ -68,7 +69,17 @@ def solve_ego_velocity(a: np.ndarray, b: np.ndarray, config: EgoVelocityConfig =
     # Standstill: most detections (the static world) have no Doppler at all.
     still = np.abs(b) < config.zero_velocity_threshold_mps
     if still.mean() >= config.zero_velocity_ratio:
-        sigma = max(config.min_sigma_mps, float(np.std(b[still])))
+        # Most Doppler is near zero. Standing still, or creeping below the threshold? The least-squares
+        # velocity of those detections tells: zero only if it is not significantly different from zero.
+        ai, bi = a[still], b[still]
+        v, *_ = np.linalg.lstsq(ai, bi, rcond=None)
+        dof = max(int(still.sum()) - 3, 1)
+        sigma = max(config.min_sigma_mps, float(np.sqrt(np.sum((ai @ v - bi) ** 2) / dof)))
+        ata = ai.T @ ai
+        if np.linalg.cond(ata) < config.max_condition:
+            cov = sigma ** 2 * np.linalg.inv(ata)
+            if float(v @ np.linalg.solve(cov, v)) > config.creep_chi2:
+                return EgoVelocity(EgoStatus.OK, v, cov, still, sigma)
         cov = np.eye(3) * (sigma ** 2) / max(still.sum() / 3.0, 1.0)
         return EgoVelocity(EgoStatus.ZERO_VELOCITY, np.zeros(3), cov, still, sigma)
     # All RANSAC hypotheses at once: minimal sets of 3 equations, solved as a batch.

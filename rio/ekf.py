@@ -45,16 +45,21 @@ class EkfConfig:
     init_position_sigma_m: float = 1e-3
     init_velocity_sigma_mps: float = 0.02
     init_attitude_sigma_rad: float = math.radians(2.0)
-    init_yaw_sigma_rad: float = math.radians(0.5)
+    init_yaw_sigma_rad: float = 1e-4  # the world frame takes its heading from the start pose
     init_accel_bias_sigma: float = 0.1
     init_gyro_bias_sigma: float = 0.01
-    zero_velocity_sigma_mps: float = 0.01
+    zero_velocity_sigma_mps: float = 0.02  # the radar's zero-velocity threshold: creeping below it looks still
     zero_rate_sigma_radps: float = 2e-3
     gate_chi2: float = CHI2_999[3]
     gate_recovery_rejections: int = 8  # radar updates refused in a row before the velocity is re-opened
     recovery_velocity_sigma_mps: float = 1.0
-    bias_step_updates: int = 20  # standstill updates whose mean rate innovation is tested for a gyro bias step
+    standstill_trim_s: float = 0.5  # gyro samples left out at both ends of a standstill (creeping in and out)
+    standstill_min_samples: int = 50
     planar: bool = False  # pseudo-measurement: no vertical velocity (robots on flat floors)
+    #: Let radar velocity updates correct the gyro bias through the lever arm (w x l). The coupling is weak
+    #: (0.2 m lever arms) and small systematic ego-velocity errors that differ between radars then leak
+    #: into the yaw-rate bias; off by default, the bias is learned at standstill (zero-rate update).
+    radar_observes_gyro_bias: bool = False
     planar_sigma_mps: float = 0.05
 
 
@@ -120,10 +125,9 @@ class RadarInertialEkf:
                                           np.full(3, config.gyro_noise_density ** 2), np.full(3, config.accel_bias_random_walk ** 2),
                                           np.full(3, config.gyro_bias_random_walk ** 2)])
         self.state: EkfState | None = None
-        self._rate_sum = np.zeros(3)
-        self._rate_count = 0
-        self._gyro_seq = 0
-        self._rate_seq = -1
+        # Gyro samples of the current standstill (time ns, rate), for one zero-rate update when it ends.
+        self._standstill: list[tuple[int, np.ndarray]] = []
+        self._in_standstill = False
         self.bias_resets = 0
         self._last_gyro = np.zeros(3)
         self._last_accel = np.zeros(3)
@@ -144,6 +148,11 @@ class RadarInertialEkf:
             np.full(3, c.init_position_sigma_m ** 2), np.full(3, c.init_velocity_sigma_mps ** 2),
             [c.init_attitude_sigma_rad ** 2, c.init_attitude_sigma_rad ** 2, c.init_yaw_sigma_rad ** 2],
             np.full(3, c.init_accel_bias_sigma ** 2), np.full(3, c.init_gyro_bias_sigma ** 2)]))
+        # The gyro bias is the mean rate of the standstill: its uncertainty is that of a mean (plus the
+        # random walk it may still do), not the wide prior.
+        n = len(gyro_radps)
+        bg_var = np.maximum(np.var(gyro_radps, axis=0) / max(n, 1), (1e-5) ** 2)
+        P[12:15, 12:15] = np.diag(bg_var)
         self.state = EkfState(int(time_ns), np.asarray(position_m, float).copy(), np.zeros(3), R, np.zeros(3),
                               np.mean(gyro_radps, axis=0), P)
         self._last_gyro = np.mean(gyro_radps, axis=0)
@@ -162,7 +171,8 @@ class RadarInertialEkf:
             s.p, s.v, s.R, s.P = _strapdown(s.p, s.v, s.R, s.P, self._last_accel - s.ba, self._last_gyro - s.bg, dt, self._q_density)
             s.time_ns = int(time_ns)
         if accel_mps2 is not None:
-            self._gyro_seq += 1
+            if self._in_standstill:
+                self._standstill.append((int(time_ns), np.asarray(gyro_radps, float)))
             self._last_accel = np.asarray(accel_mps2, float)
             self._last_gyro = np.asarray(gyro_radps, float)
 
@@ -191,6 +201,7 @@ class RadarInertialEkf:
 
     def update_radar_velocity(self, velocity_sensor_mps: np.ndarray, covariance: np.ndarray, mount) -> UpdateResult:
         """Sensor-frame ego velocity from one radar: v_s = R_m^T (R^T v + w x l), w = gyro - b_g."""
+        self.end_standstill()
         s = self.state
         Rm = mount.rotation.as_matrix()
         lever = mount.translation_m
@@ -200,11 +211,13 @@ class RadarInertialEkf:
         H = np.zeros((3, 15))
         H[:, 3:6] = Rm.T @ s.R.T
         H[:, 6:9] = Rm.T @ skew(v_body)
-        H[:, 12:15] = Rm.T @ skew(lever)
+        if self.config.radar_observes_gyro_bias:
+            H[:, 12:15] = Rm.T @ skew(lever)
         return self._update(np.asarray(velocity_sensor_mps) - predicted, H, covariance, self.config.gate_chi2)
 
     def update_body_velocity(self, velocity_body_mps: np.ndarray, covariance: np.ndarray) -> UpdateResult:
         """Body-frame velocity (several radars solved together)."""
+        self.end_standstill()
         s = self.state
         v_body = s.R.T @ s.v
         H = np.zeros((3, 15))
@@ -220,36 +233,45 @@ class RadarInertialEkf:
         P[3:6, 3:6] = np.eye(3) * self.config.recovery_velocity_sigma_mps ** 2
 
     def update_zero_velocity(self) -> UpdateResult:
-        """Standstill: world velocity zero and angular rate zero (makes the gyro bias observable).
+        """Standstill: world velocity zero now; the angular rate is used once the standstill ends.
 
-        If the rate innovations stay far outside their covariance for several updates in a row, the gyro
-        bias has stepped (a temperature jump, a knock): its uncertainty is re-opened so the standstill can
-        learn the new value instead of creeping towards it.
+        Radar Doppler cannot tell standing from creeping a few mm/s, and a robot creeping out of a stop on
+        an arc already turns. So the gyro samples of the standstill are gathered and, when it ends, their
+        mean without the first and last ``standstill_trim_s`` becomes one zero-rate update (the gyro bias).
         """
+        self._in_standstill = True
         s = self.state
+        H = np.zeros((3, 15))
+        H[:, 3:6] = np.eye(3)
+        return self._update(-s.v, H, np.eye(3) * self.config.zero_velocity_sigma_mps ** 2, None)
+
+    def end_standstill(self) -> UpdateResult | None:
+        """Close the current standstill: one zero-rate update from its trimmed mean gyro rate.
+
+        If that mean lies far outside the bias covariance, the bias has stepped (a temperature jump, a
+        knock): its uncertainty is re-opened first, so the update learns the new value.
+        """
+        samples, self._standstill, self._in_standstill = self._standstill, [], False
         c = self.config
-        # Test the mean rate innovation over a batch of standstill updates: one sample is too noisy to
-        # tell a bias step from noise, the mean of twenty is not.
-        if self._gyro_seq != self._rate_seq:  # each IMU sample once, however many radars see the standstill
-            self._rate_seq = self._gyro_seq
-            self._rate_sum += self._last_gyro - s.bg
-            self._rate_count += 1
-        if self._rate_count >= c.bias_step_updates:
-            mean = self._rate_sum / self._rate_count
-            cov = s.P[12:15, 12:15] + np.eye(3) * c.zero_rate_sigma_radps ** 2 / self._rate_count
-            if float(mean @ np.linalg.solve(cov, mean)) > CHI2_999[3]:
-                s.P[12:15, :] = 0.0
-                s.P[:, 12:15] = 0.0
-                s.P[12:15, 12:15] = np.eye(3) * c.init_gyro_bias_sigma ** 2
-                self.bias_resets += 1
-            self._rate_sum = np.zeros(3)
-            self._rate_count = 0
-        H = np.zeros((6, 15))
-        H[0:3, 3:6] = np.eye(3)
-        H[3:6, 12:15] = -np.eye(3)  # measured rate - b_g = 0
-        residual = np.concatenate([-s.v, -(self._last_gyro - s.bg)])
-        R_meas = np.diag(np.concatenate([np.full(3, c.zero_velocity_sigma_mps ** 2), np.full(3, c.zero_rate_sigma_radps ** 2)]))
-        return self._update(residual, H, R_meas, None)
+        if not samples:
+            return None
+        t = np.array([ts for ts, _ in samples])
+        trim = int(c.standstill_trim_s * 1e9)
+        keep = (t >= t[0] + trim) & (t <= t[-1] - trim)
+        n = int(keep.sum())
+        if n < c.standstill_min_samples:
+            return None
+        s = self.state
+        rate = np.mean([g for (_, g), k in zip(samples, keep) if k], axis=0) - s.bg
+        rate_cov = np.eye(3) * c.zero_rate_sigma_radps ** 2 / n
+        if float(rate @ np.linalg.solve(s.P[12:15, 12:15] + rate_cov, rate)) > CHI2_999[3]:
+            s.P[12:15, :] = 0.0
+            s.P[:, 12:15] = 0.0
+            s.P[12:15, 12:15] = np.eye(3) * c.init_gyro_bias_sigma ** 2
+            self.bias_resets += 1
+        H = np.zeros((3, 15))
+        H[:, 12:15] = -np.eye(3)  # measured rate - b_g = 0
+        return self._update(-rate, H, rate_cov, None)
 
     def update_planar(self) -> UpdateResult:
         """No vertical velocity in the world frame (a robot on a flat floor)."""

@@ -135,6 +135,7 @@ def run_rio(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOptio
         progress(total, total)
     quat = Rotation.from_matrix(np.array(quat)).as_quat()
     traj = SampledTrajectory(np.array(times), np.array(pos), quat, np.array(vel), source="rio")
+    ekf.end_standstill()
     stats.pop("_rejected_in_row", None)
     if ekf.bias_resets:
         stats["gyro_bias_resets"] = ekf.bias_resets
@@ -164,33 +165,40 @@ def _imu_still(ekf: RadarInertialEkf) -> bool:
 
 
 def _apply(ekf: RadarInertialEkf, est, mount, stats: Counter, ego: EgoVelocityConfig):
+    """Turn one ego-velocity estimate into a filter update; returns (radar helped, reason)."""
     stats[f"ego_{est.status.value}"] += 1
     if est.status is EgoStatus.ZERO_VELOCITY:
         if _imu_still(ekf):
             ekf.update_zero_velocity()
             stats["zero_velocity_updates"] += 1
             return True, est.status.value
-        # Creeping (Doppler below the threshold) but the IMU sees motion: an ordinary velocity update
-        # with the near-zero velocity the radar measured.
+        # Creeping (Doppler below the threshold) but the IMU sees motion: an ordinary velocity update with
+        # the near-zero velocity measured, as uncertain as the zero-velocity threshold.
         stats["zero_velocity_vetoed_by_imu"] += 1
-        # The measurement says "slower than the zero-velocity threshold": that is its uncertainty.
-        est = dataclasses.replace(est, status=EgoStatus.OK, covariance=np.eye(3) * ego.zero_velocity_threshold_mps ** 2)
+        est = dataclasses.replace(est, covariance=np.eye(3) * ego.zero_velocity_threshold_mps ** 2)
+        return _velocity_update(ekf, est, mount, stats), "zero_velocity_vetoed_by_imu"
+    ekf.end_standstill()
     if est.status is not EgoStatus.OK:
         return False, est.status.value
+    accepted = _velocity_update(ekf, est, mount, stats)
+    return accepted, est.status.value if accepted else "rejected_by_gate"
+
+
+def _velocity_update(ekf: RadarInertialEkf, est, mount, stats: Counter) -> bool:
     res = ekf.update_radar_velocity(est.velocity_mps, est.covariance, mount) if mount is not None else \
         ekf.update_body_velocity(est.velocity_mps, est.covariance)
     stats["radar_updates" if res.accepted else "radar_rejected_by_gate"] += 1
     if res.accepted:
         stats["_rejected_in_row"] = 0
-    else:
-        stats["_rejected_in_row"] += 1
-        if stats["_rejected_in_row"] >= ekf.config.gate_recovery_rejections:
-            # The gate has refused the radar for a while: more likely the state drifted than every scan is
-            # wrong. Re-open the velocity uncertainty so the next consistent scan can pull it back.
-            ekf.inflate_velocity_uncertainty()
-            stats["gate_recoveries"] += 1
-            stats["_rejected_in_row"] = 0
-    return res.accepted, est.status.value if res.accepted else "rejected_by_gate"
+        return True
+    stats["_rejected_in_row"] += 1
+    if stats["_rejected_in_row"] >= ekf.config.gate_recovery_rejections:
+        # The gate has refused the radar for a while: more likely the state drifted than every scan is
+        # wrong. Re-open the velocity uncertainty so the next consistent scan can pull it back.
+        ekf.inflate_velocity_uncertainty()
+        stats["gate_recoveries"] += 1
+        stats["_rejected_in_row"] = 0
+    return False
 
 
 # -- reading a recording -------------------------------------------------------------------------------------

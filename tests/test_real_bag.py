@@ -60,7 +60,8 @@ def test_static_start_and_end_are_recognised(imported):
     assert pitch == pytest.approx(np.arctan2(-f[0], np.hypot(f[1], f[2])), abs=0.01)
     status = [s for _, _, s in res.scan_status]
     n = len(status)
-    zv = np.array([s == EgoStatus.ZERO_VELOCITY.value for s in status])
+    # The radar's own verdict (whether or not the IMU then agreed to a zero-velocity update).
+    zv = np.array([s.startswith(EgoStatus.ZERO_VELOCITY.value) for s in status])
     # Standing at the start (about 4 s) and set down for the last half second (the IMU still shakes before).
     assert zv[: n // 10].mean() > 0.8 and zv[-4:].all()
     assert zv[n // 3: 2 * n // 3].mean() < 0.3  # carried around in between
