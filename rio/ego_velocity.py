@@ -14,6 +14,10 @@ import enum
 import numpy as np
 
 
+#: Variance given to a velocity component the radar does not measure (m/s)^2.
+UNMEASURED_VARIANCE = 100.0
+
+
 class EgoStatus(enum.Enum):
     OK = "ok"
     ZERO_VELOCITY = "zero_velocity"
@@ -63,6 +67,7 @@ def solve_ego_velocity(a: np.ndarray, b: np.ndarray, config: EgoVelocityConfig =
     """
     rng = rng or np.random.default_rng(0)
     n = b.size
+    dim = a.shape[1]  # 3, or 2 for a radar that measures no elevation
     none = np.zeros(n, bool)
     if n < config.min_detections:
         return EgoVelocity(EgoStatus.TOO_FEW, None, None, none)
@@ -73,18 +78,18 @@ def solve_ego_velocity(a: np.ndarray, b: np.ndarray, config: EgoVelocityConfig =
         # velocity of those detections tells: zero only if it is not significantly different from zero.
         ai, bi = a[still], b[still]
         v, *_ = np.linalg.lstsq(ai, bi, rcond=None)
-        dof = max(int(still.sum()) - 3, 1)
+        dof = max(int(still.sum()) - dim, 1)
         sigma = max(config.min_sigma_mps, float(np.sqrt(np.sum((ai @ v - bi) ** 2) / dof)))
         ata = ai.T @ ai
         if np.linalg.cond(ata) < config.max_condition:
             cov = sigma ** 2 * np.linalg.inv(ata)
             if float(v @ np.linalg.solve(cov, v)) > config.creep_chi2:
                 return EgoVelocity(EgoStatus.OK, v, cov, still, sigma)
-        cov = np.eye(3) * (sigma ** 2) / max(still.sum() / 3.0, 1.0)
-        return EgoVelocity(EgoStatus.ZERO_VELOCITY, np.zeros(3), cov, still, sigma)
+        cov = np.eye(dim) * (sigma ** 2) / max(still.sum() / dim, 1.0)
+        return EgoVelocity(EgoStatus.ZERO_VELOCITY, np.zeros(dim), cov, still, sigma)
     # All RANSAC hypotheses at once: minimal sets of 3 equations, solved as a batch.
-    picks = rng.integers(0, n, (2 * config.ransac_iterations, 3))
-    distinct = (picks[:, 0] != picks[:, 1]) & (picks[:, 0] != picks[:, 2]) & (picks[:, 1] != picks[:, 2])
+    picks = np.sort(rng.integers(0, n, (2 * config.ransac_iterations, dim)), axis=1)
+    distinct = np.all(np.diff(picks, axis=1) > 0, axis=1)
     picks = picks[distinct][: config.ransac_iterations]
     mats = a[picks]
     ok = np.abs(np.linalg.det(mats)) > 1e-9
@@ -106,7 +111,7 @@ def solve_ego_velocity(a: np.ndarray, b: np.ndarray, config: EgoVelocityConfig =
     ata = ai.T @ ai
     if np.linalg.cond(ata) > config.max_condition:
         return EgoVelocity(EgoStatus.ILL_CONDITIONED, None, None, best)
-    dof = max(int(best.sum()) - 3, 1)
+    dof = max(int(best.sum()) - dim, 1)
     sigma = max(config.min_sigma_mps, float(np.sqrt(np.sum((ai @ v - bi) ** 2) / dof)))
     if sigma > config.max_sigma_mps:
         return EgoVelocity(EgoStatus.NOISY, None, None, best, sigma)
@@ -119,7 +124,15 @@ def sensor_velocity(xyz_m: np.ndarray, doppler_mps: np.ndarray, config: EgoVeloc
     r = np.linalg.norm(xyz_m, axis=1)
     keep = r > config.min_range_m
     u = xyz_m[keep] / r[keep, None]
-    est = solve_ego_velocity(-u, doppler_mps[keep], config, rng)
+    planar = u.shape[0] > 0 and np.ptp(u[:, 2]) < 1e-6 and np.abs(u[:, 2]).max() < 1e-6
+    est = solve_ego_velocity(-u[:, :2] if planar else -u, doppler_mps[keep], config, rng)
+    if planar and est.velocity_mps is not None:
+        # A radar without elevation: the vertical velocity is not measured (a wide prior, not a zero).
+        est.velocity_mps = np.append(est.velocity_mps, 0.0)
+        cov = np.zeros((3, 3))
+        cov[:2, :2] = est.covariance
+        cov[2, 2] = UNMEASURED_VARIANCE
+        est.covariance = cov
     inliers = np.zeros(r.size, bool)
     inliers[keep] = est.inliers
     est.inliers = inliers

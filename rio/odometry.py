@@ -211,23 +211,52 @@ def imu_from_recording(rec: Recording) -> ImuData:
     return ImuData(imu["time_ns"], imu["gyro_radps"], imu["accel_mps2"])
 
 
-def scans_from_recording(rec: Recording, radars: tuple[str, ...] | None = None, time_offset_ns: int = 0) -> list[RadarScan]:
-    """Every radar's detections grouped by scan (radars without /detections are skipped)."""
-    names = radars or tuple(n for n in rec.radar_names if rec.has_detections(n))
+def scans_from_recording(rec: Recording, radars: tuple[str, ...] | None = None, time_offset_ns: int = 0,
+                         pointcloud_config=None) -> list[RadarScan]:
+    """Every radar's detections grouped by scan, at the scan's mid-frame time.
+
+    Radars that deliver point clouds use their ``/detections``; radars with raw ADC frames only are
+    turned into point clouds here (``rio.pointcloud``). Invalid (zero-filled) frames are left out.
+    """
+    names = radars or tuple(n for n in rec.radar_names if rec.has_detections(n) or rec.has_adc(n))
     scans = []
     for name in names:
-        if not rec.has_detections(name):
+        config = rec.radar(name)
+        if rec.has_detections(name):
+            d = rec.detections(name)
+            if d["scan"].size == 0:
+                continue
+            order = np.argsort(d["scan"], kind="stable")
+            cuts = np.flatnonzero(np.diff(d["scan"][order])) + 1
+            for idx in np.split(order, cuts):
+                scans.append(RadarScan(int(d["time_ns"][idx[0]]) + time_offset_ns, name, config.mount,
+                                       d["xyz_m"][idx].astype(np.float64), d["doppler_mps"][idx].astype(np.float64)))
+        elif rec.has_adc(name):
+            scans.extend(_scans_from_adc(rec, name, config, time_offset_ns, pointcloud_config))
+        else:
             from imaging.errors import FileFormatError
 
-            raise FileFormatError(f"{rec.path}: radar {name} has no detections (point clouds from raw ADC come with rio.pointcloud)")
-        mount = rec.radar(name).mount
-        d = rec.detections(name)
-        if d["scan"].size == 0:
-            continue
-        order = np.argsort(d["scan"], kind="stable")
-        scan_ids = d["scan"][order]
-        cuts = np.flatnonzero(np.diff(scan_ids)) + 1
-        for idx in np.split(order, cuts):
-            scans.append(RadarScan(int(d["time_ns"][idx[0]]) + time_offset_ns, name, mount,
-                                   d["xyz_m"][idx].astype(np.float64), d["doppler_mps"][idx].astype(np.float64)))
+            raise FileFormatError(f"{rec.path}: radar {name} has neither detections nor ADC frames")
     return sorted(scans, key=lambda s: s.time_ns)
+
+
+def _scans_from_adc(rec: Recording, name: str, config, time_offset_ns: int, pointcloud_config) -> list[RadarScan]:
+    from .pointcloud import PointCloudConfig, detect
+
+    pc_config = pointcloud_config or PointCloudConfig()
+    wf = config.waveform
+    tx_order = rec.tdm_tx_order(name)
+    half_frame = int(round(wf.chirps_per_frame * wf.chirp_interval_s * 1e9 / 2))
+    n = rec.n_frames(name)
+    out = []
+    for start in range(0, n, 32):
+        block = slice(start, min(start + 32, n))
+        adc = rec.adc(name, block)
+        times = rec.frame_time_ns(name, block)
+        valid = rec.valid(name, block)
+        for frame, t, ok in zip(adc, times, valid):
+            if not ok:
+                continue
+            pc = detect(frame, config, tx_order, pc_config)
+            out.append(RadarScan(int(t) + half_frame + time_offset_ns, name, config.mount, pc.xyz_m, pc.doppler_mps))
+    return out

@@ -1,0 +1,144 @@
+"""Point clouds from raw TDM-MIMO frames: range FFT, Doppler FFT per virtual channel, CFAR, angle of arrival.
+
+For one frame (chirps x RX x samples): range FFT along fast time; the chirps of each TX form its slow time,
+Doppler FFT along it; the range-Doppler power summed over all virtual channels goes through a cell-averaging
+(or ordered-statistic) CFAR; at each detection the virtual-array snapshot is corrected for the TDM
+motion phase (TX i fires i chirp intervals after TX 0, so a moving target's phase has advanced by
+2 pi f_d i T_r) and an FFT across the virtual array gives the azimuth. Peaks are refined by parabolic
+interpolation in range, Doppler and angle. The default array is a horizontal line, so elevation is zero.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import scipy.ndimage
+
+from imaging import SPEED_OF_LIGHT_MPS
+from imaging.rig import RadarConfig
+from imaging.windows import get_window
+
+
+@dataclasses.dataclass(frozen=True)
+class PointCloudConfig:
+    """Processing settings (SI units)."""
+
+    range_window: str = "hann"
+    doppler_window: str = "hann"
+    angle_fft_size: int = 64
+    cfar: str = "ca"  # "ca" cell averaging, "os" ordered statistic
+    guard_cells: tuple[int, int] = (2, 2)  # (Doppler, range)
+    training_cells: tuple[int, int] = (4, 8)
+    threshold_db: float = 13.0
+    os_rank: float = 0.75  # ordered statistic: this quantile of the training cells
+    min_range_m: float = 0.3
+    max_detections: int = 256
+
+
+@dataclasses.dataclass
+class PointCloud:
+    """Detections of one frame: xyz_m [D, 3] sensor frame, doppler_mps [D] (range rate), snr_db [D]."""
+
+    xyz_m: np.ndarray
+    doppler_mps: np.ndarray
+    snr_db: np.ndarray
+    range_m: np.ndarray
+    azimuth_rad: np.ndarray
+
+
+def range_doppler_cube(frame: np.ndarray, radar: RadarConfig, tx_order: np.ndarray, config: PointCloudConfig):
+    """Complex cube [Doppler, virtual channel, range] and the virtual channels' positions along sensor y.
+
+    ``frame``: complex [chirps, n_rx, samples]. Channels are ordered by their virtual position.
+    """
+    wf = radar.waveform
+    n_c, n_r, n_s = frame.shape
+    n_range = 1 << int(np.ceil(np.log2(n_s)))
+    rng = np.fft.fft(frame * get_window(config.range_window, n_s), n_range, axis=-1)  # [C, R, Nr]
+    tx_order = np.asarray(tx_order)
+    per_tx = []
+    positions = []
+    for i in range(wf.n_tx):
+        chirps = np.flatnonzero(tx_order == i)
+        slow = rng[chirps]  # [M, R, Nr]
+        w = get_window(config.doppler_window, chirps.size)[:, None, None]
+        per_tx.append(np.fft.fftshift(np.fft.fft(slow * w, axis=0), axes=0))  # [M, R, Nr]
+        positions.append(radar.array.tx_positions_m[i, 1] + radar.array.rx_positions_m[:, 1])
+    cube = np.concatenate(per_tx, axis=1)  # [M, Nt*R, Nr]
+    positions = np.concatenate(positions)
+    order = np.argsort(positions)
+    return cube[:, order, :], positions[order], np.repeat(np.arange(wf.n_tx), n_r)[order], n_range
+
+
+def cfar_2d(power: np.ndarray, config: PointCloudConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Detections (boolean mask) and the noise estimate of a range-Doppler power map [Doppler, range]."""
+    gd, gr = config.guard_cells
+    td, tr = config.training_cells
+    outer = (2 * (gd + td) + 1, 2 * (gr + tr) + 1)
+    inner = (2 * gd + 1, 2 * gr + 1)
+    if config.cfar == "ca":
+        # Mean of the training ring: (sum over the outer box - sum over the guard box) / cells in the ring.
+        # Doppler wraps around; range does not.
+        s_out = scipy.ndimage.uniform_filter(power, outer, mode=("wrap", "nearest")) * np.prod(outer)
+        s_in = scipy.ndimage.uniform_filter(power, inner, mode=("wrap", "nearest")) * np.prod(inner)
+        noise = (s_out - s_in) / (np.prod(outer) - np.prod(inner))
+    elif config.cfar == "os":
+        footprint = np.ones(outer, bool)
+        footprint[td:td + inner[0], tr:tr + inner[1]] = False
+        noise = scipy.ndimage.percentile_filter(power, 100 * config.os_rank, footprint=footprint, mode="wrap")
+    else:
+        raise ValueError(f"unknown CFAR {config.cfar!r} (ca, os)")
+    threshold = noise * 10 ** (config.threshold_db / 10)
+    local_max = power == scipy.ndimage.maximum_filter(power, size=3, mode=("wrap", "nearest"))
+    return (power > threshold) & local_max, noise
+
+
+def _parabolic(y_m1: float, y0: float, y_p1: float) -> float:
+    denom = y_m1 - 2 * y0 + y_p1
+    return 0.0 if denom == 0 else 0.5 * (y_m1 - y_p1) / denom
+
+
+def detect(frame: np.ndarray, radar: RadarConfig, tx_order, config: PointCloudConfig = PointCloudConfig()) -> PointCloud:
+    """Point cloud of one frame ``frame`` complex [chirps, n_rx, samples] of ``radar``."""
+    wf = radar.waveform
+    cube, positions, tx_of_channel, n_range = range_doppler_cube(frame, radar, tx_order, config)
+    n_dop = cube.shape[0]
+    power = np.sum(np.abs(cube) ** 2, axis=1)  # non-coherent over the virtual channels
+    range_bin_m = 0.5 * SPEED_OF_LIGHT_MPS * wf.sample_rate_hz / (n_range * wf.slope_hz_per_s)  # one-way
+    hits, noise = cfar_2d(power, config)
+    hits[:, : int(np.ceil(config.min_range_m / range_bin_m))] = False
+    dop_idx, rng_idx = np.nonzero(hits)
+    if dop_idx.size > config.max_detections:
+        keep = np.argsort(power[dop_idx, rng_idx])[::-1][: config.max_detections]
+        dop_idx, rng_idx = dop_idx[keep], rng_idx[keep]
+    # Doppler: bin spacing in range rate for one TX's slow time (n_tx chirp intervals).
+    t_slow = wf.n_tx * wf.chirp_interval_s
+    v_bin = wf.wavelength_m / (2 * n_dop * t_slow)
+    spacing = np.median(np.diff(positions))  # virtual element spacing along sensor y
+    n_ang = max(config.angle_fft_size, positions.size)
+    xyz, dop, snr, ranges, azs = [], [], [], [], []
+    logp = 10 * np.log10(power + 1e-30)
+    for d, r in zip(dop_idx, rng_idx):
+        dr = _parabolic(logp[d, r - 1], logp[d, r], logp[d, r + 1]) if 0 < r < n_range - 1 else 0.0
+        dd = _parabolic(logp[(d - 1) % n_dop, r], logp[d, r], logp[(d + 1) % n_dop, r])
+        rng_m = (r + dr) * range_bin_m
+        v = (d + dd - n_dop // 2) * v_bin
+        # TDM motion: TX i fired i chirp intervals after TX 0; remove the phase the motion added.
+        f_d = 2 * v / wf.wavelength_m
+        snap = cube[d, :, r] * np.exp(-2j * np.pi * f_d * tx_of_channel * wf.chirp_interval_s)
+        spec = np.fft.fftshift(np.abs(np.fft.fft(snap, n_ang)) ** 2)
+        q = int(np.argmax(spec))
+        lq = 10 * np.log10(spec + 1e-30)
+        dq = _parabolic(lq[q - 1], lq[q], lq[q + 1]) if 0 < q < n_ang - 1 else 0.0
+        # Element phase -2 pi / lambda * y * sin(az): the spectrum peaks at q/n = -y_step sin(az) / lambda.
+        s_az = -(q + dq - n_ang // 2) / n_ang * wf.wavelength_m / spacing
+        if abs(s_az) > 1:
+            continue
+        az = float(np.arcsin(s_az))
+        xyz.append((rng_m * np.cos(az), rng_m * np.sin(az), 0.0))
+        dop.append(v)
+        snr.append(logp[d, r] - 10 * np.log10(noise[d, r] + 1e-30))
+        ranges.append(rng_m)
+        azs.append(az)
+    return PointCloud(np.array(xyz).reshape(-1, 3), np.array(dop), np.array(snr), np.array(ranges), np.array(azs))
