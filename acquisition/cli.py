@@ -191,7 +191,8 @@ def cmd_rio(args) -> int:
         if not scans:
             raise SarbotError(f"{args.recording}: no radar detections to run odometry on")
         truth = rec.truth()
-    options = RioOptions(ekf=EkfConfig(planar=args.planar), joint_radars=args.joint, static_init_s=args.static_init)
+    options = RioOptions(ekf=EkfConfig(planar=args.planar, radar_velocity_sigma_floor_mps=args.velocity_floor),
+                         joint_radars=args.joint, static_init_s=args.static_init)
     try:
         result = run_rio(imu, scans, options, progress=Progress("rio"))
     except FloatingPointError as exc:
@@ -272,6 +273,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--joint", action="store_true", help="solve simultaneous scans of all radars together")
     s.add_argument("--planar", action="store_true", help="robot on a flat floor: no vertical velocity")
     s.add_argument("--static-init", type=float, default=1.0, help="seconds of standstill at the start (default 1)")
+    s.add_argument("--velocity-floor", type=float, default=0.05,
+                   help="m/s added to every radar velocity's uncertainty: timing jitter, Doppler quantisation, "
+                        "motion within a frame (default 0.05; 0.1 for a hand-held rig)")
     s.set_defaults(func=cmd_rio)
 
     s = sub.add_parser("import-bag", help="convert a ROS1 bag (IMU, radar point clouds, trigger) to a recording")

@@ -133,6 +133,7 @@ def main() -> int:
             out["knobs"].append(row)
             print(f"{name}={value}: {row['realtime_multiple']:.0f}x real time, drift {row['final_drift_percent']:.3f} %, "
                   f"ATE {row['ate_rmse_percent']:.3f} %")
+        out["real_bag"] = real_bag(Path(tmp))
     RESULTS.mkdir(parents=True, exist_ok=True)
     name = "rio_quick" if args.quick else "rio"
     (RESULTS / f"{name}.json").write_text(json.dumps(out, indent=2))
@@ -141,13 +142,40 @@ def main() -> int:
     return 0
 
 
+def real_bag(tmp: Path) -> dict:
+    """The real hand-held recording: no ground truth, so what can be said: gate acceptance, speeds, the
+    distance between where the walk started and where it ended."""
+    from acquisition.bag_import import import_bag
+    from rio.ekf import EkfConfig
+
+    data = ROOT.parent / "shared" / "data" / "ti_mmwave_rospkg_demo"
+    if not data.exists():
+        return {"skipped": f"{data} not found"}
+    rec = tmp / "bag.h5"
+    import_bag(data / "ti_mmwave_rospkg_demo.bag", data / "calib_ti_mmwave_rospkg_dataset.yaml", rec)
+    res, _, speed = run(rec, RioOptions(ekf=EkfConfig(radar_velocity_sigma_floor_mps=0.1)))
+    p = res.trajectory.position_m
+    out = {"radar_updates": res.stats.get("radar_updates", 0), "refused_by_gate": res.stats.get("radar_rejected_by_gate", 0),
+           "path_length_m": float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1))),
+           "end_to_start_horizontal_m": float(np.linalg.norm(p[-1, :2] - p[0, :2])),
+           "end_to_start_vertical_m": float(p[-1, 2] - p[0, 2]),
+           "max_speed_mps": float(np.linalg.norm(res.trajectory.velocity_mps, axis=1).max()), **speed}
+    print(f"real bag: {out['radar_updates']} radar updates, {out['refused_by_gate']} refused, path {out['path_length_m']:.1f} m, "
+          f"ends {out['end_to_start_horizontal_m']:.2f} m from the start horizontally, {out['end_to_start_vertical_m']:+.2f} m vertically")
+    _BAG_TRACK.append(p)
+    return out
+
+
+_BAG_TRACK: list = []
+
+
 def chart(plots, knobs, path):
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(13, 5))
+    fig, axes = plt.subplots(1, 3, figsize=(18, 5))
     ax = axes[0]
     for name, est, truth in plots[:1]:
         true = truth.sample(est.time_ns)
@@ -172,6 +200,17 @@ def chart(plots, knobs, path):
     ax.set_ylabel("final drift (% of distance)")
     ax.set_title("speed against accuracy")
     ax.legend()
+    ax = axes[2]
+    if _BAG_TRACK:
+        p = _BAG_TRACK[0]
+        ax.plot(p[:, 0], p[:, 1], "b-")
+        ax.plot(p[0, 0], p[0, 1], "go", label="start")
+        ax.plot(p[-1, 0], p[-1, 1], "rs", label="end")
+        ax.set_aspect("equal")
+        ax.legend()
+    ax.set_title("real hand-held recording (no ground truth)")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

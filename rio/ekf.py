@@ -51,6 +51,9 @@ class EkfConfig:
     zero_velocity_sigma_mps: float = 0.02  # the radar's zero-velocity threshold: creeping below it looks still
     zero_rate_sigma_radps: float = 2e-3
     gate_chi2: float = CHI2_999[3]
+    #: Added to every radar velocity covariance: what the Doppler fit does not see (time-stamp jitter,
+    #: velocity change within a frame, Doppler quantisation).
+    radar_velocity_sigma_floor_mps: float = 0.05
     gate_recovery_rejections: int = 8  # radar updates refused in a row before the velocity is re-opened
     recovery_velocity_sigma_mps: float = 1.0
     standstill_trim_s: float = 0.5  # gyro samples left out at both ends of a standstill (creeping in and out)
@@ -211,6 +214,7 @@ class RadarInertialEkf:
         H = np.zeros((3, 15))
         H[:, 3:6] = Rm.T @ s.R.T
         H[:, 6:9] = Rm.T @ skew(v_body)
+        covariance = covariance + np.eye(3) * self.config.radar_velocity_sigma_floor_mps ** 2
         if self.config.radar_observes_gyro_bias:
             H[:, 12:15] = Rm.T @ skew(lever)
         return self._update(np.asarray(velocity_sensor_mps) - predicted, H, covariance, self.config.gate_chi2)
@@ -223,6 +227,7 @@ class RadarInertialEkf:
         H = np.zeros((3, 15))
         H[:, 3:6] = s.R.T
         H[:, 6:9] = skew(v_body)
+        covariance = covariance + np.eye(3) * self.config.radar_velocity_sigma_floor_mps ** 2
         return self._update(np.asarray(velocity_body_mps) - v_body, H, covariance, self.config.gate_chi2)
 
     def inflate_velocity_uncertainty(self) -> None:
