@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 
+import numba
 import numpy as np
 
 
@@ -59,6 +60,65 @@ class EgoVelocity:
         return self.status in (EgoStatus.OK, EgoStatus.ZERO_VELOCITY)
 
 
+@numba.njit(cache=True)
+def _ransac(a, b, iterations, threshold, seed):
+    """Inliers of the best of ``iterations`` minimal-set hypotheses (dim equations each) for a v = b.
+
+    A small xorshift generator picks the sets, so that a seed gives the same answer on every machine.
+    """
+    n, dim = a.shape
+    best = np.zeros(n, np.bool_)
+    best_count = -1
+    state = np.uint64(seed) | np.uint64(1)
+    pick = np.empty(dim, np.int64)
+    for _ in range(iterations):
+        for k in range(dim):
+            state ^= state << np.uint64(13)
+            state ^= state >> np.uint64(7)
+            state ^= state << np.uint64(17)
+            pick[k] = np.int64(state % np.uint64(n))
+        distinct = True
+        for k in range(dim):
+            for m in range(k):
+                if pick[k] == pick[m]:
+                    distinct = False
+        if not distinct:
+            continue
+        m_a = a[pick]
+        if abs(np.linalg.det(m_a)) < 1e-9:
+            continue
+        v = np.linalg.solve(m_a, b[pick])
+        count = 0
+        for i in range(n):
+            r = -b[i]
+            for k in range(dim):
+                r += a[i, k] * v[k]
+            if abs(r) < threshold:
+                count += 1
+        if count > best_count:
+            best_count = count
+            for i in range(n):
+                r = -b[i]
+                for k in range(dim):
+                    r += a[i, k] * v[k]
+                best[i] = abs(r) < threshold
+    return best
+
+
+def _condition(ata: np.ndarray) -> float:
+    """Condition number of a symmetric positive semi-definite matrix."""
+    w = np.linalg.eigvalsh(ata)
+    return float(w[-1] / w[0]) if w[0] > 0 else float("inf")
+
+
+def _least_squares(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Normal-equation least squares (the systems here are tiny and well conditioned once checked)."""
+    try:
+        return np.linalg.solve(a.T @ a, a.T @ b)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(a, b, rcond=None)[0]
+
+
 def solve_ego_velocity(a: np.ndarray, b: np.ndarray, config: EgoVelocityConfig = EgoVelocityConfig(),
                        rng: np.random.Generator | None = None) -> EgoVelocity:
     """Solve a v = b robustly: rows of ``a`` [D, 3] are the equations, ``b`` [D] the right-hand sides.
@@ -77,39 +137,30 @@ def solve_ego_velocity(a: np.ndarray, b: np.ndarray, config: EgoVelocityConfig =
         # Most Doppler is near zero. Standing still, or creeping below the threshold? The least-squares
         # velocity of those detections tells: zero only if it is not significantly different from zero.
         ai, bi = a[still], b[still]
-        v, *_ = np.linalg.lstsq(ai, bi, rcond=None)
+        v = _least_squares(ai, bi)
         dof = max(int(still.sum()) - dim, 1)
         sigma = max(config.min_sigma_mps, float(np.sqrt(np.sum((ai @ v - bi) ** 2) / dof)))
         ata = ai.T @ ai
-        if np.linalg.cond(ata) < config.max_condition:
+        if _condition(ata) < config.max_condition:
             cov = sigma ** 2 * np.linalg.inv(ata)
             if float(v @ np.linalg.solve(cov, v)) > config.creep_chi2:
                 return EgoVelocity(EgoStatus.OK, v, cov, still, sigma)
         cov = np.eye(dim) * (sigma ** 2) / max(still.sum() / dim, 1.0)
         return EgoVelocity(EgoStatus.ZERO_VELOCITY, np.zeros(dim), cov, still, sigma)
-    # All RANSAC hypotheses at once: minimal sets of 3 equations, solved as a batch.
-    picks = np.sort(rng.integers(0, n, (2 * config.ransac_iterations, dim)), axis=1)
-    distinct = np.all(np.diff(picks, axis=1) > 0, axis=1)
-    picks = picks[distinct][: config.ransac_iterations]
-    mats = a[picks]
-    ok = np.abs(np.linalg.det(mats)) > 1e-9
-    best = none
-    if ok.any():
-        hyps = np.linalg.solve(mats[ok], b[picks[ok]][..., None])[..., 0]  # [H, 3]
-        inl = np.abs(hyps @ a.T - b) < config.inlier_threshold_mps  # [H, D]
-        best = inl[int(np.argmax(inl.sum(axis=1)))]
+    best = _ransac(np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64),
+                   config.ransac_iterations, config.inlier_threshold_mps, int(rng.integers(1, 2**62)))
     if best.sum() < max(config.min_detections, config.min_inlier_ratio * n):
         return EgoVelocity(EgoStatus.NO_CONSENSUS, None, None, best)
     # Refit on the inliers, then once more on the inliers of the refit.
     for _ in range(2):
-        v, *_ = np.linalg.lstsq(a[best], b[best], rcond=None)
+        v = _least_squares(a[best], b[best])
         best = np.abs(a @ v - b) < config.inlier_threshold_mps
         if best.sum() < config.min_detections:
             return EgoVelocity(EgoStatus.NO_CONSENSUS, None, None, best)
     ai, bi = a[best], b[best]
-    v, *_ = np.linalg.lstsq(ai, bi, rcond=None)
+    v = _least_squares(ai, bi)
     ata = ai.T @ ai
-    if np.linalg.cond(ata) > config.max_condition:
+    if _condition(ata) > config.max_condition:
         return EgoVelocity(EgoStatus.ILL_CONDITIONED, None, None, best)
     dof = max(int(best.sum()) - dim, 1)
     sigma = max(config.min_sigma_mps, float(np.sqrt(np.sum((ai @ v - bi) ** 2) / dof)))

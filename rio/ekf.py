@@ -119,6 +119,55 @@ def _strapdown(p, v, R, P, f, w, dt, q_density):
     return p_new, v_new, R_new, 0.5 * (out + out.T)
 
 
+@numba.njit(cache=True)
+def _strapdown_batch(p, v, R, P, t_ns, f_last, w_last, ba, bg, times, accs, gyros, record, q_density):
+    """Propagate through IMU samples ``times``/``accs``/``gyros`` in order (zero-order hold: each interval
+    uses the sample at its start), recording the state after every sample flagged in ``record``."""
+    m = 0
+    for i in range(record.size):
+        if record[i]:
+            m += 1
+    out_t = np.empty(m, np.int64)
+    out_p = np.empty((m, 3))
+    out_v = np.empty((m, 3))
+    out_R = np.empty((m, 3, 3))
+    out_P = np.empty((m, 15))
+    j = 0
+    for i in range(times.size):
+        dt = (times[i] - t_ns) * 1e-9
+        if dt > 0:
+            p, v, R, P = _strapdown(p, v, R, P, f_last - ba, w_last - bg, dt, q_density)
+            t_ns = times[i]
+        f_last = accs[i]
+        w_last = gyros[i]
+        if record[i]:
+            out_t[j] = t_ns
+            out_p[j] = p
+            out_v[j] = v
+            out_R[j] = R
+            for k in range(15):
+                out_P[j, k] = P[k, k]
+            j += 1
+    return p, v, R, P, t_ns, f_last, w_last, out_t, out_p, out_v, out_R, out_P
+
+
+@numba.njit(cache=True)
+def _joseph_update(P, H, R_meas, residual, gate):
+    """Kalman update in Joseph form with a chi-square gate: (accepted, chi2, dx, P_new)."""
+    S = H @ P @ H.T + R_meas
+    if abs(np.linalg.det(S)) < 1e-300:
+        return False, np.inf, np.zeros(P.shape[0]), P
+    S_inv = np.linalg.inv(S)
+    chi2 = residual @ S_inv @ residual
+    if not np.isfinite(chi2) or chi2 > gate:
+        return False, chi2, np.zeros(P.shape[0]), P
+    K = P @ H.T @ S_inv
+    dx = K @ residual
+    I_KH = np.eye(P.shape[0]) - K @ H
+    P_new = I_KH @ P @ I_KH.T + K @ R_meas @ K.T  # Joseph form: stays symmetric positive definite
+    return True, chi2, dx, 0.5 * (P_new + P_new.T)
+
+
 class RadarInertialEkf:
     """The filter. Call ``initialise_static`` once, then feed IMU samples and radar measurements in time order."""
 
@@ -132,6 +181,7 @@ class RadarInertialEkf:
         self._standstill: list[tuple[int, np.ndarray]] = []
         self._in_standstill = False
         self.bias_resets = 0
+        self.bias_log: list[tuple[int, np.ndarray, np.ndarray]] = []
         self._last_gyro = np.zeros(3)
         self._last_accel = np.zeros(3)
 
@@ -160,6 +210,7 @@ class RadarInertialEkf:
                               np.mean(gyro_radps, axis=0), P)
         self._last_gyro = np.mean(gyro_radps, axis=0)
         self._last_accel = f
+        self.bias_log = [(int(time_ns), self.state.bg.copy(), self.state.ba.copy())]
         return self.state
 
     # -- propagation ------------------------------------------------------------------------------------
@@ -179,27 +230,40 @@ class RadarInertialEkf:
             self._last_accel = np.asarray(accel_mps2, float)
             self._last_gyro = np.asarray(gyro_radps, float)
 
+    def propagate_samples(self, times_ns: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray,
+                          record: np.ndarray):
+        """Propagate through a run of IMU samples in one compiled call (what ``propagate`` does per sample).
+
+        Returns the recorded states (time, p, v, R, diag P) after every sample flagged in ``record``.
+        """
+        s = self.state
+        if times_ns.size == 0:
+            return None
+        if self._in_standstill:
+            self._standstill.extend(zip(times_ns.tolist(), np.asarray(gyro_radps, float)))
+        (s.p, s.v, s.R, s.P, t_ns, self._last_accel, self._last_gyro,
+         *recorded) = _strapdown_batch(s.p, s.v, s.R, s.P, s.time_ns, self._last_accel, self._last_gyro, s.ba, s.bg,
+                                       times_ns, accel_mps2, gyro_radps, record, self._q_density)
+        s.time_ns = int(t_ns)
+        self._last_accel = self._last_accel.copy()
+        self._last_gyro = self._last_gyro.copy()
+        return recorded
+
     # -- updates ------------------------------------------------------------------------------------------
     def _update(self, residual: np.ndarray, H: np.ndarray, R_meas: np.ndarray, gate: float | None) -> UpdateResult:
         s = self.state
-        S = H @ s.P @ H.T + R_meas
-        try:
-            S_inv = np.linalg.inv(S)
-        except np.linalg.LinAlgError:
-            return UpdateResult(False, float("inf"))
-        chi2 = float(residual @ S_inv @ residual)
-        if not np.isfinite(chi2) or (gate is not None and chi2 > gate):
+        ok, chi2, dx, P = _joseph_update(s.P, np.ascontiguousarray(H, dtype=np.float64),
+                                         np.ascontiguousarray(R_meas, dtype=np.float64),
+                                         np.ascontiguousarray(residual, dtype=np.float64), np.inf if gate is None else gate)
+        if not ok:
             return UpdateResult(False, chi2)
-        K = s.P @ H.T @ S_inv
-        dx = K @ residual
-        I_KH = np.eye(15) - K @ H
-        s.P = I_KH @ s.P @ I_KH.T + K @ R_meas @ K.T  # Joseph form: stays symmetric positive definite
-        s.P = 0.5 * (s.P + s.P.T)
+        s.P = P
         s.p = s.p + dx[0:3]
         s.v = s.v + dx[3:6]
         s.R = s.R @ exp_so3(dx[6:9])
         s.ba = s.ba + dx[9:12]
         s.bg = s.bg + dx[12:15]
+        self.bias_log.append((s.time_ns, s.bg.copy(), s.ba.copy()))
         return UpdateResult(True, chi2)
 
     def update_radar_velocity(self, velocity_sensor_mps: np.ndarray, covariance: np.ndarray, mount) -> UpdateResult:

@@ -84,7 +84,10 @@ def run_rio(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOptio
     ekf.initialise_static(t_imu[k0], acc[still], gyr[still])
     ekf.propagate(t_imu[k0], acc[k0], gyr[k0])
     out_every = max(1, int(round((1e9 / np.median(np.diff(t_imu))) / options.output_rate_hz)))
-    times, pos, quat, vel, cov, bgs, bas = [], [], [], [], [], [], []
+    record = (np.arange(t_imu.size) - k0) % out_every == 0
+    acc = np.ascontiguousarray(acc, dtype=np.float64)
+    gyr = np.ascontiguousarray(gyr, dtype=np.float64)
+    chunks = []  # recorded states of each run of IMU samples
     stats: Counter = Counter()
     status_log: list[tuple[int, str, str]] = []
     j = 0
@@ -93,55 +96,69 @@ def run_rio(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOptio
     last_help_ns = t_imu[k0]
     coasting = False
     total = t_imu.size - k0
-    for k in range(k0 + 1, t_imu.size):
-        # Radar scans that fall before this IMU sample: propagate to each scan's time, then update.
-        while j < len(scans) and scans[j].time_ns <= t_imu[k]:
-            group = [scans[j]]
-            j += 1
-            if options.joint_radars:
-                while j < len(scans) and scans[j].time_ns - group[0].time_ns < 5_000_000:
-                    group.append(scans[j])
-                    j += 1
-            ekf.propagate(group[-1].time_ns)
-            helped, reason = _radar_update(ekf, group, options, rng, stats)
-            status_log.extend((g.time_ns, g.radar, reason) for g in group)
-            if options.ekf.planar:
-                ekf.update_planar()
-            if helped:
-                last_help_ns = group[-1].time_ns
-                if coasting:
-                    log.info("radar helps again at t=%.2f s", (group[-1].time_ns - t_imu[k0]) * 1e-9)
-                coasting = False
-            elif not coasting and group[-1].time_ns - last_help_ns > options.coast_warning_s * 1e9:
-                coasting = True
-                stats["coast_episodes"] += 1
-                log.warning("radar cannot help (%s) for %.1f s: coasting on the IMU", reason,
-                            (group[-1].time_ns - last_help_ns) * 1e-9)
-        ekf.propagate(t_imu[k], acc[k], gyr[k])
-        s = ekf.state
-        if (k - k0) % out_every == 0:
-            if not (np.all(np.isfinite(s.p)) and np.all(np.isfinite(s.P))):
-                raise FloatingPointError(f"filter diverged at IMU sample {k}")
-            times.append(s.time_ns)
-            pos.append(s.p.copy())
-            quat.append(s.R.copy())
-            vel.append(s.v.copy())
-            cov.append(np.diag(s.P).copy())
-            bgs.append(s.bg.copy())
-            bas.append(s.ba.copy())
-        if progress is not None and (k - k0) % 20000 == 0:
-            progress(k - k0, total)
+    k = k0 + 1
+    while k < t_imu.size:
+        # IMU samples up to the next radar scan in one compiled run, then the scan itself.
+        k_end = t_imu.size if j >= len(scans) else int(np.searchsorted(t_imu, scans[j].time_ns, side="left"))
+        k_end = max(k_end, k)
+        if k_end > k:
+            chunks.append(ekf.propagate_samples(t_imu[k:k_end], acc[k:k_end], gyr[k:k_end], record[k:k_end]))
+            if not (np.all(np.isfinite(ekf.state.p)) and np.all(np.isfinite(ekf.state.P))):
+                raise FloatingPointError(f"filter diverged before IMU sample {k_end}")
+            if progress is not None and (k_end - k0) // 20000 != (k - k0) // 20000:
+                progress(k_end - k0, total)
+            k = k_end
+        if j >= len(scans):
+            break
+        group = [scans[j]]
+        j += 1
+        if options.joint_radars:
+            while j < len(scans) and scans[j].time_ns - group[0].time_ns < 5_000_000:
+                group.append(scans[j])
+                j += 1
+        ekf.propagate(group[-1].time_ns)
+        helped, reason = _radar_update(ekf, group, options, rng, stats)
+        status_log.extend((g.time_ns, g.radar, reason) for g in group)
+        if options.ekf.planar:
+            ekf.update_planar()
+        if helped:
+            last_help_ns = group[-1].time_ns
+            if coasting:
+                log.info("radar helps again at t=%.2f s", (group[-1].time_ns - t_imu[k0]) * 1e-9)
+            coasting = False
+        elif not coasting and group[-1].time_ns - last_help_ns > options.coast_warning_s * 1e9:
+            coasting = True
+            stats["coast_episodes"] += 1
+            log.warning("radar cannot help (%s) for %.1f s: coasting on the IMU", reason,
+                        (group[-1].time_ns - last_help_ns) * 1e-9)
     if progress is not None:
         progress(total, total)
-    quat = Rotation.from_matrix(np.array(quat)).as_quat()
-    traj = SampledTrajectory(np.array(times), np.array(pos), quat, np.array(vel), source="rio")
+    chunks = [c for c in chunks if c is not None and c[0].size]
+    times = np.concatenate([c[0] for c in chunks])
+    pos = np.concatenate([c[1] for c in chunks])
+    vel = np.concatenate([c[2] for c in chunks])
+    quat = np.concatenate([c[3] for c in chunks])
+    cov = np.concatenate([c[4] for c in chunks])
+    # Biases change only at updates: the value at each recorded time is the latest one before it.
+    bgs, bas = _bias_history(ekf, times)
+    quat = Rotation.from_matrix(quat).as_quat()
+    traj = SampledTrajectory(times, pos, quat, vel, source="rio")
     ekf.end_standstill()
     stats.pop("_rejected_in_row", None)
     if ekf.bias_resets:
         stats["gyro_bias_resets"] = ekf.bias_resets
     stats["scans"] = len(scans)
     stats["imu_samples"] = int(t_imu.size)
-    return RioResult(traj, np.array(cov), dict(stats), status_log, np.array(bgs), np.array(bas))
+    return RioResult(traj, cov, dict(stats), status_log, bgs, bas)
+
+
+def _bias_history(ekf: RadarInertialEkf, times: np.ndarray):
+    """Bias estimates at ``times``, from the filter's log of (time, b_g, b_a) after each update."""
+    log_t = np.array([t for t, _, _ in ekf.bias_log], np.int64)
+    idx = np.clip(np.searchsorted(log_t, times, side="right") - 1, 0, len(log_t) - 1)
+    bg = np.array([g for _, g, _ in ekf.bias_log])[idx]
+    ba = np.array([a for _, _, a in ekf.bias_log])[idx]
+    return bg, ba
 
 
 def _radar_update(ekf: RadarInertialEkf, group: list[RadarScan], options: RioOptions, rng, stats: Counter):
