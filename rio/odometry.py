@@ -69,7 +69,7 @@ def run_rio(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOptio
     """Run the filter over IMU samples and radar scans (both sorted by time here)."""
     rng = np.random.default_rng(options.seed)
     step = max(1, int(options.imu_decimation))
-    t_imu = imu.time_ns[::step]
+    t_imu = np.ascontiguousarray(imu.time_ns[::step], dtype=np.int64)
     acc = imu.accel_mps2[::step]
     gyr = imu.gyro_radps[::step]
     if t_imu.size < 10:
