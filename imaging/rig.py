@@ -17,6 +17,7 @@ Every value is checked on load; an error names the field, e.g. ``radar.left_fron
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 from typing import Any
 
@@ -83,6 +84,11 @@ class Mount:
     @property
     def rotation(self) -> Rotation:
         return Rotation.from_quat(self.rotation_xyzw)
+
+    @functools.cached_property
+    def rotation_matrix(self) -> np.ndarray:
+        """Sensor -> body rotation matrix (computed once: filters use it at every update)."""
+        return self.rotation.as_matrix()
 
     def to_body(self, points_sensor_m: np.ndarray) -> np.ndarray:
         """Sensor-frame points [..., 3] to body frame."""

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import math
 
 import numba
 import numpy as np
@@ -61,6 +62,36 @@ class EgoVelocity:
 
 
 @numba.njit(cache=True)
+def _solve3(m, r):
+    """Cramer's rule for 3x3 (nan when singular): the minimal sets are solved thousands of times a second."""
+    det = (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]) - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
+           + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
+    out = np.empty(3)
+    if abs(det) < 1e-9:
+        out[:] = np.nan
+        return out
+    out[0] = (r[0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]) - m[0, 1] * (r[1] * m[2, 2] - m[1, 2] * r[2])
+              + m[0, 2] * (r[1] * m[2, 1] - m[1, 1] * r[2])) / det
+    out[1] = (m[0, 0] * (r[1] * m[2, 2] - m[1, 2] * r[2]) - r[0] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
+              + m[0, 2] * (m[1, 0] * r[2] - r[1] * m[2, 0])) / det
+    out[2] = (m[0, 0] * (m[1, 1] * r[2] - r[1] * m[2, 1]) - m[0, 1] * (m[1, 0] * r[2] - r[1] * m[2, 0])
+              + r[0] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0])) / det
+    return out
+
+
+@numba.njit(cache=True)
+def _solve2(m, r):
+    det = m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]
+    out = np.empty(2)
+    if abs(det) < 1e-9:
+        out[:] = np.nan
+        return out
+    out[0] = (r[0] * m[1, 1] - m[0, 1] * r[1]) / det
+    out[1] = (m[0, 0] * r[1] - r[0] * m[1, 0]) / det
+    return out
+
+
+@numba.njit(cache=True)
 def _ransac(a, b, iterations, threshold, seed):
     """Inliers of the best of ``iterations`` minimal-set hypotheses (dim equations each) for a v = b.
 
@@ -85,9 +116,12 @@ def _ransac(a, b, iterations, threshold, seed):
         if not distinct:
             continue
         m_a = a[pick]
-        if abs(np.linalg.det(m_a)) < 1e-9:
+        if dim == 3:
+            v = _solve3(m_a, b[pick])
+        else:
+            v = _solve2(m_a, b[pick])
+        if not np.isfinite(v[0]):
             continue
-        v = np.linalg.solve(m_a, b[pick])
         count = 0
         for i in range(n):
             r = -b[i]
@@ -105,68 +139,110 @@ def _ransac(a, b, iterations, threshold, seed):
     return best
 
 
-def _condition(ata: np.ndarray) -> float:
-    """Condition number of a symmetric positive semi-definite matrix."""
+_STATUS_BY_CODE = (EgoStatus.OK, EgoStatus.ZERO_VELOCITY, EgoStatus.TOO_FEW, EgoStatus.NO_CONSENSUS,
+                   EgoStatus.ILL_CONDITIONED, EgoStatus.NOISY)
+
+
+@numba.njit(cache=True)
+def _normal_solve(a, b, mask):
+    """Least squares on the rows in ``mask`` by the normal equations; (ok, v, a^T a)."""
+    dim = a.shape[1]
+    ata = np.zeros((dim, dim))
+    atb = np.zeros(dim)
+    for i in range(a.shape[0]):
+        if mask[i]:
+            for r in range(dim):
+                atb[r] += a[i, r] * b[i]
+                for c in range(dim):
+                    ata[r, c] += a[i, r] * a[i, c]
+    if abs(np.linalg.det(ata)) < 1e-12:
+        return False, np.zeros(dim), ata
+    return True, np.linalg.solve(ata, atb), ata
+
+
+@numba.njit(cache=True)
+def _residual_sigma(a, b, mask, v, min_sigma):
+    ss = 0.0
+    m = 0
+    for i in range(a.shape[0]):
+        if mask[i]:
+            r = -b[i]
+            for k in range(a.shape[1]):
+                r += a[i, k] * v[k]
+            ss += r * r
+            m += 1
+    return max(min_sigma, math.sqrt(ss / max(m - a.shape[1], 1)))
+
+
+@numba.njit(cache=True)
+def _condition_nb(ata):
     w = np.linalg.eigvalsh(ata)
-    return float(w[-1] / w[0]) if w[0] > 0 else float("inf")
+    return w[-1] / w[0] if w[0] > 0 else np.inf
 
 
-def _least_squares(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Normal-equation least squares (the systems here are tiny and well conditioned once checked)."""
-    try:
-        return np.linalg.solve(a.T @ a, a.T @ b)
-    except np.linalg.LinAlgError:
-        return np.linalg.lstsq(a, b, rcond=None)[0]
+@numba.njit(cache=True)
+def _solve_core(a, b, min_detections, zv_threshold, zv_ratio, creep_chi2, iterations, inlier_threshold,
+                min_inlier_ratio, max_condition, min_sigma, max_sigma, seed):
+    """The whole estimator in one compiled call: (status code, v, covariance, inliers, sigma).
+
+    Codes index _STATUS_BY_CODE: 0 ok, 1 zero velocity, 2 too few, 3 no consensus, 4 ill-conditioned, 5 noisy.
+    """
+    n, dim = a.shape
+    nan_cov = np.full((dim, dim), np.nan)
+    if n < min_detections:
+        return 2, np.zeros(dim), nan_cov, np.zeros(n, np.bool_), np.nan
+    # Standstill: most detections (the static world) have no Doppler at all.
+    still = np.abs(b) < zv_threshold
+    if still.sum() >= zv_ratio * n:
+        # Standing still, or creeping below the threshold? The least-squares velocity of those
+        # detections tells: zero only if it is not significantly different from zero.
+        ok, v, ata = _normal_solve(a, b, still)
+        sigma = _residual_sigma(a, b, still, v, min_sigma)
+        if ok and _condition_nb(ata) < max_condition:
+            cov = sigma ** 2 * np.linalg.inv(ata)
+            if v @ np.linalg.solve(cov, v) > creep_chi2:
+                return 0, v, cov, still, sigma
+        cov = np.eye(dim) * (sigma ** 2) / max(still.sum() / dim, 1.0)
+        return 1, np.zeros(dim), cov, still, sigma
+    best = _ransac(a, b, iterations, inlier_threshold, seed)
+    if best.sum() < max(min_detections, min_inlier_ratio * n):
+        return 3, np.zeros(dim), nan_cov, best, np.nan
+    # Refit on the inliers, then once more on the inliers of the refit.
+    for _ in range(2):
+        ok, v, ata = _normal_solve(a, b, best)
+        if not ok:
+            return 4, np.zeros(dim), nan_cov, best, np.nan
+        best = np.abs(a @ v - b) < inlier_threshold
+        if best.sum() < min_detections:
+            return 3, np.zeros(dim), nan_cov, best, np.nan
+    ok, v, ata = _normal_solve(a, b, best)
+    if not ok or _condition_nb(ata) > max_condition:
+        return 4, np.zeros(dim), nan_cov, best, np.nan
+    sigma = _residual_sigma(a, b, best, v, min_sigma)
+    if sigma > max_sigma:
+        return 5, np.zeros(dim), nan_cov, best, sigma
+    return 0, v, sigma ** 2 * np.linalg.inv(ata), best, sigma
 
 
 def solve_ego_velocity(a: np.ndarray, b: np.ndarray, config: EgoVelocityConfig = EgoVelocityConfig(),
                        rng: np.random.Generator | None = None) -> EgoVelocity:
-    """Solve a v = b robustly: rows of ``a`` [D, 3] are the equations, ``b`` [D] the right-hand sides.
+    """Solve a v = b robustly: rows of ``a`` [D, dim] are the equations, ``b`` [D] the right-hand sides.
 
     For one radar, ``a = -u`` (unit directions) and ``b`` the Doppler; ``v`` is then the sensor velocity.
+    Status: too few detections, zero velocity (most Doppler near zero and the fit not significantly
+    non-zero), no RANSAC consensus, ill-conditioned geometry, too noisy, or ok with a covariance.
     """
     rng = rng or np.random.default_rng(0)
-    n = b.size
-    dim = a.shape[1]  # 3, or 2 for a radar that measures no elevation
-    none = np.zeros(n, bool)
-    if n < config.min_detections:
-        return EgoVelocity(EgoStatus.TOO_FEW, None, None, none)
-    # Standstill: most detections (the static world) have no Doppler at all.
-    still = np.abs(b) < config.zero_velocity_threshold_mps
-    if still.mean() >= config.zero_velocity_ratio:
-        # Most Doppler is near zero. Standing still, or creeping below the threshold? The least-squares
-        # velocity of those detections tells: zero only if it is not significantly different from zero.
-        ai, bi = a[still], b[still]
-        v = _least_squares(ai, bi)
-        dof = max(int(still.sum()) - dim, 1)
-        sigma = max(config.min_sigma_mps, float(np.sqrt(np.sum((ai @ v - bi) ** 2) / dof)))
-        ata = ai.T @ ai
-        if _condition(ata) < config.max_condition:
-            cov = sigma ** 2 * np.linalg.inv(ata)
-            if float(v @ np.linalg.solve(cov, v)) > config.creep_chi2:
-                return EgoVelocity(EgoStatus.OK, v, cov, still, sigma)
-        cov = np.eye(dim) * (sigma ** 2) / max(still.sum() / dim, 1.0)
-        return EgoVelocity(EgoStatus.ZERO_VELOCITY, np.zeros(dim), cov, still, sigma)
-    best = _ransac(np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64),
-                   config.ransac_iterations, config.inlier_threshold_mps, int(rng.integers(1, 2**62)))
-    if best.sum() < max(config.min_detections, config.min_inlier_ratio * n):
-        return EgoVelocity(EgoStatus.NO_CONSENSUS, None, None, best)
-    # Refit on the inliers, then once more on the inliers of the refit.
-    for _ in range(2):
-        v = _least_squares(a[best], b[best])
-        best = np.abs(a @ v - b) < config.inlier_threshold_mps
-        if best.sum() < config.min_detections:
-            return EgoVelocity(EgoStatus.NO_CONSENSUS, None, None, best)
-    ai, bi = a[best], b[best]
-    v = _least_squares(ai, bi)
-    ata = ai.T @ ai
-    if _condition(ata) > config.max_condition:
-        return EgoVelocity(EgoStatus.ILL_CONDITIONED, None, None, best)
-    dof = max(int(best.sum()) - dim, 1)
-    sigma = max(config.min_sigma_mps, float(np.sqrt(np.sum((ai @ v - bi) ** 2) / dof)))
-    if sigma > config.max_sigma_mps:
-        return EgoVelocity(EgoStatus.NOISY, None, None, best, sigma)
-    return EgoVelocity(EgoStatus.OK, v, sigma ** 2 * np.linalg.inv(ata), best, sigma)
+    c = config
+    code, v, cov, inliers, sigma = _solve_core(
+        np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64), c.min_detections,
+        c.zero_velocity_threshold_mps, c.zero_velocity_ratio, c.creep_chi2, c.ransac_iterations,
+        c.inlier_threshold_mps, c.min_inlier_ratio, c.max_condition, c.min_sigma_mps, c.max_sigma_mps,
+        int(rng.integers(1, 2**62)))
+    status = _STATUS_BY_CODE[code]
+    if status in (EgoStatus.OK, EgoStatus.ZERO_VELOCITY):
+        return EgoVelocity(status, v, cov, inliers, float(sigma))
+    return EgoVelocity(status, None, None, inliers, float(sigma))
 
 
 def sensor_velocity(xyz_m: np.ndarray, doppler_mps: np.ndarray, config: EgoVelocityConfig = EgoVelocityConfig(),
@@ -202,7 +278,7 @@ def body_velocity(scans, angular_velocity_body_radps: np.ndarray, config: EgoVel
         r = np.linalg.norm(xyz, axis=1)
         keep = r > config.min_range_m
         u = xyz[keep] / r[keep, None]
-        rm = mount.rotation.as_matrix()
+        rm = mount.rotation_matrix
         lever_vel_s = rm.T @ np.cross(angular_velocity_body_radps, mount.translation_m)
         rows.append(-u @ rm.T)
         rhs.append(dop[keep] + u @ lever_vel_s)
