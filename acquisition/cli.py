@@ -191,8 +191,15 @@ def cmd_rio(args) -> int:
         if not scans:
             raise SarbotError(f"{args.recording}: no radar detections to run odometry on")
         truth = rec.truth()
+    start = {}
+    if args.start_from_truth:
+        if truth is None:
+            raise SarbotError(f"{args.recording}: --start-from-truth needs /truth, and this recording has none")
+        first = truth.sample(imu.time_ns[:1])
+        start = {"initial_position_m": tuple(first.position_m[0]),
+                 "initial_yaw_rad": float(first.rotation.as_euler("ZYX")[0, 0])}
     options = RioOptions(ekf=EkfConfig(planar=args.planar, radar_velocity_sigma_floor_mps=args.velocity_floor),
-                         joint_radars=args.joint, static_init_s=args.static_init)
+                         joint_radars=args.joint, static_init_s=args.static_init, **start)
     try:
         result = run_rio(imu, scans, options, progress=Progress("rio"))
     except FloatingPointError as exc:
@@ -273,6 +280,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--joint", action="store_true", help="solve simultaneous scans of all radars together")
     s.add_argument("--planar", action="store_true", help="robot on a flat floor: no vertical velocity")
     s.add_argument("--static-init", type=float, default=1.0, help="seconds of standstill at the start (default 1)")
+    s.add_argument("--start-from-truth", action="store_true",
+                   help="start at the first /truth pose instead of the origin (simulations; to image in the scene's frame)")
     s.add_argument("--velocity-floor", type=float, default=0.05,
                    help="m/s added to every radar velocity's uncertainty: timing jitter, Doppler quantisation, "
                         "motion within a frame (default 0.05; 0.1 for a hand-held rig)")

@@ -48,6 +48,10 @@ class RioOptions:
     coast_warning_s: float = 0.5
     imu_decimation: int = 1  # use every n-th IMU sample (speed against accuracy)
     seed: int = 0
+    #: Start pose in the world frame. The world frame's origin is the start pose (DESIGN.md), so the
+    #: defaults are zero; a simulation whose truth starts elsewhere can start from its first true pose.
+    initial_position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    initial_yaw_rad: float = 0.0
 
 
 @dataclasses.dataclass
@@ -81,7 +85,7 @@ def run_rio(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOptio
     if np.std(np.linalg.norm(acc[still], axis=1)) > 0.2 or np.max(np.std(gyr[still], axis=0)) > 0.02:
         log.warning("the first %.1f s do not look static: initial attitude and gyro bias may be off", options.static_init_s)
     k0 = int(np.argmax(~still)) if (~still).any() else t_imu.size - 1
-    ekf.initialise_static(t_imu[k0], acc[still], gyr[still])
+    ekf.initialise_static(t_imu[k0], acc[still], gyr[still], options.initial_position_m, options.initial_yaw_rad)
     ekf.propagate(t_imu[k0], acc[k0], gyr[k0])
     out_every = max(1, int(round((1e9 / np.median(np.diff(t_imu))) / options.output_rate_hz)))
     record = (np.arange(t_imu.size) - k0) % out_every == 0

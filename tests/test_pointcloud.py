@@ -120,3 +120,48 @@ def test_odometry_from_raw_adc_recording(tmp_path):
     assert report["radar_updates"] > 100
     assert report["against_truth"]["distance_m"] == pytest.approx(3.0, abs=0.05)
     assert report["against_truth"]["final_drift_m"] < 0.05
+
+
+def test_sar_image_on_the_odometry_trajectory(tmp_path):
+    """Raw frames + IMU -> point clouds -> EKF trajectory -> backprojection: the target focuses as on truth."""
+    import json
+    import subprocess
+    import sys
+
+    import h5py
+
+    rig = tmp_path / "rig.toml"
+    rig.write_text('[imu]\nrate_hz = 400.0\n[radar.left]\nmount_translation_m = [0.15, 0.2, 0.3]\nmount_yaw_deg = 90.0\n'
+                   'waveform = { chirps_per_frame = 64, frame_interval_s = 0.052 }\n')
+    rng = np.random.default_rng(5)
+    clutter = "".join(f'[[target]]\nkind = "point"\nposition_m = [{x:.2f}, {y:.2f}, {z:.2f}]\n'
+                      for x, y, z in zip(rng.uniform(-3, 5, 25), rng.uniform(1.0, 4.5, 25), rng.uniform(0.0, 0.8, 25)))
+    scene = tmp_path / "pass.toml"
+    scene.write_text('duration_s = 8.0\nimu = true\nsnr_db = 0.0\nrig = "rig.toml"\n'
+                     '[trajectory]\nkind = "path"\nstart_m = [-1.5, -0.2, 0.0]\nspeed_mps = 0.4\naccel_mps2 = 0.4\n'
+                     'start_delay_s = 2.0\nsegments = [["straight", 2.0]]\n'
+                     '[[target]]\nkind = "corner"\nposition_m = [0.0, 2.0, 0.3]\namplitude = 5.0\n' + clutter)
+    cmd = [sys.executable, "-m", "acquisition.cli"]
+    rec, traj = tmp_path / "pass.h5", tmp_path / "traj.h5"
+    assert subprocess.run([*cmd, "simulate", str(scene), "-o", str(rec)], capture_output=True).returncode == 0
+    res = subprocess.run([*cmd, "rio", str(rec), "-o", str(traj), "--start-from-truth"], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    widths = {}
+    for source in ("truth", str(traj)):
+        img = tmp_path / f"img_{len(widths)}.h5"
+        # Frames 80-95: the radar passes the reflector (x = 0) with a 0.3 m aperture.
+        res = subprocess.run([*cmd, "image", str(rec), "-o", str(img), "--frames", "80:95", "--trajectory", source,
+                              "--grid", "-0.15:0.15:0.002,1.85:2.15:0.004"], capture_output=True, text=True)
+        assert res.returncode == 0, res.stderr
+        res = subprocess.run([*cmd, "analyze", str(img), "--at", "0,2"], capture_output=True, text=True)
+        widths[source] = json.loads(res.stdout)
+        with h5py.File(img) as f:
+            assert f.attrs["trajectory_source"] == ("truth" if source == "truth" else "rio")
+    ours, truth = widths[str(traj)], widths["truth"]
+    assert np.hypot(ours["peak_m"][0] - truth["peak_m"][0], ours["peak_m"][1] - truth["peak_m"][1]) < 0.01
+    print("RIO/truth: cross-range width", ours["cross_range"]["half_power_width_m"] / truth["cross_range"]["half_power_width_m"],
+          "peak", ours["peak_amplitude"] / truth["peak_amplitude"])
+    # Millimetre trajectory errors across the aperture (a wavelength is 3.8 mm) defocus the image: the
+    # limit issue 5 charts. Measured here on a 0.3 m aperture at 0.4 m/s: 17 % wider, peak at 0.54.
+    assert ours["cross_range"]["half_power_width_m"] < 1.3 * truth["cross_range"]["half_power_width_m"]
+    assert ours["peak_amplitude"] > 0.4 * truth["peak_amplitude"]
