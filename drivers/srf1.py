@@ -1,0 +1,239 @@
+"""SRF1, the PTP-stamped frame protocol of the reference radar: encoding and frame reassembly.
+
+One UDP datagram per chunk, little-endian::
+
+    magic "SRF1" | u8 version=1 | u8 flags (bit0: PTP locked) | u16 radar_id | u32 frame_counter
+    | u64 frame_time_ns | u32 frame_bytes | u32 offset | payload
+
+The payload is int16 I,Q interleaved, ordered [chirp][rx][sample]; ``offset`` is the chunk's byte offset
+within the frame. The assembler puts chunks in place by offset, so reordering is harmless; duplicates,
+gaps, truncated and malformed datagrams are counted; a frame touched by loss is zero-filled and marked
+invalid, never passed on as if complete; a jump in the frame counter (a restart) resynchronises.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import struct
+
+import numpy as np
+
+MAGIC = b"SRF1"
+VERSION = 1
+HEADER = struct.Struct("<4sBBHIQII")
+FLAG_PTP_LOCKED = 0x01
+#: Payload bytes per datagram so that IP (20) + UDP (8) + SRF1 header fit a 1500-byte MTU, multiple of 4.
+MAX_PAYLOAD = (1500 - 20 - 8 - HEADER.size) // 4 * 4
+
+
+class Srf1Error(ValueError):
+    """A datagram that is not SRF1 or contradicts itself."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Srf1Header:
+    version: int
+    flags: int
+    radar_id: int
+    frame_counter: int
+    frame_time_ns: int
+    frame_bytes: int
+    offset: int
+
+    @property
+    def ptp_locked(self) -> bool:
+        return bool(self.flags & FLAG_PTP_LOCKED)
+
+
+def encode_frame(radar_id: int, frame_counter: int, frame_time_ns: int, iq: np.ndarray, ptp_locked: bool = True,
+                 payload_bytes: int = MAX_PAYLOAD) -> list[bytes]:
+    """Datagrams of one frame; ``iq`` int16 [chirps, rx, samples, 2] (or any int16 array in wire order)."""
+    data = np.ascontiguousarray(iq, dtype="<i2").tobytes()
+    flags = FLAG_PTP_LOCKED if ptp_locked else 0
+    out = []
+    for off in range(0, len(data), payload_bytes):
+        head = HEADER.pack(MAGIC, VERSION, flags, radar_id, frame_counter & 0xFFFFFFFF, frame_time_ns, len(data), off)
+        out.append(head + data[off:off + payload_bytes])
+    return out
+
+
+def parse(datagram: bytes) -> tuple[Srf1Header, memoryview]:
+    """Header and payload of one datagram; Srf1Error names what is wrong."""
+    if len(datagram) < HEADER.size:
+        raise Srf1Error(f"datagram of {len(datagram)} bytes is shorter than the {HEADER.size}-byte header")
+    magic, version, flags, radar_id, counter, t_ns, frame_bytes, offset = HEADER.unpack_from(datagram)
+    if magic != MAGIC:
+        raise Srf1Error(f"magic {magic!r} is not {MAGIC!r}")
+    if version != VERSION:
+        raise Srf1Error(f"version {version} is not supported")
+    payload = memoryview(datagram)[HEADER.size:]
+    if offset + len(payload) > frame_bytes:
+        raise Srf1Error(f"chunk at offset {offset} with {len(payload)} bytes overruns the {frame_bytes}-byte frame")
+    return Srf1Header(version, flags, radar_id, counter, t_ns, frame_bytes, offset), payload
+
+
+@dataclasses.dataclass
+class Srf1Counters:
+    datagrams: int = 0
+    malformed: int = 0
+    truncated: int = 0
+    duplicates: int = 0
+    reordered: int = 0
+    wrong_radar: int = 0
+    frames_complete: int = 0
+    frames_incomplete: int = 0
+    frames_skipped: int = 0  # frame counters never seen at all
+    bytes_lost: int = 0
+    resyncs: int = 0
+
+
+@dataclasses.dataclass
+class Frame:
+    """A reassembled frame: ``data`` the frame's bytes (zero where lost), ``valid`` False if any were lost."""
+
+    frame_counter: int
+    frame_time_ns: int
+    data: bytearray
+    valid: bool
+    bytes_missing: int
+    ptp_locked: bool
+    last_receive_ns: int
+
+    def iq(self, shape: tuple[int, ...]) -> np.ndarray:
+        """The frame as int16 with ``shape`` (e.g. [chirps, rx, samples, 2])."""
+        return np.frombuffer(bytes(self.data), dtype="<i2").reshape(shape)
+
+
+class _Partial:
+    def __init__(self, header: Srf1Header, recv_ns: int):
+        self.header = header
+        self.data = bytearray(header.frame_bytes)
+        self.have = np.zeros(header.frame_bytes, bool)
+        self.received = 0
+        self.last_offset = -1
+        self.last_recv = recv_ns
+
+
+class FrameAssembler:
+    """Reassemble one radar's frames from SRF1 datagrams.
+
+    Frames are emitted in counter order: complete ones as soon as their last byte arrives; incomplete
+    ones when a frame ``window`` counters newer arrives (the rest is lost), zero-filled and invalid.
+
+    Parameters
+    ----------
+    frame_bytes : int
+        Expected frame size (from the waveform); datagrams that disagree count as malformed.
+    radar_id : int, optional
+        Datagrams of other radars are counted and ignored.
+    """
+
+    def __init__(self, frame_bytes: int, radar_id: int | None = None, window: int = 2, resync_jump: int = 1000):
+        """A counter more than ``resync_jump`` ahead, or behind everything recently emitted, is a restart."""
+        self.frame_bytes = frame_bytes
+        self.radar_id = radar_id
+        self.window = window
+        self.resync_jump = resync_jump
+        self.counters = Srf1Counters()
+        self._partial: dict[int, _Partial] = {}
+        self._next_emit: int | None = None
+        self._done: set[int] = set()
+        self._chunk = 0  # the largest payload seen: the sender's chunk size
+
+    def feed(self, datagram: bytes, recv_ns: int = 0) -> list[Frame]:
+        c = self.counters
+        c.datagrams += 1
+        if len(datagram) < HEADER.size:
+            c.truncated += 1
+            return []
+        try:
+            header, payload = parse(datagram)
+        except Srf1Error:
+            c.malformed += 1
+            return []
+        if header.frame_bytes != self.frame_bytes:
+            c.malformed += 1
+            return []
+        if self.radar_id is not None and header.radar_id != self.radar_id:
+            c.wrong_radar += 1
+            return []
+        # A datagram cut short: a partial I/Q sample at its end, or shorter than the sender's chunks without
+        # ending the frame. Its whole samples are kept; what is missing counts as lost.
+        if len(payload) % 4:
+            c.truncated += 1
+            payload = payload[: len(payload) // 4 * 4]
+        elif header.offset + len(payload) != header.frame_bytes and len(payload) < self._chunk:
+            c.truncated += 1
+        self._chunk = max(self._chunk, len(payload))
+        n = header.frame_counter
+        out: list[Frame] = []
+        if self._next_emit is None:
+            self._next_emit = n
+        elif n - self._next_emit > self.resync_jump or n < self._next_emit - 2 * self.window - 1:
+            # The sender restarted or jumped: flush what is pending as incomplete and start again here.
+            c.resyncs += 1
+            out += self._flush_all()
+            self._next_emit = n
+            self._done.clear()
+        if n < self._next_emit or n in self._done:
+            c.duplicates += 1  # a frame already emitted: late duplicate or very late chunk
+            return out
+        part = self._partial.get(n)
+        if part is None:
+            part = self._partial[n] = _Partial(header, recv_ns)
+        lo, hi = header.offset, header.offset + len(payload)
+        if part.have[lo:hi].all():
+            c.duplicates += 1
+            return out
+        if lo < part.last_offset:
+            c.reordered += 1
+        part.last_offset = max(part.last_offset, lo)
+        part.data[lo:hi] = payload
+        part.have[lo:hi] = True
+        part.received = int(part.have.sum()) if part.received + (hi - lo) > part.header.frame_bytes else part.received + (hi - lo)
+        part.last_recv = recv_ns
+        out += self._emit_ready(newest=n)
+        return out
+
+    def _emit_ready(self, newest: int) -> list[Frame]:
+        out = []
+        while self._next_emit is not None:
+            k = self._next_emit
+            part = self._partial.get(k)
+            complete = part is not None and part.received >= self.frame_bytes
+            if complete or newest - k >= self.window:
+                out.append(self._finish(k))
+                self._next_emit = k + 1
+            else:
+                break
+        return out
+
+    def _finish(self, k: int) -> Frame:
+        c = self.counters
+        part = self._partial.pop(k, None)
+        self._done.add(k)
+        if len(self._done) > 4 * self.window + 8:
+            self._done = {d for d in self._done if d >= k - 2 * self.window}
+        if part is None:
+            c.frames_skipped += 1
+            c.bytes_lost += self.frame_bytes
+            return Frame(k, 0, bytearray(self.frame_bytes), False, self.frame_bytes, False, 0)
+        missing = self.frame_bytes - part.received
+        if missing:
+            c.frames_incomplete += 1
+            c.bytes_lost += missing
+        else:
+            c.frames_complete += 1
+        return Frame(k, part.header.frame_time_ns, part.data, missing == 0, missing, part.header.ptp_locked, part.last_recv)
+
+    def _flush_all(self) -> list[Frame]:
+        out = []
+        for k in sorted(self._partial):
+            out.append(self._finish(k))
+        return out
+
+    def flush(self) -> list[Frame]:
+        """Emit everything still pending (end of stream)."""
+        out = self._flush_all()
+        self._next_emit = None
+        return out
