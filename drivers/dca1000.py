@@ -1,0 +1,183 @@
+"""TI DCA1000EVM raw ADC capture: the UDP data stream and its layout.
+
+Data datagrams (UDP port 4098): ``u32 LE sequence | 48-bit LE byte count | int16 LE samples``. The byte
+count is the stream offset of the datagram's first sample, so datagrams are placed by it: packets are not
+aligned to frames, and a lost datagram leaves a gap of exactly its size, which is zero-filled; every frame
+it touches is marked invalid. Frames are ``TiRadarConfig.frame_bytes`` long, back to back.
+
+Sample layout of the xWR18xx in complex 1x mode: per chirp, per RX, samples in pairs as four int16
+words ``Q0 Q1 I0 I1`` (this reproduces the reference values of the mmwave-capture-std test capture).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import struct
+
+import numpy as np
+
+DATA_PORT = 4098
+CONFIG_PORT = 4096
+HEADER_BYTES = 10
+
+
+class Dca1000Error(ValueError):
+    pass
+
+
+def parse_data_packet(payload: bytes) -> tuple[int, int, memoryview]:
+    """(sequence, byte count, samples) of one data datagram."""
+    if len(payload) < HEADER_BYTES:
+        raise Dca1000Error(f"datagram of {len(payload)} bytes is shorter than the {HEADER_BYTES}-byte header")
+    seq = struct.unpack_from("<I", payload)[0]
+    byte_count = int.from_bytes(payload[4:10], "little")
+    return seq, byte_count, memoryview(payload)[HEADER_BYTES:]
+
+
+def encode_data_packets(stream: bytes, start_seq: int = 1, start_byte: int = 0, payload_bytes: int = 1456) -> list[bytes]:
+    """Datagrams carrying ``stream`` the way the DCA1000 sends it (for emulation and tests)."""
+    out = []
+    for k, off in enumerate(range(0, len(stream), payload_bytes)):
+        head = struct.pack("<I", start_seq + k) + (start_byte + off).to_bytes(6, "little")
+        out.append(head + stream[off:off + payload_bytes])
+    return out
+
+
+def decode_complex_1x(frame: bytes | np.ndarray, chirps: int, n_rx: int, samples: int) -> np.ndarray:
+    """complex64 [chirps, n_rx, samples] from the xWR18xx complex-1x byte layout (Q0 Q1 I0 I1 words)."""
+    words = np.frombuffer(bytes(frame), dtype="<i2").astype(np.float32)
+    if words.size != 2 * chirps * n_rx * samples:
+        raise Dca1000Error(f"{words.size // 2} complex samples do not fill [{chirps}, {n_rx}, {samples}]")
+    quad = words.reshape(-1, 4)
+    out = np.empty((quad.shape[0], 2), np.complex64)
+    out[:, 0] = quad[:, 2] + 1j * quad[:, 0]
+    out[:, 1] = quad[:, 3] + 1j * quad[:, 1]
+    return out.reshape(chirps, n_rx, samples)
+
+
+@dataclasses.dataclass
+class Dca1000Counters:
+    datagrams: int = 0
+    malformed: int = 0
+    duplicates: int = 0
+    reordered: int = 0
+    sequence_gaps: int = 0
+    bytes_lost: int = 0
+    frames_complete: int = 0
+    frames_incomplete: int = 0
+    resyncs: int = 0
+    frames_skipped: int = 0  # whole frames jumped over by a resync (never emitted)
+
+
+@dataclasses.dataclass
+class RawFrame:
+    index: int  # frame number counted from the start of the stream
+    data: bytearray
+    valid: bool
+    bytes_missing: int
+    first_receive_ns: int
+
+
+class Dca1000Assembler:
+    """Cut the DCA1000 byte stream into frames by byte count, whatever the datagram boundaries."""
+
+    def __init__(self, frame_bytes: int, window_bytes: int | None = None, max_gap_frames: int = 64):
+        """A datagram more than ``max_gap_frames`` frames ahead of the stream is a jump (a restarted
+        capture, a corrupt byte count): pending frames are emitted and the stream resynchronises there."""
+        self.max_gap_frames = max_gap_frames
+        self.frame_bytes = frame_bytes
+        self.window = window_bytes or 2 * frame_bytes  # how far the stream may run ahead of a frame
+        self.counters = Dca1000Counters()
+        self._frames: dict[int, tuple[bytearray, np.ndarray, int]] = {}
+        self._next_emit = 0
+        self._max_end = 0
+        self._last_seq: int | None = None
+
+    def feed(self, payload: bytes, recv_ns: int = 0) -> list[RawFrame]:
+        c = self.counters
+        c.datagrams += 1
+        try:
+            seq, start, data = parse_data_packet(payload)
+        except Dca1000Error:
+            c.malformed += 1
+            return []
+        if len(data) % 2:
+            c.malformed += 1
+            data = data[:-1]
+        if self._last_seq is not None:
+            if seq == self._last_seq:
+                c.duplicates += 1
+                return []
+            if seq < self._last_seq:
+                c.reordered += 1
+            elif seq > self._last_seq + 1:
+                c.sequence_gaps += 1
+        self._last_seq = max(seq, self._last_seq or 0)
+        end = start + len(data)
+        out: list[RawFrame] = []
+        first_frame = start // self.frame_bytes
+        if first_frame - max(self._next_emit, self._max_end // self.frame_bytes) > self.max_gap_frames:
+            c.resyncs += 1
+            out += self.flush()
+            c.frames_skipped += max(first_frame - self._next_emit, 0)
+            self._frames.clear()
+            self._next_emit = first_frame
+            self._max_end = start
+        if end <= self._next_emit * self.frame_bytes:
+            c.duplicates += 1  # belongs to frames already emitted
+            return out
+        pos = start
+        while pos < end:
+            k = pos // self.frame_bytes
+            lo = pos - k * self.frame_bytes
+            n = min(end - pos, self.frame_bytes - lo)
+            if k >= self._next_emit:
+                buf, have, first = self._frames.get(k) or (bytearray(self.frame_bytes), np.zeros(self.frame_bytes, bool), recv_ns)
+                seg = slice(lo, lo + n)
+                if have[seg].all():
+                    c.duplicates += 1
+                else:
+                    buf[seg] = data[pos - start:pos - start + n]
+                    have[seg] = True
+                self._frames[k] = (buf, have, first)
+            pos += n
+        self._max_end = max(self._max_end, end)
+        return out + self._emit()
+
+    def _emit(self) -> list[RawFrame]:
+        out = []
+        while True:
+            k = self._next_emit
+            entry = self._frames.get(k)
+            frame_end = (k + 1) * self.frame_bytes
+            complete = entry is not None and entry[1].all()
+            if not (complete or self._max_end - frame_end >= self.window):
+                break
+            buf, have, first = entry if entry is not None else (bytearray(self.frame_bytes), np.zeros(self.frame_bytes, bool), 0)
+            self._frames.pop(k, None)
+            missing = int(self.frame_bytes - have.sum())
+            if missing:
+                self.counters.frames_incomplete += 1
+                self.counters.bytes_lost += missing
+            else:
+                self.counters.frames_complete += 1
+            out.append(RawFrame(k, buf, missing == 0, missing, first))
+            self._next_emit += 1
+        return out
+
+    def flush(self) -> list[RawFrame]:
+        """Emit everything pending in order (end of capture, or before a resync): frames with holes
+        zero-filled and invalid, frames never seen between them empty and invalid."""
+        out = []
+        while self._frames:
+            k = self._next_emit
+            buf, have, first = self._frames.pop(k, (bytearray(self.frame_bytes), np.zeros(self.frame_bytes, bool), 0))
+            missing = int(self.frame_bytes - have.sum())
+            if missing:
+                self.counters.frames_incomplete += 1
+                self.counters.bytes_lost += missing
+            else:
+                self.counters.frames_complete += 1
+            out.append(RawFrame(k, buf, missing == 0, missing, first))
+            self._next_emit += 1
+        return out
