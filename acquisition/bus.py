@@ -1,0 +1,111 @@
+"""The message bus: ZeroMQ multipart ``[topic, msgpack header, raw array buffers...]`` (DESIGN.md).
+
+Every header carries a per-topic sequence number, the sensor time and the host time, plus the dtype and
+shape of each array, so arrays travel without copies or pickling and every consumer can count what it
+missed. PUB/SUB drops messages when a slow subscriber's queue is full; those drops are never silent: the
+receiver sees the sequence gap, counts it, and reports it (the recorder writes it to /events).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections import defaultdict
+
+import msgpack
+import numpy as np
+import zmq
+
+DEFAULT_ENDPOINT = "tcp://127.0.0.1:5560"
+
+
+@dataclasses.dataclass
+class Message:
+    topic: str
+    seq: int
+    sensor_time_ns: int
+    host_time_ns: int
+    header: dict
+    arrays: list[np.ndarray]
+
+
+class BusPublisher:
+    """Publishes on one endpoint; numbers messages per topic."""
+
+    def __init__(self, endpoint: str = DEFAULT_ENDPOINT, context: zmq.Context | None = None, bind: bool = True,
+                 high_water_mark: int = 10_000):
+        self.context = context or zmq.Context.instance()
+        self.socket = self.context.socket(zmq.PUB)
+        self.socket.setsockopt(zmq.SNDHWM, high_water_mark)
+        self.socket.setsockopt(zmq.LINGER, 1000)
+        (self.socket.bind if bind else self.socket.connect)(endpoint)
+        self.endpoint = self.socket.getsockopt_string(zmq.LAST_ENDPOINT) if bind else endpoint
+        self._seq: dict[str, int] = defaultdict(int)
+
+    def publish(self, topic: str, sensor_time_ns: int, arrays: list[np.ndarray] = (), **fields) -> int:
+        """Send one message; returns its sequence number. Arrays are sent from their own memory."""
+        seq = self._seq[topic]
+        self._seq[topic] = seq + 1
+        arrays = [np.ascontiguousarray(a) for a in arrays]
+        header = {"seq": seq, "sensor_time_ns": int(sensor_time_ns), "host_time_ns": time.time_ns(),
+                  "arrays": [[a.dtype.str, list(a.shape)] for a in arrays], **fields}
+        parts = [topic.encode(), msgpack.packb(header, use_bin_type=True), *[memoryview(a).cast("B") for a in arrays]]
+        self.socket.send_multipart(parts, copy=False)
+        return seq
+
+    def close(self) -> None:
+        self.socket.close()
+
+
+@dataclasses.dataclass
+class TopicStats:
+    received: int = 0
+    missed: int = 0
+    gaps: int = 0
+    restarts: int = 0  # the sequence went back to 0: the publisher restarted
+
+
+class BusSubscriber:
+    """Subscribes to topics (prefixes) on one or more endpoints and checks every topic's sequence."""
+
+    def __init__(self, endpoints: str | list[str] = DEFAULT_ENDPOINT, topics: list[str] = ("",),
+                 context: zmq.Context | None = None, high_water_mark: int = 10_000):
+        self.context = context or zmq.Context.instance()
+        self.socket = self.context.socket(zmq.SUB)
+        self.socket.setsockopt(zmq.RCVHWM, high_water_mark)
+        self.socket.setsockopt(zmq.LINGER, 0)
+        for t in topics:
+            self.socket.setsockopt(zmq.SUBSCRIBE, t.encode())
+        for e in [endpoints] if isinstance(endpoints, str) else endpoints:
+            self.socket.connect(e)
+        self.stats: dict[str, TopicStats] = defaultdict(TopicStats)
+        self._expected: dict[str, int] = {}
+        self.poller = zmq.Poller()
+        self.poller.register(self.socket, zmq.POLLIN)
+
+    def receive(self, timeout_ms: int | None = None) -> Message | None:
+        """The next message, or None after ``timeout_ms``; arrays are views on the received frames."""
+        if timeout_ms is not None and not self.poller.poll(timeout_ms):
+            return None
+        parts = self.socket.recv_multipart(copy=False)
+        topic = bytes(parts[0].buffer).decode()
+        header = msgpack.unpackb(parts[1].buffer, raw=False)
+        arrays = [np.frombuffer(p.buffer, dtype=np.dtype(dt)).reshape(shape)
+                  for p, (dt, shape) in zip(parts[2:], header.get("arrays", []))]
+        self._check(topic, int(header["seq"]))
+        return Message(topic, header["seq"], header["sensor_time_ns"], header["host_time_ns"], header, arrays)
+
+    def _check(self, topic: str, seq: int) -> None:
+        st = self.stats[topic]
+        st.received += 1
+        expected = self._expected.get(topic)
+        if expected is not None and seq != expected:
+            if seq == 0:
+                st.restarts += 1
+            elif seq > expected:
+                st.gaps += 1
+                st.missed += seq - expected
+        self._expected[topic] = seq + 1
+
+    def close(self) -> None:
+        self.socket.close()
