@@ -1,0 +1,117 @@
+"""The IMU driver: Xsens MTData2 over a serial port, samples put on the PTP time base.
+
+The IMU's own clock (SampleTimeFine, 10 kHz ticks, 32-bit) times every sample. The sync box's hardware
+trigger, which also marks the first chirp of the run (PTP time ``trigger_time_ns``), sets the SyncIn bit
+of the sample it coincides with, so:
+
+    t_ptp(sample) = trigger_time_ns + (ticks(sample) - ticks(trigger sample)) * 100 us
+
+Until the trigger is seen the samples have no PTP time and are held back (at most ``max_pending``).
+The IMU clock's drift against the host clock is estimated by a line through (IMU time, host receive
+time) and reported in parts per million.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+
+import numpy as np
+
+from .xbus import SAMPLE_TIME_FINE_HZ, ImuPacket, XbusParser
+
+log = logging.getLogger(__name__)
+TICK_NS = 1_000_000_000 // SAMPLE_TIME_FINE_HZ
+
+
+@dataclasses.dataclass
+class ImuSample:
+    time_ns: int  # PTP time base
+    gyro_radps: tuple[float, float, float]
+    accel_mps2: tuple[float, float, float]
+    counter: int
+    host_time_ns: int
+    sync_in: bool
+
+
+class ImuClock:
+    """Unwraps the 32-bit tick counter and maps ticks to PTP time once the trigger has been seen."""
+
+    def __init__(self, trigger_time_ns: int):
+        self.trigger_time_ns = trigger_time_ns
+        self.trigger_ticks: int | None = None
+        self._last_raw: int | None = None
+        self._wraps = 0
+        self._fit_imu: list[float] = []
+        self._fit_host: list[float] = []
+
+    def unwrap(self, raw: int) -> int:
+        if self._last_raw is not None and raw < self._last_raw and self._last_raw - raw > 2**31:
+            self._wraps += 1
+        self._last_raw = raw
+        return raw + self._wraps * 2**32
+
+    def time_ns(self, ticks: int) -> int | None:
+        if self.trigger_ticks is None:
+            return None
+        return self.trigger_time_ns + (ticks - self.trigger_ticks) * TICK_NS
+
+    def observe(self, ticks: int, host_time_ns: int) -> None:
+        self._fit_imu.append(ticks * TICK_NS * 1e-9)
+        self._fit_host.append(host_time_ns * 1e-9)
+        if len(self._fit_imu) > 20000:
+            del self._fit_imu[:10000], self._fit_host[:10000]
+
+    def drift_ppm(self) -> float | None:
+        """(host clock rate / IMU clock rate - 1) in ppm, from the receive times seen so far."""
+        if len(self._fit_imu) < 50:
+            return None
+        x = np.asarray(self._fit_imu) - self._fit_imu[0]
+        y = np.asarray(self._fit_host) - self._fit_host[0]
+        if np.ptp(x) <= 0:
+            return None
+        slope = np.polyfit(x, y, 1)[0]
+        return float((slope - 1.0) * 1e6)
+
+
+class ImuDriver:
+    """Reads a serial port (a real one, or a pty from the emulator) and yields timed samples."""
+
+    def __init__(self, port: str, trigger_time_ns: int, baudrate: int = 921_600, max_pending: int = 10_000):
+        import serial
+
+        self.serial = serial.Serial(port, baudrate=baudrate, timeout=0.05)
+        self.parser = XbusParser()
+        self.clock = ImuClock(trigger_time_ns)
+        self._pending: list[tuple[ImuPacket, int, int]] = []
+        self.max_pending = max_pending
+        self.dropped_before_trigger = 0
+
+    def read(self) -> list[ImuSample]:
+        """Whatever has arrived (waits up to the port timeout for the first byte)."""
+        chunk = self.serial.read(max(1, self.serial.in_waiting))
+        host = time.time_ns()
+        out = []
+        for packet in self.parser.feed(chunk):
+            if packet.sample_time_fine is None or packet.accel_mps2 is None or packet.gyro_radps is None:
+                continue
+            ticks = self.clock.unwrap(packet.sample_time_fine)
+            self.clock.observe(ticks, host)
+            if packet.sync_in and self.clock.trigger_ticks is None:
+                self.clock.trigger_ticks = ticks
+                log.info("IMU: trigger seen at tick %d; %d samples before it are dropped", ticks, len(self._pending))
+                self.dropped_before_trigger += len(self._pending)
+                self._pending.clear()
+            if self.clock.trigger_ticks is None:
+                self._pending.append((packet, ticks, host))
+                if len(self._pending) > self.max_pending:
+                    self._pending.pop(0)
+                    self.dropped_before_trigger += 1
+                continue
+            out.append(ImuSample(self.clock.time_ns(ticks), packet.gyro_radps, packet.accel_mps2,
+                                 packet.counter if packet.counter is not None else -1, host, packet.sync_in))
+        return out
+
+    def close(self) -> None:
+        self.serial.close()
