@@ -1,0 +1,49 @@
+"""UDP reception the way a radar driver needs it: kernel receive timestamps, the kernel's drop counter, a
+large receive buffer (Linux socket options, numeric where Python does not name them)."""
+
+from __future__ import annotations
+
+import socket
+import struct
+
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+SCM_TIMESTAMPNS = SO_TIMESTAMPNS
+SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
+
+
+class UdpReceiver:
+    """A bound UDP socket returning (payload, kernel receive time ns, kernel drops so far)."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0, rcvbuf_bytes: int = 32 << 20, timeout_s: float = 0.1):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:  # as root the buffer may exceed net.core.rmem_max
+            self.sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, rcvbuf_bytes)
+        except OSError:
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf_bytes)
+        self.rcvbuf_bytes = self.sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+        self.sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+        self.sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
+        self.sock.bind((host, port))
+        self.sock.settimeout(timeout_s)
+        self.address = self.sock.getsockname()
+        self.kernel_drops = 0
+
+    def receive(self, max_bytes: int = 65536) -> tuple[bytes, int, int] | None:
+        """One datagram, or None on timeout."""
+        try:
+            data, ancdata, _, _ = self.sock.recvmsg(max_bytes, 256)
+        except socket.timeout:
+            return None
+        t_ns = 0
+        for level, kind, value in ancdata:
+            if level == socket.SOL_SOCKET and kind == SCM_TIMESTAMPNS and len(value) >= 16:
+                sec, nsec = struct.unpack_from("qq", value)
+                t_ns = sec * 1_000_000_000 + nsec
+            elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
+                self.kernel_drops = struct.unpack_from("I", value)[0]
+        return data, t_ns, self.kernel_drops
+
+    def close(self) -> None:
+        self.sock.close()
