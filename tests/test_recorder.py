@@ -1,0 +1,84 @@
+"""Recorder: bus messages into HDF5, bus gaps into /events, and a killed recorder's file stays readable."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import zmq
+
+from acquisition.bus import BusPublisher
+from acquisition.recorder import Recorder
+from imaging.recording import Recording
+from imaging.rig import rig_from_dict
+
+RIG = rig_from_dict({"radar": {"left": {"waveform": {"chirps_per_frame": 8, "sample_rate_hz": 200e3,
+                                                     "frame_interval_s": 0.01}}}})
+SHAPE = (8, 4, 36, 2)
+
+
+def test_frames_imu_and_gaps_are_recorded(tmp_path):
+    ctx = zmq.Context()
+    pub = BusPublisher("tcp://127.0.0.1:0", context=ctx)
+    rec = Recorder(tmp_path / "r.h5", RIG, pub.endpoint, context=ctx)
+    time.sleep(0.2)
+    rng = np.random.default_rng(0)
+    iqs = [rng.integers(-500, 500, SHAPE, dtype=np.int16) for _ in range(10)]
+    for k, iq in enumerate(iqs):
+        if k == 6:
+            pub._seq["radar/left"] += 1  # a message lost between driver and recorder
+            continue
+        pub.publish("radar/left", 1000 + k, [iq], frame_counter=k, frame_time_ns=1000 + k, receive_ns=5000 + k, valid=k != 3)
+    t = np.arange(5, dtype=np.int64)
+    pub.publish("imu", 0, [t, np.ones((5, 3)), np.full((5, 3), 9.8), t.astype(np.uint32), t + 7])
+    pub.publish("trigger", 999, source="sync_box")
+    pub.publish("event", 1234, source="radar.left", level="warning", message="3 datagrams lost in frame 3")
+    while rec.step(timeout_ms=300):
+        pass
+    rec.close()
+    pub.close()
+    ctx.term()
+    with Recording(tmp_path / "r.h5") as r:
+        adc = r.file["radar/left/adc"][()]
+        assert adc.shape == (9, *SHAPE) and adc.dtype == np.int16
+        kept = [k for k in range(10) if k != 6]
+        np.testing.assert_array_equal(adc, np.stack([iqs[k] for k in kept]))
+        np.testing.assert_array_equal(r.valid("left"), [k != 3 for k in kept])
+        assert r.imu()["time_ns"].size == 5 and r.triggers().tolist() == [999]
+        messages = [m.decode() for m in r.file["events/message"][()]]
+        assert "radar/left: 1 message(s) lost on the bus" in messages
+        assert "3 datagrams lost in frame 3" in messages
+
+
+def test_recorder_killed_with_sigkill_leaves_its_flushed_data(tmp_path):
+    path = tmp_path / "killed.h5"
+    code = f"""
+import time, numpy as np, zmq, sys
+sys.path.insert(0, {str(os.getcwd())!r})
+from acquisition.bus import BusPublisher
+from acquisition.recorder import Recorder
+from tests.test_recorder import RIG, SHAPE
+ctx = zmq.Context()
+pub = BusPublisher("tcp://127.0.0.1:0", context=ctx)
+rec = Recorder({str(path)!r}, RIG, pub.endpoint, flush_interval_s=0.05, context=ctx)
+time.sleep(0.2)
+k = 0
+while True:
+    pub.publish("radar/left", k, [np.full(SHAPE, k % 1000, np.int16)], frame_counter=k, frame_time_ns=k, receive_ns=k, valid=True)
+    k += 1
+    rec.step(timeout_ms=10)
+    if k == 40:
+        print("ready", flush=True)
+"""
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, cwd=os.getcwd())
+    assert proc.stdout.readline().strip() == "ready"
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    with Recording(path) as r:
+        n = r.n_frames("left")
+        assert n >= 20  # at least what was flushed before the kill
+        adc = r.file["radar/left/adc"][:n]
+        np.testing.assert_array_equal(adc[:, 0, 0, 0, 0], np.arange(n) % 1000)
