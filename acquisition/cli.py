@@ -230,6 +230,47 @@ def cmd_import_bag(args) -> int:
     return EXIT_OK
 
 
+def _radar_map(items: list[str] | None, option: str, with_host: bool):
+    out = {}
+    for item in items or []:
+        try:
+            name, where = item.split("=", 1)
+            if with_host:
+                host, port = where.rsplit(":", 1) if ":" in where else ("127.0.0.1", where)
+                out[name] = (host, int(port))
+            else:
+                out[name] = int(where)
+        except ValueError:
+            raise SarbotError(f"{option} {item!r}: expected NAME={'HOST:' if with_host else ''}PORT") from None
+    return out
+
+
+def cmd_record(args) -> int:
+    from imaging.rig import load_rig
+
+    from .daemon import record
+
+    rig = load_rig(args.config)
+    ports = _radar_map(args.radar, "--radar", with_host=False)
+    for name in ports:
+        if name not in rig.radar_names:
+            raise SarbotError(f"--radar {name}: no such radar in {args.config} (radars: {', '.join(rig.radar_names)})")
+    if not ports and not args.imu_port:
+        raise SarbotError("nothing to record: give --radar NAME=PORT and/or --imu-port DEVICE")
+    path = record(rig, Path(args.output), ports, args.imu_port, duration_s=args.duration)
+    print(f"wrote {path}")
+    return EXIT_OK
+
+
+def cmd_replay(args) -> int:
+    from .daemon import replay
+
+    targets = _radar_map(args.radar, "--radar", with_host=True)
+    sent = replay(Path(args.recording), targets, args.imu_link, None if args.speed <= 0 else args.speed, args.start_delay)
+    print("replayed " + ", ".join(f"{n}: {k} datagrams" for n, k in sent.items()) + (" and the IMU" if args.imu_link else ""))
+    return EXIT_OK
+
+
 def cmd_demo(args) -> int:
     from .demo import run_demo
 
@@ -294,6 +335,22 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--radar-name", default="radar")
     s.add_argument("--overwrite", action="store_true")
     s.set_defaults(func=cmd_import_bag)
+
+    s = sub.add_parser("record", help="run the drivers and record everything to HDF5")
+    s.add_argument("--config", required=True, help="rig TOML")
+    s.add_argument("-o", "--output", required=True, help="folder for the recording")
+    s.add_argument("--radar", action="append", help="NAME=UDP_PORT the radar sends SRF1 to (repeat per radar)")
+    s.add_argument("--imu-port", help="serial device of the Xsens IMU (or the pty replay links)")
+    s.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C / SIGTERM)")
+    s.set_defaults(func=cmd_record)
+
+    s = sub.add_parser("replay", help="send a recording through emulated hardware (UDP, pty)")
+    s.add_argument("recording")
+    s.add_argument("--radar", action="append", help="NAME=HOST:PORT to send the radar's SRF1 datagrams to")
+    s.add_argument("--imu-link", help="create this symlink to the pty the emulated IMU writes to")
+    s.add_argument("--speed", type=float, default=1.0, help="multiple of real time; 0 for as fast as possible")
+    s.add_argument("--start-delay", type=float, default=0.0, help="seconds to wait before sending (lets drivers start)")
+    s.set_defaults(func=cmd_replay)
 
     s = sub.add_parser("demo", help="simulate the built-in scene, image it and compare with theory")
     s.add_argument("-o", "--output", default="sarbot-demo", help="output folder (default ./sarbot-demo)")

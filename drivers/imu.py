@@ -36,9 +36,10 @@ class ImuSample:
 
 
 class ImuClock:
-    """Unwraps the 32-bit tick counter and maps ticks to PTP time once the trigger has been seen."""
+    """Unwraps the 32-bit tick counter and maps ticks to PTP time once the trigger has been seen and its
+    PTP time is known (``trigger_time_ns`` may be set later, e.g. from the first radar frame)."""
 
-    def __init__(self, trigger_time_ns: int):
+    def __init__(self, trigger_time_ns: int | None):
         self.trigger_time_ns = trigger_time_ns
         self.trigger_ticks: int | None = None
         self._last_raw: int | None = None
@@ -53,7 +54,7 @@ class ImuClock:
         return raw + self._wraps * 2**32
 
     def time_ns(self, ticks: int) -> int | None:
-        if self.trigger_ticks is None:
+        if self.trigger_ticks is None or self.trigger_time_ns is None:
             return None
         return self.trigger_time_ns + (ticks - self.trigger_ticks) * TICK_NS
 
@@ -78,7 +79,7 @@ class ImuClock:
 class ImuDriver:
     """Reads a serial port (a real one, or a pty from the emulator) and yields timed samples."""
 
-    def __init__(self, port: str, trigger_time_ns: int, baudrate: int = 921_600, max_pending: int = 10_000):
+    def __init__(self, port: str, trigger_time_ns: int | None, baudrate: int = 921_600, max_pending: int = 100_000):
         import serial
 
         self.serial = serial.Serial(port, baudrate=baudrate, timeout=0.05)
@@ -103,15 +104,32 @@ class ImuDriver:
                 log.info("IMU: trigger seen at tick %d; %d samples before it are dropped", ticks, len(self._pending))
                 self.dropped_before_trigger += len(self._pending)
                 self._pending.clear()
-            if self.clock.trigger_ticks is None:
+                if self.clock.trigger_time_ns is None:
+                    self._pending.append((packet, ticks, host))
+                    continue
+            if self.clock.trigger_ticks is None or self.clock.trigger_time_ns is None:
                 self._pending.append((packet, ticks, host))
                 if len(self._pending) > self.max_pending:
                     self._pending.pop(0)
                     self.dropped_before_trigger += 1
                 continue
-            out.append(ImuSample(self.clock.time_ns(ticks), packet.gyro_radps, packet.accel_mps2,
-                                 packet.counter if packet.counter is not None else -1, host, packet.sync_in))
+            out += self._release_pending()
+            out.append(self._sample(packet, ticks, host))
+        if self._pending and self.clock.trigger_ticks is not None and self.clock.trigger_time_ns is not None:
+            out += self._release_pending()
         return out
+
+    def set_trigger_time(self, trigger_time_ns: int) -> None:
+        """The PTP time of the trigger, when it becomes known after the IMU started (first radar frame)."""
+        self.clock.trigger_time_ns = int(trigger_time_ns)
+
+    def _release_pending(self) -> list[ImuSample]:
+        pending, self._pending = self._pending, []
+        return [self._sample(p, t, h) for p, t, h in pending if self.clock.trigger_ticks is not None and t >= self.clock.trigger_ticks]
+
+    def _sample(self, packet: ImuPacket, ticks: int, host: int) -> ImuSample:
+        return ImuSample(self.clock.time_ns(ticks), packet.gyro_radps, packet.accel_mps2,
+                         packet.counter if packet.counter is not None else -1, host, packet.sync_in)
 
     def close(self) -> None:
         self.serial.close()
