@@ -127,3 +127,21 @@ def test_image_file_round_trip(tmp_path):
     back = read_image(tmp_path / "i.h5")
     np.testing.assert_array_equal(back.image, img.image)
     assert back.attrs["method"] == "tdbp-linear" and back.wavelength_m == 0.0038
+
+
+def test_systemd_units_verify(tmp_path):
+    """The units pass `systemd-analyze verify` (where systemd is installed) with the real executable."""
+    import shutil
+    from pathlib import Path
+
+    analyze = shutil.which("systemd-analyze")
+    if analyze is None:
+        pytest.skip("systemd-analyze is not installed")
+    units = Path(__file__).resolve().parents[1] / "systemd"
+    exe = Path(sys.executable).with_name("sarbot")
+    for unit in units.iterdir():
+        text = unit.read_text().replace("/opt/sarbot/.venv/bin/sarbot", str(exe))
+        text = text.replace("User=sarbot", "User=root").replace("Group=sarbot", "Group=root")
+        (tmp_path / unit.name).write_text(text)
+    res = subprocess.run([analyze, "verify", *(str(p) for p in sorted(tmp_path.iterdir()))], capture_output=True, text=True)
+    assert res.returncode == 0, res.stdout + res.stderr
