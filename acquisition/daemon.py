@@ -22,6 +22,8 @@ import numpy as np
 from imaging.recording import Recording
 from imaging.rig import Rig
 
+from .sdnotify import notify, watchdog_interval_s
+
 log = logging.getLogger("sarbot.daemon")
 
 
@@ -99,7 +101,7 @@ def _imu_main(port: str, endpoint: str, radar_endpoints: list[str], stop) -> Non
 
 
 def record(rig: Rig, out_dir: Path, radar_ports: dict[str, int], imu_port: str | None, duration_s: float | None = None,
-           host: str = "127.0.0.1", flush_interval_s: float = 0.5) -> Path:
+           host: str = "127.0.0.1", flush_interval_s: float = 0.5, health_interval_s: float = 2.0) -> Path:
     """Run drivers and recorder until a signal or ``duration_s``; returns the recording's path."""
     from .recorder import Recorder
 
@@ -129,9 +131,31 @@ def record(rig: Rig, out_dir: Path, radar_ports: dict[str, int], imu_port: str |
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     t_end = time.monotonic() + duration_s if duration_s else None
     restarts = 0
+    notify("READY=1")
+    watchdog_s = watchdog_interval_s()
+    last_health = last_watchdog = time.monotonic()
+    counts_before = (dict(recorder.frames), recorder.imu_samples)
+    flowing = False
     try:
         while not stopping.is_set() and (t_end is None or time.monotonic() < t_end):
-            recorder.step(timeout_ms=50)
+            if recorder.step(timeout_ms=50):
+                flowing = True
+            now = time.monotonic()
+            if now - last_health >= health_interval_s:
+                frames, imu_n = counts_before
+                rates = {n: (recorder.frames[n] - frames.get(n, 0)) / (now - last_health) for n in recorder.frames}
+                imu_rate = (recorder.imu_samples - imu_n) / (now - last_health)
+                lost = sum(st.missed for st in recorder.sub.stats.values())
+                status = ", ".join(f"{n} {r:.1f} frames/s" for n, r in rates.items()) + f", IMU {imu_rate:.0f} Hz, bus lost {lost}, restarts {restarts}"
+                log.info("health: %s", status)
+                notify(f"STATUS={status}")
+                counts_before = (dict(recorder.frames), recorder.imu_samples)
+                last_health = now
+            # The watchdog is fed only while data flows: a daemon alive but recording nothing gets restarted.
+            if watchdog_s and flowing and now - last_watchdog >= watchdog_s:
+                notify("WATCHDOG=1")
+                last_watchdog = now
+                flowing = False
             for role, proc in list(procs.items()):
                 if not proc.is_alive():
                     restarts += 1
@@ -141,6 +165,7 @@ def record(rig: Rig, out_dir: Path, radar_ports: dict[str, int], imu_port: str |
                     target, args = specs[role]
                     procs[role] = ctx.Process(target=target, args=args, name=role, daemon=True)
                     procs[role].start()
+        notify("STOPPING=1")
         stop.set()
         deadline = time.monotonic() + 3.0
         while time.monotonic() < deadline:  # drain what the drivers flush on the way out

@@ -99,3 +99,45 @@ def test_a_killed_driver_is_restarted_and_nothing_received_intact_is_lost(tmp_pa
         for k, c in enumerate(counters):  # ... and every frame recorded is its source frame (or marked invalid)
             if valid[k]:
                 np.testing.assert_array_equal(adc[k], iq[c])
+
+
+def test_sd_notify_ready_status_and_a_watchdog_fed_only_while_data_flows(tmp_path):
+    """A real AF_UNIX datagram socket stands in for systemd's notify socket."""
+    import os
+    import socket
+
+    src = tmp_path / "source.h5"
+    make_source(src, n_frames=60)
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG_TOML)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    notify_path = str(tmp_path / "notify")
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    listener.bind(notify_path)
+    listener.settimeout(0.2)
+    env = {**os.environ, "NOTIFY_SOCKET": notify_path, "WATCHDOG_USEC": "1000000"}
+    cmd = [sys.executable, "-m", "acquisition.cli"]
+    record = subprocess.Popen([*cmd, "record", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar", f"left={port}",
+                               "--duration", "9"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(2.5)
+    replay = subprocess.run([*cmd, "replay", str(src), "--radar", f"left=127.0.0.1:{port}", "--speed", "1"],
+                            capture_output=True, text=True, timeout=30)  # 3 s of data, then silence
+    assert replay.returncode == 0
+    messages = []  # (time, text)
+    deadline = time.monotonic() + 20
+    while record.poll() is None and time.monotonic() < deadline:
+        try:
+            messages.append((time.monotonic(), listener.recv(4096).decode()))
+        except socket.timeout:
+            pass
+    record.communicate(timeout=30)
+    listener.close()
+    texts = [m for _, m in messages]
+    assert texts[0] == "READY=1" and texts[-1] == "STOPPING=1"
+    assert any(t.startswith("STATUS=left") and "frames/s" in t for t in texts)
+    dogs = [t for t, m in messages if m == "WATCHDOG=1"]
+    assert dogs, texts
+    # Fed while frames arrived, not in the silence after the replay ended (the last seconds of the run).
+    assert messages[-1][0] - dogs[-1] > 1.5
