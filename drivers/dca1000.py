@@ -153,31 +153,26 @@ class Dca1000Assembler:
             complete = entry is not None and entry[1].all()
             if not (complete or self._max_end - frame_end >= self.window):
                 break
-            buf, have, first = entry if entry is not None else (bytearray(self.frame_bytes), np.zeros(self.frame_bytes, bool), 0)
-            self._frames.pop(k, None)
-            missing = int(self.frame_bytes - have.sum())
-            if missing:
-                self.counters.frames_incomplete += 1
-                self.counters.bytes_lost += missing
-            else:
-                self.counters.frames_complete += 1
-            out.append(RawFrame(k, buf, missing == 0, missing, first))
-            self._next_emit += 1
+            out.append(self._pop_next())
         return out
+
+    def _pop_next(self) -> RawFrame:
+        """Emit the next frame in order (zero-filled where bytes are missing) and count it."""
+        k = self._next_emit
+        buf, have, first = self._frames.pop(k, (bytearray(self.frame_bytes), np.zeros(self.frame_bytes, bool), 0))
+        missing = int(self.frame_bytes - have.sum())
+        if missing:
+            self.counters.frames_incomplete += 1
+            self.counters.bytes_lost += missing
+        else:
+            self.counters.frames_complete += 1
+        self._next_emit += 1
+        return RawFrame(k, buf, missing == 0, missing, first)
 
     def flush(self) -> list[RawFrame]:
         """Emit everything pending in order (end of capture, or before a resync): frames with holes
         zero-filled and invalid, frames never seen between them empty and invalid."""
         out = []
         while self._frames:
-            k = self._next_emit
-            buf, have, first = self._frames.pop(k, (bytearray(self.frame_bytes), np.zeros(self.frame_bytes, bool), 0))
-            missing = int(self.frame_bytes - have.sum())
-            if missing:
-                self.counters.frames_incomplete += 1
-                self.counters.bytes_lost += missing
-            else:
-                self.counters.frames_complete += 1
-            out.append(RawFrame(k, buf, missing == 0, missing, first))
-            self._next_emit += 1
+            out.append(self._pop_next())
         return out
