@@ -137,7 +137,6 @@ class FrameAssembler:
         self.counters = Srf1Counters()
         self._partial: dict[int, _Partial] = {}
         self._next_emit: int | None = None
-        self._done: set[int] = set()
         self._chunk = 0  # the largest payload seen: the sender's chunk size
 
     def feed(self, datagram: bytes, recv_ns: int = 0) -> list[Frame]:
@@ -174,8 +173,7 @@ class FrameAssembler:
             c.resyncs += 1
             out += self._flush_all()
             self._next_emit = n
-            self._done.clear()
-        if n < self._next_emit or n in self._done:
+        if n < self._next_emit:
             c.duplicates += 1  # a frame already emitted: late duplicate or very late chunk
             return out
         part = self._partial.get(n)
@@ -188,9 +186,9 @@ class FrameAssembler:
         if lo < part.last_offset:
             c.reordered += 1
         part.last_offset = max(part.last_offset, lo)
+        part.received += int(hi - lo - np.count_nonzero(part.have[lo:hi]))  # overlapping bytes count once
         part.data[lo:hi] = payload
         part.have[lo:hi] = True
-        part.received = int(part.have.sum()) if part.received + (hi - lo) > part.header.frame_bytes else part.received + (hi - lo)
         part.last_recv = recv_ns
         out += self._emit_ready(newest=n)
         return out
@@ -211,9 +209,6 @@ class FrameAssembler:
     def _finish(self, k: int) -> Frame:
         c = self.counters
         part = self._partial.pop(k, None)
-        self._done.add(k)
-        if len(self._done) > 4 * self.window + 8:
-            self._done = {d for d in self._done if d >= k - 2 * self.window}
         if part is None:
             c.frames_skipped += 1
             c.bytes_lost += self.frame_bytes
