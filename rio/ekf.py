@@ -30,15 +30,6 @@ def skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
-def exp_so3(phi: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a rotation vector (Rodrigues)."""
-    angle = math.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
-    K = skew(phi)
-    if angle < 1e-8:
-        return np.eye(3) + K + 0.5 * K @ K
-    return np.eye(3) + (math.sin(angle) / angle) * K + ((1.0 - math.cos(angle)) / (angle * angle)) * (K @ K)
-
-
 @dataclasses.dataclass(frozen=True)
 class EkfConfig:
     """Noise densities (continuous, SI) and filter settings."""
@@ -227,14 +218,12 @@ class RadarInertialEkf:
         dt = (int(time_ns) - s.time_ns) * 1e-9
         if dt < 0:
             raise ValueError(f"measurement at {time_ns} is older than the filter state at {s.time_ns}")
-        if dt > 0:
+        if accel_mps2 is not None:  # one IMU sample: the batch path with a run of one
+            self.propagate_samples(np.array([int(time_ns)]), np.asarray(accel_mps2, float).reshape(1, 3),
+                                   np.asarray(gyro_radps, float).reshape(1, 3), np.zeros(1, bool))
+        elif dt > 0:
             s.p, s.v, s.R, s.P = _strapdown(s.p, s.v, s.R, s.P, self._last_accel - s.ba, self._last_gyro - s.bg, dt, self._q_density)
             s.time_ns = int(time_ns)
-        if accel_mps2 is not None:
-            if self._in_standstill:
-                self._standstill.append((np.array([int(time_ns)]), np.asarray(gyro_radps, float).reshape(1, 3)))
-            self._last_accel = np.asarray(accel_mps2, float)
-            self._last_gyro = np.asarray(gyro_radps, float)
 
     def propagate_samples(self, times_ns: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray,
                           record: np.ndarray):
@@ -266,7 +255,7 @@ class RadarInertialEkf:
         s.P = P
         s.p = s.p + dx[0:3]
         s.v = s.v + dx[3:6]
-        s.R = s.R @ exp_so3(dx[6:9])
+        s.R = s.R @ _exp_so3_nb(dx[6:9])
         s.ba = s.ba + dx[9:12]
         s.bg = s.bg + dx[12:15]
         self.bias_log.append((s.time_ns, s.bg.copy(), s.ba.copy()))
