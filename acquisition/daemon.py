@@ -17,7 +17,6 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
 
 from imaging.recording import Recording
 from imaging.rig import Rig
@@ -53,6 +52,7 @@ def _imu_main(port: str, endpoint: str, radar_endpoints: list[str], stop) -> Non
     from drivers.imu import ImuDriver
 
     from .bus import BusPublisher, BusSubscriber
+    from .pipeline import publish_imu_samples
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     import serial
@@ -87,11 +87,7 @@ def _imu_main(port: str, endpoint: str, radar_endpoints: list[str], stop) -> Non
             if not trigger_sent and driver.clock.trigger_ticks is not None and driver.clock.trigger_time_ns is not None:
                 pub.publish("trigger", driver.clock.trigger_time_ns, source="imu_syncin")
                 trigger_sent = True
-            if samples:
-                pub.publish("imu", samples[0].time_ns, [
-                    np.array([s.time_ns for s in samples], np.int64), np.array([s.gyro_radps for s in samples]),
-                    np.array([s.accel_mps2 for s in samples]), np.array([s.counter for s in samples], np.uint32),
-                    np.array([s.host_time_ns for s in samples], np.int64)])
+            publish_imu_samples(pub, samples)
     finally:
         if driver is not None:
             driver.close()

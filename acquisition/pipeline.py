@@ -74,10 +74,18 @@ def imu_driver_loop(driver: ImuDriver, pub: BusPublisher, stop: threading.Event)
         if not trigger_sent and driver.clock.trigger_ticks is not None:
             pub.publish("trigger", driver.clock.trigger_time_ns, source="imu_syncin")
             trigger_sent = True
-        pub.publish("imu", samples[0].time_ns, [
-            np.array([s.time_ns for s in samples], np.int64), np.array([s.gyro_radps for s in samples]),
-            np.array([s.accel_mps2 for s in samples]), np.array([s.counter for s in samples], np.uint32),
-            np.array([s.host_time_ns for s in samples], np.int64)])
+        publish_imu_samples(pub, samples)
+
+
+def publish_imu_samples(pub: BusPublisher, samples) -> None:
+    """A batch of timed IMU samples onto the bus as the recorder stores them: times, gyro, accel,
+    counters, host times."""
+    if not samples:
+        return
+    pub.publish("imu", samples[0].time_ns, [
+        np.array([s.time_ns for s in samples], np.int64), np.array([s.gyro_radps for s in samples]),
+        np.array([s.accel_mps2 for s in samples]), np.array([s.counter for s in samples], np.uint32),
+        np.array([s.host_time_ns for s in samples], np.int64)])
 
 
 def replay_radar(recording: Recording, radar: str, address, speed: float | None = 1.0, radar_id: int = 0) -> int:
