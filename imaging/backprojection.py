@@ -133,7 +133,7 @@ def _bp_interp(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, linear, o
 def _bp_exact(samples, f0, fstep, tx, rx, r_ref, gx, gy, gz, out):
     n_p, n_s = samples.shape
     n_g = gx.size
-    kc = _TWO_PI / 299_792_458.0
+    kc = _TWO_PI / SPEED_OF_LIGHT_MPS
     for g in numba.prange(n_g):
         acc = 0j
         for p in range(n_p):

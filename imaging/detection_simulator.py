@@ -9,7 +9,6 @@ uniformly. Cost is per scatterer, not per ADC sample: a 10-minute, four-radar dr
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 

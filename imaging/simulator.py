@@ -25,7 +25,7 @@ def _synthesise(tx_m, tx_v, rx_m, rx_v, centres, amps, f0_hz, fstep_hz, fs_hz, m
     """Sum of target echoes. tx_m/tx_v [P,3]; rx_m/rx_v [P,R,3]; centres [T,P,R,3]; amps [T,P,R]; out [P,R,N]."""
     n_p, n_r, n_s = out.shape
     n_t = centres.shape[0]
-    k0 = 2.0 * math.pi / 299_792_458.0
+    k0 = 2.0 * math.pi / SPEED_OF_LIGHT_MPS
     for p in numba.prange(n_p):
         acc = np.zeros(n_s, np.complex128)
         for j in range(n_r):

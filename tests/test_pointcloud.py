@@ -3,7 +3,6 @@
 import numpy as np
 import pytest
 
-from imaging.geometry import antenna_track
 from imaging.rig import default_rig
 from imaging.simulator import simulate_frames
 from imaging.targets import PointTarget
@@ -23,7 +22,6 @@ def frame_of(speed, snr_db=0.0, seed=0):
 
 
 def expected_in_sensor_frame(traj, t_ns):
-    track = antenna_track(RADAR, traj, np.array([t_ns]), np.array([0]))
     s = traj.sample(np.array([t_ns]))
     origin = s.position_m[0] + s.rotation.as_matrix()[0] @ RADAR.mount.translation_m
     r_s = s.rotation.as_matrix()[0] @ RADAR.mount.rotation.as_matrix()

@@ -1,7 +1,6 @@
 """The real ROS1 recording (TI IWR6843AOP point clouds, ADIS16448 IMU, hardware trigger): what can be
 asserted without ground truth."""
 
-import json
 import subprocess
 import sys
 

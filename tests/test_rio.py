@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 
 import numpy as np
@@ -10,7 +9,7 @@ import pytest
 
 from imaging.detection_simulator import DetectionModel, Person, room_scatterers, simulate_scan
 from imaging.imu_simulator import GRAVITY_MPS2, ImuErrors, simulate_imu
-from imaging.rig import Mount, default_rig
+from imaging.rig import default_rig
 from imaging.scene import DEFAULT_START_TIME_NS
 from imaging.trajectory import PathWithTurns
 from rio.ego_velocity import EgoStatus, body_velocity, sensor_velocity

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from imaging.geometry import Vibration, antenna_track, chirp_times_ns
+from imaging.geometry import Vibration, antenna_track
 from imaging.range_compression import range_compress
 from imaging.rig import default_rig
 from imaging.simulator import simulate_frames
