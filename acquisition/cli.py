@@ -20,6 +20,7 @@ log = logging.getLogger("sarbot")
 
 EXIT_OK = 0
 EXIT_USAGE = 2  # bad input: arguments, files, configuration
+EXIT_DISK_FULL = 3  # recording stopped: no space left; the file is readable up to its last flush
 EXIT_INTERRUPTED = 130
 
 
@@ -245,20 +246,84 @@ def _radar_map(items: list[str] | None, option: str, with_host: bool):
     return out
 
 
-def cmd_record(args) -> int:
-    from imaging.rig import load_rig
+def _can_config(args):
+    if not args.can:
+        return None
+    from drivers.can_driver import CanConfig
 
-    from .daemon import record
+    interface, _, channel = args.can.partition(":")
+    options = {}
+    for item in args.can_arg or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise SarbotError(f"--can-arg {item!r}: expected KEY=VALUE")
+        options[key] = int(value) if value.lstrip("-").isdigit() else value
+    try:
+        trigger = int(args.can_trigger_id, 0) if args.can_trigger_id.lower() != "none" else None
+    except ValueError:
+        raise SarbotError(f"--can-trigger-id {args.can_trigger_id!r}: expected an arbitration id such as 0x100, or none") from None
+    return CanConfig(interface, channel or None, trigger, options)
+
+
+def _size_bytes(text: str | None) -> int | None:
+    if text is None:
+        return None
+    units = {"k": 1e3, "m": 1e6, "g": 1e9}
+    t = text.strip().lower().removesuffix("b")
+    try:
+        value = float(t[:-1]) * units[t[-1]] if t and t[-1] in units else float(t)
+    except ValueError:
+        raise SarbotError(f"--split-size {text!r}: expected a size such as 500M or 2G") from None
+    if value <= 0:
+        raise SarbotError(f"--split-size {text!r}: must be positive")
+    return int(value)
+
+
+def record_setup(args):
+    """The daemon's Setup from record/run options (shared by both commands)."""
+    from drivers.ti_cfg import load_ti_cfg
+    from imaging.rig import AntennaArray, RadarConfig, Rig, load_rig
+
+    from .daemon import RadarLink, Setup
 
     rig = load_rig(args.config)
-    ports = _radar_map(args.radar, "--radar", with_host=False)
-    for name in ports:
-        if name not in rig.radar_names:
-            raise SarbotError(f"--radar {name}: no such radar in {args.config} (radars: {', '.join(rig.radar_names)})")
-    if not ports and not args.imu_port:
-        raise SarbotError("nothing to record: give --radar NAME=PORT and/or --imu-port DEVICE")
-    path = record(rig, Path(args.output), ports, args.imu_port, duration_s=args.duration)
-    print(f"wrote {path}")
+    links = [RadarLink(name, port) for name, port in _radar_map(args.radar, "--radar", with_host=False).items()]
+    radars = {r.name: r for r in rig.radars}
+    for item in args.dca1000 or []:
+        name, sep, rest = item.partition("=")
+        port, sep2, cfg_path = rest.partition(":")
+        if not (sep and sep2 and port.isdigit()):
+            raise SarbotError(f"--dca1000 {item!r}: expected NAME=PORT:CFG_FILE")
+        cfg = load_ti_cfg(cfg_path)
+        links.append(RadarLink(name, int(port), wire_format="DCA1000", ti_cfg=cfg))
+        if name in radars:  # the .cfg says what the radar sends; the rig says where it sits
+            wf = cfg.waveform()
+            radars[name] = RadarConfig(name, wf, AntennaArray.uniform_tdm(wf), radars[name].mount)
+    rig = Rig(tuple(radars.values()), rig.imu)
+    for link in links:
+        if link.name not in rig.radar_names:
+            raise SarbotError(f"radar {link.name}: no such radar in {args.config} (radars: {', '.join(rig.radar_names)})")
+    can = _can_config(args)
+    if not links and not args.imu_port and can is None:
+        raise SarbotError("nothing to record: give --radar NAME=PORT, --dca1000 NAME=PORT:CFG, --imu-port DEVICE and/or --can")
+    if args.split_time is not None and args.split_time <= 0:
+        raise SarbotError(f"--split-time {args.split_time}: must be positive")
+    return Setup(rig, links, args.imu_port, can, split_bytes=_size_bytes(args.split_size), split_s=args.split_time,
+                 health_endpoint=args.health_endpoint)
+
+
+def cmd_record(args) -> int:
+    from .daemon import record
+    from .recorder import DiskFullError
+
+    setup = record_setup(args)
+    try:
+        paths = record(setup, Path(args.output), duration_s=args.duration)
+    except DiskFullError as exc:
+        print(f"sarbot: error: {exc.strerror} (the file holds everything up to the last flush)", file=sys.stderr)
+        return EXIT_DISK_FULL
+    for path in paths:
+        print(f"wrote {path}")
     return EXIT_OK
 
 
@@ -266,8 +331,10 @@ def cmd_replay(args) -> int:
     from .daemon import replay
 
     targets = _radar_map(args.radar, "--radar", with_host=True)
-    sent = replay(Path(args.recording), targets, args.imu_link, None if args.speed <= 0 else args.speed, args.start_delay)
-    print("replayed " + ", ".join(f"{n}: {k} datagrams" for n, k in sent.items()) + (" and the IMU" if args.imu_link else ""))
+    sent = replay(Path(args.recording), targets, args.imu_link, None if args.speed <= 0 else args.speed, args.start_delay,
+                  can=_can_config(args))
+    print("replayed " + ", ".join(f"{n}: {k} {'frames' if n == 'can' else 'datagrams'}" for n, k in sent.items())
+          + (" and the IMU" if args.imu_link else ""))
     return EXIT_OK
 
 
@@ -278,6 +345,25 @@ def cmd_demo(args) -> int:
 
 
 # -- parser ---------------------------------------------------------------------------------------------
+def _can_options(s) -> None:
+    s.add_argument("--can", help="python-can INTERFACE[:CHANNEL], e.g. socketcan:can0 or udp_multicast:239.74.163.2")
+    s.add_argument("--can-arg", action="append", help="KEY=VALUE passed to python-can's Bus (repeat), e.g. port=43113")
+    s.add_argument("--can-trigger-id", default="0x100", help="arbitration id of the sync box's trigger frame (default 0x100; 'none')")
+
+
+def _acquisition_options(s) -> None:
+    s.add_argument("--config", required=True, help="rig TOML")
+    s.add_argument("-o", "--output", required=True, help="folder for the recording")
+    s.add_argument("--radar", action="append", help="NAME=UDP_PORT the radar sends SRF1 to (repeat per radar)")
+    s.add_argument("--dca1000", action="append", help="NAME=UDP_PORT:CFG_FILE for a TI radar streaming through a DCA1000")
+    s.add_argument("--imu-port", help="serial device of the Xsens IMU (or the pty replay links)")
+    _can_options(s)
+    s.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C / SIGTERM)")
+    s.add_argument("--split-size", help="start a new file at this size (e.g. 2G)")
+    s.add_argument("--split-time", type=float, help="start a new file after this many seconds")
+    s.add_argument("--health-endpoint", help="ZeroMQ endpoint to publish health on (default: a free loopback port, logged)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="sarbot", description="SAR imaging and radar-inertial odometry for mobile robots.")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
@@ -337,17 +423,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_import_bag)
 
     s = sub.add_parser("record", help="run the drivers and record everything to HDF5")
-    s.add_argument("--config", required=True, help="rig TOML")
-    s.add_argument("-o", "--output", required=True, help="folder for the recording")
-    s.add_argument("--radar", action="append", help="NAME=UDP_PORT the radar sends SRF1 to (repeat per radar)")
-    s.add_argument("--imu-port", help="serial device of the Xsens IMU (or the pty replay links)")
-    s.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C / SIGTERM)")
+    _acquisition_options(s)
     s.set_defaults(func=cmd_record)
 
-    s = sub.add_parser("replay", help="send a recording through emulated hardware (UDP, pty)")
+    s = sub.add_parser("replay", help="send a recording through emulated hardware (UDP, pty, CAN)")
     s.add_argument("recording")
-    s.add_argument("--radar", action="append", help="NAME=HOST:PORT to send the radar's SRF1 datagrams to")
+    s.add_argument("--radar", action="append", help="NAME=HOST:PORT to send the radar's datagrams to (SRF1 or DCA1000, as recorded)")
     s.add_argument("--imu-link", help="create this symlink to the pty the emulated IMU writes to")
+    _can_options(s)
     s.add_argument("--speed", type=float, default=1.0, help="multiple of real time; 0 for as fast as possible")
     s.add_argument("--start-delay", type=float, default=0.0, help="seconds to wait before sending (lets drivers start)")
     s.set_defaults(func=cmd_replay)

@@ -1,13 +1,17 @@
-"""The acquisition daemon: one process per device, the recorder in the supervising process.
+"""The acquisition daemon: one process per device and per worker, the recorder in the supervising process.
 
-``record`` starts a radar driver process per radar (UDP -> SRF1 frames -> bus) and an IMU driver process
-(serial -> samples -> bus), records everything on the bus, restarts a driver that dies (and writes that to
-/events), and stops on SIGINT/SIGTERM or after ``duration_s``. ``replay`` sends a recording back through
-emulated hardware: SRF1 datagrams on UDP, Xbus bytes on a pseudo-terminal.
+``record`` starts a radar driver process per radar (UDP -> SRF1 or DCA1000 frames -> bus), an IMU driver
+process (serial -> samples -> bus), a CAN driver process (python-can -> frames -> bus) and any workers
+(RIO, strip map), records everything on the bus, restarts a process that dies (and writes that to /events),
+publishes health on the bus and to systemd, and stops on SIGINT/SIGTERM, after ``duration_s``, or on a full
+disk. The recorder lives in the supervisor: if it dies, the whole unit is restarted by systemd.
+``replay`` sends a recording back through emulated hardware: SRF1 or DCA1000 datagrams on UDP, Xbus bytes
+on a pseudo-terminal, CAN frames on a python-can bus.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import multiprocessing as mp
 import os
@@ -18,8 +22,14 @@ import time
 from pathlib import Path
 
 
+from drivers.can_driver import CanConfig
+from drivers.radar_stream import WIRE_FORMATS
+from drivers.ti_cfg import TiRadarConfig
+from imaging.errors import ConfigError, SarbotError
 from imaging.recording import Recording
 from imaging.rig import Rig
+
+from .recorder import DiskFullError
 
 from .sdnotify import notify, watchdog_interval_s
 
@@ -32,19 +42,85 @@ def free_tcp_endpoint() -> str:
         return f"tcp://127.0.0.1:{s.getsockname()[1]}"
 
 
-def _radar_main(name: str, shape, host: str, port: int, endpoint: str, stop) -> None:
+@dataclasses.dataclass(frozen=True)
+class RadarLink:
+    """Where a radar's datagrams arrive and in which wire format (``ti_cfg`` for DCA1000)."""
+
+    name: str
+    port: int
+    host: str = "127.0.0.1"
+    wire_format: str = "SRF1"
+    ti_cfg: TiRadarConfig | None = None
+
+    def __post_init__(self) -> None:
+        if self.wire_format not in WIRE_FORMATS:
+            raise ConfigError(f"radar.{self.name}.wire_format", f"{self.wire_format!r} is not one of {WIRE_FORMATS}")
+        if self.wire_format == "DCA1000" and self.ti_cfg is None:
+            raise ConfigError(f"radar.{self.name}.ti_cfg", "a DCA1000 radar needs its TI .cfg file")
+        if not 0 < self.port < 65536:
+            raise ConfigError(f"radar.{self.name}.port", f"{self.port} is not a UDP port")
+
+
+@dataclasses.dataclass
+class Setup:
+    """What the daemon runs: the rig, one link per radar, the IMU port, the CAN bus, recorder settings,
+    and optional workers (``role -> (function, extra args)``, each started as ``function(endpoints, *args, stop)``)."""
+
+    rig: Rig
+    radars: list[RadarLink]
+    imu_port: str | None = None
+    can: CanConfig | None = None
+    flush_interval_s: float = 0.5
+    split_bytes: int | None = None
+    split_s: float | None = None
+    health_interval_s: float = 2.0
+    health_endpoint: str | None = None
+    workers: dict = dataclasses.field(default_factory=dict)
+
+
+def _die_with_parent() -> None:
+    """A driver whose supervisor died (SIGKILL, OOM) must not keep the port or the device busy."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the supervisor decides when to stop
+    signal.signal(signal.SIGTERM, lambda *_: os._exit(0))
+
+
+def _radar_main(link: RadarLink, shape, endpoint: str, stop) -> None:
+    from drivers.radar_stream import Dca1000Stream, Srf1Stream
     from drivers.udp import UdpReceiver
 
     from .bus import BusPublisher
     from .pipeline import radar_driver_loop
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the supervisor decides when to stop
-    rx = UdpReceiver(host, port)
+    _die_with_parent()
+    stream = Dca1000Stream(link.ti_cfg) if link.wire_format == "DCA1000" else Srf1Stream(tuple(shape))
+    rx = UdpReceiver(link.host, link.port)
     pub = BusPublisher(endpoint)
     try:
-        radar_driver_loop(rx, name, tuple(shape), pub, stop)
+        radar_driver_loop(rx, link.name, stream, pub, stop)
     finally:
         rx.close()
+        pub.close()
+
+
+def _can_main(config: CanConfig, endpoint: str, stop) -> None:
+    from drivers.can_driver import CanDriver
+
+    from .bus import BusPublisher
+    from .pipeline import can_driver_loop
+
+    _die_with_parent()
+    pub = BusPublisher(endpoint)
+    driver = CanDriver(config.open(), trigger_id=config.trigger_id)
+    try:
+        can_driver_loop(driver, pub, stop)
+    finally:
+        driver.close()
         pub.close()
 
 
@@ -54,7 +130,7 @@ def _imu_main(port: str, endpoint: str, radar_endpoints: list[str], stop) -> Non
     from .bus import BusPublisher, BusSubscriber
     from .pipeline import publish_imu_samples
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _die_with_parent()
     import serial
 
     pub = BusPublisher(endpoint)
@@ -87,7 +163,7 @@ def _imu_main(port: str, endpoint: str, radar_endpoints: list[str], stop) -> Non
             if not trigger_sent and driver.clock.trigger_ticks is not None and driver.clock.trigger_time_ns is not None:
                 pub.publish("trigger", driver.clock.trigger_time_ns, source="imu_syncin")
                 trigger_sent = True
-            publish_imu_samples(pub, samples)
+            publish_imu_samples(pub, samples, driver.clock.drift_ppm())
     finally:
         if driver is not None:
             driver.close()
@@ -96,29 +172,85 @@ def _imu_main(port: str, endpoint: str, radar_endpoints: list[str], stop) -> Non
             sub.close()
 
 
-def record(rig: Rig, out_dir: Path, radar_ports: dict[str, int], imu_port: str | None, duration_s: float | None = None,
-           host: str = "127.0.0.1", flush_interval_s: float = 0.5, health_interval_s: float = 2.0) -> Path:
-    """Run drivers and recorder until a signal or ``duration_s``; returns the recording's path."""
+class Health:
+    """Frames/s per radar, IMU rate, losses and clock state over the last interval, from the recorder's counts."""
+
+    def __init__(self, recorder):
+        self.recorder = recorder
+        self._last = (time.monotonic(), dict(recorder.frames), recorder.imu_samples)
+
+    def sample(self, restarts: int) -> dict:
+        rec = self.recorder
+        t0, frames, imu_n = self._last
+        now = time.monotonic()
+        dt = max(now - t0, 1e-9)
+        report = {
+            "frames_per_s": {n: (rec.frames[n] - frames.get(n, 0)) / dt for n in rec.frames},
+            "imu_hz": (rec.imu_samples - imu_n) / dt,
+            "can_frames": rec.can_frames,
+            "bus_lost": sum(st.missed for st in rec.sub.stats.values()),
+            "wire_events": rec.wire_events,
+            "invalid_frames": dict(rec.invalid_frames),
+            "restarts": restarts,
+            "clock": {"ptp_locked": dict(rec.ptp_locked), "trigger_seen": bool(rec.triggers_seen),
+                      "imu_drift_ppm": rec.imu_drift_ppm},
+        }
+        self._last = (now, dict(rec.frames), rec.imu_samples)
+        return report
+
+    @staticmethod
+    def line(report: dict) -> str:
+        parts = [f"{n} {r:.1f} frames/s" for n, r in report["frames_per_s"].items()]
+        parts.append(f"IMU {report['imu_hz']:.0f} Hz")
+        drift = report["clock"]["imu_drift_ppm"]
+        parts.append(f"IMU drift {drift:+.1f} ppm" if drift is not None else "IMU drift unknown")
+        unlocked = [n for n, ok in report["clock"]["ptp_locked"].items() if not ok]
+        parts.append("PTP unlocked: " + ", ".join(unlocked) if unlocked else "PTP locked")
+        parts.append(f"invalid frames {sum(report['invalid_frames'].values())}, wire events {report['wire_events']}, "
+                     f"bus lost {report['bus_lost']}, restarts {report['restarts']}")
+        return ", ".join(parts)
+
+
+def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_health=None) -> list[Path]:
+    """Run drivers, workers and the recorder until SIGINT/SIGTERM or ``duration_s``; returns the files written.
+
+    Raises DiskFullError (after stopping everything and closing the file) when the disk fills up.
+    """
+    from .bus import BusPublisher
     from .recorder import Recorder
 
+    rig = setup.rig
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / time.strftime("recording_%Y%m%dT%H%M%S.h5")
     ctx = mp.get_context("spawn")
     stop = ctx.Event()
     specs = {}
-    for name, port in radar_ports.items():
-        wf = rig.radar(name).waveform
-        shape = (wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp, 2)
-        specs[f"radar.{name}"] = (_radar_main, (name, shape, host, port, free_tcp_endpoint(), stop))
-    radar_endpoints = [args[4] for _, args in specs.values()]
-    if imu_port:
-        specs["imu"] = (_imu_main, (imu_port, free_tcp_endpoint(), radar_endpoints, stop))
-    endpoints = radar_endpoints + ([specs["imu"][1][1]] if imu_port else [])
+    for link in setup.radars:
+        wf = rig.radar(link.name).waveform
+        shape = (wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)
+        specs[f"radar.{link.name}"] = (_radar_main, (link, shape, free_tcp_endpoint(), stop))
+    radar_endpoints = [args[2] for _, args in specs.values()]
+    endpoints = list(radar_endpoints)
+    if setup.imu_port:
+        specs["imu"] = (_imu_main, (setup.imu_port, free_tcp_endpoint(), radar_endpoints, stop))
+        endpoints.append(specs["imu"][1][1])
+    if setup.can is not None:
+        specs["can"] = (_can_main, (setup.can, free_tcp_endpoint(), stop))
+        endpoints.append(specs["can"][1][1])
+    driver_endpoints = list(endpoints)
+    for role, (target, extra) in setup.workers.items():
+        endpoint = free_tcp_endpoint()
+        specs[role] = (target, (driver_endpoints, endpoint, *extra, stop))
+        endpoints.append(endpoint)
     procs = {}
     for role, (target, args) in specs.items():
         procs[role] = ctx.Process(target=target, args=args, name=role, daemon=True)
         procs[role].start()
-    recorder = Recorder(path, rig, endpoints, flush_interval_s=flush_interval_s)
+    recorder = Recorder(path, rig, endpoints, flush_interval_s=setup.flush_interval_s,
+                        wire_formats={link.name: link.wire_format for link in setup.radars},
+                        split_bytes=setup.split_bytes, split_s=setup.split_s)
+    health_pub = BusPublisher(setup.health_endpoint or "tcp://127.0.0.1:0")
+    log.info("health on %s", health_pub.endpoint)
     stopping = threading.Event()
 
     def on_signal(signum, frame):
@@ -130,71 +262,90 @@ def record(rig: Rig, out_dir: Path, radar_ports: dict[str, int], imu_port: str |
     notify("READY=1")
     watchdog_s = watchdog_interval_s()
     last_health = last_watchdog = time.monotonic()
-    counts_before = (dict(recorder.frames), recorder.imu_samples)
+    health = Health(recorder)
     flowing = False
+    disk_full = None
     try:
-        while not stopping.is_set() and (t_end is None or time.monotonic() < t_end):
-            if recorder.step(timeout_ms=50):
-                flowing = True
-            now = time.monotonic()
-            if now - last_health >= health_interval_s:
-                frames, imu_n = counts_before
-                rates = {n: (recorder.frames[n] - frames.get(n, 0)) / (now - last_health) for n in recorder.frames}
-                imu_rate = (recorder.imu_samples - imu_n) / (now - last_health)
-                lost = sum(st.missed for st in recorder.sub.stats.values())
-                status = ", ".join(f"{n} {r:.1f} frames/s" for n, r in rates.items()) + f", IMU {imu_rate:.0f} Hz, bus lost {lost}, restarts {restarts}"
-                log.info("health: %s", status)
-                notify(f"STATUS={status}")
-                counts_before = (dict(recorder.frames), recorder.imu_samples)
-                last_health = now
-            # The watchdog is fed only while data flows: a daemon alive but recording nothing gets restarted.
-            if watchdog_s and flowing and now - last_watchdog >= watchdog_s:
-                notify("WATCHDOG=1")
-                last_watchdog = now
-                flowing = False
-            for role, proc in list(procs.items()):
-                if not proc.is_alive():
-                    restarts += 1
-                    recorder.writer.append_event(time.time_ns(), role, "error",
-                                                 f"{role} exited with code {proc.exitcode}; restarted")
-                    log.warning("%s exited with code %s; restarting it", role, proc.exitcode)
-                    target, args = specs[role]
-                    procs[role] = ctx.Process(target=target, args=args, name=role, daemon=True)
-                    procs[role].start()
-        notify("STOPPING=1")
-        stop.set()
-        deadline = time.monotonic() + 3.0
-        while time.monotonic() < deadline:  # drain what the drivers flush on the way out
-            recorder.step(timeout_ms=100)
-            if not any(p.is_alive() for p in procs.values()):
-                while recorder.step(timeout_ms=200):
-                    pass
-                break
+        try:
+            while not stopping.is_set() and (t_end is None or time.monotonic() < t_end):
+                if recorder.step(timeout_ms=50):
+                    flowing = True
+                now = time.monotonic()
+                if now - last_health >= setup.health_interval_s:
+                    report = health.sample(restarts)
+                    status = Health.line(report)
+                    log.info("health: %s", status)
+                    notify(f"STATUS={status}")
+                    health_pub.publish("health", time.time_ns(), **report)
+                    if on_health is not None:
+                        on_health(report)
+                    last_health = now
+                # The watchdog is fed only while data flows: a daemon alive but recording nothing gets restarted.
+                if watchdog_s and flowing and now - last_watchdog >= watchdog_s:
+                    notify("WATCHDOG=1")
+                    last_watchdog = now
+                    flowing = False
+                for role, proc in list(procs.items()):
+                    if not proc.is_alive():
+                        restarts += 1
+                        recorder.writer.append_event(time.time_ns(), role, "error",
+                                                     f"{role} exited with code {proc.exitcode}; restarted")
+                        log.warning("%s exited with code %s; restarting it", role, proc.exitcode)
+                        target, args = specs[role]
+                        procs[role] = ctx.Process(target=target, args=args, name=role, daemon=True)
+                        procs[role].start()
+            notify("STOPPING=1")
+            stop.set()
+            deadline = time.monotonic() + 3.0
+            while time.monotonic() < deadline:  # drain what the drivers flush on the way out
+                recorder.step(timeout_ms=100)
+                if not any(p.is_alive() for p in procs.values()):
+                    while recorder.step(timeout_ms=200):
+                        pass
+                    break
+        except DiskFullError as exc:
+            disk_full = exc
+            notify("STOPPING=1")
+            notify(f"STATUS=stopped: {exc.strerror}")
+            log.error("%s", exc.strerror)
     finally:
+        stop.set()
         for proc in procs.values():
             proc.join(2)
             if proc.is_alive():
                 proc.kill()
         recorder.close()
+        health_pub.close()
         for s, h in old.items():
             signal.signal(s, h)
-    log.info("recorded %s (%s frames, %d IMU samples, %d driver restarts)", path, recorder.frames, recorder.imu_samples, restarts)
-    return path
+    log.info("recorded %s (%s frames, %d IMU samples, %d CAN frames, %d restarts)", ", ".join(map(str, recorder.paths)),
+             recorder.frames, recorder.imu_samples, recorder.can_frames, restarts)
+    if disk_full is not None:
+        raise disk_full
+    return recorder.paths
 
 
 def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str | None, speed: float | None,
-           start_delay_s: float = 0.0) -> dict:
-    """Send a recording through emulated hardware; returns what was sent."""
-    from .pipeline import imu_emulator, replay_radar
+           start_delay_s: float = 0.0, can: CanConfig | None = None) -> dict:
+    """Send a recording through emulated hardware: each radar's datagrams (SRF1 or DCA1000, as recorded)
+    to its UDP address, the IMU as Xbus bytes on a pty that ``imu_link`` points to, and /can on a
+    python-can bus. Returns what was sent ({radar: datagrams, "can": frames})."""
+    from .pipeline import imu_emulator, replay_can, replay_radar
 
     with Recording(path) as rec:
+        for name in radar_targets:
+            if name not in rec.radar_names:
+                raise SarbotError(f"--radar {name}: {path} has no such radar (radars: {', '.join(rec.radar_names)})")
         emu = None
         if imu_link:
+            if rec.imu() is None:
+                raise SarbotError(f"--imu-link: {path} has no IMU samples to replay")
             emu = imu_emulator(rec, speed=speed)
             link = Path(imu_link)
             if link.is_symlink() or link.exists():
                 link.unlink()
             link.symlink_to(emu.port)
+        can_bus = can.open() if can is not None else None
         time.sleep(start_delay_s)
         if emu is not None:
             emu.start()
@@ -203,9 +354,17 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
         for name, address in radar_targets.items():
             t = threading.Thread(target=lambda n=name, a=address: sent.__setitem__(n, replay_radar(rec, n, a, speed)))
             threads.append(t)
+        if can_bus is not None:
+            firsts = [int(rec.frame_time_ns(n)[0]) for n in radar_targets if rec.n_frames(n)]
+            t0 = min(firsts) if firsts else None
+            threads.append(threading.Thread(target=lambda: sent.__setitem__("can", replay_can(rec, can_bus, speed, t0))))
+        for t in threads:
             t.start()
         for t in threads:
             t.join()
+        if can_bus is not None:
+            time.sleep(0.2)  # frames still in flight on the emulated bus
+            can_bus.shutdown()
         if emu is not None:
             emu.done.wait()
             time.sleep(0.5)  # let the reader drain the pty

@@ -22,7 +22,7 @@ from imaging.rig import Rig
 
 from .bus import BusSubscriber
 
-log = logging.getLogger(__name__)
+log = logging.getLogger("sarbot.recorder")
 
 
 class DiskFullError(OSError):
@@ -30,17 +30,73 @@ class DiskFullError(OSError):
 
 
 class Recorder:
+    """Store what the bus carries into one recording, or a series of parts.
+
+    Parameters
+    ----------
+    path : str or Path
+        The recording; with splitting, parts are ``<stem>_000.h5``, ``<stem>_001.h5``, ...
+    rig : Rig
+    endpoints : str or list of str
+        Bus endpoints of the drivers.
+    flush_interval_s : float
+        Longest time data stays unflushed (and not fsync'ed).
+    wire_formats : dict, optional
+        Radar name -> wire format attribute ("SRF1" by default).
+    split_bytes, split_s : optional
+        Start a new part when the current one reaches this size (checked at every flush) or age. Each
+        part is a complete recording: it repeats the rig attributes and the triggers seen so far, and its
+        root attributes ``part`` and ``previous_part`` chain the parts.
+    """
+
     def __init__(self, path: str | Path, rig: Rig, endpoints, flush_interval_s: float = 0.5, adc_dtype: str = "int16",
-                 context=None):
-        self.path = Path(path)
+                 context=None, wire_formats: dict[str, str] | None = None, split_bytes: int | None = None,
+                 split_s: float | None = None):
+        self.base_path = Path(path)
         self.rig = rig
-        self.writer = RecordingWriter(self.path, rig.radars, imu=rig.imu, adc_dtype=adc_dtype, wire_format="SRF1")
-        self.sub = BusSubscriber(endpoints, topics=["radar/", "imu", "trigger", "event"], context=context)
+        self.adc_dtype = adc_dtype
+        self.wire_formats = {r.name: (wire_formats or {}).get(r.name, "SRF1") for r in rig.radars}
+        self.split_bytes = split_bytes
+        self.split_s = split_s
+        self.paths: list[Path] = []
+        self._triggers: list[tuple[int, str]] = []
+        self.writer = self._open_part()
+        self.sub = BusSubscriber(endpoints, topics=["radar/", "imu", "trigger", "event", "can"], context=context)
         self.flush_interval_s = flush_interval_s
         self._last_flush = time.monotonic()
         self._reported_missed: dict[str, int] = {}
         self.frames = {r.name: 0 for r in rig.radars}
         self.imu_samples = 0
+        self.can_frames = 0
+        # For health reports: what went wrong, and the clocks' state.
+        self.invalid_frames = {r.name: 0 for r in rig.radars}
+        self.wire_events = 0
+        self.ptp_locked: dict[str, bool] = {}
+        self.triggers_seen = 0
+        self.imu_drift_ppm: float | None = None
+
+    @property
+    def path(self) -> Path:
+        """The part being written."""
+        return self.paths[-1]
+
+    def _open_part(self) -> RecordingWriter:
+        split = self.split_bytes is not None or self.split_s is not None
+        part = len(self.paths)
+        path = self.base_path.with_name(f"{self.base_path.stem}_{part:03d}{self.base_path.suffix}") if split else self.base_path
+        chain = {"part": part, "previous_part": self.paths[-1].name if self.paths else ""} if split else None
+        writer = RecordingWriter(path, self.rig.radars, imu=self.rig.imu, adc_dtype=self.adc_dtype,
+                                 wire_format=self.wire_formats, root_attrs=chain)
+        for t, source in self._triggers:  # each part says how its times were tied to the first chirp
+            writer.append_trigger(t, source)
+        self.paths.append(path)
+        self._opened = time.monotonic()
+        return writer
+
+    def _split_due(self) -> bool:
+        if self.split_s is not None and time.monotonic() - self._opened >= self.split_s:
+            return True
+        return self.split_bytes is not None and self.path.stat().st_size >= self.split_bytes
 
     def step(self, timeout_ms: int = 100) -> bool:
         """Receive and store one message (or time out); flush when due. Returns False on timeout."""
@@ -50,7 +106,15 @@ class Recorder:
             self._report_gaps(msg.topic, msg.sensor_time_ns)
         if time.monotonic() - self._last_flush >= self.flush_interval_s:
             self.flush()
+            if self._split_due():
+                self._next_part()
         return msg is not None
+
+    def _next_part(self) -> None:
+        old = self.path
+        self.writer.close()
+        self.writer = self._open_part()
+        log.info("recording continues in %s (after %s)", self.path, old.name)
 
     def _store(self, msg) -> None:
         w = self.writer
@@ -61,19 +125,34 @@ class Recorder:
                 w.append_frames(name, iq[None], [msg.header["frame_time_ns"]], [msg.header["frame_counter"]],
                                 [msg.header["receive_ns"]], [1 if msg.header["valid"] else 0])
                 self.frames[name] += 1
+                self.invalid_frames[name] += 0 if msg.header["valid"] else 1
+                self.ptp_locked[name] = bool(msg.header.get("ptp_locked", False))
             elif msg.topic == "imu":
                 t, gyro, accel, counter, host = msg.arrays
                 w.append_imu(t, gyro, accel, counter, host)
                 self.imu_samples += len(t)
+                if msg.header.get("clock_drift_ppm") is not None:
+                    self.imu_drift_ppm = float(msg.header["clock_drift_ppm"])
+            elif msg.topic == "can":
+                t, ident, dlc, data = msg.arrays
+                w.append_can(t, ident, dlc, data)
+                self.can_frames += len(t)
             elif msg.topic == "trigger":
-                w.append_trigger(msg.sensor_time_ns, msg.header.get("source", "trigger"))
+                source = msg.header.get("source", "trigger")
+                w.append_trigger(msg.sensor_time_ns, source)
+                self._triggers.append((msg.sensor_time_ns, source))
+                self.triggers_seen += 1
             elif msg.topic == "event":
+                self.wire_events += 1
                 w.append_event(msg.sensor_time_ns, msg.header.get("source", "?"), msg.header.get("level", "info"),
                                msg.header.get("message", ""))
         except OSError as exc:
-            if exc.errno == errno.ENOSPC or "No space" in str(exc):
-                raise DiskFullError(errno.ENOSPC, f"{self.path}: disk full; recording stopped") from None
+            self._raise_if_disk_full(exc)
             raise
+
+    def _raise_if_disk_full(self, exc: OSError) -> None:
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG) or "No space" in str(exc) or "disk quota" in str(exc).lower():
+            raise DiskFullError(errno.ENOSPC, f"{self.path}: disk full; recording stopped") from None
 
     def _report_gaps(self, topic: str, time_ns: int) -> None:
         st = self.sub.stats[topic]
@@ -83,25 +162,29 @@ class Recorder:
             self._reported_missed[topic] = st.missed
 
     def flush(self) -> None:
-        self.writer.flush()
-        fd = self.writer._f.id.get_vfd_handle()
         try:
-            os.fsync(fd)
-        except (OSError, TypeError):
-            pass
+            if self.imu_drift_ppm is not None and "imu" in self.writer._f:
+                self.writer._f["imu"].attrs["clock_drift_ppm"] = self.imu_drift_ppm
+            self.writer.flush()
+            os.fsync(self.writer._f.id.get_vfd_handle())
+        except OSError as exc:
+            self._raise_if_disk_full(exc)
+            raise
         self._last_flush = time.monotonic()
 
     def close(self) -> None:
         try:
             self.flush()
         finally:
-            self.writer.close()
+            try:
+                self.writer.close()
+            except OSError as exc:  # a full disk: what the last flush wrote stays readable
+                log.error("closing %s: %s", self.path, exc)
             self.sub.close()
 
 
-def publish_frame(pub, radar: str, frame, shape) -> None:
-    """A reassembled SRF1 frame onto the bus (what the radar driver does for each frame)."""
-    iq = np.frombuffer(bytes(frame.data), dtype="<i2").reshape(shape)
-    pub.publish(f"radar/{radar}", frame.frame_time_ns, [iq], frame_counter=frame.frame_counter,
-                frame_time_ns=frame.frame_time_ns, receive_ns=frame.last_receive_ns, valid=frame.valid,
-                bytes_missing=frame.bytes_missing)
+def publish_frame(pub, radar: str, frame) -> None:
+    """A reassembled frame (``drivers.radar_stream.RadarFrame``) onto the bus, as the radar driver does."""
+    pub.publish(f"radar/{radar}", frame.frame_time_ns, [frame.iq], frame_counter=frame.frame_counter,
+                frame_time_ns=frame.frame_time_ns, receive_ns=frame.receive_ns, valid=frame.valid,
+                bytes_missing=frame.bytes_missing, ptp_locked=frame.ptp_locked)

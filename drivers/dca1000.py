@@ -176,3 +176,23 @@ class Dca1000Assembler:
         while self._frames:
             out.append(self._pop_next())
         return out
+
+
+def complex_1x_to_iq(frame: bytes | np.ndarray, chirps: int, n_rx: int, samples: int) -> np.ndarray:
+    """int16 [chirps, n_rx, samples, 2] (I, Q) from the complex-1x byte layout, without going through floats."""
+    words = np.frombuffer(bytes(frame), dtype="<i2")
+    if words.size != 2 * chirps * n_rx * samples:
+        raise Dca1000Error(f"{words.size // 2} complex samples do not fill [{chirps}, {n_rx}, {samples}]")
+    quad = words.reshape(-1, 4)  # Q0 Q1 I0 I1
+    out = np.empty((quad.shape[0], 2, 2), np.int16)
+    out[:, 0, 0], out[:, 0, 1] = quad[:, 2], quad[:, 0]
+    out[:, 1, 0], out[:, 1, 1] = quad[:, 3], quad[:, 1]
+    return out.reshape(chirps, n_rx, samples, 2)
+
+
+def iq_to_complex_1x(iq: np.ndarray) -> bytes:
+    """The inverse of :func:`complex_1x_to_iq`: int16 [..., samples, 2] (even sample count) to wire bytes."""
+    pairs = np.ascontiguousarray(iq, dtype="<i2").reshape(-1, 2, 2)  # [pair][sample 0/1][I/Q]
+    quad = np.empty((pairs.shape[0], 4), "<i2")
+    quad[:, 0], quad[:, 1], quad[:, 2], quad[:, 3] = pairs[:, 0, 1], pairs[:, 1, 1], pairs[:, 0, 0], pairs[:, 1, 0]
+    return quad.tobytes()

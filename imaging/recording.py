@@ -55,10 +55,13 @@ class RecordingWriter:
         Creates ``/imu`` when given.
     truth : bool
         Creates ``/truth`` (simulation only).
-    wire_format : str
-        Stored as each radar's ``wire_format`` attribute ("SRF1", "DCA1000", "simulated").
+    wire_format : str or dict
+        Stored as each radar's ``wire_format`` attribute ("SRF1", "DCA1000", "simulated"); a dict maps
+        radar names to formats.
     adc_dtype : "complex64" or "int16"
         ``int16`` stores [F, chirps, rx, samples, 2] (I, Q) as received from the wire.
+    root_attrs : dict, optional
+        Extra attributes of ``/`` (set before SWMR starts, which forbids new attributes).
     """
 
     def __init__(
@@ -67,10 +70,11 @@ class RecordingWriter:
         radars: Iterable[RadarConfig],
         imu: ImuConfig | None = None,
         truth: bool = False,
-        wire_format: str = "simulated",
+        wire_format: str | dict[str, str] = "simulated",
         adc_dtype: str = "complex64",
         overwrite: bool = False,
         detections: Iterable[str] = (),
+        root_attrs: dict | None = None,
     ):
         self.path = Path(path)
         if self.path.exists() and not overwrite:
@@ -82,6 +86,8 @@ class RecordingWriter:
         f.attrs["schema_version"] = SCHEMA_VERSION
         f.attrs["created_utc"] = _dt.datetime.now(_dt.timezone.utc).isoformat()
         f.attrs["software_version"] = software_version()
+        for k, v in (root_attrs or {}).items():
+            f.attrs[k] = v
         for r in self.radars.values():
             g = f.create_group(f"radar/{r.name}")
             wf = r.waveform
@@ -92,7 +98,7 @@ class RecordingWriter:
             g.attrs["mount_translation_m"] = r.mount.translation_m
             g.attrs["mount_rotation_xyzw"] = r.mount.rotation_xyzw
             g.attrs["tdm_tx_order"] = np.asarray(wf.tdm_tx_order(), dtype=np.int32)
-            g.attrs["wire_format"] = wire_format
+            g.attrs["wire_format"] = wire_format if isinstance(wire_format, str) else wire_format.get(r.name, "simulated")
             shape = (wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)
             if adc_dtype == "complex64":
                 g.create_dataset("adc", (0, *shape), np.complex64, maxshape=(None, *shape), chunks=(1, *shape))
@@ -113,6 +119,7 @@ class RecordingWriter:
             g.attrs["rate_hz"] = imu.rate_hz
             g.attrs["mount_translation_m"] = imu.mount.translation_m
             g.attrs["mount_rotation_xyzw"] = imu.mount.rotation_xyzw
+            g.attrs["clock_drift_ppm"] = np.nan  # the IMU clock against the host clock, once the driver knows it
             for fld in dataclasses.fields(imu):
                 if fld.name.endswith("sqrt_hz"):
                     g.attrs[fld.name] = getattr(imu, fld.name)
@@ -200,6 +207,18 @@ class RecordingWriter:
         sources = [source] * time_ns.size if isinstance(source, str) else list(source)
         self._append(self._f["trigger/time_ns"], time_ns)
         self._append(self._f["trigger/source"], sources)
+
+    def append_can(self, time_ns, arbitration_id, dlc, data) -> None:
+        """CAN frames as received: ``data`` [K, <=64] uint8, padded with zeros to 64."""
+        time_ns = np.atleast_1d(np.asarray(time_ns, np.int64))
+        data = np.asarray(data, np.uint8).reshape(time_ns.size, -1)
+        if data.shape[1] < 64:
+            data = np.pad(data, ((0, 0), (0, 64 - data.shape[1])))
+        g = self._f["can"]
+        self._append(g["time_ns"], time_ns)
+        self._append(g["arbitration_id"], np.atleast_1d(arbitration_id).astype(np.uint32))
+        self._append(g["dlc"], np.atleast_1d(dlc).astype(np.uint8))
+        self._append(g["data"], data[:, :64])
 
     def append_event(self, time_ns: int, source: str, level: str, message: str) -> None:
         g = self._f["events"]
@@ -306,6 +325,20 @@ class Recording:
     def triggers(self) -> np.ndarray:
         return self._f["trigger/time_ns"][()] if "trigger" in self._f else np.zeros(0, np.int64)
 
+    def can(self) -> dict[str, np.ndarray]:
+        """/can as arrays (empty when the run had no CAN traffic or the file predates it)."""
+        g = self._f.get("can")
+        if g is None:
+            return {"time_ns": np.zeros(0, np.int64), "arbitration_id": np.zeros(0, np.uint32),
+                    "dlc": np.zeros(0, np.uint8), "data": np.zeros((0, 64), np.uint8)}
+        return {k: g[k][()] for k in ("time_ns", "arbitration_id", "dlc", "data")}
+
+    def events(self) -> list[tuple[int, str, str, str]]:
+        """/events as (time_ns, source, level, message) rows."""
+        g = self._f["events"]
+        dec = [[v.decode() if isinstance(v, bytes) else v for v in g[k][()]] for k in ("source", "level", "message")]
+        return list(zip(g["time_ns"][()].tolist(), *dec))
+
     def adc(self, name: str, frames: slice = slice(None)) -> np.ndarray:
         """ADC samples as complex64 [F, chirps, rx, samples] (int16 I/Q is converted)."""
         ds = self._radar_group(name)["adc"]
@@ -315,6 +348,16 @@ class Recording:
         if ds.dtype == np.int16:
             data = data[..., 0].astype(np.float32) + 1j * data[..., 1].astype(np.float32)
         return np.asarray(data, dtype=np.complex64)
+
+    def adc_iq(self, name: str, frames: slice = slice(None)) -> np.ndarray:
+        """ADC samples as int16 [F, chirps, rx, samples, 2] (I, Q), as the wire carries them; complex
+        recordings are rounded and clipped to int16."""
+        ds = self._radar_group(name)["adc"]
+        data = ds[frames]
+        if ds.dtype == np.int16:
+            return data
+        iq = np.stack([data.real, data.imag], axis=-1)
+        return np.clip(np.round(iq), -32768, 32767).astype(np.int16)
 
     def truth(self) -> SampledTrajectory | None:
         if "truth" not in self._f or self._f["truth/time_ns"].shape[0] < 2:

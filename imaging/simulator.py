@@ -192,6 +192,10 @@ def simulate_recording(scene, path, *, frames_per_block: int = 16, progress=None
             imu = simulate_imu(scene.trajectory, scene.rig.imu, scene.start_time_ns, end_ns, errors=scene.imu_errors, rng=rng)
             writer.append_imu(imu.time_ns, imu.gyro_radps, imu.accel_mps2, imu.counter,
                               imu.time_ns + 200_000 - TAI_MINUS_UTC_S * 1_000_000_000)
+            from .base_simulator import simulate_base_can
+
+            can = simulate_base_can(scene.trajectory, scene.start_time_ns, end_ns, trigger_time_ns=scene.start_time_ns)
+            writer.append_can(can["time_ns"], can["arbitration_id"], can["dlc"], can["data"])
         step_ns = int(round(1e9 / scene.truth_rate_hz))
         truth_times = np.arange(scene.start_time_ns, end_ns + step_ns, step_ns, dtype=np.int64)
         writer.append_truth(scene.trajectory.sample(truth_times))

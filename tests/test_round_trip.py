@@ -1,17 +1,23 @@
-"""Round trip: a recording replayed through emulated hardware (SRF1 on loopback UDP, Xbus on a pty)
-into the drivers, over the bus into the recorder, comes back sample for sample with no loss event."""
+"""Round trip: a recording replayed through emulated hardware (SRF1 on loopback UDP, Xbus on a pty, CAN on
+python-can's virtual bus) into the drivers, over the bus into the recorder, comes back sample for sample
+with no loss event, at real time and as fast as it goes."""
 
 import threading
 import time
 
+import can
 import numpy as np
+import pytest
 import zmq
 
 from acquisition.bus import BusPublisher
-from acquisition.pipeline import imu_driver_loop, imu_emulator, radar_driver_loop, replay_radar
+from acquisition.pipeline import can_driver_loop, imu_driver_loop, imu_emulator, radar_driver_loop, replay_can, replay_radar
 from acquisition.recorder import Recorder
+from drivers.can_driver import CanDriver
 from drivers.imu import ImuDriver
+from drivers.radar_stream import Srf1Stream
 from drivers.udp import UdpReceiver
+from imaging.base_simulator import TRIGGER_ID, simulate_base_can
 from imaging.imu_simulator import simulate_imu
 from imaging.recording import Recording, RecordingWriter
 from imaging.rig import rig_from_dict
@@ -37,35 +43,44 @@ def make_source(path, n_frames=30):
         w.append_frames("left", iq, ft, np.arange(n_frames), ft)
         w.append_imu(imu.time_ns, imu.gyro_radps.astype(np.float32), imu.accel_mps2.astype(np.float32), imu.counter, imu.time_ns)
         w.append_trigger(ft[0], "sync_box")
+        base = simulate_base_can(traj, ft[0], ft[-1], trigger_time_ns=int(ft[0]))
+        w.append_can(base["time_ns"], base["arbitration_id"], base["dlc"], base["data"])
     return iq, imu
 
 
-def test_round_trip_sample_for_sample(tmp_path):
+@pytest.mark.parametrize("speed", [1.0, None], ids=["real-time", "fastest"])
+def test_round_trip_sample_for_sample(tmp_path, speed):
     src = tmp_path / "source.h5"
     iq, imu = make_source(src)
     ctx = zmq.Context()
     # One publisher per driver, as one process per device has (a ZeroMQ socket is not shared between threads).
-    pub_radar = BusPublisher("tcp://127.0.0.1:0", context=ctx)
-    pub_imu = BusPublisher("tcp://127.0.0.1:0", context=ctx)
-    rec = Recorder(tmp_path / "again.h5", RIG, [pub_radar.endpoint, pub_imu.endpoint], context=ctx)
+    pubs = {k: BusPublisher("tcp://127.0.0.1:0", context=ctx) for k in ("radar", "imu", "can")}
+    rec = Recorder(tmp_path / "again.h5", RIG, [p.endpoint for p in pubs.values()], context=ctx)
     stop = threading.Event()
     rx = UdpReceiver()
-    shape = iq.shape[1:]
+    channel = f"round-trip-{speed}"
+    can_rx = CanDriver(can.Bus(interface="virtual", channel=channel), trigger_id=TRIGGER_ID)
+    can_tx = can.Bus(interface="virtual", channel=channel)
     with Recording(src) as source:
-        emu = imu_emulator(source, speed=4.0)
+        emu = imu_emulator(source, speed=speed)
         driver = ImuDriver(emu.port, trigger_time_ns=int(source.triggers()[0]))
-        threads = [threading.Thread(target=radar_driver_loop, args=(rx, "left", shape, pub_radar, stop)),
-                   threading.Thread(target=imu_driver_loop, args=(driver, pub_imu, stop))]
+        threads = [threading.Thread(target=radar_driver_loop, args=(rx, "left", Srf1Stream(iq.shape[1:4]), pubs["radar"], stop)),
+                   threading.Thread(target=imu_driver_loop, args=(driver, pubs["imu"], stop)),
+                   threading.Thread(target=can_driver_loop, args=(can_rx, pubs["can"], stop))]
         time.sleep(0.3)
         for t in threads:
             t.start()
         emu.start()
-        replay_radar(source, "left", rx.address, speed=4.0)
-        emu.done.wait(10)
+        t0 = time.monotonic()
+        sent_can = replay_can(source, can_tx, speed)
+        replay_radar(source, "left", rx.address, speed=speed)
+        emu.done.wait(30)
+        sending_s = time.monotonic() - t0
         deadline = time.monotonic() + 10
+        n_can = source.can()["time_ns"].size
         while time.monotonic() < deadline:
             rec.step(timeout_ms=50)
-            if rec.frames["left"] == iq.shape[0] and rec.imu_samples == imu.time_ns.size:
+            if rec.frames["left"] == iq.shape[0] and rec.imu_samples == imu.time_ns.size and rec.can_frames == n_can:
                 break
         stop.set()
         for t in threads:
@@ -76,17 +91,26 @@ def test_round_trip_sample_for_sample(tmp_path):
     emu.close()
     driver.close()
     rx.close()
-    pub_radar.close()
-    pub_imu.close()
+    can_rx.close()
+    can_tx.shutdown()
+    for p in pubs.values():
+        p.close()
     ctx.term()
-    with Recording(tmp_path / "again.h5") as again:
+    if speed is None:  # really faster than the recording lasts (1.5 s of frames)
+        assert sending_s < 1.0, sending_s
+    with Recording(tmp_path / "again.h5") as again, Recording(src) as source:
         np.testing.assert_array_equal(again.file["radar/left/adc"][()], iq)
-        np.testing.assert_array_equal(again.frame_time_ns("left"), Recording(src).frame_time_ns("left"))
+        np.testing.assert_array_equal(again.frame_time_ns("left"), source.frame_time_ns("left"))
         assert again.valid("left").all()
         got = again.imu()
         np.testing.assert_array_equal(got["time_ns"], imu.time_ns)
         np.testing.assert_array_equal(got["gyro_radps"], imu.gyro_radps.astype(np.float32))
         np.testing.assert_array_equal(got["accel_mps2"], imu.accel_mps2.astype(np.float32))
         np.testing.assert_array_equal(got["counter"], imu.counter)
-        assert again.triggers().tolist() == [int(imu.time_ns[0])]
+        # CAN: every frame, raw; the trigger frame's PTP time comes through as a trigger too.
+        want, back = source.can(), again.can()
+        assert sent_can == want["time_ns"].size > 50
+        for k in ("arbitration_id", "dlc", "data"):
+            np.testing.assert_array_equal(back[k], want[k])
+        assert sorted(again.triggers().tolist()) == sorted([int(imu.time_ns[0]), int(source.frame_time_ns("left")[0])])
         assert again.file["events/message"].shape[0] == 0  # no loss, no event
