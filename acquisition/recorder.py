@@ -15,7 +15,6 @@ import os
 import time
 from pathlib import Path
 
-import numpy as np
 
 from imaging.recording import RecordingWriter
 from imaging.rig import Rig
