@@ -265,7 +265,7 @@ def _can_config(args):
     return CanConfig(interface, channel or None, trigger, options)
 
 
-def _size_bytes(text: str | None) -> int | None:
+def _size_bytes(text: str | None, option: str = "--split-size") -> int | None:
     if text is None:
         return None
     units = {"k": 1e3, "m": 1e6, "g": 1e9}
@@ -273,9 +273,9 @@ def _size_bytes(text: str | None) -> int | None:
     try:
         value = float(t[:-1]) * units[t[-1]] if t and t[-1] in units else float(t)
     except ValueError:
-        raise SarbotError(f"--split-size {text!r}: expected a size such as 500M or 2G") from None
+        raise SarbotError(f"{option} {text!r}: expected a size such as 500M or 2G") from None
     if value <= 0:
-        raise SarbotError(f"--split-size {text!r}: must be positive")
+        raise SarbotError(f"{option} {text!r}: must be positive")
     return int(value)
 
 
@@ -309,7 +309,7 @@ def record_setup(args):
     if args.split_time is not None and args.split_time <= 0:
         raise SarbotError(f"--split-time {args.split_time}: must be positive")
     return Setup(rig, links, args.imu_port, can, split_bytes=_size_bytes(args.split_size), split_s=args.split_time,
-                 health_endpoint=args.health_endpoint)
+                 min_free_bytes=_size_bytes(args.min_free, "--min-free"), health_endpoint=args.health_endpoint)
 
 
 def cmd_record(args) -> int:
@@ -361,6 +361,7 @@ def _acquisition_options(s) -> None:
     s.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C / SIGTERM)")
     s.add_argument("--split-size", help="start a new file at this size (e.g. 2G)")
     s.add_argument("--split-time", type=float, help="start a new file after this many seconds")
+    s.add_argument("--min-free", default="64M", help="stop recording cleanly when less disk space than this is left (default 64M)")
     s.add_argument("--health-endpoint", help="ZeroMQ endpoint to publish health on (default: a free loopback port, logged)")
 
 

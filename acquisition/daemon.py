@@ -73,6 +73,7 @@ class Setup:
     flush_interval_s: float = 0.5
     split_bytes: int | None = None
     split_s: float | None = None
+    min_free_bytes: int = 64_000_000
     health_interval_s: float = 2.0
     health_endpoint: str | None = None
     workers: dict = dataclasses.field(default_factory=dict)
@@ -204,8 +205,10 @@ class Health:
         parts.append(f"IMU {report['imu_hz']:.0f} Hz")
         drift = report["clock"]["imu_drift_ppm"]
         parts.append(f"IMU drift {drift:+.1f} ppm" if drift is not None else "IMU drift unknown")
-        unlocked = [n for n, ok in report["clock"]["ptp_locked"].items() if not ok]
-        parts.append("PTP unlocked: " + ", ".join(unlocked) if unlocked else "PTP locked")
+        locks = report["clock"]["ptp_locked"]
+        unlocked = [n for n, ok in locks.items() if not ok]
+        if locks:
+            parts.append("PTP unlocked: " + ", ".join(unlocked) if unlocked else "PTP locked")
         parts.append(f"invalid frames {sum(report['invalid_frames'].values())}, wire events {report['wire_events']}, "
                      f"bus lost {report['bus_lost']}, restarts {report['restarts']}")
         return ", ".join(parts)
@@ -248,7 +251,7 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
         procs[role].start()
     recorder = Recorder(path, rig, endpoints, flush_interval_s=setup.flush_interval_s,
                         wire_formats={link.name: link.wire_format for link in setup.radars},
-                        split_bytes=setup.split_bytes, split_s=setup.split_s)
+                        split_bytes=setup.split_bytes, split_s=setup.split_s, min_free_bytes=setup.min_free_bytes)
     health_pub = BusPublisher(setup.health_endpoint or "tcp://127.0.0.1:0")
     log.info("health on %s", health_pub.endpoint)
     stopping = threading.Event()
@@ -350,14 +353,20 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
         if emu is not None:
             emu.start()
         sent = {}
-        threads = []
-        for name, address in radar_targets.items():
-            t = threading.Thread(target=lambda n=name, a=address: sent.__setitem__(n, replay_radar(rec, n, a, speed)))
-            threads.append(t)
+        failures = []
+
+        def run(key, fn, *args):
+            try:
+                sent[key] = fn(*args)
+            except Exception as exc:  # reported below, after the other senders finish
+                failures.append(f"{key}: {exc}")
+
+        threads = [threading.Thread(target=run, args=(name, replay_radar, rec, name, address, speed))
+                   for name, address in radar_targets.items()]
         if can_bus is not None:
             firsts = [int(rec.frame_time_ns(n)[0]) for n in radar_targets if rec.n_frames(n)]
             t0 = min(firsts) if firsts else None
-            threads.append(threading.Thread(target=lambda: sent.__setitem__("can", replay_can(rec, can_bus, speed, t0))))
+            threads.append(threading.Thread(target=run, args=("can", replay_can, rec, can_bus, speed, t0)))
         for t in threads:
             t.start()
         for t in threads:
@@ -370,4 +379,6 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
             time.sleep(0.5)  # let the reader drain the pty
             emu.close()
             Path(imu_link).unlink(missing_ok=True)
+    if failures:
+        raise SarbotError("replay failed: " + "; ".join(failures))
     return sent

@@ -46,17 +46,24 @@ class Recorder:
         Start a new part when the current one reaches this size (checked at every flush) or age. Each
         part is a complete recording: it repeats the rig attributes and the triggers seen so far, and its
         root attributes ``part`` and ``previous_part`` chain the parts.
+    min_free_bytes : int
+        Recording stops (DiskFullError) when, at a flush, the free space on the file's disk falls below
+        this or below twice what the last flush interval wrote, whichever is more. HDF5 does not report a
+        failed write where it happens (it surfaces later, when chunks are evicted, and corrupts the file),
+        so the recorder stops while the file is still whole rather than wait for ENOSPC.
     """
 
     def __init__(self, path: str | Path, rig: Rig, endpoints, flush_interval_s: float = 0.5, adc_dtype: str = "int16",
                  context=None, wire_formats: dict[str, str] | None = None, split_bytes: int | None = None,
-                 split_s: float | None = None):
+                 split_s: float | None = None, min_free_bytes: int = 64_000_000):
         self.base_path = Path(path)
         self.rig = rig
         self.adc_dtype = adc_dtype
         self.wire_formats = {r.name: (wire_formats or {}).get(r.name, "SRF1") for r in rig.radars}
         self.split_bytes = split_bytes
         self.split_s = split_s
+        self.min_free_bytes = min_free_bytes
+        self._size_at_flush = 0
         self.paths: list[Path] = []
         self._triggers: list[tuple[int, str]] = []
         self.writer = self._open_part()
@@ -170,14 +177,27 @@ class Recorder:
             self._raise_if_disk_full(exc)
             raise
         self._last_flush = time.monotonic()
+        self._check_free_space()
+
+    def _check_free_space(self) -> None:
+        size = self.path.stat().st_size
+        grown, self._size_at_flush = size - self._size_at_flush, size
+        st = os.statvfs(self.path.parent)
+        free = st.f_bavail * st.f_frsize
+        reserve = max(self.min_free_bytes, 2 * grown)
+        if free < reserve:
+            raise DiskFullError(errno.ENOSPC, f"{self.path}: disk full ({free / 1e6:.1f} MB free, {reserve / 1e6:.1f} MB "
+                                              "needed to go on); recording stopped")
 
     def close(self) -> None:
         try:
             self.flush()
+        except DiskFullError:
+            pass  # already flushed: what is there is whole
         finally:
             try:
                 self.writer.close()
-            except OSError as exc:  # a full disk: what the last flush wrote stays readable
+            except (OSError, RuntimeError) as exc:  # a full disk: what the last flush wrote stays readable
                 log.error("closing %s: %s", self.path, exc)
             self.sub.close()
 

@@ -94,8 +94,8 @@ def trigger_message(time_ns: int, trigger_id: int = DEFAULT_TRIGGER_ID) -> can.M
 
 def message_from_row(arbitration_id: int, dlc: int, data: np.ndarray) -> can.Message:
     """A stored /can row back into a frame (CAN FD when longer than 8 bytes)."""
-    return can.Message(arbitration_id=int(arbitration_id), data=bytes(data[:dlc]), is_extended_id=arbitration_id > 0x7FF,
-                       is_fd=dlc > 8)
+    ident, dlc = int(arbitration_id), int(dlc)
+    return can.Message(arbitration_id=ident, data=bytes(data[:dlc]), is_extended_id=ident > 0x7FF, is_fd=dlc > 8)
 
 
 class CanDriver:

@@ -1,0 +1,187 @@
+"""The daemon as a user runs it (`sarbot replay` into `sarbot record`, separate processes): DCA1000 and CAN
+through emulated hardware, files split by time, health on the bus, and the faults the issue lists: the
+recorder killed with SIGKILL and a full disk."""
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+import zmq
+
+from acquisition.bus import BusSubscriber
+from conftest import SHARED_DATA
+from drivers.ti_cfg import load_ti_cfg
+from imaging.base_simulator import simulate_base_can
+from imaging.recording import Recording, RecordingWriter
+from imaging.rig import AntennaArray, Mount, RadarConfig
+from imaging.scene import DEFAULT_START_TIME_NS
+from imaging.trajectory import PathWithTurns
+from test_record_replay_cli import RIG_TOML
+from test_round_trip import make_source
+
+CLI = [sys.executable, "-m", "acquisition.cli"]
+CFG = SHARED_DATA / "dca1000_iwr1843_one_frame" / "xwr18xx_profile.cfg"
+
+
+def free_port(kind=socket.SOCK_DGRAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def make_dca1000_source(path, n_frames=20):
+    cfg = load_ti_cfg(CFG)
+    wf = cfg.waveform()
+    radar = RadarConfig("iwr", wf, AntennaArray.uniform_tdm(wf), Mount.from_yaw([0.1, 0.2, 0.3], 90.0))
+    ft = DEFAULT_START_TIME_NS + np.arange(n_frames, dtype=np.int64) * int(wf.frame_interval_s * 1e9)
+    iq = np.random.default_rng(7).integers(-2000, 2000, (n_frames, 32, 4, 256, 2), dtype=np.int16)
+    traj = PathWithTurns(segments=[("straight", 1.0)], speed_mps=0.4, t0_ns=DEFAULT_START_TIME_NS)
+    base = simulate_base_can(traj, ft[0], ft[-1], trigger_time_ns=int(ft[0]))
+    with RecordingWriter(path, [radar], adc_dtype="int16", wire_format="DCA1000") as w:
+        w.append_frames("iwr", iq, ft, np.arange(n_frames), ft)
+        w.append_can(base["time_ns"], base["arbitration_id"], base["dlc"], base["data"])
+    return iq, base
+
+
+def test_dca1000_and_can_replayed_into_record_split_in_parts_with_health_on_the_bus(tmp_path):
+    src = tmp_path / "source.h5"
+    iq, base = make_dca1000_source(src)
+    rig = tmp_path / "rig.toml"
+    rig.write_text("[radar.iwr]\nmount_translation_m = [0.1, 0.2, 0.3]\nmount_yaw_deg = 90.0\n")
+    port, can_port = free_port(), free_port()
+    health_endpoint = f"tcp://127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    can = ["--can", "udp_multicast:239.74.163.2", "--can-arg", f"port={can_port}"]
+    ctx = zmq.Context()
+    health = []
+    sub = BusSubscriber(health_endpoint, topics=["health"], context=ctx)
+    done = threading.Event()
+
+    def listen():
+        while not done.is_set():
+            m = sub.receive(timeout_ms=100)
+            if m is not None:
+                health.append(m.header)
+
+    listener = threading.Thread(target=listen)
+    listener.start()
+    replay = subprocess.Popen([*CLI, "replay", str(src), "--radar", f"iwr=127.0.0.1:{port}", *can, "--start-delay", "4"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    record = subprocess.run([*CLI, "record", "--config", str(rig), "-o", str(tmp_path / "out"), "--dca1000",
+                             f"iwr={port}:{CFG}", *can, "--split-time", "2", "--duration", "9",
+                             "--health-endpoint", health_endpoint], capture_output=True, text=True, timeout=60)
+    out, err = replay.communicate(timeout=30)
+    done.set()
+    listener.join()
+    sub.close()
+    ctx.term()
+    assert replay.returncode == 0, err
+    assert record.returncode == 0, record.stderr
+    paths = [line.split("wrote ", 1)[1] for line in record.stdout.splitlines() if line.startswith("wrote ")]
+    assert len(paths) >= 3  # 9 s in parts of 2 s
+    adc, can_rows, frames_valid = [], [], []
+    for k, p in enumerate(paths):
+        with Recording(p) as part:
+            assert part.file.attrs["part"] == k
+            assert part.file.attrs["previous_part"] == (os.path.basename(paths[k - 1]) if k else "")
+            assert part.file["radar/iwr"].attrs["wire_format"] == "DCA1000"
+            assert part.radar("iwr").waveform.samples_per_chirp == 256  # the .cfg's layout, not the rig's
+            adc.append(part.file["radar/iwr/adc"][()])
+            frames_valid.append(part.valid("iwr"))
+            can_rows.append(part.can())
+            assert not part.events()
+    np.testing.assert_array_equal(np.concatenate(adc), iq)
+    assert np.concatenate(frames_valid).all()
+    for key in ("arbitration_id", "dlc", "data"):
+        np.testing.assert_array_equal(np.concatenate([c[key] for c in can_rows]), base[key])
+    reports = [h for h in health if h["frames_per_s"].get("iwr", 0) > 0]
+    assert reports, health
+    assert 5 < max(h["frames_per_s"]["iwr"] for h in reports) < 15  # the .cfg's 10 frames/s
+    assert all(h["bus_lost"] == 0 and h["restarts"] == 0 for h in health)
+    assert any(h["clock"]["trigger_seen"] for h in health)  # the CAN trigger frame
+
+
+def test_record_killed_with_sigkill_keeps_what_it_flushed_and_takes_its_drivers_along(tmp_path):
+    src = tmp_path / "source.h5"
+    iq, _ = make_source(src, n_frames=60)
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG_TOML)
+    port = free_port()
+    replay = subprocess.Popen([*CLI, "replay", str(src), "--radar", f"left=127.0.0.1:{port}", "--start-delay", "4"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    record = subprocess.Popen([*CLI, "record", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar", f"left={port}"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 30
+    seen = 0
+    while seen < 8 and time.monotonic() < deadline:  # kill it mid-run, once it has flushed some frames
+        time.sleep(0.2)
+        for path in (tmp_path / "out").glob("*.h5"):
+            try:
+                with Recording(path) as rec:
+                    seen = rec.n_frames("left")
+            except Exception:
+                pass  # being created
+    record.send_signal(signal.SIGKILL)
+    record.wait(10)
+    replay.communicate(timeout=30)
+    (path,) = (tmp_path / "out").glob("*.h5")
+    with Recording(path) as rec:
+        n = rec.n_frames("left")
+        assert 8 <= n < 60
+        np.testing.assert_array_equal(rec.file["radar/left/adc"][:n], iq[:n])
+    # The drivers died with their supervisor: the radar's UDP port is free again.
+    deadline = time.monotonic() + 5
+    while True:
+        try:
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+                s.bind(("127.0.0.1", port))
+            break
+        except OSError:
+            assert time.monotonic() < deadline, "a driver outlived the killed daemon"
+            time.sleep(0.1)
+
+
+def _can_mount_tmpfs() -> list[str] | None:
+    """A command prefix that runs its command in a private mount namespace where tmpfs can be mounted."""
+    if shutil.which("unshare") is None:
+        return None
+    for prefix in (["unshare", "-m"], ["unshare", "-rm"]):
+        ok = subprocess.run([*prefix, "sh", "-c", "mount -t tmpfs -o size=1M none /mnt"], capture_output=True)
+        if ok.returncode == 0:
+            return prefix
+    return None
+
+
+def test_a_full_disk_stops_recording_cleanly_and_keeps_the_file_readable(tmp_path):
+    prefix = _can_mount_tmpfs()
+    if prefix is None:
+        pytest.skip("cannot mount a small tmpfs here (needs unshare with mount or user namespaces)")
+    src = tmp_path / "source.h5"
+    iq, _ = make_source(src, n_frames=60)  # 5.4 MB of frames for a 4 MB disk
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG_TOML)
+    port = free_port()
+    disk = tmp_path / "disk"
+    kept = tmp_path / "kept"
+    disk.mkdir()
+    kept.mkdir()
+    script = (f"mount -t tmpfs -o size=4M none {disk} && "
+              f"{sys.executable} -m acquisition.cli record --config {rig} -o {disk} --radar left={port} --duration 15 --min-free 1M; "
+              f"rc=$?; cp {disk}/*.h5 {kept}/; exit $rc")
+    replay = subprocess.Popen([*CLI, "replay", str(src), "--radar", f"left=127.0.0.1:{port}", "--start-delay", "4"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    record = subprocess.run([*prefix, "sh", "-c", script], capture_output=True, text=True, timeout=60, cwd=os.getcwd())
+    replay.communicate(timeout=30)
+    assert record.returncode == 3, record.stderr
+    assert "disk full" in record.stderr and "Traceback" not in record.stderr and "RuntimeError" not in record.stderr
+    (path,) = kept.glob("*.h5")
+    with Recording(path) as rec:
+        n = rec.n_frames("left")
+        assert 3 <= n < 60
+        np.testing.assert_array_equal(rec.file["radar/left/adc"][:n], iq[:n])
