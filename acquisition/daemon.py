@@ -21,6 +21,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 
 from drivers.can_driver import CanConfig
 from drivers.radar_stream import WIRE_FORMATS
@@ -176,8 +177,9 @@ def _imu_main(port: str, endpoint: str, radar_endpoints: list[str], stop) -> Non
 class Health:
     """Frames/s per radar, IMU rate, losses and clock state over the last interval, from the recorder's counts."""
 
-    def __init__(self, recorder):
+    def __init__(self, recorder, endpoints: dict[str, str]):
         self.recorder = recorder
+        self.endpoints = endpoints
         self._last = (time.monotonic(), dict(recorder.frames), recorder.imu_samples)
 
     def sample(self, restarts: int) -> dict:
@@ -185,6 +187,8 @@ class Health:
         t0, frames, imu_n = self._last
         now = time.monotonic()
         dt = max(now - t0, 1e-9)
+        lat = np.asarray(rec.latencies_ns, float) * 1e-6
+        rec.latencies_ns.clear()
         report = {
             "frames_per_s": {n: (rec.frames[n] - frames.get(n, 0)) / dt for n in rec.frames},
             "imu_hz": (rec.imu_samples - imu_n) / dt,
@@ -193,6 +197,9 @@ class Health:
             "wire_events": rec.wire_events,
             "invalid_frames": dict(rec.invalid_frames),
             "restarts": restarts,
+            "latency_ms": {"p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99)),
+                           "max": float(lat.max())} if lat.size else None,
+            "endpoints": self.endpoints,
             "clock": {"ptp_locked": dict(rec.ptp_locked), "trigger_seen": bool(rec.triggers_seen),
                       "imu_drift_ppm": rec.imu_drift_ppm},
         }
@@ -209,6 +216,8 @@ class Health:
         unlocked = [n for n, ok in locks.items() if not ok]
         if locks:
             parts.append("PTP unlocked: " + ", ".join(unlocked) if unlocked else "PTP locked")
+        if report["latency_ms"]:
+            parts.append(f"latency p50 {report['latency_ms']['p50']:.1f} ms, p99 {report['latency_ms']['p99']:.1f} ms")
         parts.append(f"invalid frames {sum(report['invalid_frames'].values())}, wire events {report['wire_events']}, "
                      f"bus lost {report['bus_lost']}, restarts {report['restarts']}")
         return ", ".join(parts)
@@ -265,7 +274,7 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
     notify("READY=1")
     watchdog_s = watchdog_interval_s()
     last_health = last_watchdog = time.monotonic()
-    health = Health(recorder)
+    health = Health(recorder, dict(zip(specs, endpoints)))
     flowing = False
     disk_full = None
     try:

@@ -1,0 +1,133 @@
+"""Radar-inertial odometry as the data arrives: the same filter and updates as ``run_rio``, fed in pieces.
+
+IMU batches and radar scans come in whatever order the bus delivers them. A radar scan reaches the bus a
+frame or more after its measurement time (it is formed from a whole frame), so the filter holds back: it
+runs up to ``max_scan_delay_s`` before the newest IMU sample and takes each scan in time order on the way.
+A scan later than that is counted and left out. Poses come out at ``options.output_rate_hz``, delayed by
+the hold-back; ``finish`` runs the filter to the end of the data.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections import Counter
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .ekf import RadarInertialEkf
+from .odometry import RadarScan, RioOptions, _radar_update
+
+log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass
+class PoseBatch:
+    """Filter states: time_ns [N], position_m [N, 3], orientation_xyzw [N, 4], velocity_mps [N, 3]."""
+
+    time_ns: np.ndarray
+    position_m: np.ndarray
+    orientation_xyzw: np.ndarray
+    velocity_mps: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.time_ns.size)
+
+
+class StreamingRio:
+    """Feed ``add_imu`` and ``add_scan``; each returns the poses the filter passed meanwhile."""
+
+    def __init__(self, options: RioOptions = RioOptions(), imu_rate_hz: float = 400.0, max_scan_delay_s: float = 0.2):
+        self.options = options
+        self.max_scan_delay_ns = int(max_scan_delay_s * 1e9)
+        self.ekf: RadarInertialEkf | None = None
+        self.stats: Counter = Counter()
+        self._rng = np.random.default_rng(options.seed)
+        self._init: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._imu_t = np.zeros(0, np.int64)
+        self._imu_a = np.zeros((0, 3))
+        self._imu_g = np.zeros((0, 3))
+        self._scans: list[RadarScan] = []
+        self._out_every = max(1, int(round(imu_rate_hz / options.output_rate_hz)))
+        self._n_imu = 0
+
+    @property
+    def initialised(self) -> bool:
+        return self.ekf is not None
+
+    def add_scan(self, scan: RadarScan) -> PoseBatch:
+        if self.ekf is not None and scan.time_ns < self.ekf.state.time_ns:
+            self.stats["scans_late"] += 1
+            return self._empty()
+        self._scans.append(scan)
+        self._scans.sort(key=lambda s: s.time_ns)
+        return self._run()
+
+    def add_imu(self, time_ns: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray) -> PoseBatch:
+        time_ns = np.asarray(time_ns, np.int64)
+        acc = np.asarray(accel_mps2, np.float64).reshape(-1, 3)
+        gyr = np.asarray(gyro_radps, np.float64).reshape(-1, 3)
+        if self.ekf is None:
+            self._init.append((time_ns, acc, gyr))
+            t = np.concatenate([c[0] for c in self._init])
+            if t[-1] - t[0] < self.options.static_init_s * 1e9:
+                return self._empty()
+            a = np.concatenate([c[1] for c in self._init])
+            g = np.concatenate([c[2] for c in self._init])
+            self._init = []
+            still = t <= t[0] + int(self.options.static_init_s * 1e9)
+            k0 = int(np.argmax(~still))
+            self.ekf = RadarInertialEkf(self.options.ekf)
+            self.ekf.initialise_static(t[k0], a[still], g[still], self.options.initial_position_m, self.options.initial_yaw_rad)
+            self.ekf.propagate(t[k0], a[k0], g[k0])
+            self._scans = [s for s in self._scans if s.time_ns >= t[k0]]
+            self._n_imu = 1  # sample k0 is the first; poses are kept every n-th sample after it, as run_rio does
+            time_ns, acc, gyr = t[k0 + 1:], a[k0 + 1:], g[k0 + 1:]
+            log.info("RIO initialised from %.1f s of standstill", self.options.static_init_s)
+        self._imu_t = np.concatenate([self._imu_t, time_ns])
+        self._imu_a = np.concatenate([self._imu_a, acc])
+        self._imu_g = np.concatenate([self._imu_g, gyr])
+        return self._run()
+
+    def _empty(self) -> PoseBatch:
+        return PoseBatch(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)))
+
+    def _propagate_to(self, k_end: int, chunks: list) -> None:
+        if k_end <= 0:
+            return
+        idx = self._n_imu + np.arange(k_end)
+        record = idx % self._out_every == 0
+        chunks.append(self.ekf.propagate_samples(self._imu_t[:k_end], np.ascontiguousarray(self._imu_a[:k_end]),
+                                                 np.ascontiguousarray(self._imu_g[:k_end]), record))
+        self._n_imu += k_end
+        self._imu_t, self._imu_a, self._imu_g = self._imu_t[k_end:], self._imu_a[k_end:], self._imu_g[k_end:]
+
+    def finish(self) -> PoseBatch:
+        """Run the filter through everything received (end of the data)."""
+        return self._run(final=True)
+
+    def _run(self, final: bool = False) -> PoseBatch:
+        if self.ekf is None or self._imu_t.size == 0:
+            return self._empty()
+        chunks: list = []
+        horizon = self._imu_t[-1] - (0 if final else self.max_scan_delay_ns)
+        while self._scans and self._scans[0].time_ns <= horizon:
+            scan = self._scans.pop(0)
+            if scan.time_ns < self.ekf.state.time_ns:
+                self.stats["scans_late"] += 1
+                continue
+            self._propagate_to(int(np.searchsorted(self._imu_t, scan.time_ns, side="left")), chunks)
+            self.ekf.propagate(scan.time_ns)
+            helped, _ = _radar_update(self.ekf, [scan], self.options, self._rng, self.stats)
+            if self.options.ekf.planar:
+                self.ekf.update_planar()
+        self._propagate_to(int(np.searchsorted(self._imu_t, horizon, side="right")), chunks)
+        if not (np.all(np.isfinite(self.ekf.state.p)) and np.all(np.isfinite(self.ekf.state.P))):
+            raise FloatingPointError("the odometry filter diverged")
+        chunks = [c for c in chunks if c is not None and c[0].size]
+        if not chunks:
+            return self._empty()
+        return PoseBatch(np.concatenate([c[0] for c in chunks]), np.concatenate([c[1] for c in chunks]),
+                         Rotation.from_matrix(np.concatenate([c[3] for c in chunks])).as_quat(),
+                         np.concatenate([c[2] for c in chunks]))
