@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import scipy.fft
 
 from . import SPEED_OF_LIGHT_MPS
 from .windows import get_window
@@ -81,17 +82,17 @@ def range_compress(
         raise ValueError(f"n_fft={n_fft} is shorter than the {n} samples")
     w = get_window(window, n)
     windowed = (samples * (w / w.sum())).astype(np.complex64)
-    spectrum = np.fft.fft(windowed, n_fft, axis=-1)
+    spectrum = scipy.fft.fft(windowed, n_fft, axis=-1)  # single precision stays single (numpy's works in double)
     step = SPEED_OF_LIGHT_MPS / (n_fft * frequency_step_hz)
     start = 0.0
     if signed:
-        spectrum = np.fft.fftshift(spectrum, axes=-1)
+        spectrum = scipy.fft.fftshift(spectrum, axes=-1)
         start = -(n_fft // 2) * step
     carrier = f0_hz
     if centred:
         m = 0.5 * (n - 1)
         r = start + step * np.arange(n_fft)
-        spectrum *= np.exp(2j * np.pi * m * frequency_step_hz * r / SPEED_OF_LIGHT_MPS)
+        spectrum *= np.exp(2j * np.pi * m * frequency_step_hz * r / SPEED_OF_LIGHT_MPS).astype(np.complex64)
         carrier = f0_hz + m * frequency_step_hz
     return RangeProfiles(
         data=spectrum.astype(np.complex64),

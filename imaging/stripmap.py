@@ -129,7 +129,7 @@ class StripMap:
             if n == 0:
                 continue
             groups = k[:n].reshape(-1, cfg.presum)
-            samples.append(adc[groups].mean(axis=1))  # [G, rx, samples]
+            samples.append(adc[groups].sum(axis=1))  # [G, rx, samples]; a sum keeps the image scale of presum 1
             chirp_times.append(times[groups].mean(axis=1).round().astype(np.int64))
             tx_index.append(np.full(groups.shape[0], tx))
         samples = np.concatenate(samples)

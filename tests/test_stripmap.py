@@ -1,0 +1,111 @@
+"""The streaming strip map: equal to offline backprojection where it integrates everything, the aperture
+limit sets the cross-range width, memory follows the area driven, and pre-summing within its bound keeps
+the image."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from conftest import R0, RADAR, point_pass
+from imaging import metrics
+from imaging.backprojection import backproject
+from imaging.errors import ConfigError
+from imaging.image_formation import ImagingOptions, frame_profiles
+from imaging.recording import Recording
+from imaging.simulator import simulate_recording
+from imaging.stripmap import StripMap, StripMapConfig, max_presum, presum_phase_spread_rad
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    """The left-front radar passing a point target at 2 m, 1.2 m of travel at 0.4 m/s."""
+    path = tmp_path_factory.mktemp("stripmap") / "pass.h5"
+    simulate_recording(point_pass(0.4, duration_s=3.0), path)
+    rec = Recording(path)
+    yield rec, rec.radar(RADAR), rec.truth(), rec.tdm_tx_order(RADAR)
+    rec.close()
+
+
+def build(rec, radar, truth, order, config, frames=None):
+    sm = StripMap(config)
+    adc = rec.adc(RADAR)
+    times = rec.frame_time_ns(RADAR)
+    for k in frames if frames is not None else range(adc.shape[0]):
+        sm.add_frame(radar, order, adc[k], int(times[k]), truth)
+    return sm
+
+
+def test_where_it_integrates_every_frame_it_equals_offline_backprojection(drive):
+    rec, radar, truth, order = drive
+    config = StripMapConfig(aperture_m=4.0, beam_half_angle_deg=70.0, range_min_m=1.0, range_max_m=3.0, oversample=8)
+    frames = range(20, 40)
+    sm = build(rec, radar, truth, order, config, frames)
+    image, x, y = sm.mosaic()
+    sel_x = np.flatnonzero(np.abs(x) < 0.1)
+    sel_y = np.flatnonzero(np.abs(y - R0) < 0.1)
+    gx, gy = np.meshgrid(x[sel_x], y[sel_y])
+    points = np.stack([gx, gy, np.full(gx.shape, config.z_m)], axis=-1)
+    offline = np.zeros(gx.shape, np.complex128)
+    options = ImagingOptions(oversample=8)
+    for k in frames:
+        profiles, tx_m, rx_m, _, _ = frame_profiles(rec.adc(RADAR, slice(k, k + 1)), rec.frame_time_ns(RADAR, slice(k, k + 1)),
+                                                    radar, truth, order, options)
+        backproject(profiles, tx_m, rx_m, points, out=offline)
+    ours = image[np.ix_(sel_y, sel_x)]
+    assert np.abs(offline).max() > 0
+    np.testing.assert_allclose(ours, offline, rtol=0, atol=1e-4 * np.abs(offline).max())
+
+
+@pytest.mark.parametrize("aperture_m", [0.15, 0.3])
+def test_the_aperture_limit_sets_the_cross_range_width(drive, aperture_m):
+    rec, radar, truth, order = drive
+    sm = build(rec, radar, truth, order, StripMapConfig(aperture_m=aperture_m, pixel_m=0.004, tile_px=64))
+    image, x, y = sm.mosaic()
+    got = metrics.analyze_target(image, x, y, (0.0, 1.0), near_m=(0.0, R0), half_length_m=0.15)
+    theory = metrics.cross_range_resolution_theory_m(radar.waveform.wavelength_m, R0, aperture_m)
+    assert np.hypot(got["peak_m"][0], got["peak_m"][1] - R0) < 0.01
+    assert got["cross_range"]["half_power_width_m"] == pytest.approx(theory, rel=0.1)
+
+
+def test_memory_follows_the_area_driven(drive):
+    rec, radar, truth, order = drive
+    config = StripMapConfig()
+    n = rec.n_frames(RADAR)
+    half = build(rec, radar, truth, order, config, range(n // 2))
+    full = build(rec, radar, truth, order, config)
+    tile_m = config.tile_m
+    # Tiles only where the beam went: between range_min and range_max ahead of the left-looking radar (at y = 0).
+    rows = {k[1] for k in full.tiles}
+    assert rows == set(range(int(config.range_min_m // tile_m), int(config.range_max_m // tile_m) + 1))
+    # Twice the drive, about twice the tiles (plus the footprint's own extent).
+    extent_x = lambda sm: (max(k[0] for k in sm.tiles) - min(k[0] for k in sm.tiles) + 1) * tile_m  # noqa: E731
+    assert len(full.tiles) > len(half.tiles)
+    assert extent_x(full) - extent_x(half) == pytest.approx(0.4 * (n - n // 2) * radar.waveform.frame_interval_s, abs=2 * tile_m)
+    image, _, _ = full.mosaic()
+    assert image.size <= len(full.tiles) * config.tile_px ** 2 * 1.5  # no big empty canvas around the tiles
+
+
+def test_presum_within_its_bound_keeps_the_image_and_beyond_it_does_not(drive):
+    rec, radar, truth, order = drive
+    base = StripMapConfig(range_min_m=1.0, pixel_m=0.005)
+    allowed = max_presum(base, radar, 0.4)
+    assert allowed >= 2 and presum_phase_spread_rad(dataclasses.replace(base, presum=allowed), radar, 0.4) <= math.pi / 4
+    frames = range(25, 50)
+    ref, _, _ = build(rec, radar, truth, order, base, frames).mosaic()
+    errors = {}
+    for presum in (allowed, 16):
+        img, _, _ = build(rec, radar, truth, order, dataclasses.replace(base, presum=presum), frames).mosaic()
+        errors[presum] = 10 * np.log10(np.sum(np.abs(img - ref) ** 2) / np.sum(np.abs(ref) ** 2))
+    assert errors[allowed] < -20
+    assert errors[16] > errors[allowed] + 6
+
+
+def test_bad_settings_name_the_field():
+    with pytest.raises(ConfigError, match="aperture_m"):
+        StripMapConfig(aperture_m=0)
+    with pytest.raises(ConfigError, match="mode"):
+        StripMapConfig(mode="exact")
+    with pytest.raises(ValueError, match="empty"):
+        StripMap().mosaic()
