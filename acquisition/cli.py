@@ -327,6 +327,61 @@ def cmd_record(args) -> int:
     return EXIT_OK
 
 
+def run_workers(setup, args, out_dir: Path, stamp: str):
+    """Add the RIO and strip-map workers to ``setup`` from the run options."""
+    from imaging.stripmap import StripMapConfig
+
+    from .workers import add_pipeline_workers
+
+    if not setup.imu_port:
+        raise SarbotError("run needs --imu-port: the strip map is placed by radar-inertial odometry")
+    names = {link.name for link in setup.radars}
+    if args.map_presum == "auto":
+        presum = None
+    elif args.map_presum.isdigit() and int(args.map_presum) >= 1:
+        presum = int(args.map_presum)
+    else:
+        raise SarbotError(f"--map-presum {args.map_presum!r}: expected 'auto' or a positive integer")
+    config = StripMapConfig(pixel_m=args.map_pixel, aperture_m=args.map_aperture, range_min_m=args.map_range[0],
+                            range_max_m=args.map_range[1], z_m=args.map_height)
+    return add_pipeline_workers(setup, out_dir, stamp, config, args.max_speed,
+                                _names(args.map_radars, "--map-radars", names), _names(args.rio_radars, "--rio-radars", names),
+                                presum)
+
+
+def _names(text: str | None, option: str, known: set[str]) -> list[str]:
+    if not text:
+        return sorted(known)
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    for n in names:
+        if n not in known:
+            raise SarbotError(f"{option} {n}: not a radar being recorded ({', '.join(sorted(known))})")
+    return names
+
+
+def cmd_run(args) -> int:
+    import time
+
+    from .daemon import record
+    from .recorder import DiskFullError
+
+    setup = record_setup(args)
+    stamp = time.strftime("%Y%m%dT%H%M%S")
+    out = Path(args.output)
+    traj_path, map_path, config = run_workers(setup, args, out, stamp)
+    print(f"sarbot run: strip map {config.pixel_m * 100:g} cm pixels, aperture {config.aperture_m} m, "
+          f"pre-summing {config.presum}")
+    try:
+        paths = record(setup, out, duration_s=args.duration, path=out / f"recording_{stamp}.h5")
+    except DiskFullError as exc:
+        print(f"sarbot: error: {exc.strerror} (the file holds everything up to the last flush)", file=sys.stderr)
+        return EXIT_DISK_FULL
+    for path in [*paths, traj_path, map_path, map_path.with_suffix(".png")]:
+        if path.exists():
+            print(f"wrote {path}")
+    return EXIT_OK
+
+
 def cmd_replay(args) -> int:
     from .daemon import replay
 
@@ -341,10 +396,22 @@ def cmd_replay(args) -> int:
 def cmd_demo(args) -> int:
     from .demo import run_demo
 
-    return run_demo(Path(args.output))
+    if args.speed <= 0:
+        raise SarbotError(f"--speed {args.speed}: must be positive")
+    return run_demo(Path(args.output), speed=args.speed)
 
 
 # -- parser ---------------------------------------------------------------------------------------------
+def _range_pair(text: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(v) for v in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected MIN:MAX in metres") from None
+    if not 0 <= lo < hi:
+        raise argparse.ArgumentTypeError(f"{text!r}: need 0 <= MIN < MAX")
+    return lo, hi
+
+
 def _can_options(s) -> None:
     s.add_argument("--can", help="python-can INTERFACE[:CHANNEL], e.g. socketcan:can0 or udp_multicast:239.74.163.2")
     s.add_argument("--can-arg", action="append", help="KEY=VALUE passed to python-can's Bus (repeat), e.g. port=43113")
@@ -427,6 +494,19 @@ def build_parser() -> argparse.ArgumentParser:
     _acquisition_options(s)
     s.set_defaults(func=cmd_record)
 
+    s = sub.add_parser("run", help="the whole pipeline: drivers, recorder, odometry and the live strip map")
+    _acquisition_options(s)
+    s.add_argument("--map-aperture", type=float, default=0.3, help="synthetic aperture per pixel, metres (default 0.3)")
+    s.add_argument("--map-pixel", type=float, default=0.01, help="map pixel size, metres (default 0.01)")
+    s.add_argument("--map-range", type=_range_pair, default=(1.0, 4.0), help="MIN:MAX look distance imaged, metres (default 1:4)")
+    s.add_argument("--map-height", type=float, default=0.3, help="height of the map plane in the world frame, metres (default 0.3)")
+    s.add_argument("--map-presum", default="auto", help="chirps summed per virtual channel before imaging ('auto': the "
+                   "most whose phase spread stays within pi/4 at --max-speed)")
+    s.add_argument("--max-speed", type=float, default=0.5, help="fastest the robot drives, m/s (sets automatic pre-summing)")
+    s.add_argument("--map-radars", help="radars to image (comma-separated; default all)")
+    s.add_argument("--rio-radars", help="radars the odometry uses (comma-separated; default all)")
+    s.set_defaults(func=cmd_run)
+
     s = sub.add_parser("replay", help="send a recording through emulated hardware (UDP, pty, CAN)")
     s.add_argument("recording")
     s.add_argument("--radar", action="append", help="NAME=HOST:PORT to send the radar's datagrams to (SRF1 or DCA1000, as recorded)")
@@ -436,8 +516,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--start-delay", type=float, default=0.0, help="seconds to wait before sending (lets drivers start)")
     s.set_defaults(func=cmd_replay)
 
-    s = sub.add_parser("demo", help="simulate the built-in scene, image it and compare with theory")
+    s = sub.add_parser("demo", help="the whole pipeline on emulated hardware fed by a built-in scene")
     s.add_argument("-o", "--output", default="sarbot-demo", help="output folder (default ./sarbot-demo)")
+    s.add_argument("--speed", type=float, default=0.5,
+                   help="replay speed, a multiple of real time (default 0.5: the emulated hardware shares the two "
+                        "cores with the daemon; on its own the daemon keeps up at 1x)")
     s.set_defaults(func=cmd_demo)
     return p
 

@@ -65,7 +65,8 @@ class RadarLink:
 @dataclasses.dataclass
 class Setup:
     """What the daemon runs: the rig, one link per radar, the IMU port, the CAN bus, recorder settings,
-    and optional workers (``role -> (function, extra args)``, each started as ``function(endpoints, *args, stop)``)."""
+    and optional workers (``role -> (function, extra args[, endpoint])``, each started as
+    ``function(driver_endpoints, endpoint, *extra, stop)``)."""
 
     rig: Rig
     radars: list[RadarLink]
@@ -77,15 +78,20 @@ class Setup:
     min_free_bytes: int = 64_000_000
     health_interval_s: float = 2.0
     health_endpoint: str | None = None
+    worker_stop_timeout_s: float = 60.0
     workers: dict = dataclasses.field(default_factory=dict)
 
 
-def _die_with_parent() -> None:
-    """A driver whose supervisor died (SIGKILL, OOM) must not keep the port or the device busy."""
+def _die_with_parent(role: str = "") -> None:
+    """A driver whose supervisor died (SIGKILL, OOM) must not keep the port or the device busy. The
+    process is also named after its role, so top and ps say which is which."""
     try:
         import ctypes
 
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+        if role:
+            libc.prctl(15, ctypes.c_char_p(f"sarbot-{role}"[:15].encode()), 0, 0, 0)  # PR_SET_NAME
     except (OSError, AttributeError):
         pass
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the supervisor decides when to stop
@@ -99,7 +105,7 @@ def _radar_main(link: RadarLink, shape, endpoint: str, stop) -> None:
     from .bus import BusPublisher
     from .pipeline import radar_driver_loop
 
-    _die_with_parent()
+    _die_with_parent(link.name)
     stream = Dca1000Stream(link.ti_cfg) if link.wire_format == "DCA1000" else Srf1Stream(tuple(shape))
     rx = UdpReceiver(link.host, link.port)
     pub = BusPublisher(endpoint)
@@ -116,7 +122,7 @@ def _can_main(config: CanConfig, endpoint: str, stop) -> None:
     from .bus import BusPublisher
     from .pipeline import can_driver_loop
 
-    _die_with_parent()
+    _die_with_parent("can")
     pub = BusPublisher(endpoint)
     driver = CanDriver(config.open(), trigger_id=config.trigger_id)
     try:
@@ -132,7 +138,7 @@ def _imu_main(port: str, endpoint: str, radar_endpoints: list[str], stop) -> Non
     from .bus import BusPublisher, BusSubscriber
     from .pipeline import publish_imu_samples
 
-    _die_with_parent()
+    _die_with_parent("imu")
     import serial
 
     pub = BusPublisher(endpoint)
@@ -149,10 +155,13 @@ def _imu_main(port: str, endpoint: str, radar_endpoints: list[str], stop) -> Non
                     continue
                 driver = ImuDriver(port, trigger_time_ns=trigger_time)
             if sub is not None and trigger_time is None:
-                msg = sub.receive(timeout_ms=0)
+                msg = sub.receive(timeout_ms=0 if driver.serial.in_waiting else 20)
                 if msg is not None:
                     trigger_time = int(msg.header["frame_time_ns"])
                     driver.set_trigger_time(trigger_time)
+                    # Only the first frame was needed: unsubscribed, the radar streams would pile up here.
+                    sub.close()
+                    sub = None
             try:
                 samples = driver.read()
             except (serial.SerialException, OSError) as exc:
@@ -223,8 +232,10 @@ class Health:
         return ", ".join(parts)
 
 
-def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_health=None) -> list[Path]:
-    """Run drivers, workers and the recorder until SIGINT/SIGTERM or ``duration_s``; returns the files written.
+def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_health=None,
+           until: threading.Event | None = None, path: Path | None = None) -> list[Path]:
+    """Run drivers, workers and the recorder until SIGINT/SIGTERM, ``duration_s`` or ``until`` is set;
+    returns the files written (``path``, or a time-stamped name in ``out_dir``).
 
     Raises DiskFullError (after stopping everything and closing the file) when the disk fills up.
     """
@@ -233,7 +244,7 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
 
     rig = setup.rig
     out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / time.strftime("recording_%Y%m%dT%H%M%S.h5")
+    path = path or out_dir / time.strftime("recording_%Y%m%dT%H%M%S.h5")
     ctx = mp.get_context("spawn")
     stop = ctx.Event()
     specs = {}
@@ -250,8 +261,8 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
         specs["can"] = (_can_main, (setup.can, free_tcp_endpoint(), stop))
         endpoints.append(specs["can"][1][1])
     driver_endpoints = list(endpoints)
-    for role, (target, extra) in setup.workers.items():
-        endpoint = free_tcp_endpoint()
+    for role, (target, extra, *endpoint) in setup.workers.items():
+        endpoint = endpoint[0] if endpoint else free_tcp_endpoint()
         specs[role] = (target, (driver_endpoints, endpoint, *extra, stop))
         endpoints.append(endpoint)
     procs = {}
@@ -279,7 +290,7 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
     disk_full = None
     try:
         try:
-            while not stopping.is_set() and (t_end is None or time.monotonic() < t_end):
+            while not stopping.is_set() and (t_end is None or time.monotonic() < t_end) and not (until and until.is_set()):
                 if recorder.step(timeout_ms=50):
                     flowing = True
                 now = time.monotonic()
@@ -322,9 +333,11 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
             log.error("%s", exc.strerror)
     finally:
         stop.set()
-        for proc in procs.values():
-            proc.join(2)
+        for role, proc in procs.items():
+            # Workers finish their products (trajectory, map) after the drivers stop; give them time.
+            proc.join(setup.worker_stop_timeout_s if role in setup.workers else 2)
             if proc.is_alive():
+                log.error("%s did not stop in time; killed", role)
                 proc.kill()
         recorder.close()
         health_pub.close()
@@ -337,12 +350,25 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
     return recorder.paths
 
 
+def _replay_radar_process(path: str, name: str, address, speed, go, start, results) -> None:
+    from .pipeline import replay_radar
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with Recording(path) as rec:
+            results.put((name, "ready"))
+            go.wait()
+            results.put((name, replay_radar(rec, name, tuple(address), speed, start_monotonic=start.value)))
+    except Exception as exc:
+        results.put((name, f"{type(exc).__name__}: {exc}"))
+
+
 def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str | None, speed: float | None,
            start_delay_s: float = 0.0, can: CanConfig | None = None) -> dict:
     """Send a recording through emulated hardware: each radar's datagrams (SRF1 or DCA1000, as recorded)
     to its UDP address, the IMU as Xbus bytes on a pty that ``imu_link`` points to, and /can on a
     python-can bus. Returns what was sent ({radar: datagrams, "can": frames})."""
-    from .pipeline import imu_emulator, replay_can, replay_radar
+    from .pipeline import imu_emulator, replay_can
 
     with Recording(path) as rec:
         for name in radar_targets:
@@ -359,8 +385,6 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
             link.symlink_to(emu.port)
         can_bus = can.open() if can is not None else None
         time.sleep(start_delay_s)
-        if emu is not None:
-            emu.start()
         sent = {}
         failures = []
 
@@ -370,14 +394,45 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
             except Exception as exc:  # reported below, after the other senders finish
                 failures.append(f"{key}: {exc}")
 
-        threads = [threading.Thread(target=run, args=(name, replay_radar, rec, name, address, speed))
-                   for name, address in radar_targets.items()]
+        # One process per radar, as on the robot: threads would share one interpreter with the IMU
+        # emulator, and its 400 Hz packets would come late whenever the radars send a frame.
+        ctx = mp.get_context("spawn")
+        results = ctx.Queue()
+        go = ctx.Event()
+        start = ctx.Value("d", 0.0)  # the senders' common start (time.monotonic() is shared by all processes)
+        procs = {name: ctx.Process(target=_replay_radar_process, args=(str(path), name, address, speed, go, start, results),
+                                   name=f"replay.{name}", daemon=True) for name, address in radar_targets.items()}
+        for proc in procs.values():
+            proc.start()
+        for _ in procs:
+            key, value = results.get(timeout=60)
+            if value != "ready":
+                failures.append(f"{key}: {value}")
+        start.value = time.monotonic() + 0.1
+        go.set()
+        threads = []
         if can_bus is not None:
             firsts = [int(rec.frame_time_ns(n)[0]) for n in radar_targets if rec.n_frames(n)]
             t0 = min(firsts) if firsts else None
             threads.append(threading.Thread(target=run, args=("can", replay_can, rec, can_bus, speed, t0)))
+        if emu is not None:
+            time.sleep(max(start.value - time.monotonic(), 0.0))
+            emu.start()
         for t in threads:
             t.start()
+        for name, proc in procs.items():
+            proc.join()
+            if proc.exitcode != 0:
+                failures.append(f"{name}: sender exited with code {proc.exitcode}")
+        for _ in procs:
+            try:
+                key, value = results.get(timeout=5)
+            except Exception:  # queue.Empty: a sender died without a word (its exit code is reported above)
+                break
+            if isinstance(value, str):
+                failures.append(f"{key}: {value}")
+            else:
+                sent[key] = value
         for t in threads:
             t.join()
         if can_bus is not None:

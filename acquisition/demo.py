@@ -1,113 +1,225 @@
-"""``sarbot demo``: the built-in scene simulated, imaged and measured against theory.
+"""``sarbot demo``: the whole pipeline on emulated hardware, fed by a built-in scene.
 
-Today this is the imaging demo (simulate -> backproject -> metrics); the strip-map issue turns it into
-the whole live pipeline on emulated hardware.
+1. The scene ``demo_room`` is simulated into a recording (four radars' raw ADC, IMU, CAN, truth).
+2. The recording is replayed through emulated hardware in real time: SRF1 datagrams on loopback UDP, Xbus
+   bytes on a pseudo-terminal, CAN frames on python-can's UDP multicast bus.
+3. The daemon runs as on the robot: a driver process per radar, the IMU and CAN drivers, the recorder, the
+   odometry worker and the strip-map worker, over ZeroMQ.
+4. The products (recording, trajectory, strip map HDF5 and PNG) are checked against the simulation's truth
+   and summarised in ``report.md`` and ``report.json``.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import multiprocessing as mp
+import socket
+import threading
 import time
 from pathlib import Path
 
 import numpy as np
 
 from imaging import metrics
-from imaging.geometry import antenna_track, chirp_times_ns
-from imaging.grid import Grid
-from imaging.image_formation import ImagingOptions, form_image
-from imaging.imagefile import write_image
+from imaging.errors import SarbotError
+from imaging.imagefile import read_image
 from imaging.plot import save_image_png
 from imaging.recording import Recording
 from imaging.scene import load_scene
 from imaging.simulator import simulate_recording
-from imaging.targets import CornerReflector, PointTarget, Rod
+from imaging.stripmap import StripMapConfig
+from imaging.targets import CornerReflector, Rod
+from imaging.trajectory_file import read_trajectory
 
 from .progress import Progress
 
 log = logging.getLogger("sarbot.demo")
 
-SCENE = "paper_pass_0.4"
-RADAR = "left_front"
-APERTURE_M = 0.34
+SCENE = "demo_room"
+APERTURE_M = 0.3
 
 
-def broadside_time_ns(rec: Recording, radar: str, target_xy) -> int:
-    """Time at which the radar's phase centre passes the target (closest along-track approach)."""
-    config = rec.radar(radar)
-    times = rec.frame_time_ns(radar)
-    track = antenna_track(config, rec.truth(), times, np.zeros(times.size, int))
-    d = np.linalg.norm(track.tx_m[:, :2] - np.asarray(target_xy), axis=1)
-    k = int(np.argmin(d))
-    # Refine between frames with the chirp times around the closest frame.
-    ct = chirp_times_ns(times[max(k - 1, 0):k + 2], config.waveform.chirps_per_frame, config.waveform.chirp_interval_s).ravel()
-    fine = antenna_track(config, rec.truth(), ct, np.zeros(ct.size, int))
-    return int(ct[np.argmin(np.linalg.norm(fine.tx_m[:, :2] - np.asarray(target_xy), axis=1))])
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
-def _target_xy(target) -> tuple[float, float, str]:
-    if isinstance(target, Rod):
-        # The imaged scattering centre is the rod surface facing the radar.
-        return target.position_m[0], target.position_m[1] - target.radius_m, "rod"
-    if isinstance(target, CornerReflector):
-        return target.position_m[0], target.position_m[1], "corner reflector"
-    if isinstance(target, PointTarget):
-        return target.position_m[0], target.position_m[1], "point"
-    raise TypeError(type(target))
+def _targets_in_start_frame(scene) -> list[tuple[str, np.ndarray]]:
+    """Where the rod face and the reflector are in the world frame of the run (origin at the start pose)."""
+    start = scene.trajectory.sample(np.array([scene.start_time_ns]))
+    rot = start.rotation.inv()
+    out = []
+    for t in scene.targets:
+        if isinstance(t, Rod):
+            p, label = np.array([t.position_m[0], t.position_m[1] - t.radius_m, 0.3]), "rod"
+        elif isinstance(t, CornerReflector):
+            p, label = np.asarray(t.position_m, float), "corner reflector"
+        else:
+            continue
+        out.append((label, rot.apply(p - start.position_m[0])[0]))
+    return out
 
 
-def run_demo(out_dir: Path) -> int:
+def _emulate_hardware(sim_path: str, targets: dict, imu_link: str, speed: float, can) -> None:
+    from .daemon import replay
+
+    replay(Path(sim_path), targets, imu_link, speed, start_delay_s=4.0, can=can)
+
+
+def run_demo(out_dir: Path, speed: float = 0.5) -> int:
+    from drivers.can_driver import CanConfig
+
+    from .daemon import RadarLink, Setup, record
+    from .workers import add_pipeline_workers
+
     t_start = time.monotonic()
     out_dir.mkdir(parents=True, exist_ok=True)
+    for old in out_dir.glob("*"):
+        if old.suffix in (".h5", ".png", ".md", ".json") or old.name == "imu_tty":
+            old.unlink()
     scene = load_scene(SCENE)
+    sim_path = out_dir / "simulated.h5"
+    print(f"sarbot demo: 1/3 simulating scene {scene.name!r}: {scene.duration_s:.0f} s, four radars, IMU, CAN")
+    simulate_recording(scene, sim_path, progress=Progress("simulate"), overwrite=True)
+
+    rig = scene.rig
+    links = [RadarLink(name, _free_udp_port()) for name in scene.radars]
+    can = CanConfig("udp_multicast", "239.74.163.2", options={"port": _free_udp_port()})
+    imu_link = out_dir / "imu_tty"
+    setup = Setup(rig, links, str(imu_link), can, health_interval_s=1.0)
+    config = StripMapConfig(aperture_m=APERTURE_M, range_min_m=1.0, range_max_m=4.0, z_m=0.3)
+    # The rod and the reflector stand on the left: the map images the two left radars; the odometry uses all four.
+    traj_path, map_path, config = add_pipeline_workers(setup, out_dir, "demo", config, max_speed_mps=0.5,
+                                                       map_radars=["left_front", "left_rear"])
     rec_path = out_dir / "recording.h5"
-    print(f"sarbot demo: simulating scene {scene.name!r} ({scene.duration_s:.1f} s, radar {RADAR}, 0.4 m/s)")
-    simulate_recording(scene, rec_path, progress=Progress("simulate"), overwrite=True)
-    report: dict = {"scene": scene.name, "recording": str(rec_path), "targets": []}
-    with Recording(rec_path) as rec:
-        z = 0.3
-        print("sarbot demo: backprojecting the whole pass (all 16 virtual channels)")
-        grid = Grid.from_ranges((-1.0, 1.2, 0.004), (1.8, 2.2, 0.004), z)
-        overview = form_image(rec, RADAR, grid, options=ImagingOptions(), progress=Progress("backproject"))
-        write_image(out_dir / "image.h5", overview)
-        marks = {}
-        lines = []
-        for target in scene.targets:
-            tx, ty, label = _target_xy(target)
-            marks[label] = (tx, ty)
-            t_mid = broadside_time_ns(rec, RADAR, (tx, ty))
-            half = int(APERTURE_M / (2 * scene.trajectory.speed_mps) * 1e9)
-            zoom = Grid.from_ranges((tx - 0.1, tx + 0.1, 0.001), (ty - 0.15, ty + 0.15, 0.002), z)
-            img = form_image(rec, RADAR, zoom, options=ImagingOptions(tx=(0,), rx=(0,)), time_window_ns=(t_mid - half, t_mid + half))
-            name = label.replace(" ", "_")
-            write_image(out_dir / f"{name}.h5", img)
-            save_image_png(out_dir / f"{name}.png", img.image, img.x_m, img.y_m, title=f"{label}, aperture {img.attrs['aperture_length_m']:.2f} m")
-            a = metrics.analyze_target(img.image, img.x_m, img.y_m, img.attrs["look_direction"])
-            centre = img.attrs["aperture_centre_m"]
-            r0 = float(np.hypot(a["peak_m"][0] - centre[0], a["peak_m"][1] - centre[1]))
-            th_r = metrics.range_resolution_theory_m(img.attrs["bandwidth_hz"], "hann")
-            th_x = metrics.cross_range_resolution_theory_m(img.attrs["wavelength_m"], r0, img.attrs["aperture_length_m"])
-            entry = {
-                "target": label, "true_position_m": [tx, ty], "peak_m": a["peak_m"], "range_m": r0,
-                "aperture_length_m": img.attrs["aperture_length_m"],
-                "range_width_m": a["range"]["half_power_width_m"], "range_width_theory_m": th_r,
-                "cross_range_width_m": a["cross_range"]["half_power_width_m"], "cross_range_width_theory_m": th_x,
-                "cross_range_pslr_db": a["cross_range"]["pslr_db"], "snr_db": a["snr_db"],
-            }
-            report["targets"].append(entry)
-            lines.append(
-                f"  {label:17s} at ({a['peak_m'][0]:+.3f}, {a['peak_m'][1]:.3f}) m, r0 {r0:.3f} m: "
-                f"range width {100 * entry['range_width_m']:.2f} cm (theory {100 * th_r:.2f}), "
-                f"cross-range {100 * entry['cross_range_width_m']:.2f} cm (theory {100 * th_x:.2f}, La {entry['aperture_length_m']:.2f} m)"
-            )
-        save_image_png(out_dir / "image.png", overview.image, overview.x_m, overview.y_m,
-                       title=f"{scene.name}: whole pass, {overview.attrs['n_frames']} frames, 16 channels", marks=marks)
+    print(f"sarbot demo: 2/3 replaying it through emulated hardware into the daemon (drivers, recorder, odometry, "
+          f"strip map with pre-summing {config.presum}) at {speed:g}x real time")
+    done = threading.Event()
+    # The emulated hardware is a process of its own, as the real sensors are: sharing the daemon's
+    # interpreter, its sending would steal the recorder's time.
+    ctx = mp.get_context("spawn")
+    emulator = ctx.Process(target=_emulate_hardware, name="emulated-hardware",
+                           args=(str(sim_path), {link.name: ("127.0.0.1", link.port) for link in links}, str(imu_link),
+                                 speed, can))
+    failure: list = []
+
+    finished = threading.Event()
+
+    def play():
+        emulator.start()
+        emulator.join()
+        if emulator.exitcode != 0:
+            failure.append(SarbotError(f"the emulated hardware failed (exit code {emulator.exitcode}); see its message above"))
+            done.set()
+        finished.set()
+
+    bar = Progress("pipeline")
+    expected_s = 4.0 + scene.duration_s / speed + 1.0
+    t_run = time.monotonic()
+    player = threading.Thread(target=play, daemon=True)
+    player.start()
+    health = []
+
+    def on_health(report):
+        health.append(report)
+        bar(min(time.monotonic() - t_run, expected_s), expected_s)
+        # Stop once the hardware has sent everything and the daemon has taken it all (a quiet second).
+        if finished.is_set() and not any(report["frames_per_s"].values()) and report["imu_hz"] == 0:
+            done.set()
+
+    record(setup, out_dir, until=done, on_health=on_health, path=rec_path)
+    bar(expected_s, expected_s)
+    player.join(5)
+    if failure:
+        raise failure[0]
+
+    print("sarbot demo: 3/3 checking the products against the simulation's truth")
+    report = evaluate(scene, sim_path, rec_path, traj_path, map_path, health, config)
     report["elapsed_s"] = time.monotonic() - t_start
+    report["replay_speed"] = speed
     (out_dir / "report.json").write_text(json.dumps(report, indent=2, default=lambda o: np.asarray(o).tolist()))
-    print("sarbot demo: half-power widths against theory (one TX/RX pair, aperture %.2f m):" % APERTURE_M)
-    print("\n".join(lines))
+    (out_dir / "report.md").write_text(markdown(report))
+    print(markdown(report))
     print(f"sarbot demo: done in {report['elapsed_s']:.0f} s. Wrote to {out_dir.resolve()}/:")
-    for name in ("recording.h5", "image.h5", "image.png", "rod.png", "corner_reflector.png", "report.json"):
-        print(f"  {name}")
-    return 0
+    for path in (rec_path, traj_path, map_path, map_path.with_suffix(".png"), out_dir / "report.md", out_dir / "report.json"):
+        print(f"  {path.name}")
+    return 0 if report["ok"] else 1
+
+
+def evaluate(scene, sim_path, rec_path, traj_path, map_path, health, config) -> dict:
+    """What the demo shows, in numbers: nothing lost, the odometry's drift, the targets in the map."""
+    from rio.evaluation import drift_report
+
+    report: dict = {"scene": scene.name, "outputs": {"recording": str(rec_path), "trajectory": str(traj_path),
+                                                     "strip_map": str(map_path), "strip_map_png": str(map_path.with_suffix(".png"))}}
+    with Recording(sim_path) as sim, Recording(rec_path) as rec:
+        frames = {n: [rec.n_frames(n), sim.n_frames(n)] for n in scene.radars}
+        report["frames_recorded_of_sent"] = frames
+        report["frames_invalid"] = {n: int((rec.valid(n) == 0).sum()) for n in scene.radars}
+        report["imu_samples_recorded_of_sent"] = [int(rec.imu()["time_ns"].size), int(sim.imu()["time_ns"].size)]
+        report["can_frames_recorded_of_sent"] = [int(rec.can()["time_ns"].size), int(sim.can()["time_ns"].size)]
+        report["events"] = [e[1:] for e in rec.events()]
+        truth = sim.truth()
+    start = truth.sample(np.array([scene.start_time_ns]))
+    traj = read_trajectory(traj_path)
+    # The run's world frame starts at the start pose; the simulation's truth starts where the scene says.
+    from imaging.trajectory import SampledTrajectory
+
+    rot = start.rotation.inv()
+    shifted = SampledTrajectory(truth.time_ns, rot.apply(truth.position_m - start.position_m[0]),
+                                (rot * truth.sample(truth.time_ns).rotation).as_quat(), source="truth")
+    report["odometry"] = drift_report(traj, shifted)
+    img = read_image(map_path)
+    report["strip_map"] = {"tiles": int(img.attrs["tiles"]), "frames_imaged": int(img.attrs["frames_imaged"]),
+                           "max_lag_s": float(img.attrs["max_lag_s"]), "presum": int(img.attrs["presum"]),
+                           "aperture_m": config.aperture_m, "extent_m": [float(np.ptp(img.x_m)), float(np.ptp(img.y_m))]}
+    marks, targets = {}, []
+    wavelength = scene.rig.radar("left_front").waveform.wavelength_m
+    for label, p in _targets_in_start_frame(scene):
+        a = metrics.analyze_target(img.image, img.x_m, img.y_m, (0.0, 1.0), near_m=(p[0], p[1]), radius_m=0.1,
+                                   half_length_m=0.15)
+        r0 = float(p[1] - 0.2)  # the left radars drive 0.2 m left of the body origin
+        theory = metrics.cross_range_resolution_theory_m(wavelength, r0, config.aperture_m)
+        targets.append({"target": label, "true_m": p[:2].tolist(), "peak_m": a["peak_m"],
+                        "error_m": float(np.hypot(a["peak_m"][0] - p[0], a["peak_m"][1] - p[1])),
+                        "cross_range_width_m": a["cross_range"]["half_power_width_m"],
+                        "cross_range_theory_m": theory, "range_width_m": a["range"]["half_power_width_m"],
+                        "range_theory_m": metrics.range_resolution_theory_m(scene.rig.radar("left_front").waveform.sampled_bandwidth_hz),
+                        "snr_db": a["snr_db"]})
+        marks[label] = (p[0], p[1])
+    report["targets"] = targets
+    save_image_png(map_path.with_suffix(".png"), img.image, img.x_m, img.y_m, marks=marks,
+                   title=f"live strip map: {report['strip_map']['frames_imaged']} frames, aperture {config.aperture_m} m, "
+                         f"on the odometry's trajectory")
+    lost = sum(s - r for r, s in frames.values()) + sum(report["frames_invalid"].values())
+    report["ok"] = bool(lost == 0 and all(t["error_m"] < 0.05 for t in targets)
+                        and report["odometry"]["final_drift_m"] < 0.2)
+    return report
+
+
+def markdown(report: dict) -> str:
+    o = report["odometry"]
+    sm = report["strip_map"]
+    lines = [f"# sarbot demo: {report['scene']}", "",
+             "| radar | frames recorded / sent | invalid |", "| --- | --- | --- |"]
+    for n, (r, s) in report["frames_recorded_of_sent"].items():
+        lines.append(f"| {n} | {r} / {s} | {report['frames_invalid'][n]} |")
+    lines += ["", f"IMU samples {report['imu_samples_recorded_of_sent'][0]} / {report['imu_samples_recorded_of_sent'][1]}, "
+              f"CAN frames {report['can_frames_recorded_of_sent'][0]} / {report['can_frames_recorded_of_sent'][1]}, "
+              f"events in the recording: {len(report['events'])}.", "",
+              f"Odometry: {o['distance_m']:.2f} m driven, final drift {100 * o['final_drift_m']:.1f} cm "
+              f"({o['final_drift_percent']:.2f} %), ATE {100 * o['ate_rmse_m']:.1f} cm.", "",
+              f"Strip map: {sm['frames_imaged']} frames imaged into {sm['tiles']} tiles "
+              f"({sm['extent_m'][0]:.1f} m x {sm['extent_m'][1]:.1f} m), aperture {sm['aperture_m']} m, pre-summing "
+              f"{sm['presum']}, largest lag behind the sensors {sm['max_lag_s']:.2f} s.", "",
+              "| target | true (m) | in the map (m) | error (cm) | cross-range width (cm) | theory (cm) |",
+              "| --- | --- | --- | --- | --- | --- |"]
+    for t in report["targets"]:
+        lines.append(f"| {t['target']} | ({t['true_m'][0]:.3f}, {t['true_m'][1]:.3f}) | ({t['peak_m'][0]:.3f}, "
+                     f"{t['peak_m'][1]:.3f}) | {100 * t['error_m']:.1f} | {100 * t['cross_range_width_m']:.2f} | "
+                     f"{100 * t['cross_range_theory_m']:.2f} |")
+    lines += ["", "Everything sent arrived and the targets are where the scene put them." if report["ok"] else
+              "**Something is off: see the numbers above.**"]
+    return "\n".join(lines) + "\n"

@@ -100,16 +100,19 @@ def publish_imu_samples(pub: BusPublisher, samples, clock_drift_ppm: float | Non
         np.array([s.host_time_ns for s in samples], np.int64)], clock_drift_ppm=clock_drift_ppm)
 
 
-def replay_radar(recording: Recording, radar: str, address, speed: float | None = 1.0, radar_id: int = 0) -> int:
+def replay_radar(recording: Recording, radar: str, address, speed: float | None = 1.0, radar_id: int = 0,
+                 start_monotonic: float | None = None) -> int:
     """Send a radar's frames to ``address`` in the wire format it was recorded in (SRF1 datagrams, or the
     DCA1000 byte stream) at the recorded frame timing (x ``speed``; None or 0: as fast as the receiver
-    keeps up). Returns the number of datagrams sent."""
+    keeps up). ``start_monotonic``: when the first frame goes out (time.monotonic(), which all processes of a
+    Linux machine share), so several radars replayed by several processes stay in step. Returns the number of
+    datagrams sent."""
     times = recording.frame_time_ns(radar)
     counters = recording.file[f"radar/{radar}/frame_counter"][()]
     dca1000 = recording.file[f"radar/{radar}"].attrs.get("wire_format", "SRF1") == "DCA1000"
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 8 << 20)
-    t0 = time.monotonic()
+    t0 = time.monotonic() if start_monotonic is None else start_monotonic
     sent = 0
     seq = 1
     stream_bytes = 0

@@ -46,6 +46,7 @@ class ImuClock:
         self._wraps = 0
         self._fit_imu: list[float] = []
         self._fit_host: list[float] = []
+        self._drift: tuple[int, float | None] = (-1, None)  # (samples when fitted, ppm)
 
     def unwrap(self, raw: int) -> int:
         if self._last_raw is not None and raw < self._last_raw and self._last_raw - raw > 2**31:
@@ -65,9 +66,19 @@ class ImuClock:
             del self._fit_imu[:10000], self._fit_host[:10000]
 
     def drift_ppm(self) -> float | None:
-        """(host clock rate / IMU clock rate - 1) in ppm, from the receive times seen so far."""
-        if len(self._fit_imu) < 50:
+        """(host clock rate / IMU clock rate - 1) in ppm, from the receive times seen so far.
+
+        Refitted after every 400 new samples (about a second): a fit over up to 20000 points on every
+        serial read would cost the driver more than everything else it does."""
+        n = len(self._fit_imu)
+        if n < 50:
             return None
+        if self._drift[0] >= 0 and 0 <= n - self._drift[0] < 400:
+            return self._drift[1]
+        self._drift = (n, self._fit_drift_ppm())
+        return self._drift[1]
+
+    def _fit_drift_ppm(self) -> float | None:
         x = np.asarray(self._fit_imu) - self._fit_imu[0]
         y = np.asarray(self._fit_host) - self._fit_host[0]
         if np.ptp(x) <= 0:

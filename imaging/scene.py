@@ -36,7 +36,7 @@ from .detection_simulator import DetectionModel, Person, room_scatterers
 from .geometry import Vibration
 from .imu_simulator import ImuErrors
 from .rig import Rig, default_rig, load_rig
-from .targets import TARGET_KINDS
+from .targets import TARGET_KINDS, PointTarget
 from .trajectory import PathWithTurns, StraightLine, Trajectory
 
 DEFAULT_START_TIME_NS = 1_700_000_000_000_000_000  # a TAI time in November 2023; any epoch works
@@ -65,6 +65,9 @@ class Scene:
     detection_model: DetectionModel | None = None
     static_points_m: np.ndarray | None = None
     people: list = dataclasses.field(default_factory=list)
+    #: Store the ADC as the radar would send it: int16 I/Q counts, this many per unit amplitude. None keeps
+    #: complex64 (exact; what imaging studies use).
+    adc_counts_per_unit: float | None = None
 
 
 def builtin_scene_names() -> list[str]:
@@ -119,6 +122,36 @@ def _trajectory_from_table(t: dict[str, Any], start_time_ns: int) -> Trajectory:
     return traj
 
 
+def _positive_or_none(value, field: str) -> float | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value <= 0:
+        raise ConfigError(field, f"expected a positive number, got {value!r}")
+    return float(value)
+
+
+def _clutter_targets(box: dict[str, Any], prefix: str) -> list[PointTarget]:
+    """``[[clutter]]``: ``count`` point scatterers of ``amplitude`` placed at random (``seed``) in the box
+    ``box_m = [[x0, x1], [y0, y1], [z0, z1]]`` (furniture, cables, the odd screw: what a room has)."""
+    try:
+        count = int(box.pop("count"))
+        lo_hi = np.asarray(box.pop("box_m"), float)
+        amplitude = float(box.pop("amplitude", 0.5))
+        rng = np.random.default_rng(int(box.pop("seed", 0)))
+    except KeyError as exc:
+        raise ConfigError(f"{prefix}.{exc.args[0]}", "is required") from None
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(prefix, str(exc)) from None
+    if lo_hi.shape != (3, 2) or np.any(lo_hi[:, 1] < lo_hi[:, 0]):
+        raise ConfigError(f"{prefix}.box_m", "expected [[x0, x1], [y0, y1], [z0, z1]] with x0 <= x1 and so on")
+    if count < 0:
+        raise ConfigError(f"{prefix}.count", "must not be negative")
+    if box:
+        raise ConfigError(f"{prefix}.{sorted(box)[0]}", "unknown setting")
+    points = rng.uniform(lo_hi[:, 0], lo_hi[:, 1], (count, 3))
+    return [PointTarget(tuple(p), amplitude=amplitude) for p in points]
+
+
 def scene_from_dict(table: dict[str, Any], source: str | None = None, base: Path | None = None) -> Scene:
     """Build and validate a Scene from a parsed TOML table."""
     try:
@@ -146,6 +179,8 @@ def scene_from_dict(table: dict[str, Any], source: str | None = None, base: Path
             if kind not in TARGET_KINDS:
                 raise ConfigError(f"target[{i}].kind", f"unknown kind {kind!r} ({', '.join(TARGET_KINDS)})")
             targets.append(from_dict(TARGET_KINDS[kind], tt, prefix=f"target[{i}]"))
+        for i, box in enumerate(table.pop("clutter", [])):
+            targets += _clutter_targets(dict(box), f"clutter[{i}]")
         vibration = None
         if "vibration" in table:
             vibration = from_dict(Vibration, table.pop("vibration"), prefix="vibration")
@@ -184,6 +219,7 @@ def scene_from_dict(table: dict[str, Any], source: str | None = None, base: Path
             snr_db=None if snr is None else float(snr),
             vibration=vibration,
             intra_chirp_motion=bool(table.pop("intra_chirp_motion", True)),
+            adc_counts_per_unit=_positive_or_none(table.pop("adc_counts_per_unit", None), "adc_counts_per_unit"),
             seed=int(table.pop("seed", 0)),
             start_time_ns=start_time_ns,
             truth_rate_hz=float(table.pop("truth_rate_hz", 1000.0)),

@@ -157,7 +157,9 @@ def simulate_recording(scene, path, *, frames_per_block: int = 16, progress=None
     done = 0
     rng = np.random.default_rng(scene.seed)
     detections = scene.detection_model is not None
+    counts = scene.adc_counts_per_unit
     with RecordingWriter(path, radars, imu=scene.rig.imu if scene.imu else None, truth=True, overwrite=overwrite,
+                         adc_dtype="complex64" if counts is None else "int16",
                          wire_format="detections" if detections else "simulated",
                          detections=scene.radars if detections else ()) as writer:
         # The hardware trigger marks the first chirp of the run.
@@ -180,6 +182,8 @@ def simulate_recording(scene, path, *, frames_per_block: int = 16, progress=None
                     vibration=scene.vibration, vibration_t0_ns=scene.start_time_ns, snr_db=scene.snr_db,
                     intra_chirp_motion=scene.intra_chirp_motion, rng=rng,
                 )
+                if counts is not None:  # what the radar's ADC would deliver
+                    adc = np.clip(np.round(np.stack([adc.real, adc.imag], axis=-1) * counts), -32768, 32767).astype(np.int16)
                 writer.append_frames(r.name, adc, block, np.arange(b, b + block.size), host[b:b + block.size])
                 writer.flush()
                 done += block.size

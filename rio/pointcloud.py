@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import scipy.fft
 import scipy.ndimage
 
 from imaging import SPEED_OF_LIGHT_MPS
@@ -55,15 +56,17 @@ def range_doppler_cube(frame: np.ndarray, radar: RadarConfig, tx_order: np.ndarr
     wf = radar.waveform
     n_c, n_r, n_s = frame.shape
     n_range = 1 << int(np.ceil(np.log2(n_s)))
-    rng = np.fft.fft(frame * get_window(config.range_window, n_s), n_range, axis=-1)  # [C, R, Nr]
+    # Single precision throughout: ADC samples carry 16 bits, and numpy's FFT would work in double.
+    win = get_window(config.range_window, n_s).astype(np.float32)
+    rng = scipy.fft.fft(np.asarray(frame, np.complex64) * win, n_range, axis=-1)  # [C, R, Nr]
     tx_order = np.asarray(tx_order)
     per_tx = []
     positions = []
     for i in range(wf.n_tx):
         chirps = np.flatnonzero(tx_order == i)
         slow = rng[chirps]  # [M, R, Nr]
-        w = get_window(config.doppler_window, chirps.size)[:, None, None]
-        per_tx.append(np.fft.fftshift(np.fft.fft(slow * w, axis=0), axes=0))  # [M, R, Nr]
+        w = get_window(config.doppler_window, chirps.size).astype(np.float32)[:, None, None]
+        per_tx.append(scipy.fft.fftshift(scipy.fft.fft(slow * w, axis=0), axes=0))  # [M, R, Nr]
         positions.append(radar.array.tx_positions_m[i, 1] + radar.array.rx_positions_m[:, 1])
     cube = np.concatenate(per_tx, axis=1)  # [M, Nt*R, Nr]
     positions = np.concatenate(positions)
@@ -94,9 +97,11 @@ def cfar_2d(power: np.ndarray, config: PointCloudConfig) -> tuple[np.ndarray, np
     return (power > threshold) & local_max, noise
 
 
-def _parabolic(y_m1: float, y0: float, y_p1: float) -> float:
+def _parabolic_v(y_m1: np.ndarray, y0: np.ndarray, y_p1: np.ndarray) -> np.ndarray:
+    """Offset of the vertex of the parabola through three equally spaced points (element-wise)."""
     denom = y_m1 - 2 * y0 + y_p1
-    return 0.0 if denom == 0 else 0.5 * (y_m1 - y_p1) / denom
+    safe = np.where(denom == 0, 1.0, denom)
+    return np.where(denom == 0, 0.0, 0.5 * (y_m1 - y_p1) / safe)
 
 
 def detect(frame: np.ndarray, radar: RadarConfig, tx_order, config: PointCloudConfig = PointCloudConfig()) -> PointCloud:
@@ -117,28 +122,29 @@ def detect(frame: np.ndarray, radar: RadarConfig, tx_order, config: PointCloudCo
     v_bin = wf.wavelength_m / (2 * n_dop * t_slow)
     spacing = np.median(np.diff(positions))  # virtual element spacing along sensor y
     n_ang = max(config.angle_fft_size, positions.size)
-    xyz, dop, snr, ranges, azs = [], [], [], [], []
     logp = 10 * np.log10(power + 1e-30)
-    for d, r in zip(dop_idx, rng_idx):
-        dr = _parabolic(logp[d, r - 1], logp[d, r], logp[d, r + 1]) if 0 < r < n_range - 1 else 0.0
-        dd = _parabolic(logp[(d - 1) % n_dop, r], logp[d, r], logp[(d + 1) % n_dop, r])
-        rng_m = (r + dr) * range_bin_m
-        v = (d + dd - n_dop // 2) * v_bin
-        # TDM motion: TX i fired i chirp intervals after TX 0; remove the phase the motion added.
-        f_d = 2 * v / wf.wavelength_m
-        snap = cube[d, :, r] * np.exp(-2j * np.pi * f_d * tx_of_channel * wf.chirp_interval_s)
-        spec = np.fft.fftshift(np.abs(np.fft.fft(snap, n_ang)) ** 2)
-        q = int(np.argmax(spec))
-        lq = 10 * np.log10(spec + 1e-30)
-        dq = _parabolic(lq[q - 1], lq[q], lq[q + 1]) if 0 < q < n_ang - 1 else 0.0
-        # Element phase -2 pi / lambda * y * sin(az): the spectrum peaks at q/n = -y_step sin(az) / lambda.
-        s_az = -(q + dq - n_ang // 2) / n_ang * wf.wavelength_m / spacing
-        if abs(s_az) > 1:
-            continue
-        az = float(np.arcsin(s_az))
-        xyz.append((rng_m * np.cos(az), rng_m * np.sin(az), 0.0))
-        dop.append(v)
-        snr.append(logp[d, r] - 10 * np.log10(noise[d, r] + 1e-30))
-        ranges.append(rng_m)
-        azs.append(az)
-    return PointCloud(np.array(xyz).reshape(-1, 3), np.array(dop), np.array(snr), np.array(ranges), np.array(azs))
+    d, r = dop_idx, rng_idx
+    inner = (r > 0) & (r < n_range - 1)
+    r_lo, r_hi = np.clip(r - 1, 0, n_range - 1), np.clip(r + 1, 0, n_range - 1)
+    dr = np.where(inner, _parabolic_v(logp[d, r_lo], logp[d, r], logp[d, r_hi]), 0.0)
+    dd = _parabolic_v(logp[(d - 1) % n_dop, r], logp[d, r], logp[(d + 1) % n_dop, r])
+    rng_m = (r + dr) * range_bin_m
+    v = (d + dd - n_dop // 2) * v_bin
+    # TDM motion: TX i fired i chirp intervals after TX 0; remove the phase the motion added.
+    f_d = 2 * v / wf.wavelength_m
+    snaps = cube[d, :, r] * np.exp(-2j * np.pi * f_d[:, None] * tx_of_channel[None, :] * wf.chirp_interval_s)
+    spec = scipy.fft.fftshift(np.abs(scipy.fft.fft(snaps, n_ang, axis=1)) ** 2, axes=1)  # [D, n_ang]
+    q = np.argmax(spec, axis=1)
+    lq = 10 * np.log10(spec + 1e-30)
+    rows = np.arange(q.size)
+    inner_q = (q > 0) & (q < n_ang - 1)
+    dq = np.where(inner_q, _parabolic_v(lq[rows, np.clip(q - 1, 0, n_ang - 1)], lq[rows, q],
+                                        lq[rows, np.clip(q + 1, 0, n_ang - 1)]), 0.0)
+    # Element phase -2 pi / lambda * y * sin(az): the spectrum peaks at q/n = -y_step sin(az) / lambda.
+    s_az = -(q + dq - n_ang // 2) / n_ang * wf.wavelength_m / spacing
+    ok = np.abs(s_az) <= 1
+    az = np.arcsin(s_az[ok])
+    rng_m = rng_m[ok]
+    xyz = np.column_stack([rng_m * np.cos(az), rng_m * np.sin(az), np.zeros(az.size)])
+    snr = logp[d, r][ok] - 10 * np.log10(noise[d, r][ok] + 1e-30)
+    return PointCloud(xyz, v[ok], snr, rng_m, az)
