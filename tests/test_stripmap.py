@@ -106,6 +106,6 @@ def test_bad_settings_name_the_field():
     with pytest.raises(ConfigError, match="aperture_m"):
         StripMapConfig(aperture_m=0)
     with pytest.raises(ConfigError, match="mode"):
-        StripMapConfig(mode="exact")
+        StripMapConfig(mode="cubic")
     with pytest.raises(ValueError, match="empty"):
         StripMap().mosaic()
