@@ -393,6 +393,17 @@ def cmd_replay(args) -> int:
     return EXIT_OK
 
 
+def cmd_experiment(args) -> int:
+    from .paper import run_paper
+
+    if args.name != "paper":
+        raise SarbotError(f"experiment {args.name!r}: unknown (known: paper)")
+    out = Path(args.output)
+    report = run_paper(out, quick=args.quick)
+    print(f"sarbot experiment paper: done in {report['elapsed_s']:.0f} s; wrote {out / 'report.md'} and its figures")
+    return EXIT_OK
+
+
 def cmd_demo(args) -> int:
     from .demo import run_demo
 
@@ -515,6 +526,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--speed", type=float, default=1.0, help="multiple of real time; 0 for as fast as possible")
     s.add_argument("--start-delay", type=float, default=0.0, help="seconds to wait before sending (lets drivers start)")
     s.set_defaults(func=cmd_replay)
+
+    s = sub.add_parser("experiment", help="reproduce a study on simulated data (paper: the reference robot-SAR study)")
+    s.add_argument("name", help="paper")
+    s.add_argument("-o", "--output", default="docs/results/paper", help="report folder (default docs/results/paper)")
+    s.add_argument("--quick", action="store_true", help="fewer apertures, phases and amplitudes (a smoke run)")
+    s.set_defaults(func=cmd_experiment)
 
     s = sub.add_parser("demo", help="the whole pipeline on emulated hardware fed by a built-in scene")
     s.add_argument("-o", "--output", default="sarbot-demo", help="output folder (default ./sarbot-demo)")
