@@ -1,0 +1,56 @@
+"""`sarbot experiment paper --quick`: the reference study's numbers, reproduced (a reduced set of apertures,
+phases and amplitudes; the full run writes docs/results/paper/)."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    out = tmp_path_factory.mktemp("paper")
+    res = subprocess.run([sys.executable, "-m", "acquisition.cli", "experiment", "paper", "--quick", "-o", str(out)],
+                         capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-3000:]
+    for figure in ("range_profiles", "cross_range_width_truth", "cross_range_profiles_truth", "vibration",
+                   "integration_gain", "rio_aperture", "cross_range_width_rio", "failure"):
+        assert (out / f"{figure}.png").stat().st_size > 5000, figure
+    assert "## 6. Where methods fail" in (out / "report.md").read_text()
+    return json.loads((out / "report.json").read_text())
+
+
+def test_range_and_cross_range_widths_follow_theory(report):
+    for row in report["range"]["rows"]:
+        assert row["ratio"] == pytest.approx(1.0, abs=0.03), row
+    for case, res in report["cross_range"].items():
+        for row in res["rows"]:
+            assert row["ratio"] == pytest.approx(1.0, abs=0.06), (case, row)
+
+
+def test_vibration_is_inferred_from_its_side_lobes(report):
+    v = report["vibration"]
+    assert v["sidelobe_offset_m"] == pytest.approx(0.04, rel=0.03)
+    assert v["sidelobe_level_db"] == pytest.approx(-4.3, abs=0.3)
+    assert v["f_vib_hz"] == pytest.approx(v["scene_f_vib_hz"], rel=0.03)
+    assert v["a_vib_m"] == pytest.approx(v["scene_a_vib_m"], rel=0.05)
+    assert v["resimulated_sidelobe_level_db"] == pytest.approx(v["sidelobe_level_db"], abs=0.5)
+
+
+def test_integration_gain_lies_between_the_limits(report):
+    assert 0.5 < report["integration_gain"]["alpha"] < 1.05
+
+
+def test_usable_aperture_shrinks_with_trajectory_error_as_the_bend_limit_says(report):
+    rows = report["failure"]["acceleration"]
+    usable = [r["usable_aperture_m"] for r in rows]
+    assert usable == sorted(usable, reverse=True) and usable[0] > usable[-1]
+    for r in rows[1:]:
+        # Measured on a coarse aperture grid: never longer than the lambda/8 bend allows (plus one grid step).
+        assert r["usable_aperture_m"] <= 1.6 * r["theory_m"], r
+
+
+def test_rio_trajectory_images_like_the_truth_over_short_apertures(report):
+    for case, res in report["rio"]["widths_rio"].items():
+        assert res["rows"][0]["ratio"] < 1.1, case
