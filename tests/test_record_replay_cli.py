@@ -5,6 +5,7 @@ import sys
 import time
 
 import numpy as np
+import pytest
 
 from imaging.recording import Recording
 from test_round_trip import make_source
@@ -49,6 +50,9 @@ def test_replay_into_record(tmp_path):
         np.testing.assert_array_equal(got["time_ns"], imu.time_ns)
         np.testing.assert_array_equal(got["gyro_radps"], imu.gyro_radps.astype(np.float32))
         assert again.triggers().tolist() == [int(imu.time_ns[0])]
+        # The IMU clock against the host clock, estimated by the driver and kept with the samples: the replay
+        # runs at 2x, so a host second holds two IMU seconds: host rate / IMU rate - 1 = -0.5 (-5e5 ppm).
+        assert again.file["imu"].attrs["clock_drift_ppm"] == pytest.approx(-5e5, rel=0.05)
         # No loss; at most the note that the emulated IMU went away when the replay ended.
         messages = [m.decode() for m in again.file["events/message"][()]]
         assert all(m.startswith("serial port lost") for m in messages), messages
