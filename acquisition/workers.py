@@ -109,6 +109,7 @@ def rio_worker(driver_endpoints: list[str], endpoint: str, rig: Rig, radars: lis
 @dataclasses.dataclass
 class StripMapStatus:
     frames_imaged: int = 0
+    frames_standing_still: int = 0  # no aperture to gain: left out
     frames_skipped_invalid: int = 0
     frames_dropped_behind: int = 0
     lag_s: float = 0.0  # frame reception to imaged, the latest frame
@@ -165,9 +166,13 @@ def stripmap_worker(driver_endpoints: list[str], endpoint: str, rig: Rig, radars
             if traj is None:
                 return
             t0 = time.monotonic()
-            changed.update(sm.add_frame(configs[name], orders[name], _complex(iq), t_frame, traj).tiles)
+            footprint = sm.add_frame(configs[name], orders[name], _complex(iq), t_frame, traj)
+            changed.update(footprint.tiles)
             status.busy_s += time.monotonic() - t0
-            status.frames_imaged += 1
+            if footprint.skipped:
+                status.frames_standing_still += 1
+            else:
+                status.frames_imaged += 1
             status.lag_s = (time.time_ns() - t_recv) * 1e-9
             status.max_lag_s = max(status.max_lag_s, status.lag_s)
 

@@ -53,6 +53,9 @@ class StripMapConfig:
     mode: str = "linear"
     oversample: int = 8
     window: str = "hann"
+    #: Frames taken while the platform moves slower than this are left out: standing still they add no
+    #: aperture, only the same unfocused footprint over and over.
+    min_speed_mps: float = 0.05
 
     def __post_init__(self) -> None:
         require(self.pixel_m > 0, "pixel_m", "must be positive")
@@ -63,6 +66,7 @@ class StripMapConfig:
         require(self.presum >= 1, "presum", "must be at least 1")
         require(self.mode in MODES, "mode", f"must be one of {MODES}")
         require(self.oversample >= 1, "oversample", "must be at least 1")
+        require(self.min_speed_mps >= 0, "min_speed_mps", "must not be negative")
 
     @property
     def tile_m(self) -> float:
@@ -97,6 +101,7 @@ class FrameFootprint:
 
     tiles: list[tuple[int, int]]
     pixel_profile_pairs: int
+    skipped: str = ""  # why the frame was left out, if it was
 
 
 class StripMap:
@@ -107,6 +112,7 @@ class StripMap:
         self.config = config
         self.tiles: dict[tuple[int, int], np.ndarray] = {}
         self.frames = 0
+        self.frames_standing = 0
         self.profiles = 0
         self._axis = (np.arange(config.tile_px) + 0.5) * config.pixel_m  # pixel centres inside a tile
 
@@ -175,6 +181,11 @@ class StripMap:
                   trajectory: Trajectory) -> FrameFootprint:
         """Backproject one frame (complex [chirps, rx, samples]) into the map; returns the tiles it changed."""
         cfg = self.config
+        wf = radar.waveform
+        mid = frame_time_ns + int(wf.chirps_per_frame * wf.chirp_interval_s * 0.5e9)
+        if np.linalg.norm(trajectory.sample(np.array([mid])).velocity_mps[0, :2]) < cfg.min_speed_mps:
+            self.frames_standing += 1
+            return FrameFootprint([], 0, skipped="standing still")
         profiles, tx_m, rx_m, look = self.frame_profiles(radar, tx_order, adc, frame_time_ns, trajectory)
         centre = 0.5 * (tx_m + rx_m)
         c_mean = centre.mean(axis=0)[:2]
@@ -230,5 +241,6 @@ class StripMap:
         cfg = self.config
         meta = {"method": f"stripmap-tdbp-{cfg.mode}", "aperture_limit_m": cfg.aperture_m,
                 "beam_half_angle_deg": cfg.beam_half_angle_deg, "presum": cfg.presum, "n_frames": self.frames,
+                "frames_standing_still": self.frames_standing,
                 "n_profiles": self.profiles, "tiles": len(self.tiles), "tile_px": cfg.tile_px, **(attrs or {})}
         return SarImage(image, x, y, np.array([cfg.z_m]), meta)

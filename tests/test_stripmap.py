@@ -102,6 +102,16 @@ def test_presum_within_its_bound_keeps_the_image_and_beyond_it_does_not(drive):
     assert errors[16] > errors[allowed] + 6
 
 
+def test_frames_taken_standing_still_are_left_out(drive):
+    rec, radar, truth, order = drive
+    from imaging.trajectory import StraightLine
+
+    parked = StraightLine(start_m=(0.0, -0.2, 0.0), speed_mps=0.0, t0_ns=int(rec.frame_time_ns(RADAR)[0]))
+    sm = StripMap(StripMapConfig())
+    fp = sm.add_frame(radar, order, rec.adc(RADAR, slice(0, 1))[0], int(rec.frame_time_ns(RADAR)[0]), parked)
+    assert fp.skipped == "standing still" and not sm.tiles and sm.frames_standing == 1
+
+
 def test_bad_settings_name_the_field():
     with pytest.raises(ConfigError, match="aperture_m"):
         StripMapConfig(aperture_m=0)
