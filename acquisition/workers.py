@@ -142,6 +142,13 @@ def stripmap_worker(driver_endpoints: list[str], endpoint: str, rig: Rig, radars
     changed: set = set()
     last_publish = time.monotonic()
 
+    def add_poses(arrays) -> None:
+        """Keep poses in time order; a batch that repeats times already held keeps only its newer ones."""
+        t = arrays[0]
+        keep = t > poses[-1][0][-1] if poses else np.ones(t.size, bool)
+        if keep.any():
+            poses.append(tuple(np.array(a[keep]) for a in arrays))
+
     def trajectory():
         t = np.concatenate([b[0] for b in poses])
         if t.size < 2:
@@ -188,7 +195,7 @@ def stripmap_worker(driver_endpoints: list[str], endpoint: str, rig: Rig, radars
             msg = sub.receive(timeout_ms=50)
             if msg is not None:
                 if msg.topic == "pose":
-                    poses.append(tuple(np.array(a) for a in msg.arrays))
+                    add_poses(msg.arrays)
                     while len(poses) > 2 and poses[-1][0][-1] - poses[1][0][0] > POSE_WINDOW_NS:
                         poses.popleft()
                 else:
@@ -216,7 +223,7 @@ def stripmap_worker(driver_endpoints: list[str], endpoint: str, rig: Rig, radars
             if msg.topic == "pose/end":
                 break
             if msg.topic == "pose":
-                poses.append(tuple(np.array(a) for a in msg.arrays))
+                add_poses(msg.arrays)
             elif msg.topic.split("/", 1)[1] in configs and msg.header["valid"]:
                 name = msg.topic.split("/", 1)[1]
                 frames.append((name, np.array(msg.arrays[0]), int(msg.header["frame_time_ns"]),

@@ -119,3 +119,66 @@ def test_bad_settings_name_the_field():
         StripMapConfig(mode="cubic")
     with pytest.raises(ValueError, match="empty"):
         StripMap().mosaic()
+
+
+def test_the_worker_publishes_tiles_and_its_lag_and_writes_the_map(drive, tmp_path):
+    """The strip-map worker as the daemon runs it (its own process, real ZeroMQ): radar frames and poses in,
+    ``map/tile`` and ``map/status`` out, the map file equal to the last tiles it published."""
+    import multiprocessing as mp
+    import time
+
+    from acquisition.bus import BusPublisher, BusSubscriber
+    from acquisition.daemon import free_tcp_endpoint
+    from acquisition.workers import stripmap_worker
+    from imaging.imagefile import read_image
+    from imaging.rig import Rig
+
+    rec, radar, truth, order = drive
+    driver_ep, pose_ep, out_ep = free_tcp_endpoint(), free_tcp_endpoint(), free_tcp_endpoint()
+    frames_pub, poses_pub = BusPublisher(driver_ep), BusPublisher(pose_ep)
+    ctx = mp.get_context("spawn")
+    stop = ctx.Event()
+    map_path = tmp_path / "map.h5"
+    worker = ctx.Process(target=stripmap_worker, args=([driver_ep], out_ep, Rig((radar,)), None, StripMapConfig(presum=4),
+                                                       pose_ep, str(map_path), stop))
+    worker.start()
+    sub = BusSubscriber(out_ep, topics=["map/"])
+    time.sleep(3.0)  # the worker imports and connects
+    times = rec.frame_time_ns(RADAR)
+    iq = rec.file[f"radar/{RADAR}/adc"]
+    for k in range(20, 40):
+        frame = iq[k]
+        pub_iq = np.stack([frame.real, frame.imag], -1).round().astype(np.int16) if frame.dtype.kind == "c" else frame
+        frames_pub.publish(f"radar/{RADAR}", int(times[k]), [pub_iq], frame_counter=k, frame_time_ns=int(times[k]),
+                           receive_ns=time.time_ns(), valid=True)
+        t = np.arange(times[k] - 50_000_000, times[k] + 110_000_000, 10_000_000, dtype=np.int64)
+        s = truth.sample(t)
+        poses_pub.publish("pose", int(t[0]), [t, s.position_m, s.orientation_xyzw, s.velocity_mps])
+        time.sleep(0.05)
+    poses_pub.publish("pose/end", time.time_ns())
+    time.sleep(1.0)
+    stop.set()
+    tiles, status = {}, None
+    deadline = time.monotonic() + 30
+    while worker.is_alive() or time.monotonic() < deadline:
+        m = sub.receive(timeout_ms=300)
+        if m is None:
+            if not worker.is_alive():
+                break
+            continue
+        if m.topic == "map/tile":
+            tiles[tuple(m.header["key"])] = np.array(m.arrays[0])
+        elif m.topic == "map/status":
+            status = m.header
+    worker.join(30)
+    frames_pub.close(), poses_pub.close(), sub.close()
+    assert worker.exitcode == 0
+    assert status is not None and status["frames_imaged"] == 20 and status["max_lag_s"] > 0 and status["tiles"] == len(tiles)
+    img = read_image(map_path)
+    n = img.attrs["tile_px"]
+    x0 = min(k[0] for k in tiles) * n * 0.01
+    y0 = min(k[1] for k in tiles) * n * 0.01
+    for (ix, iy), tile in tiles.items():
+        c = int(round((ix * n * 0.01 - x0) / 0.01))
+        r = int(round((iy * n * 0.01 - y0) / 0.01))
+        np.testing.assert_allclose(img.image[r:r + n, c:c + n], tile, rtol=1e-6, atol=1e-6 * np.abs(tile).max())
