@@ -16,6 +16,8 @@ import struct
 
 import numpy as np
 
+from imaging.recording import iq_to_complex
+
 DATA_PORT = 4098
 CONFIG_PORT = 4096
 HEADER_BYTES = 10
@@ -45,14 +47,7 @@ def encode_data_packets(stream: bytes, start_seq: int = 1, start_byte: int = 0, 
 
 def decode_complex_1x(frame: bytes | np.ndarray, chirps: int, n_rx: int, samples: int) -> np.ndarray:
     """complex64 [chirps, n_rx, samples] from the xWR18xx complex-1x byte layout (Q0 Q1 I0 I1 words)."""
-    words = np.frombuffer(bytes(frame), dtype="<i2").astype(np.float32)
-    if words.size != 2 * chirps * n_rx * samples:
-        raise Dca1000Error(f"{words.size // 2} complex samples do not fill [{chirps}, {n_rx}, {samples}]")
-    quad = words.reshape(-1, 4)
-    out = np.empty((quad.shape[0], 2), np.complex64)
-    out[:, 0] = quad[:, 2] + 1j * quad[:, 0]
-    out[:, 1] = quad[:, 3] + 1j * quad[:, 1]
-    return out.reshape(chirps, n_rx, samples)
+    return iq_to_complex(complex_1x_to_iq(frame, chirps, n_rx, samples))
 
 
 @dataclasses.dataclass

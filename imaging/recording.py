@@ -38,6 +38,18 @@ def software_version() -> str:
         return "0+unknown"
 
 
+def iq_to_complex(iq: np.ndarray) -> np.ndarray:
+    """complex64 [...] from int16 I/Q pairs [..., 2] (the wire's and the file's raw form)."""
+    return (iq[..., 0].astype(np.float32) + 1j * iq[..., 1].astype(np.float32)).astype(np.complex64)
+
+
+def complex_to_iq(samples: np.ndarray, counts_per_unit: float = 1.0) -> np.ndarray:
+    """int16 I/Q pairs [..., 2] from complex samples scaled by ``counts_per_unit``, rounded and clipped
+    as an ADC would."""
+    iq = np.stack([samples.real, samples.imag], axis=-1) * counts_per_unit
+    return np.clip(np.round(iq), -32768, 32767).astype(np.int16)
+
+
 def _str_dtype():
     return h5py.string_dtype(encoding="utf-8")
 
@@ -345,19 +357,14 @@ class Recording:
         if ds.shape[0] == 0 and self.n_frames(name) > 0:
             raise FileFormatError(f"{self.path}: radar {name} delivers point clouds only (no ADC frames to image)")
         data = ds[frames]
-        if ds.dtype == np.int16:
-            data = data[..., 0].astype(np.float32) + 1j * data[..., 1].astype(np.float32)
-        return np.asarray(data, dtype=np.complex64)
+        return iq_to_complex(data) if ds.dtype == np.int16 else np.asarray(data, dtype=np.complex64)
 
     def adc_iq(self, name: str, frames: slice = slice(None)) -> np.ndarray:
         """ADC samples as int16 [F, chirps, rx, samples, 2] (I, Q), as the wire carries them; complex
         recordings are rounded and clipped to int16."""
         ds = self._radar_group(name)["adc"]
         data = ds[frames]
-        if ds.dtype == np.int16:
-            return data
-        iq = np.stack([data.real, data.imag], axis=-1)
-        return np.clip(np.round(iq), -32768, 32767).astype(np.int16)
+        return data if ds.dtype == np.int16 else complex_to_iq(data)
 
     def truth(self) -> SampledTrajectory | None:
         if "truth" not in self._f or self._f["truth/time_ns"].shape[0] < 2:

@@ -148,7 +148,7 @@ def simulate_recording(scene, path, *, frames_per_block: int = 16, progress=None
     dict
         Frames written per radar.
     """
-    from .recording import RecordingWriter
+    from .recording import RecordingWriter, complex_to_iq
     from .scene import frame_times_ns
 
     radars = [scene.rig.radar(name) for name in scene.radars]
@@ -167,7 +167,7 @@ def simulate_recording(scene, path, *, frames_per_block: int = 16, progress=None
         for r in radars:
             ft = times[r.name]
             wf = r.waveform
-            frame_end = int(round(wf.chirps_per_frame * wf.chirp_interval_s * 1e9))
+            frame_end = wf.frame_duration_ns
             host = ft + frame_end + RECEIVE_LATENCY_NS - TAI_MINUS_UTC_S * 1_000_000_000
             if detections:
                 _simulate_scans(writer, scene, r, ft, frame_end, host, rng)
@@ -183,7 +183,7 @@ def simulate_recording(scene, path, *, frames_per_block: int = 16, progress=None
                     intra_chirp_motion=scene.intra_chirp_motion, rng=rng,
                 )
                 if counts is not None:  # what the radar's ADC would deliver
-                    adc = np.clip(np.round(np.stack([adc.real, adc.imag], axis=-1) * counts), -32768, 32767).astype(np.int16)
+                    adc = complex_to_iq(adc, counts)
                 writer.append_frames(r.name, adc, block, np.arange(b, b + block.size), host[b:b + block.size])
                 writer.flush()
                 done += block.size

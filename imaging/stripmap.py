@@ -87,7 +87,7 @@ def presum_phase_spread_rad(config: StripMapConfig, radar: RadarConfig, speed_mp
 def max_presum(config: StripMapConfig, radar: RadarConfig, speed_mps: float, max_spread_rad: float = math.pi / 4) -> int:
     """The largest pre-summing factor (dividing the chirps per TX) whose phase spread stays within
     ``max_spread_rad`` (pi/4: under 3 % amplitude loss at the widest squint)."""
-    per_tx = radar.waveform.chirps_per_frame // radar.waveform.n_tx
+    per_tx = radar.waveform.chirps_per_tx
     best = 1
     for p in range(1, per_tx + 1):
         if per_tx % p == 0 and presum_phase_spread_rad(dataclasses.replace(config, presum=p), radar, speed_mps) <= max_spread_rad:
@@ -182,7 +182,7 @@ class StripMap:
         """Backproject one frame (complex [chirps, rx, samples]) into the map; returns the tiles it changed."""
         cfg = self.config
         wf = radar.waveform
-        mid = frame_time_ns + int(wf.chirps_per_frame * wf.chirp_interval_s * 0.5e9)
+        mid = frame_time_ns + wf.frame_duration_ns // 2
         if np.linalg.norm(trajectory.sample(np.array([mid])).velocity_mps[0, :2]) < cfg.min_speed_mps:
             self.frames_standing += 1
             return FrameFootprint([], 0, skipped="standing still")

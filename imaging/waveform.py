@@ -95,6 +95,11 @@ class Waveform:
         return SPEED_OF_LIGHT_MPS / self.f0_hz
 
     @property
+    def frame_duration_ns(self) -> int:
+        """From the first chirp's start to the end of the last chirp interval, ns."""
+        return int(round(self.chirps_per_frame * self.chirp_interval_s * 1e9))
+
+    @property
     def chirps_per_tx(self) -> int:
         return self.chirps_per_frame // self.n_tx
 

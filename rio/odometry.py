@@ -267,7 +267,7 @@ def _scans_from_adc(rec: Recording, name: str, config, time_offset_ns: int, poin
     pc_config = pointcloud_config or PointCloudConfig()
     wf = config.waveform
     tx_order = rec.tdm_tx_order(name)
-    half_frame = int(round(wf.chirps_per_frame * wf.chirp_interval_s * 1e9 / 2))
+    half_frame = wf.frame_duration_ns // 2
     n = rec.n_frames(name)
     out = []
     for start in range(0, n, 32):
