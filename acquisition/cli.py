@@ -312,19 +312,24 @@ def record_setup(args):
                  min_free_bytes=_size_bytes(args.min_free, "--min-free"), health_endpoint=args.health_endpoint)
 
 
-def cmd_record(args) -> int:
+def _record(setup, out: Path, duration_s: float | None, extra_paths=(), **kwargs) -> int:
+    """Run the daemon (``record`` and ``run``); say what it wrote, or that the disk filled up."""
     from .daemon import record
     from .recorder import DiskFullError
 
-    setup = record_setup(args)
     try:
-        paths = record(setup, Path(args.output), duration_s=args.duration)
+        paths = record(setup, out, duration_s=duration_s, **kwargs)
     except DiskFullError as exc:
         print(f"sarbot: error: {exc.strerror} (the file holds everything up to the last flush)", file=sys.stderr)
         return EXIT_DISK_FULL
-    for path in paths:
-        print(f"wrote {path}")
+    for path in [*paths, *extra_paths]:
+        if path.exists():
+            print(f"wrote {path}")
     return EXIT_OK
+
+
+def cmd_record(args) -> int:
+    return _record(record_setup(args), Path(args.output), args.duration)
 
 
 def run_workers(setup, args, out_dir: Path, stamp: str):
@@ -362,24 +367,14 @@ def _names(text: str | None, option: str, known: set[str]) -> list[str]:
 def cmd_run(args) -> int:
     import time
 
-    from .daemon import record
-    from .recorder import DiskFullError
-
     setup = record_setup(args)
     stamp = time.strftime("%Y%m%dT%H%M%S")
     out = Path(args.output)
     traj_path, map_path, config = run_workers(setup, args, out, stamp)
     print(f"sarbot run: strip map {config.pixel_m * 100:g} cm pixels, aperture {config.aperture_m} m, "
           f"pre-summing {config.presum}")
-    try:
-        paths = record(setup, out, duration_s=args.duration, path=out / f"recording_{stamp}.h5")
-    except DiskFullError as exc:
-        print(f"sarbot: error: {exc.strerror} (the file holds everything up to the last flush)", file=sys.stderr)
-        return EXIT_DISK_FULL
-    for path in [*paths, traj_path, map_path, map_path.with_suffix(".png")]:
-        if path.exists():
-            print(f"wrote {path}")
-    return EXIT_OK
+    return _record(setup, out, args.duration, (traj_path, map_path, map_path.with_suffix(".png")),
+                   path=out / f"recording_{stamp}.h5")
 
 
 def cmd_replay(args) -> int:

@@ -37,10 +37,15 @@ from .sdnotify import notify, watchdog_interval_s
 log = logging.getLogger("sarbot.daemon")
 
 
-def free_tcp_endpoint() -> str:
-    with socket.socket() as s:
+def free_port(kind: int = socket.SOCK_STREAM) -> int:
+    """A loopback port free at the moment of asking (TCP by default, or socket.SOCK_DGRAM)."""
+    with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
-        return f"tcp://127.0.0.1:{s.getsockname()[1]}"
+        return s.getsockname()[1]
+
+
+def free_tcp_endpoint() -> str:
+    return f"tcp://127.0.0.1:{free_port()}"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -388,11 +393,11 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
         sent = {}
         failures = []
 
-        def run(key, fn, *args):
+        def send_can(t0_ns):
             try:
-                sent[key] = fn(*args)
-            except Exception as exc:  # reported below, after the other senders finish
-                failures.append(f"{key}: {exc}")
+                sent["can"] = replay_can(rec, can_bus, speed, t0_ns)
+            except Exception as exc:  # reported below, after the radars finish
+                failures.append(f"can: {exc}")
 
         # One process per radar, as on the robot: threads would share one interpreter with the IMU
         # emulator, and its 400 Hz packets would come late whenever the radars send a frame.
@@ -410,16 +415,15 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
                 failures.append(f"{key}: {value}")
         start.value = time.monotonic() + 0.1
         go.set()
-        threads = []
+        can_thread = None
         if can_bus is not None:
             firsts = [int(rec.frame_time_ns(n)[0]) for n in radar_targets if rec.n_frames(n)]
-            t0 = min(firsts) if firsts else None
-            threads.append(threading.Thread(target=run, args=("can", replay_can, rec, can_bus, speed, t0)))
+            can_thread = threading.Thread(target=send_can, args=(min(firsts) if firsts else None,))
         if emu is not None:
             time.sleep(max(start.value - time.monotonic(), 0.0))
             emu.start()
-        for t in threads:
-            t.start()
+        if can_thread is not None:
+            can_thread.start()
         for name, proc in procs.items():
             proc.join()
             if proc.exitcode != 0:
@@ -433,9 +437,8 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
                 failures.append(f"{key}: {value}")
             else:
                 sent[key] = value
-        for t in threads:
-            t.join()
-        if can_bus is not None:
+        if can_thread is not None:
+            can_thread.join()
             time.sleep(0.2)  # frames still in flight on the emulated bus
             can_bus.shutdown()
         if emu is not None:

@@ -32,6 +32,7 @@ from imaging.stripmap import StripMapConfig
 from imaging.targets import CornerReflector, Rod
 from imaging.trajectory_file import read_trajectory
 
+from .paper import label_of, target_xy
 from .progress import Progress
 
 log = logging.getLogger("sarbot.demo")
@@ -40,25 +41,15 @@ SCENE = "demo_room"
 APERTURE_M = 0.3
 
 
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _targets_in_start_frame(scene) -> list[tuple[str, np.ndarray]]:
     """Where the rod face and the reflector are in the world frame of the run (origin at the start pose)."""
     start = scene.trajectory.sample(np.array([scene.start_time_ns]))
     rot = start.rotation.inv()
     out = []
     for t in scene.targets:
-        if isinstance(t, Rod):
-            p, label = np.array([t.position_m[0], t.position_m[1] - t.radius_m, 0.3]), "rod"
-        elif isinstance(t, CornerReflector):
-            p, label = np.asarray(t.position_m, float), "corner reflector"
-        else:
-            continue
-        out.append((label, rot.apply(p - start.position_m[0])[0]))
+        if isinstance(t, (Rod, CornerReflector)):
+            p = np.array([*target_xy(t), 0.3])  # the map plane, at the radars' height
+            out.append((label_of(t), rot.apply(p - start.position_m[0])[0]))
     return out
 
 
@@ -71,7 +62,7 @@ def _emulate_hardware(sim_path: str, targets: dict, imu_link: str, speed: float,
 def run_demo(out_dir: Path, speed: float = 0.5) -> int:
     from drivers.can_driver import CanConfig
 
-    from .daemon import RadarLink, Setup, record
+    from .daemon import RadarLink, Setup, free_port, record
     from .workers import add_pipeline_workers
 
     t_start = time.monotonic()
@@ -85,8 +76,8 @@ def run_demo(out_dir: Path, speed: float = 0.5) -> int:
     simulate_recording(scene, sim_path, progress=Progress("simulate"), overwrite=True)
 
     rig = scene.rig
-    links = [RadarLink(name, _free_udp_port()) for name in scene.radars]
-    can = CanConfig("udp_multicast", "239.74.163.2", options={"port": _free_udp_port()})
+    links = [RadarLink(name, free_port(socket.SOCK_DGRAM)) for name in scene.radars]
+    can = CanConfig("udp_multicast", "239.74.163.2", options={"port": free_port(socket.SOCK_DGRAM)})
     imu_link = out_dir / "imu_tty"
     setup = Setup(rig, links, str(imu_link), can, health_interval_s=1.0)
     config = StripMapConfig(aperture_m=APERTURE_M, range_min_m=1.0, range_max_m=4.0, z_m=0.3)

@@ -310,11 +310,10 @@ class Paper:
             # The error that defocuses: along the look direction (world +y here), after removing the best
             # line over each aperture (a constant offset and a linear drift only shift the image).
             rows = []
+            with Recording(path) as rec:
+                broadside = [(t, broadside_time_ns(rec, scene.trajectory, target_xy(t))) for t in scene.targets[:2]]
             for la in self.apertures:
-                for t in scene.targets[:2]:
-                    xy = target_xy(t)
-                    with Recording(path) as rec:
-                        t_mid = broadside_time_ns(rec, scene.trajectory, xy)
+                for t, t_mid in broadside:
                     half = int(la / (2 * v) * 1e9)
                     tt = np.linspace(t_mid - half, t_mid + half, 200).astype(np.int64)
                     e = res.trajectory.sample(tt).position_m[:, 1] - scene.trajectory.sample(tt).position_m[:, 1]

@@ -100,6 +100,15 @@ def publish_imu_samples(pub: BusPublisher, samples, clock_drift_ppm: float | Non
         np.array([s.host_time_ns for s in samples], np.int64)], clock_drift_ppm=clock_drift_ppm)
 
 
+def _wait_until(start_monotonic: float, offset_ns: int, speed: float | None) -> None:
+    """Sleep until ``offset_ns`` of recording time after ``start_monotonic``, at ``speed`` x real time (None or
+    0: do not wait)."""
+    if speed:
+        wait = start_monotonic + offset_ns * 1e-9 / speed - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+
+
 def replay_radar(recording: Recording, radar: str, address, speed: float | None = 1.0, radar_id: int = 0,
                  start_monotonic: float | None = None) -> int:
     """Send a radar's frames to ``address`` in the wire format it was recorded in (SRF1 datagrams, or the
@@ -117,10 +126,7 @@ def replay_radar(recording: Recording, radar: str, address, speed: float | None 
     seq = 1
     stream_bytes = 0
     for k in range(times.size):
-        if speed:
-            wait = t0 + (times[k] - times[0]) * 1e-9 / speed - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)
+        _wait_until(t0, times[k] - times[0], speed)
         iq = recording.adc_iq(radar, slice(k, k + 1))[0]
         if dca1000:
             wire = iq_to_complex_1x(iq)
@@ -147,10 +153,7 @@ def replay_can(recording: Recording, bus, speed: float | None = 1.0, t0_ns: int 
     t_ref = rows["time_ns"][0] if t0_ns is None else t0_ns
     start = time.monotonic()
     for t, ident, dlc, data in zip(rows["time_ns"], rows["arbitration_id"], rows["dlc"], rows["data"]):
-        if speed:
-            wait = start + (t - t_ref) * 1e-9 / speed - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)
+        _wait_until(start, t - t_ref, speed)
         bus.send(message_from_row(ident, dlc, data))
     return int(rows["time_ns"].size)
 
@@ -161,10 +164,7 @@ def replay_pcap(path, address, dst_port: int, speed: float | None = 1.0) -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         start = time.monotonic()
         for d in datagrams:
-            if speed:
-                wait = start + (d.time_ns - datagrams[0].time_ns) * 1e-9 / speed - time.monotonic()
-                if wait > 0:
-                    time.sleep(wait)
+            _wait_until(start, d.time_ns - datagrams[0].time_ns, speed)
             sock.sendto(d.payload, address)
     return len(datagrams)
 

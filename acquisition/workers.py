@@ -20,16 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
+from imaging.recording import iq_to_complex
 from imaging.rig import Rig
 
 log = logging.getLogger("sarbot.workers")
 
 #: How far back the strip-map worker keeps poses (enough for frames waiting on the odometry's hold-back).
 POSE_WINDOW_NS = 5_000_000_000
-
-
-def _complex(iq: np.ndarray) -> np.ndarray:
-    return iq[..., 0].astype(np.float32) + 1j * iq[..., 1].astype(np.float32)
 
 
 def rio_worker(driver_endpoints: list[str], endpoint: str, rig: Rig, radars: list[str] | None, trajectory_path: str,
@@ -52,8 +49,7 @@ def rio_worker(driver_endpoints: list[str], endpoint: str, rig: Rig, radars: lis
     pub = BusPublisher(endpoint)
     configs = {r.name: r for r in rig.radars if r.name in use}
     orders = {name: np.asarray(r.waveform.tdm_tx_order()) for name, r in configs.items()}
-    half_frame = {name: int(round(r.waveform.chirps_per_frame * r.waveform.chirp_interval_s * 1e9 / 2))
-                  for name, r in configs.items()}
+    half_frame = {name: r.waveform.frame_duration_ns // 2 for name, r in configs.items()}
     rio = StreamingRio(RioOptions(), imu_rate_hz=rig.imu.rate_hz)
     pc_config = PointCloudConfig()
     kept = []
@@ -80,7 +76,7 @@ def rio_worker(driver_endpoints: list[str], endpoint: str, rig: Rig, radars: lis
         if (time.time_ns() - int(msg.header["receive_ns"])) * 1e-9 > max_lag_s:
             rio.stats["scans_skipped_behind"] += 1
             return
-        pc = detect(_complex(msg.arrays[0]), configs[name], orders[name], pc_config)
+        pc = detect(iq_to_complex(msg.arrays[0]), configs[name], orders[name], pc_config)
         publish(rio.add_scan(RadarScan(int(msg.header["frame_time_ns"]) + half_frame[name], name,
                                        configs[name].mount, pc.xyz_m, pc.doppler_mps)))
 
@@ -134,7 +130,7 @@ def stripmap_worker(driver_endpoints: list[str], endpoint: str, rig: Rig, radars
     pub = BusPublisher(endpoint)
     configs = {r.name: r for r in rig.radars if r.name in use}
     orders = {name: np.asarray(r.waveform.tdm_tx_order()) for name, r in configs.items()}
-    frame_ns = {name: int(r.waveform.chirps_per_frame * r.waveform.chirp_interval_s * 1e9) for name, r in configs.items()}
+    frame_ns = {name: r.waveform.frame_duration_ns for name, r in configs.items()}
     sm = StripMap(config)
     status = StripMapStatus()
     poses: collections.deque = collections.deque()  # batches (t, p, q, v)
@@ -148,6 +144,26 @@ def stripmap_worker(driver_endpoints: list[str], endpoint: str, rig: Rig, radars
         keep = t > poses[-1][0][-1] if poses else np.ones(t.size, bool)
         if keep.any():
             poses.append(tuple(np.array(a[keep]) for a in arrays))
+
+    def take(msg, live: bool) -> None:
+        """A pose batch or a radar frame off the bus. Live, the pose window and the frame queue are kept
+        bounded; when draining at the end, everything is kept for the last imaging pass."""
+        if msg.topic == "pose":
+            add_poses(msg.arrays)
+            while live and len(poses) > 2 and poses[-1][0][-1] - poses[1][0][0] > POSE_WINDOW_NS:
+                poses.popleft()
+            return
+        name = msg.topic.split("/", 1)[1]
+        if name not in configs:
+            return
+        if not msg.header["valid"]:
+            status.frames_skipped_invalid += 1
+            return
+        frames.append((name, np.array(msg.arrays[0]), int(msg.header["frame_time_ns"]), int(msg.header["receive_ns"])))
+        # Never fall more than max_queue_s behind: the oldest frames go (counted).
+        while live and (frames[-1][2] - frames[0][2]) * 1e-9 > max_queue_s:
+            frames.popleft()
+            status.frames_dropped_behind += 1
 
     def trajectory():
         t = np.concatenate([b[0] for b in poses])
@@ -173,7 +189,7 @@ def stripmap_worker(driver_endpoints: list[str], endpoint: str, rig: Rig, radars
             if traj is None:
                 return
             t0 = time.monotonic()
-            footprint = sm.add_frame(configs[name], orders[name], _complex(iq), t_frame, traj)
+            footprint = sm.add_frame(configs[name], orders[name], iq_to_complex(iq), t_frame, traj)
             changed.update(footprint.tiles)
             status.busy_s += time.monotonic() - t0
             if footprint.skipped:
@@ -194,22 +210,7 @@ def stripmap_worker(driver_endpoints: list[str], endpoint: str, rig: Rig, radars
         while not stop.is_set():
             msg = sub.receive(timeout_ms=50)
             if msg is not None:
-                if msg.topic == "pose":
-                    add_poses(msg.arrays)
-                    while len(poses) > 2 and poses[-1][0][-1] - poses[1][0][0] > POSE_WINDOW_NS:
-                        poses.popleft()
-                else:
-                    name = msg.topic.split("/", 1)[1]
-                    if name in configs:
-                        if not msg.header["valid"]:
-                            status.frames_skipped_invalid += 1
-                        else:
-                            frames.append((name, np.array(msg.arrays[0]), int(msg.header["frame_time_ns"]),
-                                           int(msg.header["receive_ns"])))
-                            # Never fall more than max_queue_s behind: the oldest frames go (counted).
-                            while (frames[-1][2] - frames[0][2]) * 1e-9 > max_queue_s:
-                                frames.popleft()
-                                status.frames_dropped_behind += 1
+                take(msg, live=True)
             image_ready()
             if time.monotonic() - last_publish > 0.5:
                 publish_tiles()
@@ -222,19 +223,14 @@ def stripmap_worker(driver_endpoints: list[str], endpoint: str, rig: Rig, radars
                 continue
             if msg.topic == "pose/end":
                 break
-            if msg.topic == "pose":
-                add_poses(msg.arrays)
-            elif msg.topic.split("/", 1)[1] in configs and msg.header["valid"]:
-                name = msg.topic.split("/", 1)[1]
-                frames.append((name, np.array(msg.arrays[0]), int(msg.header["frame_time_ns"]),
-                               int(msg.header["receive_ns"])))
+            take(msg, live=False)
         image_ready(final=True)
         publish_tiles()
     finally:
         if sm.tiles:
             img = sm.to_image({"radars": ",".join(sorted(configs)), "trajectory_source": "rio",
                                "wavelength_m": float(np.mean([r.waveform.wavelength_m for r in configs.values()])),
-                               **{k: v for k, v in dataclasses.asdict(status).items()}})
+                               **dataclasses.asdict(status)})
             write_image(map_path, img)
             save_image_png(Path(map_path).with_suffix(".png"), img.image, img.x_m, img.y_m,
                            title=f"strip map, {status.frames_imaged} frames, aperture {config.aperture_m} m")

@@ -33,18 +33,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from acquisition.bus import BusSubscriber  # noqa: E402
+from acquisition.daemon import free_port, free_tcp_endpoint  # noqa: E402
 from drivers.srf1 import encode_frame  # noqa: E402
 from imaging.recording import Recording  # noqa: E402
 from imaging.rig import default_rig  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 CLK_TCK = os.sysconf("SC_CLK_TCK")
-
-
-def free_port(kind=socket.SOCK_DGRAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def cpu_seconds(pid: int) -> float:
@@ -108,8 +103,8 @@ def main(argv: list[str]) -> int:
     wf = rig.radars[0].waveform
     shape = (wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp, 2)
     frame_bytes = int(np.prod(shape)) * 2
-    ports = {r.name: free_port() for r in rig.radars}
-    health_endpoint = f"tcp://127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    ports = {r.name: free_port(socket.SOCK_DGRAM) for r in rig.radars}
+    health_endpoint = free_tcp_endpoint()
     work = Path(tempfile.mkdtemp(prefix="sarbot-bench-acq-"))
     cmd = [sys.executable, "-m", "acquisition.cli", "record", "--config", str(ROOT / "imaging/rigs/default.toml"),
            "-o", str(work), "--health-endpoint", health_endpoint, "--min-free", "2G",

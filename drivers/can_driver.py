@@ -87,11 +87,6 @@ def trigger_time_ns(arbitration_payload: bytes, receive_time_ns: int) -> int:
     return receive_time_ns
 
 
-def trigger_message(time_ns: int, trigger_id: int = DEFAULT_TRIGGER_ID) -> can.Message:
-    """The sync box's trigger frame for ``time_ns`` (for emulation and simulation)."""
-    return can.Message(arbitration_id=trigger_id, data=struct.pack("<Q", time_ns), is_extended_id=trigger_id > 0x7FF)
-
-
 def message_from_row(arbitration_id: int, dlc: int, data: np.ndarray) -> can.Message:
     """A stored /can row back into a frame (CAN FD when longer than 8 bytes)."""
     ident, dlc = int(arbitration_id), int(dlc)

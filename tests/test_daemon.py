@@ -16,6 +16,7 @@ import pytest
 import zmq
 
 from acquisition.bus import BusSubscriber
+from acquisition.daemon import free_port, free_tcp_endpoint
 from conftest import SHARED_DATA
 from drivers.ti_cfg import load_ti_cfg
 from imaging.base_simulator import simulate_base_can
@@ -28,12 +29,6 @@ from test_round_trip import make_source
 
 CLI = [sys.executable, "-m", "acquisition.cli"]
 CFG = SHARED_DATA / "dca1000_iwr1843_one_frame" / "xwr18xx_profile.cfg"
-
-
-def free_port(kind=socket.SOCK_DGRAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def make_dca1000_source(path, n_frames=20):
@@ -55,8 +50,8 @@ def test_dca1000_and_can_replayed_into_record_split_in_parts_with_health_on_the_
     iq, base = make_dca1000_source(src)
     rig = tmp_path / "rig.toml"
     rig.write_text("[radar.iwr]\nmount_translation_m = [0.1, 0.2, 0.3]\nmount_yaw_deg = 90.0\n")
-    port, can_port = free_port(), free_port()
-    health_endpoint = f"tcp://127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    port, can_port = free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_DGRAM)
+    health_endpoint = free_tcp_endpoint()
     can = ["--can", "udp_multicast:239.74.163.2", "--can-arg", f"port={can_port}"]
     ctx = zmq.Context()
     health = []
@@ -112,7 +107,7 @@ def test_record_killed_with_sigkill_keeps_what_it_flushed_and_takes_its_drivers_
     iq, _ = make_source(src, n_frames=60)
     rig = tmp_path / "rig.toml"
     rig.write_text(RIG_TOML)
-    port = free_port()
+    port = free_port(socket.SOCK_DGRAM)
     replay = subprocess.Popen([*CLI, "replay", str(src), "--radar", f"left=127.0.0.1:{port}", "--start-delay", "4"],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     record = subprocess.Popen([*CLI, "record", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar", f"left={port}"],
@@ -166,7 +161,7 @@ def test_a_full_disk_stops_recording_cleanly_and_keeps_the_file_readable(tmp_pat
     iq, _ = make_source(src, n_frames=60)  # 5.4 MB of frames for a 4 MB disk
     rig = tmp_path / "rig.toml"
     rig.write_text(RIG_TOML)
-    port = free_port()
+    port = free_port(socket.SOCK_DGRAM)
     disk = tmp_path / "disk"
     kept = tmp_path / "kept"
     disk.mkdir()
