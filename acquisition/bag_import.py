@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from imaging.errors import FileFormatError, SarbotError
-from imaging.recording import RecordingWriter
-from imaging.rig import AntennaArray, ImuConfig, Mount, RadarConfig
-from imaging.waveform import Waveform
+from imaging.core.errors import FileFormatError, SarbotError
+from imaging.core.rig import AntennaArray, ImuConfig, Mount, RadarConfig
+from imaging.core.waveform import Waveform
+from imaging.io.recording import RecordingWriter
 
 log = logging.getLogger(__name__)
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imaging.errors import SarbotError
+from imaging.core.errors import SarbotError
 
 log = logging.getLogger("sarbot")
 
@@ -66,8 +66,8 @@ def _json_default(obj):
 
 # -- commands -------------------------------------------------------------------------------------------
 def cmd_simulate(args) -> int:
-    from imaging.scene import builtin_scene_names, load_scene
-    from imaging.simulator import simulate_recording
+    from imaging.sim.scene import builtin_scene_names, load_scene
+    from imaging.sim.simulator import simulate_recording
 
     from .progress import Progress
 
@@ -88,12 +88,12 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_image(args) -> int:
-    from imaging.grid import Grid
+    from imaging.core.grid import Grid
     from imaging.image_formation import ImagingOptions, form_image
-    from imaging.imagefile import write_image
+    from imaging.io.image_file import write_image
+    from imaging.io.recording import Recording
+    from imaging.io.trajectory_file import read_trajectory
     from imaging.plot import save_image_png
-    from imaging.recording import Recording
-    from imaging.trajectory_file import read_trajectory
 
     from .progress import Progress
 
@@ -124,7 +124,7 @@ def cmd_image(args) -> int:
 
 def cmd_analyze(args) -> int:
     from imaging import metrics
-    from imaging.imagefile import read_image
+    from imaging.io.image_file import read_image
 
     results = []
     for name in args.images:
@@ -176,10 +176,15 @@ def cmd_analyze(args) -> int:
 
 
 def cmd_rio(args) -> int:
-    from imaging.recording import Recording
-    from imaging.trajectory_file import write_trajectory, write_tum
+    from imaging.io.recording import Recording
+    from imaging.io.trajectory_file import write_trajectory, write_tum
     from rio.ekf import EkfConfig
-    from rio.odometry import RioOptions, imu_from_recording, run_rio, scans_from_recording
+    from rio.odometry import (
+        RioOptions,
+        imu_from_recording,
+        run_rio,
+        scans_from_recording,
+    )
 
     from .progress import Progress
 
@@ -282,7 +287,7 @@ def _size_bytes(text: str | None, option: str = "--split-size") -> int | None:
 def record_setup(args):
     """The daemon's Setup from record/run options (shared by both commands)."""
     from drivers.ti_cfg import load_ti_cfg
-    from imaging.rig import AntennaArray, RadarConfig, Rig, load_rig
+    from imaging.core.rig import AntennaArray, RadarConfig, Rig, load_rig
 
     from .daemon import RadarLink, Setup
 

@@ -26,12 +26,11 @@ import numpy as np
 from drivers.can_driver import CanConfig
 from drivers.radar_stream import WIRE_FORMATS
 from drivers.ti_cfg import TiRadarConfig
-from imaging.errors import ConfigError, SarbotError
-from imaging.recording import Recording
-from imaging.rig import Rig
+from imaging.core.errors import ConfigError, SarbotError
+from imaging.core.rig import Rig
+from imaging.io.recording import Recording
 
 from .recorder import DiskFullError
-
 from .sdnotify import notify, watchdog_interval_s
 
 log = logging.getLogger("sarbot.daemon")

@@ -22,15 +22,15 @@ from pathlib import Path
 import numpy as np
 
 from imaging import metrics
-from imaging.errors import SarbotError
-from imaging.imagefile import read_image
+from imaging.core.errors import SarbotError
+from imaging.io.image_file import read_image
+from imaging.io.recording import Recording
+from imaging.io.trajectory_file import read_trajectory
 from imaging.plot import save_image_png
-from imaging.recording import Recording
-from imaging.scene import load_scene
-from imaging.simulator import simulate_recording
+from imaging.sim.scene import load_scene
+from imaging.sim.simulator import simulate_recording
+from imaging.sim.targets import CornerReflector, Rod
 from imaging.stripmap import StripMapConfig
-from imaging.targets import CornerReflector, Rod
-from imaging.trajectory_file import read_trajectory
 
 from .paper import label_of, target_xy
 from .progress import Progress
@@ -156,7 +156,7 @@ def evaluate(scene, sim_path, rec_path, traj_path, map_path, health, config) -> 
     start = truth.sample(np.array([scene.start_time_ns]))
     traj = read_trajectory(traj_path)
     # The run's world frame starts at the start pose; the simulation's truth starts where the scene says.
-    from imaging.trajectory import SampledTrajectory
+    from imaging.core.trajectory import SampledTrajectory
 
     rot = start.rotation.inv()
     shifted = SampledTrajectory(truth.time_ns, rot.apply(truth.position_m - start.position_m[0]),

@@ -30,14 +30,14 @@ from pathlib import Path
 import numpy as np
 
 from imaging import metrics
-from imaging.geometry import Vibration, antenna_track, chirp_times_ns
-from imaging.grid import Grid
+from imaging.core.geometry import Vibration, antenna_track, chirp_times_ns
+from imaging.core.grid import Grid
+from imaging.core.trajectory import SampledTrajectory, StraightLine
 from imaging.image_formation import ImagingOptions, form_image
-from imaging.recording import Recording
-from imaging.scene import load_scene
-from imaging.simulator import simulate_recording
-from imaging.targets import CornerReflector, PointTarget, Rod
-from imaging.trajectory import SampledTrajectory, StraightLine
+from imaging.io.recording import Recording
+from imaging.sim.scene import load_scene
+from imaging.sim.simulator import simulate_recording
+from imaging.sim.targets import CornerReflector, PointTarget, Rod
 
 from .progress import Progress
 
@@ -288,7 +288,12 @@ class Paper:
     # 5 -------------------------------------------------------------------------------------------------
     def rio(self) -> dict:
         """The passes of study 2 driven by a robot with an IMU and clutter around, imaged on RIO."""
-        from rio.odometry import RioOptions, imu_from_recording, run_rio, scans_from_recording
+        from rio.odometry import (
+            RioOptions,
+            imu_from_recording,
+            run_rio,
+            scans_from_recording,
+        )
 
         base = load_scene("demo_room")
         self.rio_scenes, paths, trajs, errors = {}, {}, {}, {}

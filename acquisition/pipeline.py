@@ -19,7 +19,7 @@ from drivers.pcap import read_udp
 from drivers.radar_stream import trouble
 from drivers.srf1 import encode_frame
 from drivers.udp import UdpReceiver
-from imaging.recording import Recording
+from imaging.io.recording import Recording
 
 from .bus import BusPublisher
 from .recorder import publish_frame

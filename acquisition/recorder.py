@@ -16,9 +16,8 @@ import threading
 import time
 from pathlib import Path
 
-
-from imaging.recording import RecordingWriter
-from imaging.rig import Rig
+from imaging.core.rig import Rig
+from imaging.io.recording import RecordingWriter
 
 from .bus import BusSubscriber
 

@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from imaging.recording import iq_to_complex
-from imaging.rig import Rig
+from imaging.core.rig import Rig
+from imaging.core.samples import iq_to_complex
 
 log = logging.getLogger("sarbot.workers")
 
@@ -34,8 +34,8 @@ def rio_worker(driver_endpoints: list[str], endpoint: str, rig: Rig, radars: lis
     """Point clouds of at most ``scan_rate_hz`` frames per radar (ego velocity needs no more, and each costs
     about 10 ms); a frame that reaches the worker more than ``max_lag_s`` late is skipped (counted) so the
     odometry stays current when the machine is busy. The IMU is never skipped."""
-    from imaging.trajectory import SampledTrajectory
-    from imaging.trajectory_file import write_trajectory
+    from imaging.core.trajectory import SampledTrajectory
+    from imaging.io.trajectory_file import write_trajectory
     from rio.odometry import RadarScan, RioOptions
     from rio.pointcloud import PointCloudConfig, detect
     from rio.streaming import StreamingRio
@@ -115,10 +115,10 @@ class StripMapStatus:
 
 def stripmap_worker(driver_endpoints: list[str], endpoint: str, rig: Rig, radars: list[str] | None, config,
                     pose_endpoint: str, map_path: str, stop, max_queue_s: float = 10.0) -> None:
-    from imaging.imagefile import write_image
+    from imaging.core.trajectory import SampledTrajectory
+    from imaging.io.image_file import write_image
     from imaging.plot import save_image_png
     from imaging.stripmap import StripMap
-    from imaging.trajectory import SampledTrajectory
 
     from .bus import BusPublisher, BusSubscriber
     from .daemon import _die_with_parent

@@ -35,8 +35,8 @@ sys.path.insert(0, str(ROOT))
 from acquisition.bus import BusSubscriber  # noqa: E402
 from acquisition.daemon import free_port, free_tcp_endpoint  # noqa: E402
 from drivers.srf1 import encode_frame  # noqa: E402
-from imaging.recording import Recording  # noqa: E402
-from imaging.rig import default_rig  # noqa: E402
+from imaging.core.rig import default_rig  # noqa: E402
+from imaging.io.recording import Recording  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 CLK_TCK = os.sysconf("SC_CLK_TCK")

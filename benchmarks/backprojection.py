@@ -27,14 +27,15 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
-from imaging.backprojection import BLOCK, backproject  # noqa: E402
-from imaging.geometry import antenna_track, chirp_times_ns  # noqa: E402
-from imaging.range_compression import range_compress  # noqa: E402
-from imaging.rig import default_rig  # noqa: E402
-from imaging.simulator import simulate_frames  # noqa: E402
-from imaging.targets import PointTarget  # noqa: E402
-from imaging.trajectory import StraightLine  # noqa: E402
 from reference_backprojection import backproject_reference  # noqa: E402
+
+from imaging.backprojection import BLOCK, backproject  # noqa: E402
+from imaging.core.geometry import antenna_track, chirp_times_ns  # noqa: E402
+from imaging.core.rig import default_rig  # noqa: E402
+from imaging.core.trajectory import StraightLine  # noqa: E402
+from imaging.range_compression import range_compress  # noqa: E402
+from imaging.sim.simulator import simulate_frames  # noqa: E402
+from imaging.sim.targets import PointTarget  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 #: Published figure for the best open CPU kernel we know (C++/OpenMP, linear interpolation, float32

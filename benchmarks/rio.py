@@ -22,13 +22,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from imaging.detection_simulator import DetectionModel, Person, room_scatterers  # noqa: E402
-from imaging.imu_simulator import ImuErrors  # noqa: E402
-from imaging.recording import Recording  # noqa: E402
-from imaging.rig import default_rig  # noqa: E402
-from imaging.scene import DEFAULT_START_TIME_NS, Scene  # noqa: E402
-from imaging.simulator import simulate_recording  # noqa: E402
-from imaging.trajectory import PathWithTurns  # noqa: E402
+from imaging.core.rig import default_rig  # noqa: E402
+from imaging.core.trajectory import PathWithTurns  # noqa: E402
+from imaging.io.recording import Recording  # noqa: E402
+from imaging.sim.detection_simulator import DetectionModel, Person, room_scatterers  # noqa: E402
+from imaging.sim.imu_simulator import ImuErrors  # noqa: E402
+from imaging.sim.scene import DEFAULT_START_TIME_NS, Scene  # noqa: E402
+from imaging.sim.simulator import simulate_recording  # noqa: E402
 from rio.ego_velocity import EgoVelocityConfig  # noqa: E402
 from rio.evaluation import drift_report  # noqa: E402
 from rio.odometry import RioOptions, imu_from_recording, run_rio, scans_from_recording  # noqa: E402

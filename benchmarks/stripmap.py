@@ -28,9 +28,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from imaging.recording import Recording  # noqa: E402
-from imaging.scene import load_scene  # noqa: E402
-from imaging.simulator import simulate_recording  # noqa: E402
+from imaging.io.recording import Recording  # noqa: E402
+from imaging.sim.scene import load_scene  # noqa: E402
+from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.stripmap import StripMap, StripMapConfig, max_presum  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"

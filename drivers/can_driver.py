@@ -15,12 +15,12 @@ import struct
 import can
 import numpy as np
 
-from imaging.errors import ConfigError
+from imaging.core.constants import CAN_TRIGGER_ID, TAI_MINUS_UTC_NS
+from imaging.core.errors import ConfigError
 
 #: Maximum CAN FD payload, the width of /can/data.
 MAX_DATA = 64
-DEFAULT_TRIGGER_ID = 0x100
-TAI_MINUS_UTC_NS = 37_000_000_000
+DEFAULT_TRIGGER_ID = CAN_TRIGGER_ID
 
 
 @dataclasses.dataclass(frozen=True)

@@ -16,7 +16,7 @@ import struct
 
 import numpy as np
 
-from imaging.recording import iq_to_complex
+from imaging.core.samples import iq_to_complex
 
 DATA_PORT = 4098
 CONFIG_PORT = 4096

@@ -7,7 +7,7 @@ import struct
 from pathlib import Path
 from typing import Iterator
 
-from imaging.errors import FileFormatError
+from imaging.core.errors import FileFormatError
 
 
 @dataclasses.dataclass

@@ -5,8 +5,8 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from imaging.errors import ConfigError
-from imaging.waveform import Waveform
+from imaging.core.errors import ConfigError
+from imaging.core.waveform import Waveform
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,7 +1,7 @@
-"""SAR imaging core: waveform and rig, simulator, range compression, backprojection, metrics.
+"""SAR imaging: range compression, backprojection, the streaming strip map, image formation and metrics.
 
-Pure computation on arrays and dataclasses; the only I/O is reading and writing the shared HDF5 file
-formats (``imaging.recording``, ``imaging.imagefile``). Nothing here opens a socket or starts a process.
+Sub-packages: ``imaging.core`` (what everything shares: errors, configuration, rig, waveform, trajectory,
+geometry, windows, constants, samples), ``imaging.io`` (the HDF5 file formats) and ``imaging.sim``
+(simulators and scenes). Pure computation on arrays and dataclasses; the only I/O is reading and writing
+the shared file formats. Nothing here opens a socket or starts a process.
 """
-
-SPEED_OF_LIGHT_MPS = 299_792_458.0

@@ -25,8 +25,8 @@ import math
 import numba
 import numpy as np
 
-from . import SPEED_OF_LIGHT_MPS
-from .range_compression import RangeProfiles
+from imaging.core.constants import SPEED_OF_LIGHT_MPS
+from imaging.range_compression import RangeProfiles
 
 MODES = ("nearest", "linear", "exact")
 BLOCK = 256  # grid points per work item: the accumulators (2 KiB) stay in L1 beside a profile row

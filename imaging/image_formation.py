@@ -7,15 +7,15 @@ import logging
 
 import numpy as np
 
-from .backprojection import backproject
-from .errors import SarbotError
-from .geometry import antenna_track, chirp_times_ns
-from .grid import Grid
-from .imagefile import SarImage
-from .range_compression import range_compress
-from .recording import Recording
-from .rig import RadarConfig
-from .trajectory import Trajectory
+from imaging.backprojection import backproject
+from imaging.core.errors import SarbotError
+from imaging.core.geometry import antenna_track, chirp_times_ns
+from imaging.core.grid import Grid
+from imaging.core.rig import RadarConfig
+from imaging.core.trajectory import Trajectory
+from imaging.io.image_file import SarImage
+from imaging.io.recording import Recording
+from imaging.range_compression import range_compress
 
 log = logging.getLogger(__name__)
 

@@ -13,8 +13,8 @@ import scipy.ndimage
 import scipy.optimize
 import scipy.special
 
-from . import SPEED_OF_LIGHT_MPS
-from .windows import half_power_width, window_width_factor
+from imaging.core.constants import SPEED_OF_LIGHT_MPS
+from imaging.core.windows import half_power_width, window_width_factor
 
 
 # -- theory -----------------------------------------------------------------------------------------

@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 import scipy.fft
 
-from . import SPEED_OF_LIGHT_MPS
-from .windows import get_window
+from imaging.core.constants import SPEED_OF_LIGHT_MPS
+from imaging.core.windows import get_window
 
 
 @dataclasses.dataclass

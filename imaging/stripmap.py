@@ -27,13 +27,13 @@ import math
 
 import numpy as np
 
-from .backprojection import backproject
-from .config import require
-from .geometry import antenna_track
-from .imagefile import SarImage
-from .range_compression import range_compress
-from .rig import RadarConfig
-from .trajectory import Trajectory
+from imaging.backprojection import backproject
+from imaging.core.config import require
+from imaging.core.geometry import antenna_track
+from imaging.core.rig import RadarConfig
+from imaging.core.trajectory import Trajectory
+from imaging.io.image_file import SarImage
+from imaging.range_compression import range_compress
 
 MODES = ("nearest", "linear", "exact")
 
@@ -236,7 +236,7 @@ class StripMap:
         return image, x, y
 
     def to_image(self, attrs: dict | None = None) -> SarImage:
-        """The map in the image schema (``imaging.imagefile``)."""
+        """The map in the image schema (``imaging.io.image_file``)."""
         image, x, y = self.mosaic()
         cfg = self.config
         meta = {"method": f"stripmap-tdbp-{cfg.mode}", "aperture_limit_m": cfg.aperture_m,

@@ -15,6 +15,7 @@ import math
 import numba
 import numpy as np
 
+from imaging.core.constants import CHI2_999
 
 #: Variance given to a velocity component the radar does not measure (m/s)^2.
 UNMEASURED_VARIANCE = 100.0
@@ -40,7 +41,7 @@ class EgoVelocityConfig:
     min_inlier_ratio: float = 0.35
     zero_velocity_threshold_mps: float = 0.03
     zero_velocity_ratio: float = 0.6
-    creep_chi2: float = 16.27  # 99.9 % of chi2(3): a near-zero velocity this far from zero is creeping, not standing
+    creep_chi2: float = CHI2_999[3]  # 99.9 % of chi2(3): a near-zero velocity this far from zero is creeping, not standing
     max_sigma_mps: float = 0.15
     max_condition: float = 1e4
     min_sigma_mps: float = 0.01  # floor on the per-detection Doppler noise used for the covariance
@@ -270,7 +271,7 @@ def body_velocity(scans, angular_velocity_body_radps: np.ndarray, config: EgoVel
                   rng: np.random.Generator | None = None) -> EgoVelocity:
     """Body-frame velocity from several radars' detections at (nearly) the same time.
 
-    ``scans``: sequence of (mount, xyz_m [D, 3], doppler_mps [D]) with ``mount`` an imaging.rig.Mount.
+    ``scans``: sequence of (mount, xyz_m [D, 3], doppler_mps [D]) with ``mount`` an imaging.core.rig.Mount.
     Each detection: d = -u . R_m^T (v_b + w x l)  ->  (-u^T R_m^T) v_b = d + u . R_m^T (w x l).
     """
     rows, rhs = [], []

@@ -16,9 +16,9 @@ import numba
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-GRAVITY = np.array([0.0, 0.0, -9.80665])
-#: 99.9 % chi-square quantiles, by degrees of freedom.
-CHI2_999 = {1: 10.83, 2: 13.82, 3: 16.27}
+from imaging.core.constants import CHI2_999, GRAVITY_MPS2
+
+GRAVITY = np.array([0.0, 0.0, -GRAVITY_MPS2])
 
 
 def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -97,7 +97,7 @@ def _strapdown(p, v, R, P, f, w, dt, q_density):
     """One IMU step: nominal state (bias-corrected specific force f and rate w held over dt) and covariance
     P <- F P F^T + Q dt for the error state [dp, dv, dtheta, dba, dbg]."""
     a = R @ f
-    a[2] -= 9.80665
+    a[2] -= GRAVITY_MPS2
     p_new = p + v * dt + 0.5 * a * dt * dt
     v_new = v + a * dt
     R_new = R @ _exp_so3_nb(w * dt)

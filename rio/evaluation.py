@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from imaging.trajectory import SampledTrajectory, Trajectory
+from imaging.core.trajectory import SampledTrajectory, Trajectory
 
 
 def align_start(est: SampledTrajectory, truth: Trajectory) -> np.ndarray:

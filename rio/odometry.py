@@ -9,9 +9,10 @@ from collections import Counter
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from imaging.recording import Recording
-from imaging.rig import Mount
-from imaging.trajectory import SampledTrajectory
+from imaging.core.constants import GRAVITY_MPS2
+from imaging.core.rig import Mount
+from imaging.core.trajectory import SampledTrajectory
+from imaging.io.recording import Recording
 
 from .ego_velocity import EgoStatus, EgoVelocityConfig, body_velocity, sensor_velocity
 from .ekf import EkfConfig, RadarInertialEkf
@@ -182,7 +183,7 @@ def _imu_still(ekf: RadarInertialEkf) -> bool:
     """The IMU agrees the robot stands still: no rotation beyond noise, specific force of gravity alone."""
     w = ekf._last_gyro - ekf.state.bg
     f = ekf._last_accel - ekf.state.ba
-    return bool(np.linalg.norm(w) < 0.01 and abs(np.linalg.norm(f) - 9.80665) < 0.15)
+    return bool(np.linalg.norm(w) < 0.01 and abs(np.linalg.norm(f) - GRAVITY_MPS2) < 0.15)
 
 
 def _apply(ekf: RadarInertialEkf, est, mount, stats: Counter, ego: EgoVelocityConfig):
@@ -226,7 +227,7 @@ def _velocity_update(ekf: RadarInertialEkf, est, mount, stats: Counter) -> bool:
 def imu_from_recording(rec: Recording) -> ImuData:
     imu = rec.imu()
     if imu is None:
-        from imaging.errors import FileFormatError
+        from imaging.core.errors import FileFormatError
 
         raise FileFormatError(f"{rec.path}: no /imu samples: odometry needs the IMU")
     return ImuData(imu["time_ns"], imu["gyro_radps"], imu["accel_mps2"])
@@ -255,7 +256,7 @@ def scans_from_recording(rec: Recording, radars: tuple[str, ...] | None = None, 
         elif rec.has_adc(name):
             scans.extend(_scans_from_adc(rec, name, config, time_offset_ns, pointcloud_config))
         else:
-            from imaging.errors import FileFormatError
+            from imaging.core.errors import FileFormatError
 
             raise FileFormatError(f"{rec.path}: radar {name} has neither detections nor ADC frames")
     return sorted(scans, key=lambda s: s.time_ns)

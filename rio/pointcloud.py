@@ -16,9 +16,9 @@ import numpy as np
 import scipy.fft
 import scipy.ndimage
 
-from imaging import SPEED_OF_LIGHT_MPS
-from imaging.rig import RadarConfig
-from imaging.windows import get_window
+from imaging.core.constants import SPEED_OF_LIGHT_MPS
+from imaging.core.rig import RadarConfig
+from imaging.core.windows import get_window
 
 
 @dataclasses.dataclass(frozen=True)

@@ -10,10 +10,10 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from imaging.rig import default_rig  # noqa: E402
-from imaging.scene import DEFAULT_START_TIME_NS, Scene  # noqa: E402
-from imaging.targets import PointTarget  # noqa: E402
-from imaging.trajectory import StraightLine  # noqa: E402
+from imaging.core.rig import default_rig  # noqa: E402
+from imaging.core.trajectory import StraightLine  # noqa: E402
+from imaging.sim.scene import DEFAULT_START_TIME_NS, Scene  # noqa: E402
+from imaging.sim.targets import PointTarget  # noqa: E402
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 RADAR = "left_front"
@@ -44,7 +44,7 @@ def sim_dir(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def pass_recordings(sim_dir):
     """Noise-free passes at 0.4 and 1.0 m/s, long enough for a 0.34 m aperture around broadside."""
-    from imaging.simulator import simulate_recording
+    from imaging.sim.simulator import simulate_recording
 
     paths = {}
     for speed in (0.4, 1.0):

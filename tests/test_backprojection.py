@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
+from reference_backprojection import backproject_reference
 
 from imaging.backprojection import BLOCK, _cos_sin, backproject
 from imaging.range_compression import range_compress
-from reference_backprojection import backproject_reference
 
 C = 299_792_458.0
 F0, FSTEP, NS = 76e9, 22.75e6, 175

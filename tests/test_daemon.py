@@ -14,18 +14,18 @@ import time
 import numpy as np
 import pytest
 import zmq
+from conftest import SHARED_DATA
+from test_record_replay_cli import RIG_TOML
+from test_round_trip import make_source
 
 from acquisition.bus import BusSubscriber
 from acquisition.daemon import free_port, free_tcp_endpoint
-from conftest import SHARED_DATA
 from drivers.ti_cfg import load_ti_cfg
-from imaging.base_simulator import simulate_base_can
-from imaging.recording import Recording, RecordingWriter
-from imaging.rig import AntennaArray, Mount, RadarConfig
-from imaging.scene import DEFAULT_START_TIME_NS
-from imaging.trajectory import PathWithTurns
-from test_record_replay_cli import RIG_TOML
-from test_round_trip import make_source
+from imaging.core.rig import AntennaArray, Mount, RadarConfig
+from imaging.core.trajectory import PathWithTurns
+from imaging.io.recording import Recording, RecordingWriter
+from imaging.sim.robot_base_can import simulate_base_can
+from imaging.sim.scene import DEFAULT_START_TIME_NS
 
 CLI = [sys.executable, "-m", "acquisition.cli"]
 CFG = SHARED_DATA / "dca1000_iwr1843_one_frame" / "xwr18xx_profile.cfg"

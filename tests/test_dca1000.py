@@ -2,13 +2,20 @@
 
 import numpy as np
 import pytest
-
 from conftest import SHARED_DATA
-from drivers.dca1000 import (DATA_PORT, Dca1000Assembler, complex_1x_to_iq, decode_complex_1x, encode_data_packets,
-                             iq_to_complex_1x, parse_data_packet)
+
+from drivers.dca1000 import (
+    DATA_PORT,
+    Dca1000Assembler,
+    complex_1x_to_iq,
+    decode_complex_1x,
+    encode_data_packets,
+    iq_to_complex_1x,
+    parse_data_packet,
+)
 from drivers.pcap import read_udp
 from drivers.ti_cfg import load_ti_cfg, parse_ti_cfg
-from imaging.errors import ConfigError
+from imaging.core.errors import ConfigError
 
 DATA = SHARED_DATA / "dca1000_iwr1843_one_frame"
 

@@ -7,7 +7,7 @@ import sys
 import h5py
 import numpy as np
 
-from imaging.recording import Recording
+from imaging.io.recording import Recording
 
 CLI = [sys.executable, "-m", "acquisition.cli"]
 

@@ -9,12 +9,12 @@ import h5py
 import numpy as np
 import pytest
 
-from imaging.errors import FileFormatError
-from imaging.imagefile import SarImage, read_image, write_image
-from imaging.recording import Recording, RecordingWriter
-from imaging.rig import default_rig
-from imaging.trajectory import PathWithTurns, SampledTrajectory, StraightLine
-from imaging.trajectory_file import read_trajectory, write_trajectory, write_tum
+from imaging.core.errors import FileFormatError
+from imaging.core.rig import default_rig
+from imaging.core.trajectory import PathWithTurns, SampledTrajectory, StraightLine
+from imaging.io.image_file import SarImage, read_image, write_image
+from imaging.io.recording import Recording, RecordingWriter
+from imaging.io.trajectory_file import read_trajectory, write_trajectory, write_tum
 
 
 def test_recording_round_trip_complex_and_int16(tmp_path):
@@ -68,8 +68,8 @@ def test_killed_writer_leaves_a_readable_file(tmp_path):
     path = tmp_path / "killed.h5"
     code = f"""
 import os, signal, numpy as np
-from imaging.recording import RecordingWriter
-from imaging.rig import default_rig
+from imaging.io.recording import RecordingWriter
+from imaging.core.rig import default_rig
 r = default_rig().radar("left_front"); wf = r.waveform
 w = RecordingWriter({str(path)!r}, [r])
 adc = np.ones((1, wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp), np.complex64)

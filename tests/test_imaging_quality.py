@@ -3,15 +3,15 @@ origin, vibration side lobes and their inverse, integration gain."""
 
 import numpy as np
 import pytest
-
 from conftest import LEFT_FRONT_OFFSET, R0, RADAR, point_pass
+
 from imaging import metrics
-from imaging.geometry import Vibration
-from imaging.grid import Grid
+from imaging.core.geometry import Vibration
+from imaging.core.grid import Grid
 from imaging.image_formation import ImagingOptions, form_image
-from imaging.recording import Recording
-from imaging.scene import DEFAULT_START_TIME_NS
-from imaging.simulator import simulate_recording
+from imaging.io.recording import Recording
+from imaging.sim.scene import DEFAULT_START_TIME_NS
+from imaging.sim.simulator import simulate_recording
 
 ONE_CHANNEL = ImagingOptions(tx=(0,), rx=(0,))  # a monostatic aperture, as the theory assumes
 

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from imaging.rig import default_rig
-from imaging.simulator import simulate_frames
-from imaging.targets import PointTarget
-from imaging.trajectory import StraightLine
+from imaging.core.rig import default_rig
+from imaging.core.trajectory import StraightLine
+from imaging.sim.simulator import simulate_frames
+from imaging.sim.targets import PointTarget
 from rio.ego_velocity import EgoStatus, sensor_velocity
 from rio.pointcloud import PointCloudConfig, cfar_2d, detect
 

@@ -6,9 +6,9 @@ import sys
 
 import numpy as np
 import pytest
-
 from conftest import SHARED_DATA
-from imaging.recording import Recording
+
+from imaging.io.recording import Recording
 from rio.ego_velocity import EgoStatus
 from rio.odometry import RioOptions, imu_from_recording, run_rio, scans_from_recording
 

@@ -3,13 +3,13 @@ the scene centre): exercises the per-profile reference range and float64 geometr
 
 import numpy as np
 import pytest
-
 from conftest import SHARED_DATA
-from imaging import SPEED_OF_LIGHT_MPS, metrics
-from imaging.backprojection import backproject
-from imaging.phase_history import read_afrl_gotcha
-from imaging.range_compression import range_compress
 from reference_backprojection import backproject_reference
+
+from imaging.backprojection import backproject
+from imaging.core.constants import SPEED_OF_LIGHT_MPS, metrics
+from imaging.io.phase_history import read_afrl_gotcha
+from imaging.range_compression import range_compress
 
 GOTCHA = SHARED_DATA / "afrl_gotcha_pass1_hh"
 

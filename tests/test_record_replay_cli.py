@@ -6,9 +6,9 @@ import time
 
 import numpy as np
 import pytest
-
-from imaging.recording import Recording
 from test_round_trip import make_source
+
+from imaging.io.recording import Recording
 
 RIG_TOML = """
 [imu]

@@ -11,8 +11,8 @@ import zmq
 
 from acquisition.bus import BusPublisher
 from acquisition.recorder import Recorder
-from imaging.recording import Recording
-from imaging.rig import rig_from_dict
+from imaging.core.rig import rig_from_dict
+from imaging.io.recording import Recording
 
 RIG = rig_from_dict({"radar": {"left": {"waveform": {"chirps_per_frame": 8, "sample_rate_hz": 200e3,
                                                      "frame_interval_s": 0.01}}}})

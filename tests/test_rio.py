@@ -7,11 +7,16 @@ import logging
 import numpy as np
 import pytest
 
-from imaging.detection_simulator import DetectionModel, Person, room_scatterers, simulate_scan
-from imaging.imu_simulator import GRAVITY_MPS2, ImuErrors, simulate_imu
-from imaging.rig import default_rig
-from imaging.scene import DEFAULT_START_TIME_NS
-from imaging.trajectory import PathWithTurns
+from imaging.core.rig import default_rig
+from imaging.core.trajectory import PathWithTurns
+from imaging.sim.detection_simulator import (
+    DetectionModel,
+    Person,
+    room_scatterers,
+    simulate_scan,
+)
+from imaging.sim.imu_simulator import GRAVITY_MPS2, ImuErrors, simulate_imu
+from imaging.sim.scene import DEFAULT_START_TIME_NS
 from rio.ego_velocity import EgoStatus, body_velocity, sensor_velocity
 from rio.evaluation import drift_report
 from rio.odometry import ImuData, RadarScan, RioOptions, run_rio

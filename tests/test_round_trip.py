@@ -11,20 +11,27 @@ import pytest
 import zmq
 
 from acquisition.bus import BusPublisher
-from acquisition.pipeline import can_driver_loop, imu_driver_loop, imu_emulator, radar_driver_loop, replay_can, replay_radar
+from acquisition.pipeline import (
+    can_driver_loop,
+    imu_driver_loop,
+    imu_emulator,
+    radar_driver_loop,
+    replay_can,
+    replay_radar,
+)
 from acquisition.recorder import Recorder
 from drivers.can_driver import CanDriver
 from drivers.imu import ImuDriver
 from drivers.radar_stream import Srf1Stream
 from drivers.udp import UdpReceiver
-from imaging.base_simulator import TRIGGER_ID, simulate_base_can
-from imaging.imu_simulator import simulate_imu
-from imaging.recording import Recording, RecordingWriter
-from imaging.rig import rig_from_dict
-from imaging.scene import DEFAULT_START_TIME_NS
-from imaging.simulator import simulate_frames
-from imaging.targets import PointTarget
-from imaging.trajectory import PathWithTurns
+from imaging.core.rig import rig_from_dict
+from imaging.core.trajectory import PathWithTurns
+from imaging.io.recording import Recording, RecordingWriter
+from imaging.sim.imu_simulator import simulate_imu
+from imaging.sim.robot_base_can import TRIGGER_ID, simulate_base_can
+from imaging.sim.scene import DEFAULT_START_TIME_NS
+from imaging.sim.simulator import simulate_frames
+from imaging.sim.targets import PointTarget
 
 RIG = rig_from_dict({"imu": {"rate_hz": 400.0},
                      "radar": {"left": {"mount_translation_m": [0.15, 0.2, 0.3], "mount_yaw_deg": 90.0,

@@ -1,12 +1,12 @@
 import numpy as np
 import pytest
 
-from imaging.geometry import Vibration, antenna_track
+from imaging.core.geometry import Vibration, antenna_track
+from imaging.core.rig import default_rig
+from imaging.core.trajectory import PathWithTurns, StraightLine
 from imaging.range_compression import range_compress
-from imaging.rig import default_rig
-from imaging.simulator import simulate_frames
-from imaging.targets import CornerReflector, PointTarget, Rod
-from imaging.trajectory import PathWithTurns, StraightLine
+from imaging.sim.simulator import simulate_frames
+from imaging.sim.targets import CornerReflector, PointTarget, Rod
 
 C = 299_792_458.0
 

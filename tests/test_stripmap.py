@@ -7,15 +7,20 @@ import math
 
 import numpy as np
 import pytest
-
 from conftest import R0, RADAR, point_pass
+
 from imaging import metrics
 from imaging.backprojection import backproject
-from imaging.errors import ConfigError
+from imaging.core.errors import ConfigError
 from imaging.image_formation import ImagingOptions, frame_profiles
-from imaging.recording import Recording
-from imaging.simulator import simulate_recording
-from imaging.stripmap import StripMap, StripMapConfig, max_presum, presum_phase_spread_rad
+from imaging.io.recording import Recording
+from imaging.sim.simulator import simulate_recording
+from imaging.stripmap import (
+    StripMap,
+    StripMapConfig,
+    max_presum,
+    presum_phase_spread_rad,
+)
 
 
 @pytest.fixture(scope="module")
@@ -104,7 +109,7 @@ def test_presum_within_its_bound_keeps_the_image_and_beyond_it_does_not(drive):
 
 def test_frames_taken_standing_still_are_left_out(drive):
     rec, radar, truth, order = drive
-    from imaging.trajectory import StraightLine
+    from imaging.core.trajectory import StraightLine
 
     parked = StraightLine(start_m=(0.0, -0.2, 0.0), speed_mps=0.0, t0_ns=int(rec.frame_time_ns(RADAR)[0]))
     sm = StripMap(StripMapConfig())
@@ -130,8 +135,8 @@ def test_the_worker_publishes_tiles_and_its_lag_and_writes_the_map(drive, tmp_pa
     from acquisition.bus import BusPublisher, BusSubscriber
     from acquisition.daemon import free_tcp_endpoint
     from acquisition.workers import stripmap_worker
-    from imaging.imagefile import read_image
-    from imaging.rig import Rig
+    from imaging.core.rig import Rig
+    from imaging.io.image_file import read_image
 
     rec, radar, truth, order = drive
     driver_ep, pose_ep, out_ep = free_tcp_endpoint(), free_tcp_endpoint(), free_tcp_endpoint()

@@ -1,10 +1,16 @@
 import numpy as np
 import pytest
 
-from imaging.config import ConfigError
-from imaging.rig import default_rig, load_rig, rig_from_dict
-from imaging.waveform import Waveform
-from imaging.windows import NOMINAL_WIDTH_FACTOR, WINDOWS, get_window, half_power_width, window_width_factor
+from imaging.core.config import ConfigError
+from imaging.core.rig import default_rig, load_rig, rig_from_dict
+from imaging.core.waveform import Waveform
+from imaging.core.windows import (
+    NOMINAL_WIDTH_FACTOR,
+    WINDOWS,
+    get_window,
+    half_power_width,
+    window_width_factor,
+)
 
 
 @pytest.mark.parametrize("name", ["rectangular", "hann"])

@@ -5,8 +5,15 @@ import random
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.xbus import (STATUS_SYNC_IN, ImuPacket, XbusParser, checksum, decode_mtdata2, encode_message,
-                          encode_mtdata2)
+from drivers.xbus import (
+    STATUS_SYNC_IN,
+    ImuPacket,
+    XbusParser,
+    checksum,
+    decode_mtdata2,
+    encode_message,
+    encode_mtdata2,
+)
 
 
 def packets(n, start=0):

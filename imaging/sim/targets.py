@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from .errors import ConfigError
+from imaging.core.errors import ConfigError
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

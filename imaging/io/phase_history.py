@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import FileFormatError
+from imaging.core.errors import FileFormatError
 
 
 @dataclasses.dataclass

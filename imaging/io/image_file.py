@@ -9,8 +9,8 @@ from typing import Any
 import h5py
 import numpy as np
 
-from .errors import FileFormatError
-from .hdf5_schema import open_checked
+from imaging.core.errors import FileFormatError
+from imaging.io.schema import open_checked
 
 SCHEMA = "sarbot.image"
 SCHEMA_VERSION = 1

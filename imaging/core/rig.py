@@ -24,8 +24,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .config import ConfigError, as_vector, from_dict, read_toml, require
-from .waveform import Waveform
+from imaging.core.config import ConfigError, as_vector, from_dict, read_toml, require
+from imaging.core.waveform import Waveform
 
 
 @dataclasses.dataclass(frozen=True)

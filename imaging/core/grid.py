@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 
-from .errors import SarbotError
+from imaging.core.errors import SarbotError
 
 
 @dataclasses.dataclass(frozen=True)

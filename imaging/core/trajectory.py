@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from .errors import ConfigError
+from imaging.core.errors import ConfigError
 
 
 @dataclasses.dataclass

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .trajectory import Trajectory
+from imaging.core.constants import CAN_TRIGGER_ID
+from imaging.core.trajectory import Trajectory
 
-TRIGGER_ID = 0x100
+TRIGGER_ID = CAN_TRIGGER_ID
 WHEEL_SPEED_ID = 0x201
 #: Delay from the bus to the host's receive time stamp.
 CAN_RECEIVE_LATENCY_NS = 300_000

@@ -7,9 +7,9 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .errors import FileFormatError
-from .hdf5_schema import open_checked
-from .trajectory import SampledTrajectory
+from imaging.core.errors import FileFormatError
+from imaging.core.trajectory import SampledTrajectory
+from imaging.io.schema import open_checked
 
 SCHEMA = "sarbot.trajectory"
 SCHEMA_VERSION = 1

@@ -14,10 +14,10 @@ import math
 import numba
 import numpy as np
 
-from . import SPEED_OF_LIGHT_MPS
-from .geometry import Vibration, antenna_track, chirp_times_ns
-from .rig import RadarConfig
-from .trajectory import Trajectory
+from imaging.core.constants import SPEED_OF_LIGHT_MPS, TAI_MINUS_UTC_NS
+from imaging.core.geometry import Vibration, antenna_track, chirp_times_ns
+from imaging.core.rig import RadarConfig
+from imaging.core.trajectory import Trajectory
 
 
 @numba.njit(parallel=True, cache=True)
@@ -83,7 +83,7 @@ def simulate_frames(
     trajectory : Trajectory
         Body trajectory (world frame).
     targets : sequence
-        Objects with ``scattering_centres(tx_m, rx_m)`` (see ``imaging.targets``).
+        Objects with ``scattering_centres(tx_m, rx_m)`` (see ``imaging.sim.targets``).
     frame_time_ns : ndarray, shape (F,)
         Start of each frame's first chirp, int64 ns.
     vibration : Vibration, optional
@@ -125,7 +125,6 @@ def simulate_frames(
 
 
 #: TAI - UTC (s): the PTP time base runs ahead of the hosts' CLOCK_REALTIME by this much.
-TAI_MINUS_UTC_S = 37
 #: Simulated delay between the end of a frame and the kernel receiving its last datagram.
 RECEIVE_LATENCY_NS = 1_000_000
 
@@ -135,7 +134,7 @@ def simulate_recording(scene, path, *, frames_per_block: int = 16, progress=None
 
     Parameters
     ----------
-    scene : imaging.scene.Scene
+    scene : imaging.sim.scene.Scene
     path : str or Path
         Output file.
     frames_per_block : int
@@ -148,8 +147,9 @@ def simulate_recording(scene, path, *, frames_per_block: int = 16, progress=None
     dict
         Frames written per radar.
     """
-    from .recording import RecordingWriter, complex_to_iq
-    from .scene import frame_times_ns
+    from imaging.core.samples import complex_to_iq
+    from imaging.io.recording import RecordingWriter
+    from imaging.sim.scene import frame_times_ns
 
     radars = [scene.rig.radar(name) for name in scene.radars]
     times = {r.name: frame_times_ns(scene, r.name) for r in radars}
@@ -168,7 +168,7 @@ def simulate_recording(scene, path, *, frames_per_block: int = 16, progress=None
             ft = times[r.name]
             wf = r.waveform
             frame_end = wf.frame_duration_ns
-            host = ft + frame_end + RECEIVE_LATENCY_NS - TAI_MINUS_UTC_S * 1_000_000_000
+            host = ft + frame_end + RECEIVE_LATENCY_NS - TAI_MINUS_UTC_NS
             if detections:
                 _simulate_scans(writer, scene, r, ft, frame_end, host, rng)
                 done += ft.size
@@ -191,12 +191,12 @@ def simulate_recording(scene, path, *, frames_per_block: int = 16, progress=None
                     progress(done, total)
         end_ns = scene.start_time_ns + int(scene.duration_s * 1e9)
         if scene.imu:
-            from .imu_simulator import simulate_imu
+            from imaging.sim.imu_simulator import simulate_imu
 
             imu = simulate_imu(scene.trajectory, scene.rig.imu, scene.start_time_ns, end_ns, errors=scene.imu_errors, rng=rng)
             writer.append_imu(imu.time_ns, imu.gyro_radps, imu.accel_mps2, imu.counter,
-                              imu.time_ns + 200_000 - TAI_MINUS_UTC_S * 1_000_000_000)
-            from .base_simulator import simulate_base_can
+                              imu.time_ns + 200_000 - TAI_MINUS_UTC_NS)
+            from imaging.sim.robot_base_can import simulate_base_can
 
             can = simulate_base_can(scene.trajectory, scene.start_time_ns, end_ns, trigger_time_ns=scene.start_time_ns)
             writer.append_can(can["time_ns"], can["arbitration_id"], can["dlc"], can["data"])
@@ -207,7 +207,7 @@ def simulate_recording(scene, path, *, frames_per_block: int = 16, progress=None
 
 
 def _simulate_scans(writer, scene, radar, frame_times, frame_end_ns, host, rng) -> None:
-    from .detection_simulator import simulate_scan
+    from imaging.sim.detection_simulator import simulate_scan
 
     static = scene.static_points_m if scene.static_points_m is not None else np.zeros((0, 3))
     if scene.targets:

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import ConfigError
+from imaging.core.errors import ConfigError
 
 
 def read_toml(path: str | Path) -> dict[str, Any]:

@@ -31,13 +31,13 @@ from typing import Any
 
 import numpy as np
 
-from .config import ConfigError, from_dict, read_toml
-from .detection_simulator import DetectionModel, Person, room_scatterers
-from .geometry import Vibration
-from .imu_simulator import ImuErrors
-from .rig import Rig, default_rig, load_rig
-from .targets import TARGET_KINDS, PointTarget
-from .trajectory import PathWithTurns, StraightLine, Trajectory
+from imaging.core.config import ConfigError, from_dict, read_toml
+from imaging.core.geometry import Vibration
+from imaging.core.rig import Rig, default_rig, load_rig
+from imaging.core.trajectory import PathWithTurns, StraightLine, Trajectory
+from imaging.sim.detection_simulator import DetectionModel, Person, room_scatterers
+from imaging.sim.imu_simulator import ImuErrors
+from imaging.sim.targets import TARGET_KINDS, PointTarget
 
 DEFAULT_START_TIME_NS = 1_700_000_000_000_000_000  # a TAI time in November 2023; any epoch works
 
@@ -71,7 +71,7 @@ class Scene:
 
 
 def builtin_scene_names() -> list[str]:
-    return sorted(p.name[:-5] for p in resources.files("imaging.scenes").iterdir() if p.name.endswith(".toml"))
+    return sorted(p.name[:-5] for p in resources.files("imaging.sim.scenes").iterdir() if p.name.endswith(".toml"))
 
 
 def load_scene(name_or_path: str | Path) -> Scene:
@@ -80,7 +80,7 @@ def load_scene(name_or_path: str | Path) -> Scene:
     if path.suffix == ".toml" or path.exists():
         return scene_from_dict(read_toml(path), source=str(path), base=path.parent)
     if str(name_or_path) in builtin_scene_names():
-        res = resources.files("imaging.scenes") / f"{name_or_path}.toml"
+        res = resources.files("imaging.sim.scenes") / f"{name_or_path}.toml"
         with resources.as_file(res) as p:
             return scene_from_dict(read_toml(p), source=f"built-in scene {name_or_path}", base=p.parent)
     raise ConfigError(

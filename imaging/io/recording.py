@@ -16,11 +16,12 @@ from typing import Iterable
 import h5py
 import numpy as np
 
-from .errors import FileFormatError
-from .hdf5_schema import open_checked
-from .rig import AntennaArray, ImuConfig, Mount, RadarConfig
-from .trajectory import SampledTrajectory, TrajectorySample
-from .waveform import Waveform
+from imaging.core.errors import FileFormatError
+from imaging.core.rig import AntennaArray, ImuConfig, Mount, RadarConfig
+from imaging.core.samples import complex_to_iq, iq_to_complex
+from imaging.core.trajectory import SampledTrajectory, TrajectorySample
+from imaging.core.waveform import Waveform
+from imaging.io.schema import open_checked
 
 SCHEMA = "sarbot.recording"
 SCHEMA_VERSION = 1
@@ -36,18 +37,6 @@ def software_version() -> str:
         return metadata.version("sarbot")
     except metadata.PackageNotFoundError:  # running from a source tree
         return "0+unknown"
-
-
-def iq_to_complex(iq: np.ndarray) -> np.ndarray:
-    """complex64 [...] from int16 I/Q pairs [..., 2] (the wire's and the file's raw form)."""
-    return (iq[..., 0].astype(np.float32) + 1j * iq[..., 1].astype(np.float32)).astype(np.complex64)
-
-
-def complex_to_iq(samples: np.ndarray, counts_per_unit: float = 1.0) -> np.ndarray:
-    """int16 I/Q pairs [..., 2] from complex samples scaled by ``counts_per_unit``, rounded and clipped
-    as an ADC would."""
-    iq = np.stack([samples.real, samples.imag], axis=-1) * counts_per_unit
-    return np.clip(np.round(iq), -32768, 32767).astype(np.int16)
 
 
 def _str_dtype():

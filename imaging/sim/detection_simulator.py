@@ -12,8 +12,8 @@ import dataclasses
 
 import numpy as np
 
-from .rig import RadarConfig
-from .trajectory import Trajectory
+from imaging.core.rig import RadarConfig
+from imaging.core.trajectory import Trajectory
 
 
 @dataclasses.dataclass(frozen=True)

@@ -5,10 +5,9 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from . import SPEED_OF_LIGHT_MPS
-from .config import require
-from .windows import window_width_factor
-
+from imaging.core.config import require
+from imaging.core.constants import SPEED_OF_LIGHT_MPS
+from imaging.core.windows import window_width_factor
 
 
 @dataclasses.dataclass(frozen=True)

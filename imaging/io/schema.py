@@ -6,7 +6,7 @@ from pathlib import Path
 
 import h5py
 
-from .errors import FileFormatError
+from imaging.core.errors import FileFormatError
 
 
 def open_checked(path: str | Path, schema: str, version: int, kind: str, **kwargs) -> h5py.File:

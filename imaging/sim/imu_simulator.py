@@ -7,10 +7,9 @@ import math
 
 import numpy as np
 
-from .rig import ImuConfig
-from .trajectory import Trajectory
-
-GRAVITY_MPS2 = 9.80665
+from imaging.core.constants import GRAVITY_MPS2
+from imaging.core.rig import ImuConfig
+from imaging.core.trajectory import Trajectory
 
 
 @dataclasses.dataclass
