@@ -53,6 +53,11 @@ class BusPublisher:
         self.socket.send_multipart(parts, copy=False)
         return seq
 
+    def send(self, message) -> int:
+        """Publish a typed message (``acquisition.messages``); returns its sequence number."""
+        parts = message.to_parts()
+        return self.publish(parts.topic, parts.sensor_time_ns, parts.arrays, **parts.fields)
+
     def close(self) -> None:
         self.socket.close()
 
@@ -94,6 +99,11 @@ class BusSubscriber:
                   for p, (dt, shape) in zip(parts[2:], header.get("arrays", []))]
         self._check(topic, int(header["seq"]))
         return Message(topic, header["seq"], header["sensor_time_ns"], header["host_time_ns"], header, arrays)
+
+    @property
+    def missed(self) -> int:
+        """Messages lost on the bus so far, over all topics (sequence gaps)."""
+        return sum(st.missed for st in self.stats.values())
 
     def _check(self, topic: str, seq: int) -> None:
         st = self.stats[topic]

@@ -16,7 +16,9 @@ import numpy as np
 
 from imaging.core.errors import SarbotError
 
-log = logging.getLogger("sarbot")
+from .processes import configure_logging
+
+log = logging.getLogger(f"sarbot.{__name__}")
 
 EXIT_OK = 0
 EXIT_USAGE = 2  # bad input: arguments, files, configuration
@@ -139,28 +141,8 @@ def cmd_analyze(args) -> int:
             raise SarbotError(f"{name}: {exc}") from None
         res["file"] = str(name)
         res["n_frames"] = int(img.attrs.get("n_frames", 0))
-        if "aperture_centre_m" in img.attrs and "aperture_length_m" in img.attrs:
-            centre = np.asarray(img.attrs["aperture_centre_m"])
-            r0 = float(np.hypot(res["peak_m"][0] - centre[0], res["peak_m"][1] - centre[1]))
-            res["range_to_target_m"] = r0
-            res["theory"] = {
-                "range_half_power_width_m": metrics.range_resolution_theory_m(float(img.attrs["bandwidth_hz"]), str(img.attrs.get("window", "hann"))),
-                "cross_range_half_power_width_m": metrics.cross_range_resolution_theory_m(
-                    img.wavelength_m, r0, float(img.attrs["aperture_length_m"])),
-                "aperture_length_m": float(img.attrs["aperture_length_m"]),
-            }
-            res["range"]["ratio_to_theory"] = res["range"]["half_power_width_m"] / res["theory"]["range_half_power_width_m"]
-            res["cross_range"]["ratio_to_theory"] = res["cross_range"]["half_power_width_m"] / res["theory"]["cross_range_half_power_width_m"]
-            if args.vibration:
-                look2 = np.asarray(look, float)[:2] / np.linalg.norm(np.asarray(look, float)[:2])
-                s, v = metrics.cut(img.image, img.x_m, img.y_m, res["peak_m"], (-look2[1], look2[0]), args.half_length, 2001)
-                offset, level, _ = metrics.paired_sidelobes(s, v, min_offset_m=2 * res["cross_range"]["half_power_width_m"])
-                speed = float(img.attrs.get("speed_mps", 0.0))
-                res["vibration"] = {
-                    "sidelobe_offset_m": offset, "sidelobe_level_db": level,
-                    "frequency_hz": metrics.vibration_frequency_hz(offset, r0, speed, img.wavelength_m),
-                    "amplitude_m": metrics.vibration_amplitude_m(level, img.wavelength_m),
-                }
+        metrics.compare_with_theory(res, img.image, img.x_m, img.y_m, img.attrs, img.wavelength_m,
+                                    vibration=args.vibration, half_length_m=args.half_length)
         results.append(res)
     output: dict = {"images": results}
     counts = [r["n_frames"] for r in results]
@@ -224,7 +206,7 @@ def cmd_rio(args) -> int:
 
 
 def cmd_import_bag(args) -> int:
-    from .bag_import import import_bag
+    from .importers.bag import import_bag
     from .progress import Progress
 
     out = Path(args.output)
@@ -236,18 +218,16 @@ def cmd_import_bag(args) -> int:
     return EXIT_OK
 
 
-def _radar_map(items: list[str] | None, option: str, with_host: bool):
+def _radar_targets(items: list[str] | None) -> dict[str, tuple[str, int]]:
+    """``--radar NAME=[HOST:]PORT`` of replay: where to send each radar's datagrams."""
     out = {}
     for item in items or []:
         try:
             name, where = item.split("=", 1)
-            if with_host:
-                host, port = where.rsplit(":", 1) if ":" in where else ("127.0.0.1", where)
-                out[name] = (host, int(port))
-            else:
-                out[name] = int(where)
+            host, port = where.rsplit(":", 1) if ":" in where else ("127.0.0.1", where)
+            out[name] = (host, int(port))
         except ValueError:
-            raise SarbotError(f"{option} {item!r}: expected NAME={'HOST:' if with_host else ''}PORT") from None
+            raise SarbotError(f"--radar {item!r}: expected NAME=[HOST:]PORT") from None
     return out
 
 
@@ -286,31 +266,33 @@ def _size_bytes(text: str | None, option: str = "--split-size") -> int | None:
 
 def record_setup(args):
     """The daemon's Setup from record/run options (shared by both commands)."""
-    from drivers.ti_cfg import load_ti_cfg
-    from imaging.core.rig import AntennaArray, RadarConfig, Rig, load_rig
+    import dataclasses
 
-    from .daemon import RadarLink, Setup
+    from drivers.radar.link import parse_radar_link
+    from imaging.core.rig import AntennaArray, Rig, load_rig
+
+    from .daemon import Setup
 
     rig = load_rig(args.config)
-    links = [RadarLink(name, port) for name, port in _radar_map(args.radar, "--radar", with_host=False).items()]
-    radars = {r.name: r for r in rig.radars}
-    for item in args.dca1000 or []:
+    specs = list(args.radar or [])
+    for item in args.dca1000 or []:  # shorthand: NAME=PORT:CFG is NAME=PORT,format=DCA1000,cfg=CFG
         name, sep, rest = item.partition("=")
         port, sep2, cfg_path = rest.partition(":")
         if not (sep and sep2 and port.isdigit()):
             raise SarbotError(f"--dca1000 {item!r}: expected NAME=PORT:CFG_FILE")
-        cfg = load_ti_cfg(cfg_path)
-        links.append(RadarLink(name, int(port), wire_format="DCA1000", ti_cfg=cfg))
-        if name in radars:  # the .cfg says what the radar sends; the rig says where it sits
-            wf = cfg.waveform()
-            radars[name] = RadarConfig(name, wf, AntennaArray.uniform_tdm(wf), radars[name].mount)
-    rig = Rig(tuple(radars.values()), rig.imu)
+        specs.append(f"{name}={port},format=DCA1000,cfg={cfg_path}")
+    links = [parse_radar_link(spec) for spec in specs]
+    radars = {r.name: r for r in rig.radars}
     for link in links:
-        if link.name not in rig.radar_names:
+        if link.name not in radars:
             raise SarbotError(f"radar {link.name}: no such radar in {args.config} (radars: {', '.join(rig.radar_names)})")
+        wf = link.waveform(radars[link.name].waveform)
+        if wf != radars[link.name].waveform:  # the link's configuration says what the radar sends; the rig where it sits
+            radars[link.name] = dataclasses.replace(radars[link.name], waveform=wf, array=AntennaArray.uniform_tdm(wf))
+    rig = Rig(tuple(radars.values()), rig.imu)
     can = _can_config(args)
     if not links and not args.imu_port and can is None:
-        raise SarbotError("nothing to record: give --radar NAME=PORT, --dca1000 NAME=PORT:CFG, --imu-port DEVICE and/or --can")
+        raise SarbotError("nothing to record: give --radar NAME=[HOST:]PORT, --dca1000 NAME=PORT:CFG, --imu-port DEVICE and/or --can")
     if args.split_time is not None and args.split_time <= 0:
         raise SarbotError(f"--split-time {args.split_time}: must be positive")
     return Setup(rig, links, args.imu_port, can, split_bytes=_size_bytes(args.split_size), split_s=args.split_time,
@@ -341,7 +323,7 @@ def run_workers(setup, args, out_dir: Path, stamp: str):
     """Add the RIO and strip-map workers to ``setup`` from the run options."""
     from imaging.stripmap import StripMapConfig
 
-    from .workers import add_pipeline_workers
+    from .workers.pipeline import add_pipeline_workers
 
     if not setup.imu_port:
         raise SarbotError("run needs --imu-port: the strip map is placed by radar-inertial odometry")
@@ -383,9 +365,9 @@ def cmd_run(args) -> int:
 
 
 def cmd_replay(args) -> int:
-    from .daemon import replay
+    from .replay import replay
 
-    targets = _radar_map(args.radar, "--radar", with_host=True)
+    targets = _radar_targets(args.radar)
     sent = replay(Path(args.recording), targets, args.imu_link, None if args.speed <= 0 else args.speed, args.start_delay,
                   can=_can_config(args))
     print("replayed " + ", ".join(f"{n}: {k} {'frames' if n == 'can' else 'datagrams'}" for n, k in sent.items())
@@ -394,7 +376,7 @@ def cmd_replay(args) -> int:
 
 
 def cmd_experiment(args) -> int:
-    from .paper import run_paper
+    from .studies.paper import run_paper
 
     if args.name != "paper":
         raise SarbotError(f"experiment {args.name!r}: unknown (known: paper)")
@@ -405,7 +387,7 @@ def cmd_experiment(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from .demo import run_demo
+    from .studies.demo import run_demo
 
     if args.speed <= 0:
         raise SarbotError(f"--speed {args.speed}: must be positive")
@@ -432,8 +414,12 @@ def _can_options(s) -> None:
 def _acquisition_options(s) -> None:
     s.add_argument("--config", required=True, help="rig TOML")
     s.add_argument("-o", "--output", required=True, help="folder for the recording")
-    s.add_argument("--radar", action="append", help="NAME=UDP_PORT the radar sends SRF1 to (repeat per radar)")
-    s.add_argument("--dca1000", action="append", help="NAME=UDP_PORT:CFG_FILE for a TI radar streaming through a DCA1000")
+    s.add_argument("--radar", action="append", metavar="NAME=[HOST:]PORT[,format=FORMAT][,OPTION=VALUE]",
+                   help="where a radar's datagrams arrive (repeat per radar); HOST is the address to listen on "
+                        "(default 127.0.0.1); FORMAT one of the registered wire formats (default SRF1), e.g. "
+                        "format=DCA1000,cfg=xwr18xx.cfg")
+    s.add_argument("--dca1000", action="append", metavar="NAME=PORT:CFG",
+                   help="shorthand for --radar NAME=PORT,format=DCA1000,cfg=CFG (a TI radar through a DCA1000)")
     s.add_argument("--imu-port", help="serial device of the Xsens IMU (or the pty replay links)")
     _can_options(s)
     s.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C / SIGTERM)")
@@ -563,9 +549,7 @@ def _join_negative_values(argv: list[str]) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(_join_negative_values(sys.argv[1:] if argv is None else list(argv)))
-    logging.basicConfig(level=logging.DEBUG if args.verbose >= 2 else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
-    logging.getLogger("sarbot").setLevel(logging.DEBUG if args.verbose else logging.INFO)
+    configure_logging(args.verbose)  # also for every process the command starts (through the environment)
     try:
         return args.func(args)
     except SarbotError as exc:

@@ -6,7 +6,7 @@ import logging
 import sys
 import time
 
-log = logging.getLogger("sarbot")
+log = logging.getLogger(f"sarbot.{__name__}")
 
 
 class Progress:

@@ -1,6 +1,6 @@
 """The recorder: everything on the bus into an HDF5 recording (schema v1), crash-safe.
 
-Subscribes to ``radar/<name>``, ``imu``, ``trigger`` and ``event``. Data is flushed at least every
+Subscribes to ``radar/<name>``, ``imu``, ``can``, ``trigger`` and ``event``. Data is flushed at least every
 ``flush_interval_s`` and fsync'ed, so a recorder killed at any moment leaves a file that opens and holds
 everything up to its last flush (the writer is in SWMR mode). Every gap in a topic's sequence numbers is
 written to ``/events`` with what was lost; so is every event a driver publishes (packet loss, checksum
@@ -20,8 +20,9 @@ from imaging.core.rig import Rig
 from imaging.io.recording import RecordingWriter
 
 from .bus import BusSubscriber
+from .messages import CanBatch, Event, ImuBatch, RadarFrameMessage, Trigger, decode
 
-log = logging.getLogger("sarbot.recorder")
+log = logging.getLogger(f"sarbot.{__name__}")
 
 
 class DiskFullError(OSError):
@@ -68,7 +69,9 @@ class Recorder:
         self.paths: list[Path] = []
         self._triggers: list[tuple[int, str]] = []
         self.writer = self._open_part()
-        self.sub = BusSubscriber(endpoints, topics=["radar/", "imu", "trigger", "event", "can"], context=context)
+        self._handlers = {RadarFrameMessage: self._store_frame, ImuBatch: self._store_imu, CanBatch: self._store_can,
+                          Trigger: self._store_trigger, Event: self._store_event}
+        self.sub = BusSubscriber(endpoints, topics=[cls.TOPIC for cls in self._handlers], context=context)
         self.flush_interval_s = flush_interval_s
         self._last_flush = time.monotonic()
         self._reported_missed: dict[str, int] = {}
@@ -125,43 +128,53 @@ class Recorder:
         log.info("recording continues in %s (after %s)", self.path, old.name)
 
     def _store(self, msg) -> None:
-        w = self.writer
+        message = decode(msg)
         try:
-            if msg.topic.startswith("radar/"):
-                name = msg.topic.split("/", 1)[1]
-                iq = msg.arrays[0]
-                w.append_frames(name, iq[None], [msg.header["frame_time_ns"]], [msg.header["frame_counter"]],
-                                [msg.header["receive_ns"]], [1 if msg.header["valid"] else 0])
-                self.frames[name] += 1
-                self.latencies_ns.append(time.time_ns() - int(msg.header["receive_ns"]))
-                self.invalid_frames[name] += 0 if msg.header["valid"] else 1
-                self.ptp_locked[name] = bool(msg.header.get("ptp_locked", False))
-            elif msg.topic == "imu":
-                t, gyro, accel, counter, host = msg.arrays
-                w.append_imu(t, gyro, accel, counter, host)
-                self.imu_samples += len(t)
-                if msg.header.get("clock_drift_ppm") is not None:
-                    self.imu_drift_ppm = float(msg.header["clock_drift_ppm"])
-            elif msg.topic == "can":
-                t, ident, dlc, data = msg.arrays
-                w.append_can(t, ident, dlc, data)
-                self.can_frames += len(t)
-            elif msg.topic == "trigger":
-                source = msg.header.get("source", "trigger")
-                w.append_trigger(msg.sensor_time_ns, source)
-                self._triggers.append((msg.sensor_time_ns, source))
-                self.triggers_seen += 1
-            elif msg.topic == "event":
-                self.wire_events += 1
-                w.append_event(msg.sensor_time_ns, msg.header.get("source", "?"), msg.header.get("level", "info"),
-                               msg.header.get("message", ""))
+            self._handlers[type(message)](message)
         except OSError as exc:
             self._raise_if_disk_full(exc)
             raise
 
+    def _store_frame(self, m: RadarFrameMessage) -> None:
+        f = m.frame
+        self.writer.append_frames(m.radar, f.iq[None], [f.frame_time_ns], [f.frame_counter], [f.receive_ns],
+                                  [1 if f.valid else 0])
+        self.frames[m.radar] += 1
+        self.latencies_ns.append(time.time_ns() - f.receive_ns)
+        self.invalid_frames[m.radar] += 0 if f.valid else 1
+        self.ptp_locked[m.radar] = f.ptp_locked
+
+    def _store_imu(self, m: ImuBatch) -> None:
+        self.writer.append_imu(m.time_ns, m.gyro_radps, m.accel_mps2, m.counter, m.host_time_ns)
+        self.imu_samples += len(m)
+        if m.clock_drift_ppm is not None:
+            self.imu_drift_ppm = float(m.clock_drift_ppm)
+
+    def _store_can(self, m: CanBatch) -> None:
+        self.writer.append_can(m.time_ns, m.arbitration_id, m.dlc, m.data)
+        self.can_frames += len(m)
+
+    def _store_trigger(self, m: Trigger) -> None:
+        self.writer.append_trigger(m.time_ns, m.source)
+        self._triggers.append((m.time_ns, m.source))
+        self.triggers_seen += 1
+
+    def _store_event(self, m: Event) -> None:
+        self.wire_events += 1
+        self.writer.append_event(m.time_ns, m.source, m.level, m.message)
+
     def _raise_if_disk_full(self, exc: OSError) -> None:
         if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG) or "No space" in str(exc) or "disk quota" in str(exc).lower():
             raise DiskFullError(errno.ENOSPC, f"{self.path}: disk full; recording stopped") from None
+
+    @property
+    def bus_lost(self) -> int:
+        """Messages lost on the way to the recorder so far (each also written to /events)."""
+        return self.sub.missed
+
+    def record_event(self, time_ns: int, source: str, level: str, message: str) -> None:
+        """An event of the supervisor's own (a restart) into /events."""
+        self.writer.append_event(time_ns, source, level, message)
 
     def _report_gaps(self, topic: str, time_ns: int) -> None:
         st = self.sub.stats[topic]
@@ -172,10 +185,10 @@ class Recorder:
 
     def flush(self) -> None:
         try:
-            if self.imu_drift_ppm is not None and "imu" in self.writer._f:
-                self.writer._f["imu"].attrs["clock_drift_ppm"] = self.imu_drift_ppm
+            if self.imu_drift_ppm is not None:
+                self.writer.set_imu_clock_drift_ppm(self.imu_drift_ppm)
             self.writer.flush()
-            self._fsync_in_background(self.writer._f.id.get_vfd_handle())
+            self._fsync_in_background(self.writer.fileno())
         except OSError as exc:
             self._raise_if_disk_full(exc)
             raise
@@ -206,7 +219,7 @@ class Recorder:
             self.flush()
             if self._fsync is not None:
                 self._fsync.join()
-            os.fsync(self.writer._f.id.get_vfd_handle())
+            os.fsync(self.writer.fileno())
         except DiskFullError:
             pass  # already flushed: what is there is whole
         finally:
@@ -223,9 +236,3 @@ def _fsync_quietly(fd: int) -> None:
     except OSError as exc:  # the file was closed meanwhile, or the disk failed: the next flush reports it
         log.debug("fsync: %s", exc)
 
-
-def publish_frame(pub, radar: str, frame) -> None:
-    """A reassembled frame (``drivers.radar_stream.RadarFrame``) onto the bus, as the radar driver does."""
-    pub.publish(f"radar/{radar}", frame.frame_time_ns, [frame.iq], frame_counter=frame.frame_counter,
-                frame_time_ns=frame.frame_time_ns, receive_ns=frame.receive_ns, valid=frame.valid,
-                bytes_missing=frame.bytes_missing, ptp_locked=frame.ptp_locked)

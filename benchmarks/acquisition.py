@@ -33,8 +33,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from acquisition.bus import BusSubscriber  # noqa: E402
-from acquisition.daemon import free_port, free_tcp_endpoint  # noqa: E402
-from drivers.srf1 import encode_frame  # noqa: E402
+from acquisition.messages import Health, RadarFrameMessage  # noqa: E402
+from acquisition.processes import free_port, free_tcp_endpoint  # noqa: E402
+from drivers.radar.srf1 import encode_frame  # noqa: E402
 from imaging.core.rig import default_rig  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
 
@@ -110,9 +111,9 @@ def main(argv: list[str]) -> int:
            "-o", str(work), "--health-endpoint", health_endpoint, "--min-free", "2G",
            *[a for name, port in ports.items() for a in ("--radar", f"{name}={port}")]]
     daemon = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    health: list[dict] = []
+    health: list[tuple[float, Health]] = []  # (monotonic time of arrival, report)
     latencies: list[tuple[float, float]] = []  # (monotonic time, datagram-to-bus latency ms) of one radar
-    sub = BusSubscriber(health_endpoint, topics=["health"])
+    sub = BusSubscriber(health_endpoint, topics=[Health.TOPIC])
     listening = threading.Event()
     listening.set()
 
@@ -121,11 +122,13 @@ def main(argv: list[str]) -> int:
         while listening.is_set():
             m = sub.receive(timeout_ms=10)
             if m is not None:
-                health.append({**m.header, "t": time.monotonic()})
+                report = Health.from_message(m)
+                health.append((time.monotonic(), report))
                 if tap is None:  # the health report says where the drivers publish: tap one radar's stream
-                    tap = BusSubscriber(m.header["endpoints"][f"radar.{rig.radars[0].name}"], topics=["radar/"])
+                    tap = BusSubscriber(report.endpoints[f"radar.{rig.radars[0].name}"], topics=[RadarFrameMessage.TOPIC])
             while tap is not None and (f := tap.receive(timeout_ms=0)) is not None:
-                latencies.append((time.monotonic(), (time.time_ns() - f.header["receive_ns"]) * 1e-6))
+                frame = RadarFrameMessage.from_message(f).frame
+                latencies.append((time.monotonic(), (time.time_ns() - frame.receive_ns) * 1e-6))
         if tap is not None:
             tap.close()
 
@@ -177,8 +180,8 @@ def main(argv: list[str]) -> int:
         lat = np.array([v for t, v in latencies if p["t_end"] - phase_s - 1.0 <= t <= p["t_end"]])
         p["latency_ms_p50"] = float(np.percentile(lat, 50)) if lat.size else None
         p["latency_ms_p99"] = float(np.percentile(lat, 99)) if lat.size else None
-        during = [h for h in health if p["t_end"] - phase_s - 1.0 <= h["t"] <= p["t_end"] and h.get("latency_ms")]
-        p["recorder_latency_ms_p50"] = float(np.median([h["latency_ms"]["p50"] for h in during])) if during else None
+        during = [h for t, h in health if p["t_end"] - phase_s - 1.0 <= t <= p["t_end"] and h.latency_ms]
+        p["recorder_latency_ms_p50"] = float(np.median([h.latency_ms.p50 for h in during])) if during else None
         rate = p["achieved_multiple"] * 4 * frame_bytes / wf.frame_interval_s
         p["mbytes_per_s"] = rate / 1e6
         p["datagrams_per_s"] = p["achieved_multiple"] * 4 * player.datagrams_per_frame / wf.frame_interval_s

@@ -141,7 +141,7 @@ def main() -> int:
 def real_bag(tmp: Path) -> dict:
     """The real hand-held recording: no ground truth, so what can be said: gate acceptance, speeds, the
     distance between where the walk started and where it ended."""
-    from acquisition.bag_import import import_bag
+    from acquisition.importers.bag import import_bag
     from rio.ekf import EkfConfig
 
     data = ROOT.parent / "shared" / "data" / "ti_mmwave_rospkg_demo"

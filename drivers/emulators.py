@@ -27,10 +27,12 @@ class XbusPty:
         Multiple of real time; None for as fast as the pty takes it.
     noise : callable(k) -> bytes, optional
         Bytes to write before packet k (line noise in tests).
+    start_counter : int or None
+        Packet counter of the first packet; None for an IMU configured without a packet counter.
     """
 
     def __init__(self, gyro_radps, accel_mps2, rate_hz: float, trigger_index: int = 0, start_ticks: int = 123_456,
-                 speed: float | None = None, noise=None, start_counter: int = 0):
+                 speed: float | None = None, noise=None, start_counter: int | None = 0):
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)
         self.port = os.ttyname(self.slave)
@@ -47,7 +49,8 @@ class XbusPty:
 
     def packet(self, k: int) -> bytes:
         ticks = self.start_ticks + round(k * 10_000 / self.rate_hz)
-        return encode_mtdata2(ImuPacket(counter=(self.start_counter + k) & 0xFFFF, sample_time_fine=ticks & 0xFFFFFFFF,
+        counter = None if self.start_counter is None else (self.start_counter + k) & 0xFFFF
+        return encode_mtdata2(ImuPacket(counter=counter, sample_time_fine=ticks & 0xFFFFFFFF,
                                         accel_mps2=tuple(self.accel[k]), gyro_radps=tuple(self.gyro[k]),
                                         status=STATUS_SYNC_IN if k == self.trigger_index else 0))
 

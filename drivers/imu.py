@@ -21,8 +21,10 @@ import numpy as np
 
 from .xbus import SAMPLE_TIME_FINE_HZ, ImuPacket, XbusParser
 
-log = logging.getLogger(__name__)
+log = logging.getLogger(f"sarbot.{__name__}")
 TICK_NS = 1_000_000_000 // SAMPLE_TIME_FINE_HZ
+#: The counter recorded for a sample whose packet had no packet counter (an IMU not configured to send one).
+NO_COUNTER = 0xFFFFFFFF
 
 
 @dataclasses.dataclass
@@ -30,7 +32,7 @@ class ImuSample:
     time_ns: int  # PTP time base
     gyro_radps: tuple[float, float, float]
     accel_mps2: tuple[float, float, float]
-    counter: int
+    counter: int  # NO_COUNTER when the packet carried none
     host_time_ns: int
     sync_in: bool
 
@@ -140,7 +142,7 @@ class ImuDriver:
 
     def _sample(self, packet: ImuPacket, ticks: int, host: int) -> ImuSample:
         return ImuSample(self.clock.time_ns(ticks), packet.gyro_radps, packet.accel_mps2,
-                         packet.counter if packet.counter is not None else -1, host, packet.sync_in)
+                         packet.counter if packet.counter is not None else NO_COUNTER, host, packet.sync_in)
 
     def close(self) -> None:
         self.serial.close()

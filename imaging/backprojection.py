@@ -220,18 +220,24 @@ def backproject(
     r_ref = np.zeros(n_p) if reference_range_m is None else np.ascontiguousarray(reference_range_m, dtype=np.float64)
     if out is None:
         out = np.zeros(shape, np.complex128)
-    flat_out = out.reshape(-1)
+    elif out.shape != shape or out.dtype != np.complex128:
+        raise ValueError(f"out must be complex128 of shape {shape} (the grid's), got {out.dtype} {out.shape}")
+    # The kernels write through a flat view; a non-contiguous ``out`` (a slice of a larger image) has none,
+    # so they accumulate into a contiguous buffer that is added to it at the end.
+    flat_out = out.reshape(-1) if out.flags.c_contiguous else np.zeros(out.size, np.complex128)
     if mode == "exact":
         if profiles.samples is None:
             raise ValueError("mode 'exact' needs the raw samples: range_compress(..., keep_samples=True)")
         samples = np.ascontiguousarray(profiles.samples.reshape(n_p, -1), dtype=np.complex128)
         _bp_exact(samples, profiles.f0_hz, profiles.frequency_step_hz, tx, rx, r_ref, gx, gy, gz, flat_out)
-        return out
-    k = 2.0 * math.pi * profiles.carrier_hz / SPEED_OF_LIGHT_MPS
-    rows = _guarded(data)
-    # Profiles in chunks, all grid blocks per chunk: the chunk's rows stay in cache while every block
-    # reads them, instead of every block streaming all profiles from memory.
-    for p0 in range(0, n_p, PROFILE_CHUNK):
-        _bp_interp(rows, p0, min(p0 + PROFILE_CHUNK, n_p), profiles.range_start_m, 1.0 / profiles.range_step_m, k,
-                   tx, rx, r_ref, gx, gy, gz, mode == "linear", flat_out)
+    else:
+        k = 2.0 * math.pi * profiles.carrier_hz / SPEED_OF_LIGHT_MPS
+        rows = _guarded(data)
+        # Profiles in chunks, all grid blocks per chunk: the chunk's rows stay in cache while every block
+        # reads them, instead of every block streaming all profiles from memory.
+        for p0 in range(0, n_p, PROFILE_CHUNK):
+            _bp_interp(rows, p0, min(p0 + PROFILE_CHUNK, n_p), profiles.range_start_m, 1.0 / profiles.range_step_m, k,
+                       tx, rx, r_ref, gx, gy, gz, mode == "linear", flat_out)
+    if not out.flags.c_contiguous:
+        out += flat_out.reshape(shape)
     return out

@@ -17,7 +17,7 @@ from imaging.io.image_file import SarImage
 from imaging.io.recording import Recording
 from imaging.range_compression import range_compress
 
-log = logging.getLogger(__name__)
+log = logging.getLogger(f"sarbot.{__name__}")
 
 
 @dataclasses.dataclass

@@ -194,3 +194,41 @@ def analyze_target(image: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, look_dir
     ex = int(np.ceil(5 * max(widths.values()) / min(dx, dy))) if np.all(np.isfinite(list(widths.values()))) else 10
     out["snr_db"] = image_snr_db(image, (iy, ix), (ex, ex))
     return out
+
+
+def compare_with_theory(result: dict, image: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, attrs: dict,
+                        wavelength_m: float, *, vibration: bool = False, half_length_m: float = 0.3) -> dict:
+    """Add to ``analyze_target``'s ``result`` what theory expects of the image (its ``attrs`` say the
+    aperture and bandwidth): range and cross-range half-power widths and their ratios to theory, and with
+    ``vibration`` the boresight vibration (f_vib, A_vib) inferred from paired cross-range side lobes.
+
+    Images without ``aperture_centre_m`` and ``aperture_length_m`` (a strip map, another tool's image)
+    have no theory to compare with; ``result`` comes back unchanged.
+    """
+    if "aperture_centre_m" not in attrs or "aperture_length_m" not in attrs:
+        return result
+    centre = np.asarray(attrs["aperture_centre_m"])
+    peak = result["peak_m"]
+    r0 = float(np.hypot(peak[0] - centre[0], peak[1] - centre[1]))
+    aperture = float(attrs["aperture_length_m"])
+    theory = {
+        "range_half_power_width_m": range_resolution_theory_m(float(attrs["bandwidth_hz"]), str(attrs.get("window", "hann"))),
+        "cross_range_half_power_width_m": cross_range_resolution_theory_m(wavelength_m, r0, aperture),
+        "aperture_length_m": aperture,
+    }
+    result["range_to_target_m"] = r0
+    result["theory"] = theory
+    result["range"]["ratio_to_theory"] = result["range"]["half_power_width_m"] / theory["range_half_power_width_m"]
+    result["cross_range"]["ratio_to_theory"] = (result["cross_range"]["half_power_width_m"]
+                                                / theory["cross_range_half_power_width_m"])
+    if vibration:
+        look = np.asarray(attrs.get("look_direction", [0.0, 1.0, 0.0]), float)[:2]
+        look = look / np.linalg.norm(look)
+        s, v = cut(image, x_m, y_m, peak, (-look[1], look[0]), half_length_m, 2001)
+        offset, level, _ = paired_sidelobes(s, v, min_offset_m=2 * result["cross_range"]["half_power_width_m"])
+        result["vibration"] = {
+            "sidelobe_offset_m": offset, "sidelobe_level_db": level,
+            "frequency_hz": vibration_frequency_hz(offset, r0, float(attrs.get("speed_mps", 0.0)), wavelength_m),
+            "amplitude_m": vibration_amplitude_m(level, wavelength_m),
+        }
+    return result

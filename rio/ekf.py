@@ -210,6 +210,16 @@ class RadarInertialEkf:
         self.bias_log = [(int(time_ns), self.state.bg.copy(), self.state.ba.copy())]
         return self.state
 
+    @property
+    def last_gyro_radps(self) -> np.ndarray:
+        """The latest IMU rate of turn the filter propagated with (bias not removed), rad/s."""
+        return self._last_gyro
+
+    @property
+    def last_accel_mps2(self) -> np.ndarray:
+        """The latest IMU specific force the filter propagated with (bias not removed), m/s^2."""
+        return self._last_accel
+
     # -- propagation ------------------------------------------------------------------------------------
     def propagate(self, time_ns: int, accel_mps2: np.ndarray | None = None, gyro_radps: np.ndarray | None = None) -> None:
         """Strapdown from the state time to ``time_ns`` with the IMU sample taken at the state time, then

@@ -17,7 +17,7 @@ from imaging.io.recording import Recording
 from .ego_velocity import EgoStatus, EgoVelocityConfig, body_velocity, sensor_velocity
 from .ekf import EkfConfig, RadarInertialEkf
 
-log = logging.getLogger(__name__)
+log = logging.getLogger(f"sarbot.{__name__}")
 
 
 @dataclasses.dataclass
@@ -122,7 +122,7 @@ def run_rio(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOptio
                 group.append(scans[j])
                 j += 1
         ekf.propagate(group[-1].time_ns)
-        helped, reason = _radar_update(ekf, group, options, rng, stats)
+        helped, reason = radar_update(ekf, group, options, rng, stats)
         status_log.extend((g.time_ns, g.radar, reason) for g in group)
         if options.ekf.planar:
             ekf.update_planar()
@@ -166,9 +166,11 @@ def _bias_history(ekf: RadarInertialEkf, times: np.ndarray):
     return bg, ba
 
 
-def _radar_update(ekf: RadarInertialEkf, group: list[RadarScan], options: RioOptions, rng, stats: Counter):
+def radar_update(ekf: RadarInertialEkf, group: list[RadarScan], options: RioOptions, rng, stats: Counter):
+    """One radar update of the filter from simultaneous scans (jointly or one by one, as ``options`` say);
+    returns (whether it helped, the reason when not). Shared by the batch and the streaming odometry."""
     if options.joint_radars and len(group) > 1:
-        w = ekf._last_gyro - ekf.state.bg
+        w = ekf.last_gyro_radps - ekf.state.bg
         est = body_velocity([(g.mount, g.xyz_m, g.doppler_mps) for g in group], w, options.ego, rng)
         return _apply(ekf, est, None, stats, options.ego)
     helped, reason = False, ""
@@ -181,8 +183,8 @@ def _radar_update(ekf: RadarInertialEkf, group: list[RadarScan], options: RioOpt
 
 def _imu_still(ekf: RadarInertialEkf) -> bool:
     """The IMU agrees the robot stands still: no rotation beyond noise, specific force of gravity alone."""
-    w = ekf._last_gyro - ekf.state.bg
-    f = ekf._last_accel - ekf.state.ba
+    w = ekf.last_gyro_radps - ekf.state.bg
+    f = ekf.last_accel_mps2 - ekf.state.ba
     return bool(np.linalg.norm(w) < 0.01 and abs(np.linalg.norm(f) - GRAVITY_MPS2) < 0.15)
 
 

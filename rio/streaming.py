@@ -17,9 +17,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .ekf import RadarInertialEkf
-from .odometry import RadarScan, RioOptions, _radar_update
+from .odometry import RadarScan, RioOptions, radar_update
 
-log = logging.getLogger(__name__)
+log = logging.getLogger(f"sarbot.{__name__}")
 
 
 @dataclasses.dataclass
@@ -119,7 +119,7 @@ class StreamingRio:
                 continue
             self._propagate_to(int(np.searchsorted(self._imu_t, scan.time_ns, side="left")), chunks)
             self.ekf.propagate(scan.time_ns)
-            helped, _ = _radar_update(self.ekf, [scan], self.options, self._rng, self.stats)
+            helped, _ = radar_update(self.ekf, [scan], self.options, self._rng, self.stats)
             if self.options.ekf.planar:
                 self.ekf.update_planar()
         self._propagate_to(int(np.searchsorted(self._imu_t, horizon, side="right")), chunks)

@@ -106,3 +106,22 @@ def test_polynomial_sin_cos_against_numpy():
     got = np.array([_cos_sin(p) for p in phase])
     np.testing.assert_allclose(got[:, 0], np.cos(phase), atol=3e-7)
     np.testing.assert_allclose(got[:, 1], np.sin(phase), atol=3e-7)
+
+
+@pytest.mark.parametrize("mode", ["linear", "exact"])
+def test_out_accumulates_also_into_a_non_contiguous_view(mode):
+    """``out`` may be a slice of a larger image (a strided view): the result lands in it, added to what it
+    held, and nothing outside the view changes."""
+    rng = np.random.default_rng(3)
+    prof, tx, rx, points, _ = synthetic_case(rng, n_points=60)
+    grid = points[:60].reshape(6, 10, 3)
+    want = backproject(prof, tx, rx, grid, mode=mode)
+    big = np.full((6, 20), 1.0 + 2.0j)
+    view = big[:, ::2]
+    assert not view.flags.c_contiguous
+    got = backproject(prof, tx, rx, grid, mode=mode, out=view)
+    assert got is view
+    np.testing.assert_allclose(big[:, ::2], want + (1.0 + 2.0j), rtol=1e-12, atol=1e-9 * np.abs(want).max())
+    np.testing.assert_array_equal(big[:, 1::2], 1.0 + 2.0j)
+    with pytest.raises(ValueError, match="complex128 of shape"):
+        backproject(prof, tx, rx, grid, mode=mode, out=np.zeros((6, 10), np.complex64))

@@ -19,8 +19,9 @@ from test_record_replay_cli import RIG_TOML
 from test_round_trip import make_source
 
 from acquisition.bus import BusSubscriber
-from acquisition.daemon import free_port, free_tcp_endpoint
-from drivers.ti_cfg import load_ti_cfg
+from acquisition.messages import Health
+from acquisition.processes import free_port, free_tcp_endpoint
+from drivers.radar.ti_cfg import load_ti_cfg
 from imaging.core.rig import AntennaArray, Mount, RadarConfig
 from imaging.core.trajectory import PathWithTurns
 from imaging.io.recording import Recording, RecordingWriter
@@ -55,14 +56,14 @@ def test_dca1000_and_can_replayed_into_record_split_in_parts_with_health_on_the_
     can = ["--can", "udp_multicast:239.74.163.2", "--can-arg", f"port={can_port}"]
     ctx = zmq.Context()
     health = []
-    sub = BusSubscriber(health_endpoint, topics=["health"], context=ctx)
+    sub = BusSubscriber(health_endpoint, topics=[Health.TOPIC], context=ctx)
     done = threading.Event()
 
     def listen():
         while not done.is_set():
             m = sub.receive(timeout_ms=100)
             if m is not None:
-                health.append(m.header)
+                health.append(Health.from_message(m))
 
     listener = threading.Thread(target=listen)
     listener.start()
@@ -95,11 +96,11 @@ def test_dca1000_and_can_replayed_into_record_split_in_parts_with_health_on_the_
     assert np.concatenate(frames_valid).all()
     for key in ("arbitration_id", "dlc", "data"):
         np.testing.assert_array_equal(np.concatenate([c[key] for c in can_rows]), base[key])
-    reports = [h for h in health if h["frames_per_s"].get("iwr", 0) > 0]
+    reports = [h for h in health if h.frames_per_s.get("iwr", 0) > 0]
     assert reports, health
-    assert 5 < max(h["frames_per_s"]["iwr"] for h in reports) < 15  # the .cfg's 10 frames/s
-    assert all(h["bus_lost"] == 0 and h["restarts"] == 0 for h in health)
-    assert any(h["clock"]["trigger_seen"] for h in health)  # the CAN trigger frame
+    assert 5 < max(h.frames_per_s["iwr"] for h in reports) < 15  # the .cfg's 10 frames/s
+    assert all(h.bus_lost == 0 and h.restarts == 0 for h in health)
+    assert any(h.clock.trigger_seen for h in health)  # the CAN trigger frame
 
 
 def test_record_killed_with_sigkill_keeps_what_it_flushed_and_takes_its_drivers_along(tmp_path):
@@ -180,3 +181,25 @@ def test_a_full_disk_stops_recording_cleanly_and_keeps_the_file_readable(tmp_pat
         n = rec.n_frames("left")
         assert 3 <= n < 60
         np.testing.assert_array_equal(rec.file["radar/left/adc"][:n], iq[:n])
+
+
+def test_verbose_logging_reaches_every_driver_process(tmp_path):
+    """``sarbot -v record``: debug lines of the radar driver process and the IMU driver's own module
+    (``drivers.imu``, in its process) reach the terminal, each tagged with the process's role."""
+    from drivers.emulators import XbusPty
+
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG_TOML)
+    n = 800
+    emu = XbusPty(np.zeros((n, 3)), np.tile([0.0, 0.0, 9.81], (n, 1)), rate_hz=400.0, speed=1.0)
+    port = free_port(socket.SOCK_DGRAM)
+    record = subprocess.Popen([*CLI, "-v", "record", "--config", str(rig), "-o", str(tmp_path / "out"),
+                               "--radar", f"left={port}", "--imu-port", emu.port, "--duration", "6"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(3.0)  # the drivers open their ports
+    emu.start()
+    out, err = record.communicate(timeout=60)
+    emu.close()
+    assert record.returncode == 0, err
+    assert "DEBUG [left] sarbot.acquisition.driver_loops: radar left: stream ended" in err
+    assert "INFO [imu] sarbot.drivers.imu: IMU: trigger seen" in err

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from conftest import SHARED_DATA
 
-from drivers.dca1000 import (
+from drivers.radar.dca1000 import (
     DATA_PORT,
     Dca1000Assembler,
     complex_1x_to_iq,
@@ -13,8 +13,8 @@ from drivers.dca1000 import (
     iq_to_complex_1x,
     parse_data_packet,
 )
-from drivers.pcap import read_udp
-from drivers.ti_cfg import load_ti_cfg, parse_ti_cfg
+from drivers.radar.pcap import read_udp
+from drivers.radar.ti_cfg import load_ti_cfg, parse_ti_cfg
 from imaging.core.errors import ConfigError
 
 DATA = SHARED_DATA / "dca1000_iwr1843_one_frame"
@@ -125,9 +125,11 @@ def test_real_capture_replayed_on_loopback_through_the_driver():
     import zmq
 
     from acquisition.bus import BusPublisher, BusSubscriber
-    from acquisition.pipeline import radar_driver_loop, replay_pcap
-    from drivers.radar_stream import Dca1000Stream
-    from drivers.udp import UdpReceiver
+    from acquisition.driver_loops import radar_driver_loop
+    from acquisition.messages import Event, RadarFrameMessage
+    from acquisition.replay import replay_pcap
+    from drivers.radar.dca1000 import Dca1000Stream
+    from drivers.radar.udp import UdpReceiver
 
     cfg = load_ti_cfg(DATA / "xwr18xx_profile.cfg")
     ctx = zmq.Context()
@@ -152,16 +154,16 @@ def test_real_capture_replayed_on_loopback_through_the_driver():
     pub.close()
     sub.close()
     ctx.term()
-    frames = [m for m in messages if m.topic == "radar/iwr1843"]
+    frames = [RadarFrameMessage.from_message(m).frame for m in messages if m.topic == RadarFrameMessage.topic_of("iwr1843")]
     assert sent == 12 and stream.counters.datagrams == 12 and stream.counters.sequence_gaps == 0
     assert len(frames) == 1
-    iq = frames[0].arrays[0]
+    iq = frames[0].iq
     assert iq.shape == (cfg.chirps_per_frame, cfg.n_rx, cfg.adc_samples, 2) == (32, 4, 256, 2)
     payload = b"".join(bytes(parse_data_packet(d.payload)[2]) for d in read_udp(DATA / "one_frame.pcap") if d.dst_port == DATA_PORT)
     flat = iq.reshape(-1, 2)
     np.testing.assert_array_equal(flat[:4096], complex_1x_to_iq(payload, 1, 1, 4096).reshape(-1, 2))
     assert flat[4065].tolist() == [223, 120] and not np.any(flat[4096:])
     # The capture holds an eighth of the frame: it is passed on, zero-filled and marked invalid, and said so.
-    assert frames[0].header["valid"] is False and frames[0].header["bytes_missing"] == cfg.frame_bytes - 16384
-    assert frames[0].header["receive_ns"] > 1.6e18  # a kernel time stamp, not a placeholder
-    assert any("bytes_lost +114688" in m.header["message"] for m in messages if m.topic == "event")
+    assert frames[0].valid is False and frames[0].bytes_missing == cfg.frame_bytes - 16384
+    assert frames[0].receive_ns > 1.6e18  # a kernel time stamp, not a placeholder
+    assert any("bytes_lost +114688" in Event.from_message(m).message for m in messages if m.topic == Event.TOPIC)

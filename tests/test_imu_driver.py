@@ -65,3 +65,42 @@ def test_tick_counter_wraps_and_drift_is_estimated():
     for k in range(200):
         clock.observe(k * 100, int(k * 100 * 100_000 * (1 + 30e-6)))
     assert clock.drift_ppm() == pytest.approx(30.0, abs=0.5)
+
+
+def test_packets_without_a_counter_are_recorded_with_the_no_counter_mark():
+    """An Xsens configured without the packet counter: the production driver loop publishes its samples
+    (with NO_COUNTER) instead of crashing on a counter of -1."""
+    import threading
+
+    import zmq
+
+    from acquisition.bus import BusPublisher, BusSubscriber
+    from acquisition.driver_loops import imu_driver_loop
+    from acquisition.messages import ImuBatch
+    from drivers.imu import NO_COUNTER
+
+    n = 200
+    emu = XbusPty(np.zeros((n, 3)), np.tile([0.0, 0.0, 9.81], (n, 1)), rate_hz=400.0, start_counter=None)
+    ctx = zmq.Context()
+    pub = BusPublisher("tcp://127.0.0.1:0", context=ctx)
+    sub = BusSubscriber(pub.endpoint, topics=[ImuBatch.TOPIC], context=ctx)
+    stop = threading.Event()
+    loop = threading.Thread(target=imu_driver_loop, args=(emu.port, pub, stop, T_TRIGGER))
+    loop.start()
+    time.sleep(0.3)
+    emu.start()
+    batches = []
+    deadline = time.monotonic() + 10
+    while sum(len(b) for b in batches) < n and time.monotonic() < deadline:
+        m = sub.receive(timeout_ms=100)
+        if m is not None:
+            batches.append(ImuBatch.from_message(m))
+    stop.set()
+    loop.join(5)
+    emu.close()
+    pub.close(), sub.close(), ctx.term()
+    assert not loop.is_alive()
+    counters = np.concatenate([b.counter for b in batches])
+    assert counters.size == n and counters.dtype == np.uint32
+    assert np.all(counters == NO_COUNTER)
+    np.testing.assert_array_equal(np.diff(np.concatenate([b.time_ns for b in batches])), 2_500_000)

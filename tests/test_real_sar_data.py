@@ -6,8 +6,9 @@ import pytest
 from conftest import SHARED_DATA
 from reference_backprojection import backproject_reference
 
+from imaging import metrics
 from imaging.backprojection import backproject
-from imaging.core.constants import SPEED_OF_LIGHT_MPS, metrics
+from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.io.phase_history import read_afrl_gotcha
 from imaging.range_compression import range_compress
 

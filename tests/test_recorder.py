@@ -10,7 +10,9 @@ import numpy as np
 import zmq
 
 from acquisition.bus import BusPublisher
+from acquisition.messages import Event, ImuBatch, RadarFrameMessage, Trigger
 from acquisition.recorder import Recorder
+from drivers.radar.stream import RadarFrame
 from imaging.core.rig import rig_from_dict
 from imaging.io.recording import Recording
 
@@ -30,11 +32,11 @@ def test_frames_imu_and_gaps_are_recorded(tmp_path):
         if k == 6:
             pub._seq["radar/left"] += 1  # a message lost between driver and recorder
             continue
-        pub.publish("radar/left", 1000 + k, [iq], frame_counter=k, frame_time_ns=1000 + k, receive_ns=5000 + k, valid=k != 3)
+        pub.send(RadarFrameMessage("left", RadarFrame(k, 1000 + k, 5000 + k, k != 3, 0, iq)))
     t = np.arange(5, dtype=np.int64)
-    pub.publish("imu", 0, [t, np.ones((5, 3)), np.full((5, 3), 9.8), t.astype(np.uint32), t + 7])
-    pub.publish("trigger", 999, source="sync_box")
-    pub.publish("event", 1234, source="radar.left", level="warning", message="3 datagrams lost in frame 3")
+    pub.send(ImuBatch(t, np.ones((5, 3)), np.full((5, 3), 9.8), t.astype(np.uint32), t + 7))
+    pub.send(Trigger(999, "sync_box"))
+    pub.send(Event(1234, "radar.left", "warning", "3 datagrams lost in frame 3"))
     while rec.step(timeout_ms=300):
         pass
     rec.close()
@@ -58,7 +60,9 @@ def test_recorder_killed_with_sigkill_leaves_its_flushed_data(tmp_path):
 import time, numpy as np, zmq, sys
 sys.path.insert(0, {str(os.getcwd())!r})
 from acquisition.bus import BusPublisher
+from acquisition.messages import RadarFrameMessage
 from acquisition.recorder import Recorder
+from drivers.radar.stream import RadarFrame
 from tests.test_recorder import RIG, SHAPE
 ctx = zmq.Context()
 pub = BusPublisher("tcp://127.0.0.1:0", context=ctx)
@@ -66,7 +70,7 @@ rec = Recorder({str(path)!r}, RIG, pub.endpoint, flush_interval_s=0.05, context=
 time.sleep(0.2)
 k = 0
 while True:
-    pub.publish("radar/left", k, [np.full(SHAPE, k % 1000, np.int16)], frame_counter=k, frame_time_ns=k, receive_ns=k, valid=True)
+    pub.send(RadarFrameMessage("left", RadarFrame(k, k, k, True, 0, np.full(SHAPE, k % 1000, np.int16))))
     k += 1
     rec.step(timeout_ms=10)
     if k == 40:

@@ -11,19 +11,12 @@ import pytest
 import zmq
 
 from acquisition.bus import BusPublisher
-from acquisition.pipeline import (
-    can_driver_loop,
-    imu_driver_loop,
-    imu_emulator,
-    radar_driver_loop,
-    replay_can,
-    replay_radar,
-)
+from acquisition.driver_loops import can_driver_loop, imu_driver_loop, radar_driver_loop
 from acquisition.recorder import Recorder
+from acquisition.replay import imu_emulator, replay_can, replay_radar
 from drivers.can_driver import CanDriver
-from drivers.imu import ImuDriver
-from drivers.radar_stream import Srf1Stream
-from drivers.udp import UdpReceiver
+from drivers.radar.srf1 import Srf1Stream
+from drivers.radar.udp import UdpReceiver
 from imaging.core.rig import rig_from_dict
 from imaging.core.trajectory import PathWithTurns
 from imaging.io.recording import Recording, RecordingWriter
@@ -70,13 +63,12 @@ def test_round_trip_sample_for_sample(tmp_path, speed):
     can_tx = can.Bus(interface="virtual", channel=channel)
     with Recording(src) as source:
         emu = imu_emulator(source, speed=speed)
-        driver = ImuDriver(emu.port, trigger_time_ns=int(source.triggers()[0]))
         threads = [threading.Thread(target=radar_driver_loop, args=(rx, "left", Srf1Stream(iq.shape[1:4]), pubs["radar"], stop)),
-                   threading.Thread(target=imu_driver_loop, args=(driver, pubs["imu"], stop)),
+                   threading.Thread(target=imu_driver_loop, args=(emu.port, pubs["imu"], stop, int(source.triggers()[0]))),
                    threading.Thread(target=can_driver_loop, args=(can_rx, pubs["can"], stop))]
-        time.sleep(0.3)
         for t in threads:
             t.start()
+        time.sleep(0.3)  # the drivers open their ports first, as on the robot (opening a serial port flushes it)
         emu.start()
         t0 = time.monotonic()
         sent_can = replay_can(source, can_tx, speed)
@@ -96,7 +88,6 @@ def test_round_trip_sample_for_sample(tmp_path, speed):
             pass
     rec.close()
     emu.close()
-    driver.close()
     rx.close()
     can_rx.close()
     can_tx.shutdown()

@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.srf1 import HEADER, MAX_PAYLOAD, FrameAssembler, encode_frame, parse
+from drivers.radar.srf1 import HEADER, MAX_PAYLOAD, FrameAssembler, encode_frame, parse
 
 SHAPE = (16, 4, 64, 2)  # a small frame: chirps, rx, samples, I/Q
 FRAME_BYTES = int(np.prod(SHAPE)) * 2

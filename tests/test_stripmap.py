@@ -133,8 +133,17 @@ def test_the_worker_publishes_tiles_and_its_lag_and_writes_the_map(drive, tmp_pa
     import time
 
     from acquisition.bus import BusPublisher, BusSubscriber
-    from acquisition.daemon import free_tcp_endpoint
-    from acquisition.workers import stripmap_worker
+    from acquisition.messages import (
+        MapStatus,
+        MapTile,
+        PoseBatch,
+        PoseEnd,
+        RadarFrameMessage,
+    )
+    from acquisition.processes import free_tcp_endpoint
+    from acquisition.workers import WorkerSpec, worker_process
+    from acquisition.workers.stripmap import StripMapWorker, StripMapWorkerConfig
+    from drivers.radar.stream import RadarFrame
     from imaging.core.rig import Rig
     from imaging.io.image_file import read_image
 
@@ -144,8 +153,9 @@ def test_the_worker_publishes_tiles_and_its_lag_and_writes_the_map(drive, tmp_pa
     ctx = mp.get_context("spawn")
     stop = ctx.Event()
     map_path = tmp_path / "map.h5"
-    worker = ctx.Process(target=stripmap_worker, args=([driver_ep], out_ep, Rig((radar,)), None, StripMapConfig(presum=4),
-                                                       pose_ep, str(map_path), stop))
+    spec = WorkerSpec("stripmap", StripMapWorker,
+                      StripMapWorkerConfig(Rig((radar,)), None, StripMapConfig(presum=4), pose_ep, str(map_path)), out_ep)
+    worker = ctx.Process(target=worker_process, args=(spec, [driver_ep], stop))
     worker.start()
     sub = BusSubscriber(out_ep, topics=["map/"])
     time.sleep(3.0)  # the worker imports and connects
@@ -154,13 +164,12 @@ def test_the_worker_publishes_tiles_and_its_lag_and_writes_the_map(drive, tmp_pa
     for k in range(20, 40):
         frame = iq[k]
         pub_iq = np.stack([frame.real, frame.imag], -1).round().astype(np.int16) if frame.dtype.kind == "c" else frame
-        frames_pub.publish(f"radar/{RADAR}", int(times[k]), [pub_iq], frame_counter=k, frame_time_ns=int(times[k]),
-                           receive_ns=time.time_ns(), valid=True)
+        frames_pub.send(RadarFrameMessage(RADAR, RadarFrame(k, int(times[k]), time.time_ns(), True, 0, pub_iq)))
         t = np.arange(times[k] - 50_000_000, times[k] + 110_000_000, 10_000_000, dtype=np.int64)
         s = truth.sample(t)
-        poses_pub.publish("pose", int(t[0]), [t, s.position_m, s.orientation_xyzw, s.velocity_mps])
+        poses_pub.send(PoseBatch(t, s.position_m, s.orientation_xyzw, s.velocity_mps))
         time.sleep(0.05)
-    poses_pub.publish("pose/end", time.time_ns())
+    poses_pub.send(PoseEnd(time.time_ns()))
     time.sleep(1.0)
     stop.set()
     tiles, status = {}, None
@@ -171,14 +180,15 @@ def test_the_worker_publishes_tiles_and_its_lag_and_writes_the_map(drive, tmp_pa
             if not worker.is_alive():
                 break
             continue
-        if m.topic == "map/tile":
-            tiles[tuple(m.header["key"])] = np.array(m.arrays[0])
-        elif m.topic == "map/status":
-            status = m.header
+        if m.topic == MapTile.TOPIC:
+            tile = MapTile.from_message(m)
+            tiles[tile.key] = np.array(tile.image)
+        elif m.topic == MapStatus.TOPIC:
+            status = MapStatus.from_message(m)
     worker.join(30)
     frames_pub.close(), poses_pub.close(), sub.close()
     assert worker.exitcode == 0
-    assert status is not None and status["frames_imaged"] == 20 and status["max_lag_s"] > 0 and status["tiles"] == len(tiles)
+    assert status is not None and status.frames_imaged == 20 and status.max_lag_s > 0 and status.tiles == len(tiles)
     img = read_image(map_path)
     n = img.attrs["tile_px"]
     x0 = min(k[0] for k in tiles) * n * 0.01

@@ -6,8 +6,8 @@ import time
 
 import numpy as np
 
-from drivers.srf1 import FrameAssembler, encode_frame
-from drivers.udp import UdpReceiver
+from drivers.radar.srf1 import FrameAssembler, encode_frame
+from drivers.radar.udp import UdpReceiver
 
 SHAPE = (64, 4, 175, 2)
 FRAME_BYTES = int(np.prod(SHAPE)) * 2

@@ -228,8 +228,18 @@ class RecordingWriter:
         self._append(g["level"], [level])
         self._append(g["message"], [message])
 
+    def set_imu_clock_drift_ppm(self, drift_ppm: float) -> None:
+        """Record the IMU clock's drift against the host clock (``/imu`` attribute ``clock_drift_ppm``)."""
+        if "imu" in self._f:
+            self._f["imu"].attrs["clock_drift_ppm"] = drift_ppm
+
     def flush(self) -> None:
+        """Write everything appended so far to the file (the page cache): a killed process loses none of it."""
         self._f.flush()
+
+    def fileno(self) -> int:
+        """The file's descriptor, for ``os.fsync`` (which takes flushed data from the page cache to the disk)."""
+        return self._f.id.get_vfd_handle()
 
     def close(self) -> None:
         if self._f.id.valid:
@@ -298,6 +308,15 @@ class Recording:
 
     def frame_time_ns(self, name: str, frames: slice = slice(None)) -> np.ndarray:
         return np.asarray(self._radar_group(name)["frame_time_ns"][frames], np.int64)
+
+    def frame_counter(self, name: str, frames: slice = slice(None)) -> np.ndarray:
+        """The sensor's own frame counters, uint32."""
+        return np.asarray(self._radar_group(name)["frame_counter"][frames], np.uint32)
+
+    def wire_format(self, name: str) -> str | None:
+        """The wire format the radar's frames arrived in ("SRF1", "DCA1000", ...; "simulated"), or None."""
+        value = self._radar_group(name).attrs.get("wire_format")
+        return value.decode() if isinstance(value, bytes) else value
 
     def valid(self, name: str, frames: slice = slice(None)) -> np.ndarray:
         return np.asarray(self._radar_group(name)["valid"][frames], bool)

@@ -18,7 +18,7 @@ from imaging.core.rig import AntennaArray, ImuConfig, Mount, RadarConfig
 from imaging.core.waveform import Waveform
 from imaging.io.recording import RecordingWriter
 
-log = logging.getLogger(__name__)
+log = logging.getLogger(f"sarbot.{__name__}")
 
 #: PointCloud2 field name -> where sarbot needs it.
 _FIELDS = ("x", "y", "z", "intensity", "velocity")

@@ -39,9 +39,9 @@ from imaging.sim.scene import load_scene
 from imaging.sim.simulator import simulate_recording
 from imaging.sim.targets import CornerReflector, PointTarget, Rod
 
-from .progress import Progress
+from ..progress import Progress
 
-log = logging.getLogger("sarbot.paper")
+log = logging.getLogger(f"sarbot.{__name__}")
 
 RADAR = "left_front"
 ONE_PAIR = ImagingOptions(tx=(0,), rx=(0,))  # one virtual channel: the aperture is the motion alone

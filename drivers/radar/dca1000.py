@@ -13,10 +13,17 @@ from __future__ import annotations
 
 import dataclasses
 import struct
+from pathlib import Path
 
 import numpy as np
 
+from imaging.core.errors import ConfigError
 from imaging.core.samples import iq_to_complex
+from imaging.core.waveform import Waveform
+
+from .registry import WireFormat
+from .stream import RadarFrame
+from .ti_cfg import TiRadarConfig, load_ti_cfg
 
 DATA_PORT = 4098
 CONFIG_PORT = 4096
@@ -191,3 +198,74 @@ def iq_to_complex_1x(iq: np.ndarray) -> bytes:
     quad = np.empty((pairs.shape[0], 4), "<i2")
     quad[:, 0], quad[:, 1], quad[:, 2], quad[:, 3] = pairs[:, 0, 1], pairs[:, 1, 1], pairs[:, 0, 0], pairs[:, 1, 0]
     return quad.tobytes()
+
+
+class Dca1000Stream:
+    """DCA1000 raw byte stream to frames, laid out by the TI ``.cfg``.
+
+    The DCA1000 sends no time stamps and no frame counter: the counter is the frame's index in the stream
+    and its time the kernel receive time of its first datagram (put on the PTP base by the host clock).
+    """
+
+    wire_format = "DCA1000"
+
+    def __init__(self, cfg: TiRadarConfig):
+        if not cfg.complex_output:
+            raise ValueError("only complex ADC output (adcCfg/adcbufCfg complex 1x) is supported for DCA1000 streams")
+        self.cfg = cfg
+        self._asm = Dca1000Assembler(cfg.frame_bytes)
+        self.counters = self._asm.counters
+
+    def _frames(self, frames) -> list[RadarFrame]:
+        c = self.cfg
+        return [RadarFrame(f.index, f.first_receive_ns, f.first_receive_ns, f.valid, f.bytes_missing,
+                           complex_1x_to_iq(f.data, c.chirps_per_frame, c.n_rx, c.adc_samples)) for f in frames]
+
+    def feed(self, datagram: bytes, receive_ns: int) -> list[RadarFrame]:
+        return self._frames(self._asm.feed(datagram, receive_ns))
+
+    def flush(self) -> list[RadarFrame]:
+        return self._frames(self._asm.flush())
+
+
+class Dca1000Encoder:
+    """Frames to the DCA1000's byte stream: sequence numbers and byte counts run on across frames."""
+
+    def __init__(self):
+        self.sequence = 1
+        self.stream_bytes = 0
+
+    def __call__(self, frame_counter: int, frame_time_ns: int, iq: np.ndarray) -> list[bytes]:
+        wire = iq_to_complex_1x(iq)
+        datagrams = encode_data_packets(wire, start_seq=self.sequence, start_byte=self.stream_bytes)
+        self.sequence += len(datagrams)
+        self.stream_bytes += len(wire)
+        return datagrams
+
+
+def _configure(options: dict[str, str], where: str) -> TiRadarConfig:
+    unknown = set(options) - {"cfg"}
+    if unknown:
+        raise ConfigError(f"{where}.{sorted(unknown)[0]}", "unknown option (DCA1000 takes cfg=FILE)")
+    if "cfg" not in options:
+        raise ConfigError(f"{where}.cfg", "a DCA1000 radar needs its TI .cfg file (cfg=FILE)")
+    cfg = load_ti_cfg(Path(options["cfg"]))
+    if not cfg.complex_output:
+        raise ConfigError(f"{where}.cfg", f"{options['cfg']}: only complex ADC output (adcCfg complex 1x) is supported")
+    return cfg
+
+
+def _waveform(cfg: TiRadarConfig) -> Waveform:
+    return cfg.waveform()
+
+
+def _open_stream(waveform: Waveform, cfg: TiRadarConfig, radar_id: int | None) -> Dca1000Stream:
+    return Dca1000Stream(cfg)
+
+
+def _open_encoder(radar_id: int) -> Dca1000Encoder:
+    return Dca1000Encoder()
+
+
+WIRE_FORMAT = WireFormat("DCA1000", "TI DCA1000EVM raw ADC stream, laid out by the radar's TI .cfg", _open_stream,
+                         _open_encoder, configure=_configure, waveform=_waveform, options=("cfg",))

@@ -14,9 +14,15 @@ invalid, never passed on as if complete; a jump in the frame counter (a restart)
 from __future__ import annotations
 
 import dataclasses
+import functools
 import struct
 
 import numpy as np
+
+from imaging.core.waveform import Waveform
+
+from .registry import WireFormat
+from .stream import RadarFrame
 
 MAGIC = b"SRF1"
 VERSION = 1
@@ -232,3 +238,35 @@ class FrameAssembler:
         out = self._flush_all()
         self._next_emit = None
         return out
+
+
+class Srf1Stream:
+    """SRF1 datagrams to frames; frame time and counter come from the datagrams."""
+
+    wire_format = "SRF1"
+
+    def __init__(self, shape: tuple[int, int, int], radar_id: int | None = None):
+        self.shape = (*shape, 2)
+        self._asm = FrameAssembler(int(np.prod(self.shape)) * 2, radar_id=radar_id)
+        self.counters = self._asm.counters
+
+    def _frames(self, frames) -> list[RadarFrame]:
+        return [RadarFrame(f.frame_counter, f.frame_time_ns, f.last_receive_ns, f.valid, f.bytes_missing,
+                           np.frombuffer(f.data, dtype="<i2").reshape(self.shape), f.ptp_locked) for f in frames]
+
+    def feed(self, datagram: bytes, receive_ns: int) -> list[RadarFrame]:
+        return self._frames(self._asm.feed(datagram, receive_ns))
+
+    def flush(self) -> list[RadarFrame]:
+        return self._frames(self._asm.flush())
+
+
+def _open_stream(waveform: Waveform, settings, radar_id: int | None) -> Srf1Stream:
+    return Srf1Stream((waveform.chirps_per_frame, waveform.n_rx, waveform.samples_per_chirp), radar_id)
+
+
+def _open_encoder(radar_id: int):
+    return functools.partial(encode_frame, radar_id)
+
+
+WIRE_FORMAT = WireFormat("SRF1", "PTP-stamped frame chunks (the reference radar)", _open_stream, _open_encoder)

@@ -32,10 +32,10 @@ from imaging.sim.simulator import simulate_recording
 from imaging.sim.targets import CornerReflector, Rod
 from imaging.stripmap import StripMapConfig
 
+from ..progress import Progress
 from .paper import label_of, target_xy
-from .progress import Progress
 
-log = logging.getLogger("sarbot.demo")
+log = logging.getLogger(f"sarbot.{__name__}")
 
 SCENE = "demo_room"
 APERTURE_M = 0.3
@@ -54,16 +54,18 @@ def _targets_in_start_frame(scene) -> list[tuple[str, np.ndarray]]:
 
 
 def _emulate_hardware(sim_path: str, targets: dict, imu_link: str, speed: float, can) -> None:
-    from .daemon import replay
+    from ..replay import replay
 
     replay(Path(sim_path), targets, imu_link, speed, start_delay_s=4.0, can=can)
 
 
 def run_demo(out_dir: Path, speed: float = 0.5) -> int:
     from drivers.can_driver import CanConfig
+    from drivers.radar.link import RadarLink
 
-    from .daemon import RadarLink, Setup, free_port, record
-    from .workers import add_pipeline_workers
+    from ..daemon import Setup, record
+    from ..processes import free_port
+    from ..workers.pipeline import add_pipeline_workers
 
     t_start = time.monotonic()
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -117,7 +119,7 @@ def run_demo(out_dir: Path, speed: float = 0.5) -> int:
         health.append(report)
         bar(min(time.monotonic() - t_run, expected_s), expected_s)
         # Stop once the hardware has sent everything and the daemon has taken it all (a quiet second).
-        if finished.is_set() and not any(report["frames_per_s"].values()) and report["imu_hz"] == 0:
+        if finished.is_set() and not any(report.frames_per_s.values()) and report.imu_hz == 0:
             done.set()
 
     record(setup, out_dir, until=done, on_health=on_health, path=rec_path)

@@ -1,0 +1,163 @@
+"""The device drivers' loops and the processes that run them: radar (UDP -> frames -> bus), IMU (serial ->
+timed samples -> bus) and CAN (python-can -> frames -> bus).
+
+Each loop runs until its ``stop`` event is set; the daemon runs each in a process of its own
+(``radar_process``, ``imu_process``, ``can_process``), tests may run them in threads. This module and
+what it imports stay free of h5py and matplotlib: a driver process only moves bytes.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+
+from drivers.can_driver import CanConfig, CanDriver
+from drivers.imu import ImuDriver
+from drivers.radar.link import RadarLink
+from drivers.radar.stream import RadarStream, trouble
+from drivers.radar.udp import UdpReceiver
+from imaging.core.waveform import Waveform
+
+from .bus import BusPublisher, BusSubscriber
+from .messages import CanBatch, Event, ImuBatch, RadarFrameMessage, Trigger
+from .processes import become_child
+
+log = logging.getLogger(f"sarbot.{__name__}")
+
+
+def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pub: BusPublisher,
+                      stop: threading.Event, report_every_s: float = 1.0) -> RadarStream:
+    """Receive datagrams, reassemble frames with ``stream``, publish each frame; wire trouble and kernel
+    drops are published as events. Returns the stream."""
+    reported = trouble(stream.counters)
+    last_report = time.monotonic()
+    kernel_drops = 0
+
+    def report(now_ns: int) -> None:
+        nonlocal reported
+        now = trouble(stream.counters)
+        changes = {k: now[k] - reported[k] for k in now if now[k] != reported[k]}
+        if changes:
+            pub.send(Event(now_ns, f"radar.{radar}", "warning", ", ".join(f"{k} +{v}" for k, v in changes.items())))
+        reported = now
+
+    while not stop.is_set():
+        got = receiver.receive()
+        if got is None:
+            continue
+        data, t_ns, drops = got
+        if drops > kernel_drops:
+            pub.send(Event(t_ns, f"radar.{radar}", "error",
+                           f"kernel dropped {drops - kernel_drops} datagram(s) (socket buffer full)"))
+            kernel_drops = drops
+        for frame in stream.feed(data, t_ns):
+            pub.send(RadarFrameMessage(radar, frame))
+            if not frame.valid:
+                report(t_ns)
+        if time.monotonic() - last_report > report_every_s:
+            report(time.time_ns())
+            last_report = time.monotonic()
+    for frame in stream.flush():
+        pub.send(RadarFrameMessage(radar, frame))
+    report(time.time_ns())
+    log.debug("radar %s: stream ended; %s", radar, vars(stream.counters))
+    return stream
+
+
+def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger_time_ns: int | None = None,
+                    radar_endpoints: list[str] = ()) -> None:
+    """Read the Xsens IMU on ``port`` and publish batches of samples on the PTP time base, and the trigger.
+
+    The samples are put on PTP time by the hardware trigger (SyncIn), whose PTP time is ``trigger_time_ns``
+    or, when not given, the first radar frame's time on ``radar_endpoints`` (the trigger marks the first
+    chirp). The port may appear late and go away (unplugged, the emulator done): the loop waits for it and
+    publishes an event when it is lost.
+    """
+    import serial
+
+    sub = BusSubscriber(list(radar_endpoints), topics=[RadarFrameMessage.TOPIC]) \
+        if radar_endpoints and trigger_time_ns is None else None
+    trigger_sent = False
+    driver = None
+    try:
+        while not stop.is_set():
+            if driver is None:
+                if not os.path.exists(port):
+                    time.sleep(0.05)
+                    continue
+                driver = ImuDriver(port, trigger_time_ns=trigger_time_ns)
+            if sub is not None and trigger_time_ns is None:
+                msg = sub.receive(timeout_ms=0 if driver.serial.in_waiting else 20)
+                if msg is not None:
+                    trigger_time_ns = RadarFrameMessage.from_message(msg).frame.frame_time_ns
+                    driver.set_trigger_time(trigger_time_ns)
+                    # Only the first frame was needed: subscribed, the radar streams would pile up here.
+                    sub.close()
+                    sub = None
+            try:
+                samples = driver.read()
+            except (serial.SerialException, OSError) as exc:
+                pub.send(Event(time.time_ns(), "imu", "warning", f"serial port lost: {exc}"))
+                driver.close()
+                driver = None
+                time.sleep(0.2)
+                continue
+            if not trigger_sent and driver.clock.trigger_ticks is not None and driver.clock.trigger_time_ns is not None:
+                pub.send(Trigger(driver.clock.trigger_time_ns, "imu_syncin"))
+                trigger_sent = True
+            if samples:
+                pub.send(ImuBatch.from_samples(samples, driver.clock.drift_ppm()))
+    finally:
+        if driver is not None:
+            driver.close()
+        if sub is not None:
+            sub.close()
+
+
+def can_driver_loop(driver: CanDriver, pub: BusPublisher, stop: threading.Event) -> None:
+    """Read CAN frames, publish them in batches raw, and each sync-box trigger frame as a trigger."""
+    while not stop.is_set():
+        frames, triggers = driver.read(timeout_s=0.05)
+        for t in triggers:
+            pub.send(Trigger(t, "can"))
+        if len(frames):
+            pub.send(CanBatch(frames.time_ns, frames.arbitration_id, frames.dlc, frames.data))
+
+
+# -- the processes ------------------------------------------------------------------------------------
+def radar_process(link: RadarLink, waveform: Waveform, endpoint: str, stop) -> None:
+    """A radar's driver process: listens on the link, publishes its frames on ``endpoint``."""
+    become_child(link.name)
+    stream = link.open_stream(waveform)
+    rx = UdpReceiver(link.host, link.port)
+    pub = BusPublisher(endpoint)
+    log.info("radar %s: %s on %s:%d", link.name, link.wire_format, link.host, rx.address[1])
+    try:
+        radar_driver_loop(rx, link.name, stream, pub, stop)
+    finally:
+        rx.close()
+        pub.close()
+
+
+def imu_process(port: str, endpoint: str, radar_endpoints: list[str], stop) -> None:
+    become_child("imu")
+    pub = BusPublisher(endpoint)
+    log.info("IMU on %s", port)
+    try:
+        imu_driver_loop(port, pub, stop, radar_endpoints=radar_endpoints)
+    finally:
+        pub.close()
+
+
+def can_process(config: CanConfig, endpoint: str, stop) -> None:
+    become_child("can")
+    pub = BusPublisher(endpoint)
+    driver = CanDriver(config.open(), trigger_id=config.trigger_id)
+    log.info("CAN on %s %s", config.interface, config.channel or "")
+    try:
+        can_driver_loop(driver, pub, stop)
+    finally:
+        driver.close()
+        pub.close()

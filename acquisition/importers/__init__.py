@@ -1,0 +1,1 @@
+"""Recordings of other tools turned into sarbot recordings: ROS bags (``bag``)."""

@@ -1,0 +1,314 @@
+"""What travels on the bus: one typed message per topic.
+
+Every message turns into ``to_parts()`` = (topic, sensor time, arrays, header fields) for
+``BusPublisher.send`` and comes back with ``from_message`` (or ``decode``, which picks the class by topic).
+The header keys live here and nowhere else, so a producer and its consumers cannot drift apart.
+
+Topics: ``radar/<name>`` (RadarFrameMessage), ``imu`` (ImuBatch), ``can`` (CanBatch), ``trigger``
+(Trigger), ``event`` (Event), ``pose`` (PoseBatch), ``pose/end`` (PoseEnd), ``map/tile`` (MapTile),
+``map/status`` (MapStatus), ``health`` (Health).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, ClassVar
+
+import numpy as np
+
+from drivers.radar.stream import RadarFrame
+
+from .bus import Message
+
+
+@dataclasses.dataclass
+class Parts:
+    """A message as the publisher sends it."""
+
+    topic: str
+    sensor_time_ns: int
+    arrays: list[np.ndarray]
+    fields: dict[str, Any]
+
+
+class BusMessage:
+    """Base of the typed messages: a topic, and the way to and from parts."""
+
+    TOPIC: ClassVar[str]
+
+    def to_parts(self) -> Parts:
+        raise NotImplementedError
+
+    @classmethod
+    def from_message(cls, msg: Message):
+        raise NotImplementedError
+
+
+def _fields_of(cls, header: dict) -> dict:
+    """The header entries that are fields of the dataclass ``cls`` (the bus adds its own: seq, times, arrays)."""
+    return {f.name: header[f.name] for f in dataclasses.fields(cls) if f.name in header}
+
+
+@dataclasses.dataclass
+class RadarFrameMessage(BusMessage):
+    """A reassembled radar frame (``iq`` int16 [chirps, rx, samples, 2])."""
+
+    TOPIC: ClassVar[str] = "radar/"
+    radar: str
+    frame: RadarFrame
+
+    @staticmethod
+    def topic_of(radar: str) -> str:
+        return f"radar/{radar}"
+
+    def to_parts(self) -> Parts:
+        f = self.frame
+        return Parts(self.topic_of(self.radar), f.frame_time_ns, [f.iq],
+                     {"frame_counter": f.frame_counter, "frame_time_ns": f.frame_time_ns, "receive_ns": f.receive_ns,
+                      "valid": f.valid, "bytes_missing": f.bytes_missing, "ptp_locked": f.ptp_locked})
+
+    @classmethod
+    def from_message(cls, msg: Message) -> "RadarFrameMessage":
+        h = msg.header
+        return cls(msg.topic.split("/", 1)[1],
+                   RadarFrame(int(h["frame_counter"]), int(h["frame_time_ns"]), int(h["receive_ns"]), bool(h["valid"]),
+                              int(h.get("bytes_missing", 0)), msg.arrays[0], bool(h.get("ptp_locked", False))))
+
+
+@dataclasses.dataclass
+class ImuBatch(BusMessage):
+    """Timed IMU samples: PTP times [N] int64, gyro [N, 3] rad/s, specific force [N, 3] m/s^2, the IMU's
+    counters [N] uint32 and host receive times [N] int64; the IMU clock's drift against the host, ppm."""
+
+    TOPIC: ClassVar[str] = "imu"
+    time_ns: np.ndarray
+    gyro_radps: np.ndarray
+    accel_mps2: np.ndarray
+    counter: np.ndarray
+    host_time_ns: np.ndarray
+    clock_drift_ppm: float | None = None
+
+    def __len__(self) -> int:
+        return int(np.asarray(self.time_ns).size)
+
+    @classmethod
+    def from_samples(cls, samples, clock_drift_ppm: float | None = None) -> "ImuBatch":
+        """A batch from ``drivers.imu.ImuSample`` objects."""
+        return cls(np.array([s.time_ns for s in samples], np.int64), np.array([s.gyro_radps for s in samples]),
+                   np.array([s.accel_mps2 for s in samples]), np.array([s.counter for s in samples], np.uint32),
+                   np.array([s.host_time_ns for s in samples], np.int64), clock_drift_ppm)
+
+    def to_parts(self) -> Parts:
+        return Parts(self.TOPIC, int(self.time_ns[0]) if len(self) else 0,
+                     [np.asarray(self.time_ns, np.int64), np.asarray(self.gyro_radps), np.asarray(self.accel_mps2),
+                      np.asarray(self.counter, np.uint32), np.asarray(self.host_time_ns, np.int64)],
+                     {"clock_drift_ppm": self.clock_drift_ppm})
+
+    @classmethod
+    def from_message(cls, msg: Message) -> "ImuBatch":
+        return cls(*msg.arrays, clock_drift_ppm=msg.header.get("clock_drift_ppm"))
+
+
+class ArrayBatch(BusMessage):
+    """A batch whose every field is an array of one length, the first ``time_ns``: sent as arrays only."""
+
+    def __len__(self) -> int:
+        return int(np.asarray(self.time_ns).size)
+
+    def to_parts(self) -> Parts:
+        arrays = [getattr(self, f.name) for f in dataclasses.fields(self)]
+        return Parts(self.TOPIC, int(arrays[0][0]) if len(self) else 0, arrays, {})
+
+    @classmethod
+    def from_message(cls, msg: Message):
+        return cls(*msg.arrays)
+
+
+@dataclasses.dataclass
+class CanBatch(ArrayBatch):
+    """CAN frames as /can stores them: time_ns [K], arbitration_id [K], dlc [K], data [K, 64]."""
+
+    TOPIC: ClassVar[str] = "can"
+    time_ns: np.ndarray
+    arbitration_id: np.ndarray
+    dlc: np.ndarray
+    data: np.ndarray
+
+
+@dataclasses.dataclass
+class Trigger(BusMessage):
+    """The hardware trigger that ties a run's sensors together: its PTP time and who saw it."""
+
+    TOPIC: ClassVar[str] = "trigger"
+    time_ns: int
+    source: str
+
+    def to_parts(self) -> Parts:
+        return Parts(self.TOPIC, int(self.time_ns), [], {"source": self.source})
+
+    @classmethod
+    def from_message(cls, msg: Message) -> "Trigger":
+        return cls(int(msg.sensor_time_ns), str(msg.header.get("source", "trigger")))
+
+
+@dataclasses.dataclass
+class Event(BusMessage):
+    """Something for /events: packet loss, checksum errors, resyncs, restarts."""
+
+    TOPIC: ClassVar[str] = "event"
+    time_ns: int
+    source: str
+    level: str
+    message: str
+
+    def to_parts(self) -> Parts:
+        return Parts(self.TOPIC, int(self.time_ns), [], {"source": self.source, "level": self.level, "message": self.message})
+
+    @classmethod
+    def from_message(cls, msg: Message) -> "Event":
+        h = msg.header
+        return cls(int(msg.sensor_time_ns), str(h.get("source", "?")), str(h.get("level", "info")), str(h.get("message", "")))
+
+
+@dataclasses.dataclass
+class PoseBatch(ArrayBatch):
+    """Odometry poses: times [N] int64, positions [N, 3] m, orientations [N, 4] xyzw, velocities [N, 3] m/s."""
+
+    TOPIC: ClassVar[str] = "pose"
+    time_ns: np.ndarray
+    position_m: np.ndarray
+    orientation_xyzw: np.ndarray
+    velocity_mps: np.ndarray
+
+
+@dataclasses.dataclass
+class PoseEnd(BusMessage):
+    """The odometry has sent its last pose."""
+
+    TOPIC: ClassVar[str] = "pose/end"
+    time_ns: int
+
+    def to_parts(self) -> Parts:
+        return Parts(self.TOPIC, int(self.time_ns), [], {})
+
+    @classmethod
+    def from_message(cls, msg: Message) -> "PoseEnd":
+        return cls(int(msg.sensor_time_ns))
+
+
+@dataclasses.dataclass
+class MapTile(BusMessage):
+    """One strip-map tile: ``key`` (ix, iy) in tiles of ``tile_px`` pixels of ``pixel_m``; ``image`` complex64."""
+
+    TOPIC: ClassVar[str] = "map/tile"
+    key: tuple[int, int]
+    pixel_m: float
+    tile_px: int
+    image: np.ndarray
+
+    def to_parts(self) -> Parts:
+        return Parts(self.TOPIC, 0, [np.asarray(self.image, np.complex64)],
+                     {"key": [int(k) for k in self.key], "pixel_m": float(self.pixel_m), "tile_px": int(self.tile_px)})
+
+    @classmethod
+    def from_message(cls, msg: Message) -> "MapTile":
+        h = msg.header
+        return cls(tuple(h["key"]), float(h["pixel_m"]), int(h["tile_px"]), msg.arrays[0])
+
+
+@dataclasses.dataclass
+class MapStatus(BusMessage):
+    """The live strip map's state."""
+
+    TOPIC: ClassVar[str] = "map/status"
+    frames_imaged: int = 0
+    frames_standing_still: int = 0  # no aperture to gain: left out
+    frames_skipped_invalid: int = 0
+    frames_dropped_behind: int = 0
+    lag_s: float = 0.0  # frame reception to imaged, the latest frame
+    max_lag_s: float = 0.0
+    busy_s: float = 0.0  # time spent imaging
+    tiles: int = 0
+    time_ns: int = 0
+
+    def to_parts(self) -> Parts:
+        fields = dataclasses.asdict(self)
+        return Parts(self.TOPIC, fields.pop("time_ns"), [], fields)
+
+    @classmethod
+    def from_message(cls, msg: Message) -> "MapStatus":
+        return cls(**_fields_of(cls, msg.header), time_ns=int(msg.sensor_time_ns))
+
+
+@dataclasses.dataclass
+class Latency:
+    """From a frame's last datagram (kernel time stamp) to the recorder, ms, over a health interval."""
+
+    p50: float
+    p99: float
+    max: float
+
+
+@dataclasses.dataclass
+class ClockState:
+    """The time bases: PTP lock per radar, whether the trigger was seen, the IMU clock's drift (ppm)."""
+
+    ptp_locked: dict[str, bool]
+    trigger_seen: bool
+    imu_drift_ppm: float | None
+
+
+@dataclasses.dataclass
+class Health(BusMessage):
+    """The daemon's health over its last interval (also logged and sent to systemd as STATUS)."""
+
+    TOPIC: ClassVar[str] = "health"
+    frames_per_s: dict[str, float]
+    imu_hz: float
+    can_frames: int
+    bus_lost: int
+    wire_events: int
+    invalid_frames: dict[str, int]
+    restarts: int
+    latency_ms: Latency | None
+    endpoints: dict[str, str]
+    clock: ClockState
+    time_ns: int = 0
+
+    def to_parts(self) -> Parts:
+        fields = dataclasses.asdict(self)
+        return Parts(self.TOPIC, fields.pop("time_ns"), [], fields)
+
+    @classmethod
+    def from_message(cls, msg: Message) -> "Health":
+        fields = _fields_of(cls, msg.header)
+        fields["latency_ms"] = Latency(**fields["latency_ms"]) if fields.get("latency_ms") else None
+        fields["clock"] = ClockState(**fields["clock"])
+        return cls(**fields, time_ns=int(msg.sensor_time_ns))
+
+    def line(self) -> str:
+        """One line for the log and systemd's STATUS."""
+        parts = [f"{n} {r:.1f} frames/s" for n, r in self.frames_per_s.items()]
+        parts.append(f"IMU {self.imu_hz:.0f} Hz")
+        drift = self.clock.imu_drift_ppm
+        parts.append(f"IMU drift {drift:+.1f} ppm" if drift is not None else "IMU drift unknown")
+        locks = self.clock.ptp_locked
+        unlocked = [n for n, ok in locks.items() if not ok]
+        if locks:
+            parts.append("PTP unlocked: " + ", ".join(unlocked) if unlocked else "PTP locked")
+        if self.latency_ms:
+            parts.append(f"latency p50 {self.latency_ms.p50:.1f} ms, p99 {self.latency_ms.p99:.1f} ms")
+        parts.append(f"invalid frames {sum(self.invalid_frames.values())}, wire events {self.wire_events}, "
+                     f"bus lost {self.bus_lost}, restarts {self.restarts}")
+        return ", ".join(parts)
+
+
+_BY_TOPIC: dict[str, type[BusMessage]] = {cls.TOPIC: cls for cls in (
+    ImuBatch, CanBatch, Trigger, Event, PoseBatch, PoseEnd, MapTile, MapStatus, Health)}
+
+
+def decode(msg: Message) -> BusMessage:
+    """The typed message a bus message carries (by its topic); KeyError for a topic sarbot does not know."""
+    if msg.topic.startswith(RadarFrameMessage.TOPIC):
+        return RadarFrameMessage.from_message(msg)
+    return _BY_TOPIC[msg.topic].from_message(msg)

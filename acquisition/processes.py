@@ -1,0 +1,85 @@
+"""The daemon's child processes: how each is described, started and set up, and how it logs.
+
+Every device driver and worker runs in a process of its own, started with the ``spawn`` method (a clean
+interpreter: no inherited sockets, locks or threads). A child names itself after its role, dies with
+its supervisor and logs at the verbosity the command line was given (``-v``), which reaches it through
+the environment.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import signal
+import socket
+from typing import Any, Callable
+
+#: Environment variable carrying the command line's verbosity to every child process.
+VERBOSITY_ENV = "SARBOT_VERBOSITY"
+LOG_FORMAT = "%(levelname)s %(name)s: %(message)s"
+
+
+def configure_logging(verbosity: int | None = None, role: str | None = None) -> None:
+    """Log to stderr: sarbot's loggers at INFO (-v: DEBUG), everything else at WARNING (-vv: DEBUG).
+
+    ``verbosity`` None reads it from the environment, as a child process does; the command line sets it
+    there, so every process of a run logs alike. A child's lines carry its role. Every sarbot module logs
+    under "sarbot" (``logging.getLogger(f"sarbot.{__name__}")``), so ``-v`` reaches all of them.
+    """
+    if verbosity is None:
+        verbosity = int(os.environ.get(VERBOSITY_ENV, "0") or 0)
+    os.environ[VERBOSITY_ENV] = str(verbosity)
+    fmt = LOG_FORMAT if role is None else f"%(levelname)s [{role}] %(name)s: %(message)s"
+    root = logging.getLogger()
+    for handler in list(root.handlers):
+        root.removeHandler(handler)
+    handler = logging.StreamHandler()
+    handler.setFormatter(logging.Formatter(fmt))
+    root.addHandler(handler)
+    root.setLevel(logging.DEBUG if verbosity >= 2 else logging.WARNING)
+    logging.getLogger("sarbot").setLevel(logging.DEBUG if verbosity >= 1 else logging.INFO)
+
+
+def become_child(role: str) -> None:
+    """Set up a child process: die with the supervisor, carry the role's name, log like the parent.
+
+    A driver whose supervisor died (SIGKILL, OOM) must not keep the port or the device busy; the name
+    lets top and ps say which process is which. SIGINT is ignored (the supervisor decides when to stop:
+    it sets the stop event); SIGTERM ends the process at once.
+    """
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+        libc.prctl(15, ctypes.c_char_p(f"sarbot-{role}"[:15].encode()), 0, 0, 0)  # PR_SET_NAME
+    except (OSError, AttributeError):
+        pass
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, lambda *_: os._exit(0))
+    configure_logging(role=role)
+
+
+@dataclasses.dataclass
+class ProcessSpec:
+    """A child process of the daemon: ``target(*args)`` run as ``role``, restarted by the supervisor if it
+    dies. ``endpoint`` is where it publishes on the bus (None for none); ``worker`` marks a process that
+    finishes a product after the drivers stop and gets more time to do so."""
+
+    role: str
+    target: Callable[..., Any]
+    args: tuple
+    endpoint: str | None = None
+    worker: bool = False
+
+
+def free_port(kind: int = socket.SOCK_STREAM) -> int:
+    """A loopback port free at the moment of asking (TCP by default, or socket.SOCK_DGRAM)."""
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def free_tcp_endpoint() -> str:
+    return f"tcp://127.0.0.1:{free_port()}"

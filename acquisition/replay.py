@@ -1,0 +1,182 @@
+"""Replay: a recording sent back through emulated hardware, as the robot's sensors would send it.
+
+Each radar's frames go out as datagrams of the wire format it was recorded in (looked up in
+``drivers.radar.registry``) on UDP, one sender process per radar; the IMU as Xbus bytes on a
+pseudo-terminal; /can on a python-can bus. The drivers cannot tell it from the real thing.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+import signal
+import socket
+import threading
+import time
+from pathlib import Path
+
+from drivers.can_driver import CanConfig, message_from_row
+from drivers.emulators import XbusPty
+from drivers.radar import registry
+from drivers.radar.pcap import read_udp
+from imaging.core.errors import SarbotError
+from imaging.io.recording import Recording
+
+log = logging.getLogger(f"sarbot.{__name__}")
+
+
+def _wait_until(start_monotonic: float, offset_ns: int, speed: float | None) -> None:
+    """Sleep until ``offset_ns`` of recording time after ``start_monotonic``, at ``speed`` x real time (None or
+    0: do not wait)."""
+    if speed:
+        wait = start_monotonic + offset_ns * 1e-9 / speed - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+
+
+def replay_radar(recording: Recording, radar: str, address, speed: float | None = 1.0, radar_id: int = 0,
+                 start_monotonic: float | None = None) -> int:
+    """Send a radar's frames to ``address`` in the wire format it was recorded in, at the recorded frame
+    timing (x ``speed``; None or 0: as fast as the receiver keeps up). ``start_monotonic``: when the first
+    frame goes out (time.monotonic(), which all processes of a Linux machine share), so several radars
+    replayed by several processes stay in step. Returns the number of datagrams sent."""
+    times = recording.frame_time_ns(radar)
+    counters = recording.frame_counter(radar)
+    encode = registry.for_replay(recording.wire_format(radar), f"{recording.path}: /radar/{radar}").open_encoder(radar_id)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 8 << 20)
+    t0 = time.monotonic() if start_monotonic is None else start_monotonic
+    sent = 0
+    for k in range(times.size):
+        _wait_until(t0, times[k] - times[0], speed)
+        for d in encode(int(counters[k]), int(times[k]), recording.adc_iq(radar, slice(k, k + 1))[0]):
+            sock.sendto(d, address)
+            sent += 1
+        if not speed:
+            time.sleep(0.0005)  # as fast as the receiver keeps up on loopback
+    sock.close()
+    return sent
+
+
+def replay_can(recording: Recording, bus, speed: float | None = 1.0, t0_ns: int | None = None) -> int:
+    """Send /can frames on a python-can bus with their recorded spacing (x ``speed``). ``t0_ns`` is the
+    recording time that maps to now (default: the first frame); returns the number sent."""
+    rows = recording.can()
+    if rows["time_ns"].size == 0:
+        return 0
+    t_ref = rows["time_ns"][0] if t0_ns is None else t0_ns
+    start = time.monotonic()
+    for t, ident, dlc, data in zip(rows["time_ns"], rows["arbitration_id"], rows["dlc"], rows["data"]):
+        _wait_until(start, t - t_ref, speed)
+        bus.send(message_from_row(ident, dlc, data))
+    return int(rows["time_ns"].size)
+
+
+def replay_pcap(path, address, dst_port: int, speed: float | None = 1.0) -> int:
+    """Send the UDP payloads of a capture to ``dst_port`` in it on to ``address``, with their captured spacing."""
+    datagrams = [d for d in read_udp(path) if d.dst_port == dst_port]
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        start = time.monotonic()
+        for d in datagrams:
+            _wait_until(start, d.time_ns - datagrams[0].time_ns, speed)
+            sock.sendto(d.payload, address)
+    return len(datagrams)
+
+
+def imu_emulator(recording: Recording, speed: float | None = 1.0) -> XbusPty:
+    """An Xsens IMU on a pty replaying the recording's /imu; the first sample carries the trigger."""
+    imu = recording.imu()
+    return XbusPty(imu["gyro_radps"], imu["accel_mps2"], rate_hz=float(imu["rate_hz"]), trigger_index=0, speed=speed,
+                   start_counter=int(imu["counter"][0]))
+
+
+def _radar_sender_process(path: str, name: str, address, speed, go, start, results) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with Recording(path) as rec:
+            results.put((name, "ready"))
+            go.wait()
+            results.put((name, replay_radar(rec, name, tuple(address), speed, start_monotonic=start.value)))
+    except Exception as exc:  # noqa: BLE001 - reported to the parent, which names the radar
+        results.put((name, f"{type(exc).__name__}: {exc}"))
+
+
+def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str | None, speed: float | None,
+           start_delay_s: float = 0.0, can: CanConfig | None = None) -> dict:
+    """Send a recording through emulated hardware: each radar's datagrams (in the wire format it was
+    recorded in) to its UDP address, the IMU as Xbus bytes on a pty that ``imu_link`` points to, and /can on
+    a python-can bus. Returns what was sent ({radar: datagrams, "can": frames})."""
+    with Recording(path) as rec:
+        for name in radar_targets:
+            if name not in rec.radar_names:
+                raise SarbotError(f"--radar {name}: {path} has no such radar (radars: {', '.join(rec.radar_names)})")
+        emu = None
+        if imu_link:
+            if rec.imu() is None:
+                raise SarbotError(f"--imu-link: {path} has no IMU samples to replay")
+            emu = imu_emulator(rec, speed=speed)
+            link = Path(imu_link)
+            if link.is_symlink() or link.exists():
+                link.unlink()
+            link.symlink_to(emu.port)
+        can_bus = can.open() if can is not None else None
+        time.sleep(start_delay_s)
+        sent = {}
+        failures = []
+
+        def send_can(t0_ns):
+            try:
+                sent["can"] = replay_can(rec, can_bus, speed, t0_ns)
+            except Exception as exc:  # noqa: BLE001 - reported below, after the radars finish
+                failures.append(f"can: {exc}")
+
+        # One process per radar, as on the robot: threads would share one interpreter with the IMU
+        # emulator, and its 400 Hz packets would come late whenever the radars send a frame.
+        ctx = mp.get_context("spawn")
+        results = ctx.Queue()
+        go = ctx.Event()
+        start = ctx.Value("d", 0.0)  # the senders' common start (time.monotonic() is shared by all processes)
+        procs = {name: ctx.Process(target=_radar_sender_process, args=(str(path), name, address, speed, go, start, results),
+                                   name=f"replay.{name}", daemon=True) for name, address in radar_targets.items()}
+        for proc in procs.values():
+            proc.start()
+        for _ in procs:
+            key, value = results.get(timeout=60)
+            if value != "ready":
+                failures.append(f"{key}: {value}")
+        start.value = time.monotonic() + 0.1
+        go.set()
+        can_thread = None
+        if can_bus is not None:
+            firsts = [int(rec.frame_time_ns(n)[0]) for n in radar_targets if rec.n_frames(n)]
+            can_thread = threading.Thread(target=send_can, args=(min(firsts) if firsts else None,))
+        if emu is not None:
+            time.sleep(max(start.value - time.monotonic(), 0.0))
+            emu.start()
+        if can_thread is not None:
+            can_thread.start()
+        for name, proc in procs.items():
+            proc.join()
+            if proc.exitcode != 0:
+                failures.append(f"{name}: sender exited with code {proc.exitcode}")
+        for _ in procs:
+            try:
+                key, value = results.get(timeout=5)
+            except Exception:  # noqa: BLE001 - queue.Empty: a sender died without a word (its exit code is above)
+                break
+            if isinstance(value, str):
+                failures.append(f"{key}: {value}")
+            else:
+                sent[key] = value
+        if can_thread is not None:
+            can_thread.join()
+            time.sleep(0.2)  # frames still in flight on the emulated bus
+            can_bus.shutdown()
+        if emu is not None:
+            emu.done.wait()
+            time.sleep(0.5)  # let the reader drain the pty
+            emu.close()
+            Path(imu_link).unlink(missing_ok=True)
+    if failures:
+        raise SarbotError("replay failed: " + "; ".join(failures))
+    return sent

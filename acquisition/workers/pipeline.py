@@ -1,0 +1,36 @@
+"""The workers of ``sarbot run``: odometry feeding the live strip map."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from . import WorkerSpec
+from .odometry import OdometryWorker, OdometryWorkerConfig
+from .stripmap import StripMapWorker, StripMapWorkerConfig
+
+
+def add_pipeline_workers(setup, out_dir: Path, stamp: str, config, max_speed_mps: float = 0.5,
+                         map_radars: list[str] | None = None, rio_radars: list[str] | None = None,
+                         presum: int | None = None):
+    """Give ``setup`` (``acquisition.daemon.Setup``) the odometry and strip-map workers.
+
+    ``config`` is the ``imaging.stripmap.StripMapConfig``; ``presum`` None picks the largest pre-summing
+    whose phase spread stays within pi/4 at ``max_speed_mps``. Returns the trajectory path, the map path
+    and the strip-map settings used.
+    """
+    from imaging.stripmap import max_presum
+
+    names = [link.name for link in setup.radars]
+    map_radars = map_radars or names
+    if presum is None:
+        presum = min(max_presum(config, setup.rig.radar(n), max_speed_mps) for n in map_radars)
+    config = dataclasses.replace(config, presum=presum)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    traj_path = out_dir / f"trajectory_{stamp}.h5"
+    map_path = out_dir / f"stripmap_{stamp}.h5"
+    odometry = WorkerSpec("rio", OdometryWorker, OdometryWorkerConfig(setup.rig, rio_radars or names, str(traj_path)))
+    stripmap = WorkerSpec("stripmap", StripMapWorker,
+                          StripMapWorkerConfig(setup.rig, map_radars, config, odometry.endpoint, str(map_path)))
+    setup.workers = [odometry, stripmap]
+    return traj_path, map_path, config

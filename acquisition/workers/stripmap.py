@@ -1,0 +1,171 @@
+"""The strip-map worker: radar frames, and poses from the odometry worker -> ``imaging.stripmap.StripMap``.
+
+A frame is imaged once the poses cover it. Changed tiles go out as ``map/tile``, the state as
+``map/status`` (with the lag behind real time); at the end the map is written in the image schema, with
+a PNG beside it.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+from imaging.core.rig import Rig
+from imaging.core.samples import iq_to_complex
+
+from ..messages import MapStatus, MapTile, PoseBatch, PoseEnd, RadarFrameMessage
+from . import Worker
+
+log = logging.getLogger(f"sarbot.{__name__}")
+
+#: How far back the worker keeps poses (enough for frames waiting on the odometry's hold-back).
+POSE_WINDOW_NS = 5_000_000_000
+
+
+@dataclasses.dataclass
+class StripMapWorkerConfig:
+    """``radars`` None: all of the rig's. ``map`` is the ``imaging.stripmap.StripMapConfig``. Frames wait
+    for poses at most ``max_queue_s`` (of sensor time) before the oldest are dropped, counted."""
+
+    rig: Rig
+    radars: list[str] | None
+    map: object
+    pose_endpoint: str
+    map_path: str
+    max_queue_s: float = 10.0
+
+
+class StripMapWorker(Worker):
+    # It waits for the odometry's last poses (PoseEnd), which come after the drivers stop.
+    drain_quiet_s = 10.0
+    drain_max_s = 10.0
+
+    def __init__(self, config: StripMapWorkerConfig, pub):
+        from imaging.stripmap import StripMap
+
+        self.config = config
+        self.pub = pub
+        rig = config.rig
+        use = set(config.radars or rig.radar_names)
+        # Only the radars it images: each stream is 14 MB/s the process would otherwise receive for nothing.
+        self.topics = [PoseBatch.TOPIC, *[RadarFrameMessage.topic_of(n) for n in sorted(use)]]
+        self.endpoints = [config.pose_endpoint]
+        self.radars = {r.name: r for r in rig.radars if r.name in use}
+        self.orders = {name: np.asarray(r.waveform.tdm_tx_order()) for name, r in self.radars.items()}
+        self.frame_ns = {name: r.waveform.frame_duration_ns for name, r in self.radars.items()}
+        self.map = StripMap(config.map)
+        self.status = MapStatus()
+        self.poses: collections.deque[PoseBatch] = collections.deque()
+        self.frames: collections.deque = collections.deque()  # (name, iq copy, frame time, receive time)
+        self.changed: set = set()
+        self.last_publish = time.monotonic()
+
+    def _add_poses(self, batch: PoseBatch) -> None:
+        """Keep poses in time order; a batch that repeats times already held keeps only its newer ones."""
+        t = batch.time_ns
+        keep = t > self.poses[-1].time_ns[-1] if self.poses else np.ones(t.size, bool)
+        if keep.any():
+            self.poses.append(PoseBatch(*(np.array(a[keep]) for a in (t, batch.position_m, batch.orientation_xyzw,
+                                                                       batch.velocity_mps))))
+
+    def handle(self, message, live: bool) -> None:
+        """A pose batch or a radar frame. Live, the pose window and the frame queue are kept bounded; when
+        draining at the end, everything is kept for the last imaging pass."""
+        poses, frames, status = self.poses, self.frames, self.status
+        if isinstance(message, PoseBatch):
+            self._add_poses(message)
+            while live and len(poses) > 2 and poses[-1].time_ns[-1] - poses[1].time_ns[0] > POSE_WINDOW_NS:
+                poses.popleft()
+            return
+        if not isinstance(message, RadarFrameMessage) or message.radar not in self.radars:
+            return
+        f = message.frame
+        if not f.valid:
+            status.frames_skipped_invalid += 1
+            return
+        frames.append((message.radar, np.array(f.iq), f.frame_time_ns, f.receive_ns))
+        # Never fall more than max_queue_s behind: the oldest frames go (counted).
+        while live and (frames[-1][2] - frames[0][2]) * 1e-9 > self.config.max_queue_s:
+            frames.popleft()
+            status.frames_dropped_behind += 1
+
+    def drained(self, message) -> bool:
+        return isinstance(message, PoseEnd)
+
+    def _trajectory(self):
+        from imaging.core.trajectory import SampledTrajectory
+
+        t = np.concatenate([b.time_ns for b in self.poses])
+        if t.size < 2:
+            return None
+        return SampledTrajectory(t, np.concatenate([b.position_m for b in self.poses]),
+                                 np.concatenate([b.orientation_xyzw for b in self.poses]),
+                                 np.concatenate([b.velocity_mps for b in self.poses]), source="rio")
+
+    def _image_ready(self, final: bool = False) -> None:
+        frames, status = self.frames, self.status
+        if not frames or not self.poses:
+            return
+        newest_pose = int(self.poses[-1].time_ns[-1])
+        traj = None
+        while frames:
+            name, iq, t_frame, t_recv = frames[0]
+            if t_frame + self.frame_ns[name] > newest_pose:
+                if not final:
+                    return
+                frames.popleft()  # never covered by the odometry: the drive ended
+                continue
+            frames.popleft()
+            traj = traj or self._trajectory()
+            if traj is None:
+                return
+            t0 = time.monotonic()
+            footprint = self.map.add_frame(self.radars[name], self.orders[name], iq_to_complex(iq), t_frame, traj)
+            self.changed.update(footprint.tiles)
+            status.busy_s += time.monotonic() - t0
+            if footprint.skipped:
+                status.frames_standing_still += 1
+            else:
+                status.frames_imaged += 1
+            status.lag_s = (time.time_ns() - t_recv) * 1e-9
+            status.max_lag_s = max(status.max_lag_s, status.lag_s)
+
+    def _publish_tiles(self) -> None:
+        cfg = self.config.map
+        for key in sorted(self.changed):
+            self.pub.send(MapTile(key, cfg.pixel_m, cfg.tile_px, self.map.tiles[key]))
+        self.changed.clear()
+        self.status.tiles = len(self.map.tiles)
+        self.status.time_ns = time.time_ns()
+        self.pub.send(self.status)
+        self.last_publish = time.monotonic()
+
+    def step(self) -> None:
+        self._image_ready()
+        if time.monotonic() - self.last_publish > 0.5:
+            self._publish_tiles()
+
+    def finish(self) -> None:
+        self._image_ready(final=True)
+        self._publish_tiles()
+
+    def write_products(self) -> None:
+        from imaging.io.image_file import write_image
+        from imaging.plot import save_image_png
+
+        if not self.map.tiles:
+            return
+        status = {k: v for k, v in dataclasses.asdict(self.status).items() if k not in ("tiles", "time_ns")}
+        img = self.map.to_image({"radars": ",".join(sorted(self.radars)), "trajectory_source": "rio",
+                                 "wavelength_m": float(np.mean([r.waveform.wavelength_m for r in self.radars.values()])),
+                                 **status})
+        path = self.config.map_path
+        write_image(path, img)
+        save_image_png(Path(path).with_suffix(".png"), img.image, img.x_m, img.y_m,
+                       title=f"strip map, {self.status.frames_imaged} frames, aperture {self.config.map.aperture_m} m")
+        log.info("strip map: %s; wrote %s", status, path)

@@ -1,0 +1,83 @@
+"""A radar link: where a radar's datagrams arrive, from whom, and in which wire format.
+
+On the command line a link is ``NAME=[HOST:]PORT[,format=FORMAT][,OPTION=VALUE...]``: ``left=50001``
+(SRF1 on loopback), ``left=192.168.1.20:50001``, ``iwr=4098,format=DCA1000,cfg=xwr18xx.cfg``. The
+format's own options are checked by the format (``drivers.radar.registry``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import ipaddress
+from typing import Any
+
+from imaging.core.errors import ConfigError, SarbotError
+from imaging.core.waveform import Waveform
+
+from . import registry
+from .registry import WireFormat
+from .stream import RadarStream
+
+#: Where a radar link listens unless told otherwise: nothing off this machine reaches it.
+DEFAULT_HOST = "127.0.0.1"
+
+
+@dataclasses.dataclass(frozen=True)
+class RadarLink:
+    """One radar's link. ``options`` are the wire format's (e.g. ``{"cfg": "radar.cfg"}`` for DCA1000);
+    they are checked on construction and kept as the format's ``settings``."""
+
+    name: str
+    port: int
+    host: str = DEFAULT_HOST
+    wire_format: str = registry.DEFAULT
+    options: dict = dataclasses.field(default_factory=dict)
+    format: WireFormat = dataclasses.field(init=False, repr=False, compare=False)
+    settings: Any = dataclasses.field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        where = f"radar.{self.name}"
+        if isinstance(self.port, bool) or not isinstance(self.port, int) or not 0 < self.port < 65536:
+            raise ConfigError(f"{where}.port", f"{self.port!r} is not a UDP port (1-65535)")
+        try:
+            ipaddress.ip_address(self.host)
+        except ValueError:
+            raise ConfigError(f"{where}.host", f"{self.host!r} is not an IP address") from None
+        fmt = registry.get(self.wire_format, f"{where}.format")
+        object.__setattr__(self, "format", fmt)
+        object.__setattr__(self, "settings", fmt.configure(dict(self.options), where))
+
+    def waveform(self, rig_waveform: Waveform) -> Waveform:
+        """What the radar sends: fixed by the format's settings where they say (a TI .cfg), else the rig's."""
+        return self.format.waveform(self.settings) or rig_waveform
+
+    def open_stream(self, waveform: Waveform, radar_id: int | None = None) -> RadarStream:
+        return self.format.open_stream(waveform, self.settings, radar_id)
+
+
+def parse_radar_link(text: str, option: str = "--radar") -> RadarLink:
+    """A link from ``NAME=[HOST:]PORT[,format=FORMAT][,OPTION=VALUE...]``; SarbotError naming the option
+    and the part that is wrong."""
+    where = f"{option} {text!r}"
+    name, sep, rest = text.partition("=")
+    if not sep or not name.strip():
+        raise SarbotError(f"{where}: expected NAME=[HOST:]PORT[,format=FORMAT][,OPTION=VALUE...]")
+    address, *extras = rest.split(",")
+    host, port_text = DEFAULT_HOST, address
+    if address.startswith("["):  # [IPv6]:PORT
+        host, _, port_text = address[1:].partition("]:")
+    elif ":" in address:
+        host, port_text = address.rsplit(":", 1)
+    if not port_text.isdigit():
+        raise SarbotError(f"{where}: {port_text!r} is not a port number")
+    options = {}
+    for extra in extras:
+        key, sep, value = extra.partition("=")
+        if not sep or not key:
+            raise SarbotError(f"{where}: {extra!r} is not OPTION=VALUE")
+        options[key.strip()] = value.strip()
+    wire_format = options.pop("format", registry.DEFAULT)
+    try:
+        return RadarLink(name.strip(), int(port_text), host or DEFAULT_HOST, wire_format, options)
+    except ConfigError as exc:
+        raise SarbotError(f"{where}: {exc}") from None

@@ -1,0 +1,112 @@
+"""The registry of radar wire formats: how each one's datagrams become frames, and frames datagrams.
+
+A wire format is one module that defines a ``WireFormat`` and one line in ``BUILTIN`` (or, for a format
+that lives outside sarbot, a call to ``register``). The daemon, replay and the command line look formats
+up by name here; none of them branches on a format.
+
+Everything a ``WireFormat`` holds is a module-level function, so a link (with its format) can be sent to
+a driver process, which the daemon starts with the ``spawn`` method.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+from typing import Any, Callable, Protocol
+
+import numpy as np
+
+from imaging.core.errors import ConfigError
+from imaging.core.waveform import Waveform
+
+from .stream import RadarStream
+
+#: Name -> module defining ``WIRE_FORMAT``; imported on first use.
+BUILTIN = {
+    "SRF1": "drivers.radar.srf1",
+    "DCA1000": "drivers.radar.dca1000",
+}
+#: What recordings that were never on a wire (simulations, imports) replay as: the reference radar's format.
+DEFAULT = "SRF1"
+
+
+class FrameEncoder(Protocol):
+    """One frame to the datagrams that carry it (replay's side); may keep state across frames."""
+
+    def __call__(self, frame_counter: int, frame_time_ns: int, iq: np.ndarray) -> list[bytes]: ...
+
+
+def no_settings(options: dict[str, str], where: str) -> None:
+    """``configure`` of a format that takes no options: any option is an error."""
+    if options:
+        raise ConfigError(f"{where}.{sorted(options)[0]}", "unknown option (this wire format takes none)")
+
+
+def no_waveform(settings: Any) -> None:
+    """``waveform`` of a format whose datagrams follow the rig's waveform."""
+    return None
+
+
+@dataclasses.dataclass(frozen=True)
+class WireFormat:
+    """One wire format.
+
+    Attributes
+    ----------
+    name : str
+        As on the command line (``--radar NAME=PORT,format=NAME``) and in a recording's ``wire_format``.
+    summary : str
+        One line for ``--help``.
+    open_stream : callable(waveform, settings, radar_id) -> RadarStream
+        The receiving side, run in the radar's driver process.
+    open_encoder : callable(radar_id) -> FrameEncoder
+        The sending side, for replay and emulated hardware.
+    configure : callable(options, where) -> settings
+        Checks a link's options (``{"cfg": "radar.cfg"}``) and turns them into settings (picklable) for
+        ``open_stream`` and ``waveform``; raises ConfigError naming ``where`` and the option.
+    waveform : callable(settings) -> Waveform or None
+        The waveform the settings fix, for formats whose configuration says what the radar sends (a TI
+        ``.cfg``); it replaces the rig's. None: the rig's waveform holds.
+    options : tuple of str
+        The option names ``configure`` takes (for help texts).
+    """
+
+    name: str
+    summary: str
+    open_stream: Callable[[Waveform, Any, "int | None"], RadarStream]
+    open_encoder: Callable[[int], FrameEncoder]
+    configure: Callable[[dict, str], Any] = no_settings
+    waveform: Callable[[Any], "Waveform | None"] = no_waveform
+    options: tuple[str, ...] = ()
+
+
+_registered: dict[str, WireFormat] = {}
+
+
+def register(wire_format: WireFormat) -> WireFormat:
+    """Make ``wire_format`` known by its name (replacing a format of the same name); returns it."""
+    _registered[wire_format.name] = wire_format
+    return wire_format
+
+
+def names() -> list[str]:
+    """Every known format, built in or registered."""
+    return sorted(set(BUILTIN) | set(_registered))
+
+
+def get(name: str, where: str = "wire_format") -> WireFormat:
+    """The format called ``name``; ConfigError naming ``where`` and the known formats otherwise."""
+    if name not in _registered and name in BUILTIN:
+        register(importlib.import_module(BUILTIN[name]).WIRE_FORMAT)
+    try:
+        return _registered[name]
+    except KeyError:
+        raise ConfigError(where, f"{name!r} is not a known wire format (known: {', '.join(names())})") from None
+
+
+def for_replay(recorded: str | None, where: str = "wire_format") -> WireFormat:
+    """The format a recording replays in: the one it was recorded in, or the default for recordings that
+    never were on a wire ("simulated", imported, or written before the attribute existed)."""
+    if recorded in (None, "", "simulated", "imported"):
+        return get(DEFAULT)
+    return get(recorded, where)

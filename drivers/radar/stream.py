@@ -1,0 +1,52 @@
+"""What every radar wire format delivers: datagrams in, frames of int16 I/Q out, trouble counted.
+
+A radar driver does not care whether its radar speaks SRF1 (PTP-stamped chunks with frame counters) or
+streams raw DCA1000 bytes: it feeds datagrams to a ``RadarStream`` and publishes the ``RadarFrame`` objects
+that come out, in order, each marked valid or not. ``counters`` say what went wrong on the wire.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Protocol
+
+import numpy as np
+
+#: Counters that describe trouble (the others count normal traffic).
+TROUBLE_COUNTERS = ("malformed", "truncated", "duplicates", "reordered", "wrong_radar", "sequence_gaps",
+                    "frames_incomplete", "frames_skipped", "bytes_lost", "resyncs")
+
+
+@dataclasses.dataclass
+class RadarFrame:
+    """A frame as the drivers publish it: ``iq`` int16 [chirps, rx, samples, 2], zero where bytes were lost."""
+
+    frame_counter: int
+    frame_time_ns: int
+    receive_ns: int
+    valid: bool
+    bytes_missing: int
+    iq: np.ndarray
+    ptp_locked: bool = False
+
+
+class RadarStream(Protocol):
+    """Reassembles one radar's frames from its datagrams.
+
+    ``feed`` takes one datagram with its kernel receive time (ns) and returns the frames it completes, in
+    order; ``flush`` returns what is still pending at the end of the stream (incomplete frames marked
+    invalid). ``counters`` is a dataclass of integer counters; those named in ``TROUBLE_COUNTERS`` are
+    reported as events.
+    """
+
+    wire_format: str
+    counters: Any
+
+    def feed(self, datagram: bytes, receive_ns: int) -> list[RadarFrame]: ...
+
+    def flush(self) -> list[RadarFrame]: ...
+
+
+def trouble(counters) -> dict[str, int]:
+    """The trouble counters of a stream as a dict (for events and health)."""
+    return {k: v for k, v in vars(counters).items() if k in TROUBLE_COUNTERS}
