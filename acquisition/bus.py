@@ -9,7 +9,9 @@ receiver sees the sequence gap, counts it, and reports it (the recorder writes i
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
+import uuid
 from collections import defaultdict
 
 import msgpack
@@ -41,13 +43,15 @@ class BusPublisher:
         (self.socket.bind if bind else self.socket.connect)(endpoint)
         self.endpoint = self.socket.getsockopt_string(zmq.LAST_ENDPOINT) if bind else endpoint
         self._seq: dict[str, int] = defaultdict(int)
+        # Several publishers may send one topic (every driver sends "event"): sequences are per publisher.
+        self.publisher_id = f"{os.getpid()}-{uuid.uuid4().hex[:8]}"
 
     def publish(self, topic: str, sensor_time_ns: int, arrays: list[np.ndarray] = (), **fields) -> int:
         """Send one message; returns its sequence number. Arrays are sent from their own memory."""
         seq = self._seq[topic]
         self._seq[topic] = seq + 1
         arrays = [np.ascontiguousarray(a) for a in arrays]
-        header = {"seq": seq, "sensor_time_ns": int(sensor_time_ns), "host_time_ns": time.time_ns(),
+        header = {"seq": seq, "pub": self.publisher_id, "sensor_time_ns": int(sensor_time_ns), "host_time_ns": time.time_ns(),
                   "arrays": [[a.dtype.str, list(a.shape)] for a in arrays], **fields}
         parts = [topic.encode(), msgpack.packb(header, use_bin_type=True), *[memoryview(a).cast("B") for a in arrays]]
         self.socket.send_multipart(parts, copy=False)
@@ -84,7 +88,7 @@ class BusSubscriber:
         for e in [endpoints] if isinstance(endpoints, str) else endpoints:
             self.socket.connect(e)
         self.stats: dict[str, TopicStats] = defaultdict(TopicStats)
-        self._expected: dict[str, int] = {}
+        self._expected: dict[tuple[str, str], int] = {}  # (publisher, topic) -> next sequence number
         self.poller = zmq.Poller()
         self.poller.register(self.socket, zmq.POLLIN)
 
@@ -97,7 +101,7 @@ class BusSubscriber:
         header = msgpack.unpackb(parts[1].buffer, raw=False)
         arrays = [np.frombuffer(p.buffer, dtype=np.dtype(dt)).reshape(shape)
                   for p, (dt, shape) in zip(parts[2:], header.get("arrays", []))]
-        self._check(topic, int(header["seq"]))
+        self._check(topic, header.get("pub", ""), int(header["seq"]))
         return Message(topic, header["seq"], header["sensor_time_ns"], header["host_time_ns"], header, arrays)
 
     @property
@@ -105,17 +109,17 @@ class BusSubscriber:
         """Messages lost on the bus so far, over all topics (sequence gaps)."""
         return sum(st.missed for st in self.stats.values())
 
-    def _check(self, topic: str, seq: int) -> None:
+    def _check(self, topic: str, publisher: str, seq: int) -> None:
         st = self.stats[topic]
         st.received += 1
-        expected = self._expected.get(topic)
-        if expected is not None and seq != expected:
-            if seq == 0:
-                st.restarts += 1
-            elif seq > expected:
-                st.gaps += 1
-                st.missed += seq - expected
-        self._expected[topic] = seq + 1
+        key = (publisher, topic)
+        expected = self._expected.get(key)
+        if expected is None and seq == 0 and any(t == topic for _, t in self._expected):
+            st.restarts += 1  # a new publisher of a topic already heard: a restarted driver
+        if expected is not None and seq > expected:
+            st.gaps += 1
+            st.missed += seq - expected
+        self._expected[key] = seq + 1
 
     def close(self) -> None:
         self.socket.close()
