@@ -145,3 +145,33 @@ def test_systemd_units_verify(tmp_path):
         (tmp_path / unit.name).write_text(text)
     res = subprocess.run([analyze, "verify", *(str(p) for p in sorted(tmp_path.iterdir()))], capture_output=True, text=True)
     assert res.returncode == 0, res.stdout + res.stderr
+
+
+@pytest.mark.parametrize("damage", ["cut-5%", "cut-50%", "cut-90%", "metadata-bits", "not-hdf5"])
+def test_a_damaged_recording_is_a_one_line_error_not_a_hang(tmp_path, damage):
+    """A recording cut short (a full disk, a copy that stopped) or with flipped metadata bits: one line
+    naming the file and exit code 2, from the first command that reads it. SWMR read mode used to retry
+    damaged metadata for 30 s to 10 minutes; the subprocess timeout guards against that."""
+    import random
+
+    from test_round_trip import make_source
+
+    whole = tmp_path / "whole.h5"
+    make_source(whole, n_frames=20)
+    data = bytearray(whole.read_bytes())
+    if damage.startswith("cut"):
+        data = data[: len(data) * int(damage[4:-1]) // 100]
+    elif damage == "metadata-bits":
+        rng = random.Random(0)
+        for _ in range(20):
+            data[rng.randrange(4096)] ^= 0xFF  # the superblock and root group live in the first pages
+    else:
+        data = bytearray(b"this is not a recording\n" * 100)
+    bad = tmp_path / "bad.h5"
+    bad.write_bytes(bytes(data))
+    for cmd in (["image", str(bad), "-o", str(tmp_path / "img.h5"), "--grid=-0.2:0.2:0.01,1.9:2.1:0.01"],
+                ["replay", str(bad), "--radar", "left=127.0.0.1:9", "--speed", "0"]):
+        res = subprocess.run([sys.executable, "-m", "acquisition.cli", *cmd], capture_output=True, text=True, timeout=30)
+        assert res.returncode == 2, (cmd[0], res.stderr[-2000:])
+        assert res.stderr.strip().count("\n") == 0 and "Traceback" not in res.stderr, res.stderr
+        assert str(bad) in res.stderr

@@ -18,17 +18,49 @@ def open_checked(path: str | Path, schema: str, version: int, kind: str, **kwarg
     path = Path(path)
     if not path.exists():
         raise FileFormatError(f"{path}: no such file")
+    swmr = kwargs.pop("swmr", False)
     try:
+        # Read-only first: SWMR read mode retries damaged metadata for minutes before it gives up, where a
+        # plain open fails at once. SWMR only for a file that is still being written (and locked for it).
         f = h5py.File(path, "r", **kwargs)
     except OSError as exc:
-        raise FileFormatError(f"{path}: not a readable HDF5 file ({exc.__class__.__name__})") from None
-    found = f.attrs.get("schema")
+        if not (swmr and _held_for_writing(exc)):
+            raise FileFormatError(f"{path}: not a readable HDF5 file, damaged or cut short ({_reason(exc)})") from None
+        try:
+            f = h5py.File(path, "r", swmr=True, **kwargs)
+        except OSError as exc2:
+            raise FileFormatError(f"{path}: not a readable HDF5 file ({_reason(exc2)})") from None
+    try:
+        found = f.attrs.get("schema")
+        found_version = int(f.attrs.get("schema_version", -1))
+        # Every object's header once, now: damaged metadata is then one clear error here, not a KeyError
+        # or OSError deep inside whatever reads the file first.
+        f.visititems(_touch)
+    except (KeyError, OSError, RuntimeError, ValueError) as exc:
+        f.close()
+        raise FileFormatError(f"{path}: damaged HDF5 metadata ({_reason(exc)})") from None
     found = found.decode() if isinstance(found, bytes) else found
     if found != schema:
         f.close()
         raise FileFormatError(f"{path}: not a sarbot {kind} (schema attribute is {found!r}, expected {schema!r})")
-    found_version = int(f.attrs.get("schema_version", -1))
     if found_version != version:
         f.close()
         raise FileFormatError(f"{path}: {kind} schema version {found_version} is not supported (this is version {version})")
     return f
+
+
+def _touch(name: str, obj) -> None:
+    list(obj.attrs.keys())
+    if isinstance(obj, h5py.Dataset):
+        obj.shape, obj.dtype  # noqa: B018 - reading the header is the point
+
+
+def _held_for_writing(exc: OSError) -> bool:
+    text = str(exc).lower()  # HDF5's words for a file that a writer holds (file locking, SWMR flags)
+    return "unable to lock file" in text or "already open for" in text
+
+
+def _reason(exc: OSError) -> str:
+    """HDF5's own words, without its call-stack preamble ("Unable to synchronously open file (...)")."""
+    text = str(exc)
+    return text[text.find("(") + 1:text.rfind(")")] if "(" in text else text
