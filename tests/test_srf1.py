@@ -1,4 +1,5 @@
-"""SRF1 reassembly: in order, reordered, duplicated, dropped, truncated, malformed, restarted; fuzzed."""
+"""SRF1 reassembly: in order, reordered, duplicated, dropped, truncated, malformed, restarted; fuzzed; version 2's
+CRC, overlapping chunks that disagree, and counter jumps."""
 
 import random
 
@@ -17,8 +18,10 @@ def frames(n, seed=0):
     return [rng.integers(-2000, 2000, SHAPE, dtype=np.int16) for _ in range(n)]
 
 
-def datagrams(iqs, start=100):
-    return [encode_frame(7, start + k, 1_000_000_000 + k * 52_000_000, iq) for k, iq in enumerate(iqs)]
+def datagrams(iqs, start=100, version=1):
+    """Version 1 (no CRC) by default: the reassembly tests below cut and garble datagrams, which version 2's
+    CRC would simply reject (tested on its own at the end)."""
+    return [encode_frame(7, start + k, 1_000_000_000 + k * 52_000_000, iq, version=version) for k, iq in enumerate(iqs)]
 
 
 def test_datagrams_fit_the_mtu_and_parse_back():
@@ -118,3 +121,73 @@ def test_fuzz_assembler_never_raises(junk, rnd):
         for f in asm.feed(d):
             assert len(f.data) == FRAME_BYTES
     asm.flush()
+
+
+def _flip(datagram: bytes, bit: int) -> bytes:
+    b = bytearray(datagram)
+    b[bit // 8] ^= 1 << (bit % 8)
+    return bytes(b)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.data())
+def test_version_2_a_flipped_bit_anywhere_never_makes_a_valid_frame(data):
+    """One bit flipped in any datagram, header or payload: the datagram is dropped (CRC error), its frame
+    comes out invalid, and every frame marked valid is bit for bit what was sent."""
+    iqs = frames(3, seed=1)
+    dgs = datagrams(iqs, version=2)
+    k = data.draw(st.integers(0, 2), label="frame")
+    j = data.draw(st.integers(0, len(dgs[k]) - 1), label="datagram")
+    bit = data.draw(st.integers(0, 8 * len(dgs[k][j]) - 1), label="bit")
+    dgs[k][j] = _flip(dgs[k][j], bit)
+    asm = FrameAssembler(FRAME_BYTES)
+    out = [f for group in dgs for d in group for f in asm.feed(d)] + asm.flush()
+    valid = {f.frame_counter: f for f in out if f.valid}
+    for i, iq in enumerate(iqs):
+        if 100 + i in valid:
+            np.testing.assert_array_equal(valid[100 + i].iq(SHAPE), iq)
+    assert 100 + k not in valid
+    assert asm.counters.crc_errors + asm.counters.malformed + asm.counters.wrong_radar >= 1
+
+
+def test_overlapping_chunks_never_overwrite_and_a_contradiction_invalidates_the_frame():
+    iq = frames(1, seed=2)[0]
+    data = iq.tobytes()
+    half = FRAME_BYTES // 2
+    head = encode_frame(7, 100, 5, iq, payload_bytes=half)  # two chunks
+    forged = encode_frame(7, 100, 5, np.frombuffer(bytes(FRAME_BYTES), "<i2"), payload_bytes=half)[0]  # zeros, chunk 0
+    asm = FrameAssembler(FRAME_BYTES)
+    out = asm.feed(head[0]) + asm.feed(forged) + asm.feed(head[1]) + asm.flush()
+    assert len(out) == 1 and not out[0].valid
+    assert bytes(out[0].data) == data  # the first bytes received stayed
+    assert asm.counters.contradictions == 1
+    # The same bytes again are a harmless duplicate; another frame time for the same counter is not.
+    asm = FrameAssembler(FRAME_BYTES)
+    out = asm.feed(head[0]) + asm.feed(head[0]) + asm.feed(head[1])
+    assert len(out) == 1 and out[0].valid and asm.counters.contradictions == 0
+    asm = FrameAssembler(FRAME_BYTES)
+    other_time = encode_frame(7, 100, 6, iq, payload_bytes=half)[1]
+    out = asm.feed(head[0]) + asm.feed(other_time) + asm.flush()
+    assert len(out) == 1 and not out[0].valid and asm.counters.contradictions == 1
+
+
+def test_a_counter_jump_is_a_resync_not_hundreds_of_placeholder_frames():
+    """A forged or corrupt frame counter 900 ahead (one version-1 datagram): at most a handful of frames come
+    out for it, not 900 zero-filled ones (650 MB of a reference radar's frames)."""
+    iqs = frames(6, seed=3)
+    dgs = datagrams(iqs)
+    forged = encode_frame(7, 100 + 3 + 900, 0, iqs[0], version=1)[0]
+    asm = FrameAssembler(FRAME_BYTES)
+    out = []
+    for k, group in enumerate(dgs):
+        for d in group:
+            out += asm.feed(d)
+        if k == 2:
+            out += asm.feed(forged)
+    out += asm.flush()
+    assert len(out) <= len(iqs) + 2
+    assert asm.counters.resyncs >= 1
+    valid = {f.frame_counter: f for f in out if f.valid}
+    assert set(valid) == {100, 101, 102, 103, 104, 105}
+    for k, iq in enumerate(iqs):
+        np.testing.assert_array_equal(valid[100 + k].iq(SHAPE), iq)

@@ -1,8 +1,9 @@
 """A radar link: where a radar's datagrams arrive, from whom, and in which wire format.
 
-On the command line a link is ``NAME=[HOST:]PORT[,format=FORMAT][,OPTION=VALUE...]``: ``left=50001``
-(SRF1 on loopback), ``left=192.168.1.20:50001``, ``iwr=4098,format=DCA1000,cfg=xwr18xx.cfg``. The
-format's own options are checked by the format (``drivers.radar.registry``).
+On the command line a link is ``NAME=[HOST:]PORT[,format=FORMAT][,source=ADDRESS][,id=RADAR_ID][,OPTION=VALUE...]``:
+``left=50001`` (SRF1 on loopback), ``left=192.168.1.10:50001,source=192.168.1.20,id=3`` (listen on the robot's
+network, take datagrams only from the radar's address and with its id), ``iwr=4098,format=DCA1000,cfg=xwr18xx.cfg``.
+The format's own options are checked by the format (``drivers.radar.registry``).
 """
 
 from __future__ import annotations
@@ -32,6 +33,8 @@ class RadarLink:
     host: str = DEFAULT_HOST
     wire_format: str = registry.DEFAULT
     options: dict = dataclasses.field(default_factory=dict)
+    source: str | None = None  # the only sender address accepted (None: any)
+    radar_id: int | None = None  # the only radar id accepted, for formats that carry one (None: any)
     format: WireFormat = dataclasses.field(init=False, repr=False, compare=False)
     settings: Any = dataclasses.field(init=False, repr=False, compare=False)
 
@@ -43,6 +46,13 @@ class RadarLink:
             ipaddress.ip_address(self.host)
         except ValueError:
             raise ConfigError(f"{where}.host", f"{self.host!r} is not an IP address") from None
+        if self.source is not None:
+            try:
+                ipaddress.ip_address(self.source)
+            except ValueError:
+                raise ConfigError(f"{where}.source", f"{self.source!r} is not an IP address") from None
+        if self.radar_id is not None and not 0 <= self.radar_id < 1 << 16:
+            raise ConfigError(f"{where}.id", f"{self.radar_id} is not a radar id (0-65535)")
         fmt = registry.get(self.wire_format, f"{where}.format")
         object.__setattr__(self, "format", fmt)
         object.__setattr__(self, "settings", fmt.configure(dict(self.options), where))
@@ -51,8 +61,8 @@ class RadarLink:
         """What the radar sends: fixed by the format's settings where they say (a TI .cfg), else the rig's."""
         return self.format.waveform(self.settings) or rig_waveform
 
-    def open_stream(self, waveform: Waveform, radar_id: int | None = None) -> RadarStream:
-        return self.format.open_stream(waveform, self.settings, radar_id)
+    def open_stream(self, waveform: Waveform) -> RadarStream:
+        return self.format.open_stream(waveform, self.settings, self.radar_id)
 
 
 def parse_radar_link(text: str, option: str = "--radar") -> RadarLink:
@@ -77,7 +87,12 @@ def parse_radar_link(text: str, option: str = "--radar") -> RadarLink:
             raise SarbotError(f"{where}: {extra!r} is not OPTION=VALUE")
         options[key.strip()] = value.strip()
     wire_format = options.pop("format", registry.DEFAULT)
+    source = options.pop("source", None)
+    radar_id = options.pop("id", None)
+    if radar_id is not None and not radar_id.isdigit():
+        raise SarbotError(f"{where}: id {radar_id!r} is not a radar id (0-65535)")
     try:
-        return RadarLink(name.strip(), int(port_text), host or DEFAULT_HOST, wire_format, options)
+        return RadarLink(name.strip(), int(port_text), host or DEFAULT_HOST, wire_format, options, source,
+                         None if radar_id is None else int(radar_id))
     except ConfigError as exc:
         raise SarbotError(f"{where}: {exc}") from None

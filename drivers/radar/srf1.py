@@ -2,13 +2,17 @@
 
 One UDP datagram per chunk, little-endian::
 
-    magic "SRF1" | u8 version=1 | u8 flags (bit0: PTP locked) | u16 radar_id | u32 frame_counter
-    | u64 frame_time_ns | u32 frame_bytes | u32 offset | payload
+    magic "SRF1" | u8 version | u8 flags (bit0: PTP locked) | u16 radar_id | u32 frame_counter
+    | u64 frame_time_ns | u32 frame_bytes | u32 offset | [u32 crc32c, version 2] | payload
 
 The payload is int16 I,Q interleaved, ordered [chirp][rx][sample]; ``offset`` is the chunk's byte offset
-within the frame. The assembler puts chunks in place by offset, so reordering is harmless; duplicates,
-gaps, truncated and malformed datagrams are counted; a frame touched by loss is zero-filled and marked
-invalid, never passed on as if complete; a jump in the frame counter (a restart) resynchronises.
+within the frame. Version 2 adds a CRC32C (Castagnoli) over the 28 header bytes before it and the
+payload, so a flipped bit is caught; version 1 (no CRC) stays readable. The assembler puts chunks in place
+by offset, so reordering is harmless; bytes already received are never overwritten, and a chunk that
+contradicts them (other bytes, another frame time) makes the frame invalid. Duplicates, gaps, truncated,
+malformed and corrupt datagrams are counted; a frame touched by loss is zero-filled and marked invalid,
+never passed on as if complete; a jump in the frame counter (a restart, a forged or corrupt counter)
+larger than ``resync_jump`` resynchronises instead of filling the gap with placeholder frames.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import dataclasses
 import functools
 import struct
 
+import crc32c
 import numpy as np
 
 from imaging.core.waveform import Waveform
@@ -25,15 +30,25 @@ from .registry import WireFormat
 from .stream import RadarFrame
 
 MAGIC = b"SRF1"
-VERSION = 1
-HEADER = struct.Struct("<4sBBHIQII")
+VERSION = 2
+VERSIONS = (1, 2)
+HEADER = struct.Struct("<4sBBHIQII")  # the fields of both versions
+CRC = struct.Struct("<I")  # version 2: after the fields
 FLAG_PTP_LOCKED = 0x01
-#: Payload bytes per datagram so that IP (20) + UDP (8) + SRF1 header fit a 1500-byte MTU, multiple of 4.
-MAX_PAYLOAD = (1500 - 20 - 8 - HEADER.size) // 4 * 4
+#: Payload bytes per datagram so that IP (20) + UDP (8) + SRF1 header (v2) fit a 1500-byte MTU, multiple of 4.
+MAX_PAYLOAD = (1500 - 20 - 8 - HEADER.size - CRC.size) // 4 * 4
+
+
+def header_size(version: int) -> int:
+    return HEADER.size + (CRC.size if version >= 2 else 0)
 
 
 class Srf1Error(ValueError):
     """A datagram that is not SRF1 or contradicts itself."""
+
+
+class Srf1CrcError(Srf1Error):
+    """A version 2 datagram whose CRC32C does not match: bits changed on the way."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,14 +67,17 @@ class Srf1Header:
 
 
 def encode_frame(radar_id: int, frame_counter: int, frame_time_ns: int, iq: np.ndarray, ptp_locked: bool = True,
-                 payload_bytes: int = MAX_PAYLOAD) -> list[bytes]:
+                 payload_bytes: int = MAX_PAYLOAD, version: int = VERSION) -> list[bytes]:
     """Datagrams of one frame; ``iq`` int16 [chirps, rx, samples, 2] (or any int16 array in wire order)."""
     data = np.ascontiguousarray(iq, dtype="<i2").tobytes()
     flags = FLAG_PTP_LOCKED if ptp_locked else 0
     out = []
     for off in range(0, len(data), payload_bytes):
-        head = HEADER.pack(MAGIC, VERSION, flags, radar_id, frame_counter & 0xFFFFFFFF, frame_time_ns, len(data), off)
-        out.append(head + data[off:off + payload_bytes])
+        head = HEADER.pack(MAGIC, version, flags, radar_id, frame_counter & 0xFFFFFFFF, frame_time_ns, len(data), off)
+        chunk = data[off:off + payload_bytes]
+        if version >= 2:
+            head += CRC.pack(crc32c.crc32c(chunk, crc32c.crc32c(head)))
+        out.append(head + chunk)
     return out
 
 
@@ -70,9 +88,17 @@ def parse(datagram: bytes) -> tuple[Srf1Header, memoryview]:
     magic, version, flags, radar_id, counter, t_ns, frame_bytes, offset = HEADER.unpack_from(datagram)
     if magic != MAGIC:
         raise Srf1Error(f"magic {magic!r} is not {MAGIC!r}")
-    if version != VERSION:
+    if version not in VERSIONS:
         raise Srf1Error(f"version {version} is not supported")
-    payload = memoryview(datagram)[HEADER.size:]
+    size = header_size(version)
+    if len(datagram) < size:
+        raise Srf1Error(f"datagram of {len(datagram)} bytes is shorter than the {size}-byte version {version} header")
+    payload = memoryview(datagram)[size:]
+    if version >= 2:
+        (want,) = CRC.unpack_from(datagram, HEADER.size)
+        got = crc32c.crc32c(payload, crc32c.crc32c(memoryview(datagram)[:HEADER.size]))
+        if got != want:
+            raise Srf1CrcError(f"CRC32C 0x{got:08x} is not the datagram's 0x{want:08x}")
     if offset + len(payload) > frame_bytes:
         raise Srf1Error(f"chunk at offset {offset} with {len(payload)} bytes overruns the {frame_bytes}-byte frame")
     return Srf1Header(version, flags, radar_id, counter, t_ns, frame_bytes, offset), payload
@@ -91,6 +117,8 @@ class Srf1Counters:
     frames_skipped: int = 0  # frame counters never seen at all
     bytes_lost: int = 0
     resyncs: int = 0
+    crc_errors: int = 0  # version 2 datagrams whose CRC32C failed: dropped
+    contradictions: int = 0  # chunks whose bytes or frame time disagree with what the frame already holds
 
 
 @dataclasses.dataclass
@@ -118,6 +146,7 @@ class _Partial:
         self.received = 0
         self.last_offset = -1
         self.last_recv = recv_ns
+        self.contradicted = False  # a chunk disagreed with bytes already received, or with the frame time
 
 
 class FrameAssembler:
@@ -134,8 +163,10 @@ class FrameAssembler:
         Datagrams of other radars are counted and ignored.
     """
 
-    def __init__(self, frame_bytes: int, radar_id: int | None = None, window: int = 2, resync_jump: int = 1000):
-        """A counter more than ``resync_jump`` ahead, or behind everything recently emitted, is a restart."""
+    def __init__(self, frame_bytes: int, radar_id: int | None = None, window: int = 2, resync_jump: int = 16):
+        """A counter more than ``resync_jump`` ahead, or behind everything recently emitted, is a restart (or a
+        corrupt counter): a resync, not that many placeholder frames. Up to ``resync_jump`` frames lost in
+        a row are recorded as invalid placeholders, so the file shows the loss where it happened."""
         self.frame_bytes = frame_bytes
         self.radar_id = radar_id
         self.window = window
@@ -153,6 +184,9 @@ class FrameAssembler:
             return []
         try:
             header, payload = parse(datagram)
+        except Srf1CrcError:
+            c.crc_errors += 1
+            return []
         except Srf1Error:
             c.malformed += 1
             return []
@@ -186,14 +220,22 @@ class FrameAssembler:
         if part is None:
             part = self._partial[n] = _Partial(header, recv_ns)
         lo, hi = header.offset, header.offset + len(payload)
-        if part.have[lo:hi].all():
+        had = part.have[lo:hi]
+        buf = np.frombuffer(part.data, np.uint8)[lo:hi]
+        new = np.frombuffer(payload, np.uint8)
+        if header.frame_time_ns != part.header.frame_time_ns or not np.array_equal(buf[had], new[had]):
+            # The bytes already here stay; the frame can no longer be trusted to be what the radar sent.
+            c.contradictions += 1
+            part.contradicted = True
+        if had.all():
             c.duplicates += 1
             return out
         if lo < part.last_offset:
             c.reordered += 1
         part.last_offset = max(part.last_offset, lo)
-        part.received += int(hi - lo - np.count_nonzero(part.have[lo:hi]))  # overlapping bytes count once
-        part.data[lo:hi] = payload
+        fresh = ~had
+        part.received += int(np.count_nonzero(fresh))  # overlapping bytes count once
+        buf[fresh] = new[fresh]  # never overwrite bytes already received
         part.have[lo:hi] = True
         part.last_recv = recv_ns
         out += self._emit_ready(newest=n)
@@ -223,9 +265,10 @@ class FrameAssembler:
         if missing:
             c.frames_incomplete += 1
             c.bytes_lost += missing
-        else:
+        elif not part.contradicted:
             c.frames_complete += 1
-        return Frame(k, part.header.frame_time_ns, part.data, missing == 0, missing, part.header.ptp_locked, part.last_recv)
+        valid = missing == 0 and not part.contradicted
+        return Frame(k, part.header.frame_time_ns, part.data, valid, missing, part.header.ptp_locked, part.last_recv)
 
     def _flush_all(self) -> list[Frame]:
         out = []

@@ -14,7 +14,8 @@ import numpy as np
 
 #: Counters that describe trouble (the others count normal traffic).
 TROUBLE_COUNTERS = ("malformed", "truncated", "duplicates", "reordered", "wrong_radar", "sequence_gaps",
-                    "frames_incomplete", "frames_skipped", "bytes_lost", "resyncs")
+                    "frames_incomplete", "frames_skipped", "bytes_lost", "resyncs", "crc_errors", "contradictions",
+                    "foreign_source")
 
 
 @dataclasses.dataclass

@@ -15,9 +15,13 @@ SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
 class UdpReceiver:
     """A bound UDP socket returning (payload, kernel receive time ns, kernel drops so far)."""
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 0, rcvbuf_bytes: int = 32 << 20, timeout_s: float = 0.1):
+    def __init__(self, host: str = "127.0.0.1", port: int = 0, rcvbuf_bytes: int = 32 << 20, timeout_s: float = 0.1,
+                 accept_from: str | None = None):
+        """``accept_from``: the only source address whose datagrams are taken; others are counted
+        (``foreign_source``) and dropped. None takes every sender (loopback, a single radar)."""
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        # No SO_REUSEADDR: with it a second socket (another process, another local user) could bind the
+        # same port and take the radar's datagrams.
         try:  # as root the buffer may exceed net.core.rmem_max
             self.sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, rcvbuf_bytes)
         except OSError:
@@ -25,16 +29,25 @@ class UdpReceiver:
         self.rcvbuf_bytes = self.sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
         self.sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
         self.sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
-        self.sock.bind((host, port))
+        try:
+            self.sock.bind((host, port))
+        except OSError as exc:
+            self.sock.close()
+            raise OSError(exc.errno, f"cannot listen on UDP {host}:{port}: {exc.strerror}") from None
         self.sock.settimeout(timeout_s)
         self.address = self.sock.getsockname()
         self.kernel_drops = 0
+        self.accept_from = accept_from
+        self.foreign_source = 0
 
     def receive(self, max_bytes: int = 65536) -> tuple[bytes, int, int] | None:
-        """One datagram, or None on timeout."""
+        """One datagram, or None on timeout (or for a datagram from a source not accepted)."""
         try:
-            data, ancdata, _, _ = self.sock.recvmsg(max_bytes, 256)
+            data, ancdata, _, source = self.sock.recvmsg(max_bytes, 256)
         except socket.timeout:
+            return None
+        if self.accept_from is not None and source[0] != self.accept_from:
+            self.foreign_source += 1
             return None
         t_ns = 0
         for level, kind, value in ancdata:
