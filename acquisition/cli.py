@@ -16,7 +16,7 @@ import numpy as np
 
 from imaging.core.errors import SarbotError
 
-from .processes import configure_logging
+from .processes import configure_logging, ensure_jit_cache_dir
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
@@ -550,6 +550,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(_join_negative_values(sys.argv[1:] if argv is None else list(argv)))
     configure_logging(args.verbose)  # also for every process the command starts (through the environment)
+    ensure_jit_cache_dir()  # before numba is imported, here or in a child
     try:
         return args.func(args)
     except SarbotError as exc:

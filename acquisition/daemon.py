@@ -25,7 +25,7 @@ from imaging.core.rig import Rig
 
 from .bus import BusPublisher
 from .driver_loops import can_process, imu_process, radar_process
-from .messages import ClockState, Health, Latency
+from .messages import ClockState, Health, Latency, WorkerState
 from .processes import ProcessSpec, free_tcp_endpoint
 from .recorder import DiskFullError, Recorder
 from .sdnotify import notify, watchdog_interval_s
@@ -50,6 +50,7 @@ class Setup:
     health_interval_s: float = 2.0
     health_endpoint: str | None = None
     worker_stop_timeout_s: float = 60.0
+    warm_up_timeout_s: float = 300.0
     workers: list[WorkerSpec] = dataclasses.field(default_factory=list)
 
 
@@ -76,9 +77,10 @@ def process_specs(setup: Setup, stop) -> list[ProcessSpec]:
 class HealthMonitor:
     """Frames/s per radar, IMU rate, losses and clock state over the last interval, from the recorder's counts."""
 
-    def __init__(self, recorder: Recorder, endpoints: dict[str, str]):
+    def __init__(self, recorder: Recorder, endpoints: dict[str, str], worker_roles: list[str] = ()):
         self.recorder = recorder
         self.endpoints = endpoints
+        self.worker_roles = list(worker_roles)
         self._last = (time.monotonic(), dict(recorder.frames), recorder.imu_samples)
 
     def sample(self, restarts: int) -> Health:
@@ -100,10 +102,17 @@ class HealthMonitor:
             if lat.size else None,
             endpoints=self.endpoints,
             clock=ClockState(dict(rec.ptp_locked), bool(rec.triggers_seen), rec.imu_drift_ppm),
+            workers={role: rec.worker_states.get(role) or WorkerState(role, False, 0.0, {}) for role in self.worker_roles},
             time_ns=time.time_ns(),
         )
         self._last = (now, dict(rec.frames), rec.imu_samples)
         return report
+
+    @property
+    def warm(self) -> bool:
+        """Every worker has said it is warm."""
+        states = self.recorder.worker_states
+        return all(role in states and states[role].warm for role in self.worker_roles)
 
 
 def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_health=None,
@@ -139,10 +148,11 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     t_end = time.monotonic() + duration_s if duration_s else None
     restarts = 0
-    notify("READY=1")
     watchdog_s = watchdog_interval_s()
-    last_health = last_watchdog = time.monotonic()
-    monitor = HealthMonitor(recorder, {role: s.endpoint for role, s in specs.items()})
+    started = last_health = last_watchdog = time.monotonic()
+    monitor = HealthMonitor(recorder, {role: s.endpoint for role, s in specs.items()}, [w.role for w in setup.workers])
+    # READY once the workers have compiled their kernels: until then the pipeline would fall behind.
+    ready = False
     flowing = False
     disk_full = None
     try:
@@ -151,6 +161,12 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
                 if recorder.step(timeout_ms=50):
                     flowing = True
                 now = time.monotonic()
+                if not ready and (monitor.warm or now - started > setup.warm_up_timeout_s):
+                    if not monitor.warm:
+                        log.warning("workers not warm after %.0f s; ready anyway", now - started)
+                    log.info("ready after %.1f s", now - started)
+                    notify("READY=1")
+                    ready = True
                 if now - last_health >= setup.health_interval_s:
                     report = monitor.sample(restarts)
                     status = report.line()

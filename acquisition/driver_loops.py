@@ -31,13 +31,16 @@ def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pu
                       stop: threading.Event, report_every_s: float = 1.0) -> RadarStream:
     """Receive datagrams, reassemble frames with ``stream``, publish each frame; wire trouble and kernel
     drops are published as events. Returns the stream."""
-    reported = trouble(stream.counters)
+    def counted() -> dict[str, int]:
+        return {**trouble(stream.counters), "foreign_source": getattr(receiver, "foreign_source", 0)}
+
+    reported = counted()
     last_report = time.monotonic()
     kernel_drops = 0
 
     def report(now_ns: int) -> None:
         nonlocal reported
-        now = trouble(stream.counters)
+        now = counted()
         changes = {k: now[k] - reported[k] for k in now if now[k] != reported[k]}
         if changes:
             pub.send(Event(now_ns, f"radar.{radar}", "warning", ", ".join(f"{k} +{v}" for k, v in changes.items())))
@@ -45,18 +48,17 @@ def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pu
 
     while not stop.is_set():
         got = receiver.receive()
-        if got is None:
-            continue
-        data, t_ns, drops = got
-        if drops > kernel_drops:
-            pub.send(Event(t_ns, f"radar.{radar}", "error",
-                           f"kernel dropped {drops - kernel_drops} datagram(s) (socket buffer full)"))
-            kernel_drops = drops
-        for frame in stream.feed(data, t_ns):
-            pub.send(RadarFrameMessage(radar, frame))
-            if not frame.valid:
-                report(t_ns)
-        if time.monotonic() - last_report > report_every_s:
+        if got is not None:
+            data, t_ns, drops = got
+            if drops > kernel_drops:
+                pub.send(Event(t_ns, f"radar.{radar}", "error",
+                               f"kernel dropped {drops - kernel_drops} datagram(s) (socket buffer full)"))
+                kernel_drops = drops
+            for frame in stream.feed(data, t_ns):
+                pub.send(RadarFrameMessage(radar, frame))
+                if not frame.valid:
+                    report(t_ns)
+        if time.monotonic() - last_report > report_every_s:  # also when only rejected datagrams come
             report(time.time_ns())
             last_report = time.monotonic()
     for frame in stream.flush():
@@ -129,9 +131,9 @@ def can_driver_loop(driver: CanDriver, pub: BusPublisher, stop: threading.Event)
 # -- the processes ------------------------------------------------------------------------------------
 def radar_process(link: RadarLink, waveform: Waveform, endpoint: str, stop) -> None:
     """A radar's driver process: listens on the link, publishes its frames on ``endpoint``."""
-    become_child(link.name)
+    become_child(link.name, realtime=True)
     stream = link.open_stream(waveform)
-    rx = UdpReceiver(link.host, link.port)
+    rx = UdpReceiver(link.host, link.port, accept_from=link.source)
     pub = BusPublisher(endpoint)
     log.info("radar %s: %s on %s:%d", link.name, link.wire_format, link.host, rx.address[1])
     try:
@@ -142,7 +144,7 @@ def radar_process(link: RadarLink, waveform: Waveform, endpoint: str, stop) -> N
 
 
 def imu_process(port: str, endpoint: str, radar_endpoints: list[str], stop) -> None:
-    become_child("imu")
+    become_child("imu", realtime=True)
     pub = BusPublisher(endpoint)
     log.info("IMU on %s", port)
     try:
@@ -152,7 +154,7 @@ def imu_process(port: str, endpoint: str, radar_endpoints: list[str], stop) -> N
 
 
 def can_process(config: CanConfig, endpoint: str, stop) -> None:
-    become_child("can")
+    become_child("can", realtime=True)
     pub = BusPublisher(endpoint)
     driver = CanDriver(config.open(), trigger_id=config.trigger_id)
     log.info("CAN on %s %s", config.interface, config.channel or "")

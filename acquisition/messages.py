@@ -6,7 +6,7 @@ The header keys live here and nowhere else, so a producer and its consumers cann
 
 Topics: ``radar/<name>`` (RadarFrameMessage), ``imu`` (ImuBatch), ``can`` (CanBatch), ``trigger``
 (Trigger), ``event`` (Event), ``pose`` (PoseBatch), ``pose/end`` (PoseEnd), ``map/tile`` (MapTile),
-``map/status`` (MapStatus), ``health`` (Health).
+``map/status`` (MapStatus), ``worker/state`` (WorkerState), ``health`` (Health).
 """
 
 from __future__ import annotations
@@ -241,6 +241,27 @@ class MapStatus(BusMessage):
 
 
 @dataclasses.dataclass
+class WorkerState(BusMessage):
+    """A worker's state, sent every second: whether its kernels are compiled (``warm``, after
+    ``warm_up_s``), and its counters (e.g. radar scans skipped because it fell behind)."""
+
+    TOPIC: ClassVar[str] = "worker/state"
+    role: str
+    warm: bool
+    warm_up_s: float
+    counters: dict[str, int]
+    time_ns: int = 0
+
+    def to_parts(self) -> Parts:
+        fields = dataclasses.asdict(self)
+        return Parts(self.TOPIC, fields.pop("time_ns"), [], fields)
+
+    @classmethod
+    def from_message(cls, msg: Message) -> "WorkerState":
+        return cls(**_fields_of(cls, msg.header), time_ns=int(msg.sensor_time_ns))
+
+
+@dataclasses.dataclass
 class Latency:
     """From a frame's last datagram (kernel time stamp) to the recorder, ms, over a health interval."""
 
@@ -273,7 +294,13 @@ class Health(BusMessage):
     latency_ms: Latency | None
     endpoints: dict[str, str]
     clock: ClockState
+    workers: dict[str, WorkerState] = dataclasses.field(default_factory=dict)
     time_ns: int = 0
+
+    @property
+    def warm(self) -> bool:
+        """Every worker has compiled its kernels (True without workers)."""
+        return all(w.warm for w in self.workers.values())
 
     def to_parts(self) -> Parts:
         fields = dataclasses.asdict(self)
@@ -284,6 +311,7 @@ class Health(BusMessage):
         fields = _fields_of(cls, msg.header)
         fields["latency_ms"] = Latency(**fields["latency_ms"]) if fields.get("latency_ms") else None
         fields["clock"] = ClockState(**fields["clock"])
+        fields["workers"] = {role: WorkerState(**w) for role, w in fields.get("workers", {}).items()}
         return cls(**fields, time_ns=int(msg.sensor_time_ns))
 
     def line(self) -> str:
@@ -300,11 +328,16 @@ class Health(BusMessage):
             parts.append(f"latency p50 {self.latency_ms.p50:.1f} ms, p99 {self.latency_ms.p99:.1f} ms")
         parts.append(f"invalid frames {sum(self.invalid_frames.values())}, wire events {self.wire_events}, "
                      f"bus lost {self.bus_lost}, restarts {self.restarts}")
+        cold = [role for role, w in self.workers.items() if not w.warm]
+        if self.workers:
+            parts.append(f"warming up: {', '.join(cold)}" if cold else "workers warm")
+        for role, w in self.workers.items():
+            parts += [f"{role} {name} {n}" for name, n in w.counters.items() if n]
         return ", ".join(parts)
 
 
 _BY_TOPIC: dict[str, type[BusMessage]] = {cls.TOPIC: cls for cls in (
-    ImuBatch, CanBatch, Trigger, Event, PoseBatch, PoseEnd, MapTile, MapStatus, Health)}
+    ImuBatch, CanBatch, Trigger, Event, PoseBatch, PoseEnd, MapTile, MapStatus, WorkerState, Health)}
 
 
 def decode(msg: Message) -> BusMessage:

@@ -13,10 +13,13 @@ import logging
 import os
 import signal
 import socket
+import tempfile
 from typing import Any, Callable
 
 #: Environment variable carrying the command line's verbosity to every child process.
 VERBOSITY_ENV = "SARBOT_VERBOSITY"
+#: SCHED_FIFO priority for the driver processes (the unit sets it; 0 or unset: normal scheduling).
+DRIVER_RT_PRIORITY_ENV = "SARBOT_DRIVER_RT_PRIORITY"
 LOG_FORMAT = "%(levelname)s %(name)s: %(message)s"
 
 
@@ -41,7 +44,40 @@ def configure_logging(verbosity: int | None = None, role: str | None = None) -> 
     logging.getLogger("sarbot").setLevel(logging.DEBUG if verbosity >= 1 else logging.INFO)
 
 
-def become_child(role: str) -> None:
+def ensure_jit_cache_dir() -> str | None:
+    """Make sure numba has somewhere to write its cache, and return where (None: beside the sources).
+
+    Numba caches compiled kernels beside their sources, else in the user's cache folder; under systemd's
+    ``ProtectSystem=strict`` and ``ProtectHome=yes`` neither is writable and every ``cache=True`` kernel
+    fails at import ("no locator available"). ``NUMBA_CACHE_DIR`` wins when set; else the unit's
+    ``CacheDirectory=`` (systemd passes it as ``CACHE_DIRECTORY``); else, if the sources are read-only,
+    ``$XDG_CACHE_HOME/sarbot/numba`` or a folder in the temporary directory. Set in the environment, so
+    every child process uses the same cache.
+    """
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return os.environ["NUMBA_CACHE_DIR"]
+    candidates = []
+    if os.environ.get("CACHE_DIRECTORY"):
+        candidates.append(os.path.join(os.environ["CACHE_DIRECTORY"].split(":")[0], "numba"))
+    else:
+        sources = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+        if os.access(sources, os.W_OK):
+            return None
+        home_cache = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+        candidates += [os.path.join(home_cache, "sarbot", "numba"),
+                       os.path.join(tempfile.gettempdir(), f"sarbot-numba-{os.getuid()}")]
+    for path in candidates:
+        try:
+            os.makedirs(path, mode=0o750, exist_ok=True)
+        except OSError:
+            continue
+        if os.access(path, os.W_OK):
+            os.environ["NUMBA_CACHE_DIR"] = path
+            return path
+    return None
+
+
+def become_child(role: str, realtime: bool = False) -> None:
     """Set up a child process: die with the supervisor, carry the role's name, log like the parent.
 
     A driver whose supervisor died (SIGKILL, OOM) must not keep the port or the device busy; the name
@@ -59,6 +95,15 @@ def become_child(role: str) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, lambda *_: os._exit(0))
     configure_logging(role=role)
+    priority = int(os.environ.get(DRIVER_RT_PRIORITY_ENV, "0") or 0)
+    if realtime and priority > 0:
+        # Only the drivers, which must drain their sockets and serial ports in time; a CPU-heavy worker at
+        # real-time priority would starve them and the recorder.
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        except (OSError, AttributeError) as exc:
+            logging.getLogger("sarbot.acquisition.processes").warning(
+                "%s: real-time priority %d not granted (%s); running at normal priority", role, priority, exc)
 
 
 @dataclasses.dataclass
@@ -79,6 +124,19 @@ def free_port(kind: int = socket.SOCK_STREAM) -> int:
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def free_ports(n: int, kind: int = socket.SOCK_DGRAM) -> list[int]:
+    """``n`` distinct loopback ports, free at the moment of asking (held together while chosen, so no port
+    is handed out twice)."""
+    socks = [socket.socket(socket.AF_INET, kind) for _ in range(n)]
+    try:
+        for s in socks:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in socks]
+    finally:
+        for s in socks:
+            s.close()
 
 
 def free_tcp_endpoint() -> str:

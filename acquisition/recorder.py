@@ -20,7 +20,15 @@ from imaging.core.rig import Rig
 from imaging.io.recording import RecordingWriter
 
 from .bus import BusSubscriber
-from .messages import CanBatch, Event, ImuBatch, RadarFrameMessage, Trigger, decode
+from .messages import (
+    CanBatch,
+    Event,
+    ImuBatch,
+    RadarFrameMessage,
+    Trigger,
+    WorkerState,
+    decode,
+)
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
@@ -70,7 +78,7 @@ class Recorder:
         self._triggers: list[tuple[int, str]] = []
         self.writer = self._open_part()
         self._handlers = {RadarFrameMessage: self._store_frame, ImuBatch: self._store_imu, CanBatch: self._store_can,
-                          Trigger: self._store_trigger, Event: self._store_event}
+                          Trigger: self._store_trigger, Event: self._store_event, WorkerState: self._note_worker}
         self.sub = BusSubscriber(endpoints, topics=[cls.TOPIC for cls in self._handlers], context=context)
         self.flush_interval_s = flush_interval_s
         self._last_flush = time.monotonic()
@@ -85,6 +93,7 @@ class Recorder:
         self.triggers_seen = 0
         self.imu_drift_ppm: float | None = None
         self.latencies_ns: list[int] = []  # datagram (kernel time stamp) to recorder, per radar frame
+        self.worker_states: dict[str, WorkerState] = {}
 
     @property
     def path(self) -> Path:
@@ -158,6 +167,10 @@ class Recorder:
         self.writer.append_trigger(m.time_ns, m.source)
         self._triggers.append((m.time_ns, m.source))
         self.triggers_seen += 1
+
+    def _note_worker(self, m: WorkerState) -> None:
+        """Not stored: the workers' state goes into health (and their events into /events)."""
+        self.worker_states[m.role] = m
 
     def _store_event(self, m: Event) -> None:
         self.wire_events += 1

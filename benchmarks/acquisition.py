@@ -34,7 +34,7 @@ sys.path.insert(0, str(ROOT))
 
 from acquisition.bus import BusSubscriber  # noqa: E402
 from acquisition.messages import Health, RadarFrameMessage  # noqa: E402
-from acquisition.processes import free_port, free_tcp_endpoint  # noqa: E402
+from acquisition.processes import free_ports, free_tcp_endpoint  # noqa: E402
 from drivers.radar.srf1 import encode_frame  # noqa: E402
 from imaging.core.rig import default_rig  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
@@ -104,7 +104,7 @@ def main(argv: list[str]) -> int:
     wf = rig.radars[0].waveform
     shape = (wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp, 2)
     frame_bytes = int(np.prod(shape)) * 2
-    ports = {r.name: free_port(socket.SOCK_DGRAM) for r in rig.radars}
+    ports = dict(zip(rig.radar_names, free_ports(len(rig.radars))))
     health_endpoint = free_tcp_endpoint()
     work = Path(tempfile.mkdtemp(prefix="sarbot-bench-acq-"))
     cmd = [sys.executable, "-m", "acquisition.cli", "record", "--config", str(ROOT / "imaging/rigs/default.toml"),

@@ -20,7 +20,7 @@ from test_round_trip import make_source
 
 from acquisition.bus import BusSubscriber
 from acquisition.messages import Health
-from acquisition.processes import free_port, free_tcp_endpoint
+from acquisition.processes import free_port, free_ports, free_tcp_endpoint
 from drivers.radar.ti_cfg import load_ti_cfg
 from imaging.core.rig import AntennaArray, Mount, RadarConfig
 from imaging.core.trajectory import PathWithTurns
@@ -51,7 +51,7 @@ def test_dca1000_and_can_replayed_into_record_split_in_parts_with_health_on_the_
     iq, base = make_dca1000_source(src)
     rig = tmp_path / "rig.toml"
     rig.write_text("[radar.iwr]\nmount_translation_m = [0.1, 0.2, 0.3]\nmount_yaw_deg = 90.0\n")
-    port, can_port = free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_DGRAM)
+    port, can_port = free_ports(2)
     health_endpoint = free_tcp_endpoint()
     can = ["--can", "udp_multicast:239.74.163.2", "--can-arg", f"port={can_port}"]
     ctx = zmq.Context()

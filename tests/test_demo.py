@@ -1,6 +1,7 @@
 """`sarbot demo`, the README's main job: the whole pipeline on emulated hardware, checked end to end."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -13,8 +14,14 @@ CLI = [sys.executable, "-m", "acquisition.cli"]
 
 
 def test_demo_runs_the_whole_pipeline_and_finds_the_targets(tmp_path):
+    """On a cold JIT cache, as on a fresh machine: the first run must pass too (the workers compile their
+    kernels before the daemon says it is ready, and the hardware starts then)."""
     out = tmp_path / "demo"
-    res = subprocess.run([*CLI, "demo", "-o", str(out)], capture_output=True, text=True, timeout=300)
+    cache = tmp_path / "empty-jit-cache"
+    cache.mkdir()
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    res = subprocess.run([*CLI, "demo", "-o", str(out)], capture_output=True, text=True, timeout=600, env=env)
+    assert any(cache.rglob("*.nbi")), "the run compiled into the empty cache"
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     assert "Traceback" not in res.stderr
     report = json.loads((out / "report.json").read_text())
@@ -35,7 +42,7 @@ def test_demo_runs_the_whole_pipeline_and_finds_the_targets(tmp_path):
         assert f.attrs["schema"] == "sarbot.image" and f.attrs["trajectory_source"] == "rio"
         # Every frame of the two left radars, imaged or (the first 2 s, standing) left out as adding no aperture.
         assert f.attrs["frames_imaged"] + f.attrs["frames_standing_still"] >= 380 and f.attrs["frames_standing_still"] >= 70
-        assert f.attrs["max_lag_s"] > 0
+        assert 0 < f.attrs["max_lag_s"] < 10.0  # follows the drive (cold, before the warm-up: 26-32 s)
     assert (out / "stripmap_demo.png").stat().st_size > 10_000
     assert "report.md" in res.stdout
 
@@ -47,3 +54,14 @@ def test_run_without_an_imu_is_a_one_line_error(tmp_path):
                          capture_output=True, text=True, timeout=60)
     assert res.returncode == 2
     assert res.stderr.strip().count("\n") == 0 and "--imu-port" in res.stderr
+
+
+def test_the_jit_cache_goes_where_systemd_says(tmp_path):
+    """Under the unit (ProtectSystem=strict) numba cannot cache beside the sources; sarbot puts the cache
+    in the unit's CacheDirectory (systemd passes it as $CACHE_DIRECTORY)."""
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env["CACHE_DIRECTORY"] = str(tmp_path / "cache")
+    res = subprocess.run([*CLI, "simulate", "point_target", "-o", str(tmp_path / "p.h5")], capture_output=True,
+                         text=True, timeout=300, env=env)
+    assert res.returncode == 0, res.stderr
+    assert any((tmp_path / "cache" / "numba").rglob("*.nbi"))

@@ -14,7 +14,6 @@ from __future__ import annotations
 import json
 import logging
 import multiprocessing as mp
-import socket
 import threading
 import time
 from pathlib import Path
@@ -64,7 +63,7 @@ def run_demo(out_dir: Path, speed: float = 0.5) -> int:
     from drivers.radar.link import RadarLink
 
     from ..daemon import Setup, record
-    from ..processes import free_port
+    from ..processes import free_ports
     from ..workers.pipeline import add_pipeline_workers
 
     t_start = time.monotonic()
@@ -78,8 +77,9 @@ def run_demo(out_dir: Path, speed: float = 0.5) -> int:
     simulate_recording(scene, sim_path, progress=Progress("simulate"), overwrite=True)
 
     rig = scene.rig
-    links = [RadarLink(name, free_port(socket.SOCK_DGRAM)) for name in scene.radars]
-    can = CanConfig("udp_multicast", "239.74.163.2", options={"port": free_port(socket.SOCK_DGRAM)})
+    *radar_ports, can_port = free_ports(len(scene.radars) + 1)
+    links = [RadarLink(name, port) for name, port in zip(scene.radars, radar_ports)]
+    can = CanConfig("udp_multicast", "239.74.163.2", options={"port": can_port})
     imu_link = out_dir / "imu_tty"
     setup = Setup(rig, links, str(imu_link), can, health_interval_s=1.0)
     config = StripMapConfig(aperture_m=APERTURE_M, range_min_m=1.0, range_max_m=4.0, z_m=0.3)
@@ -100,7 +100,12 @@ def run_demo(out_dir: Path, speed: float = 0.5) -> int:
 
     finished = threading.Event()
 
+    warm = threading.Event()
+
     def play():
+        # The hardware starts once the workers have compiled their kernels (a cold JIT cache takes tens of
+        # seconds), as a robot starts driving once the daemon says it is ready.
+        warm.wait(600)
         emulator.start()
         emulator.join()
         if emulator.exitcode != 0:
@@ -117,6 +122,8 @@ def run_demo(out_dir: Path, speed: float = 0.5) -> int:
 
     def on_health(report):
         health.append(report)
+        if report.warm:
+            warm.set()
         bar(min(time.monotonic() - t_run, expected_s), expected_s)
         # Stop once the hardware has sent everything and the daemon has taken it all (a quiet second).
         if finished.is_set() and not any(report.frames_per_s.values()) and report.imu_hz == 0:

@@ -9,12 +9,15 @@ process of its own with ``worker_process``.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 from typing import Any
 
 from ..bus import BusPublisher, BusSubscriber
-from ..messages import BusMessage, decode
+from ..messages import BusMessage, WorkerState, decode
 from ..processes import become_child, free_tcp_endpoint
+
+log = logging.getLogger(f"sarbot.{__name__}")
 
 
 class Worker:
@@ -29,6 +32,14 @@ class Worker:
     endpoints: list[str] = []
     drain_quiet_s: float = 0.5
     drain_max_s: float = 10.0
+
+    def warm_up(self) -> None:
+        """Compile the kernels on representative shapes before the first real message (a cold JIT cache
+        costs tens of seconds); messages that arrive meanwhile queue and are handled in order after."""
+
+    def counters(self) -> dict[str, int]:
+        """What the worker counts for health (e.g. scans it had to leave out); published every second."""
+        return {}
 
     def handle(self, message: BusMessage, live: bool) -> None:
         """One message. ``live`` False while draining: nothing may be dropped then."""
@@ -47,13 +58,18 @@ class Worker:
         """Always, also after an error: the worker's files (trajectory, map)."""
 
 
-def run_worker(worker: Worker, sub: BusSubscriber, stop) -> None:
-    """The run loop every worker shares: live until ``stop`` is set, then drain, then finish."""
+def run_worker(worker: Worker, sub: BusSubscriber, stop, state=None) -> None:
+    """The run loop every worker shares: live until ``stop`` is set, then drain, then finish. ``state``
+    (a callable) is called about once a second while live: the worker's state onto the bus."""
+    last_state = 0.0
     while not stop.is_set():
         msg = sub.receive(timeout_ms=50)
         if msg is not None:
             worker.handle(decode(msg), live=True)
         worker.step()
+        if state is not None and time.monotonic() - last_state >= 1.0:
+            state()
+            last_state = time.monotonic()
     now = time.monotonic()
     deadline, quiet_until = now + worker.drain_max_s, now + worker.drain_quiet_s
     while (now := time.monotonic()) < deadline and now < quiet_until:
@@ -84,9 +100,21 @@ def worker_process(spec: WorkerSpec, driver_endpoints: list[str], stop) -> None:
     become_child(spec.role)
     pub = BusPublisher(spec.endpoint)
     worker = spec.worker(spec.config, pub)
+    # Subscribed before warming up: what the drivers send meanwhile queues, and is handled in order after.
     sub = BusSubscriber([*driver_endpoints, *worker.endpoints], topics=worker.topics)
+    warm_up_s = [0.0]
+
+    def state(warm: bool = True) -> None:
+        pub.send(WorkerState(spec.role, warm, warm_up_s[0], worker.counters(), time.time_ns()))
+
     try:
-        run_worker(worker, sub, stop)
+        state(warm=False)
+        t0 = time.monotonic()
+        worker.warm_up()
+        warm_up_s[0] = time.monotonic() - t0
+        log.info("%s: warm after %.1f s", spec.role, warm_up_s[0])
+        state()
+        run_worker(worker, sub, stop, state)
         time.sleep(0.2)  # let the subscribers take the last messages before the socket closes
     finally:
         worker.write_products()

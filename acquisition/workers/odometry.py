@@ -6,6 +6,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import logging
+import math
 import time
 
 import numpy as np
@@ -13,7 +14,7 @@ import numpy as np
 from imaging.core.rig import Rig
 from imaging.core.samples import iq_to_complex
 
-from ..messages import ImuBatch, PoseBatch, PoseEnd, RadarFrameMessage
+from ..messages import Event, ImuBatch, PoseBatch, PoseEnd, RadarFrameMessage
 from . import Worker
 
 log = logging.getLogger(f"sarbot.{__name__}")
@@ -22,15 +23,17 @@ log = logging.getLogger(f"sarbot.{__name__}")
 @dataclasses.dataclass
 class OdometryWorkerConfig:
     """``radars`` None: all of the rig's. Point clouds are made from at most ``scan_rate_hz`` frames per radar
-    (ego velocity needs no more, and each costs about 10 ms); a frame that reaches the worker more than
-    ``max_lag_s`` late is skipped (counted) so the odometry stays current when the machine is busy. The
-    IMU is never skipped."""
+    (ego velocity needs no more, and each costs about 10 ms). A worker that falls behind (a busy machine,
+    the backlog of its warm-up) catches up in time order: more than ``max_lag_s`` late it takes only every
+    k-th scan (k grows with the lag, at most 8), more than ``max_catch_up_s`` late it leaves scans out. Both
+    are counted, in health and as events. The IMU is never left out."""
 
     rig: Rig
     radars: list[str] | None
     trajectory_path: str
     scan_rate_hz: float = 10.0
     max_lag_s: float = 0.3
+    max_catch_up_s: float = 30.0
 
 
 class OdometryWorker(Worker):
@@ -56,6 +59,38 @@ class OdometryWorker(Worker):
         self.pc_config = PointCloudConfig()
         self.kept: list[PoseBatch] = []
         self.seen: collections.Counter = collections.Counter()
+        self.behind = 0  # scans in a row that came more than max_lag_s late
+        self.last_lag_event = 0.0
+
+    def warm_up(self) -> None:
+        """Run the whole chain once on made-up data of the live shapes and dtypes: point clouds from a
+        noise frame of every radar, a standstill for the filter's start, then scans standing and moving (the
+        zero-velocity and the RANSAC paths). A throwaway filter: nothing reaches the bus."""
+        from rio.odometry import RadarScan, RioOptions
+        from rio.pointcloud import detect
+        from rio.streaming import StreamingRio
+
+        rng = np.random.default_rng(0)
+        rate = self.config.rig.imu.rate_hz
+        rio = StreamingRio(RioOptions(), imu_rate_hz=rate)
+        n = int(round(3.0 * rate))
+        t = 1_000_000_000 + np.round(np.arange(n) * 1e9 / rate).astype(np.int64)
+        gyro = rng.normal(0.0, 1e-3, (n, 3)).astype(np.float32)
+        accel = (np.array([0.0, 0.0, 9.80665]) + rng.normal(0.0, 1e-2, (n, 3))).astype(np.float32)
+        rio.add_imu(t[: n // 2], accel[: n // 2], gyro[: n // 2])
+        for k, (name, radar) in enumerate(self.radars.items()):
+            wf = radar.waveform
+            shape = (wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)
+            noise = (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)).astype(np.complex64)
+            pc = detect(noise, radar, self.orders[name], self.pc_config)
+            xyz = np.column_stack([rng.uniform(1.0, 5.0, 40), rng.uniform(-2.0, 2.0, 40), rng.uniform(-0.5, 0.5, 40)])
+            unit = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
+            for j, velocity in enumerate((np.zeros(3), np.array([-0.3, 0.1, 0.0]))):
+                doppler = -unit @ velocity
+                rio.add_scan(RadarScan(int(t[n // 2 + 40 * (2 * k + j)]), name, radar.mount,
+                                       xyz.astype(pc.xyz_m.dtype), doppler.astype(pc.doppler_mps.dtype)))
+        rio.add_imu(t[n // 2:], accel[n // 2:], gyro[n // 2:])
+        rio.finish()
 
     def _publish(self, batch) -> None:
         if len(batch):
@@ -76,13 +111,35 @@ class OdometryWorker(Worker):
         self.seen[name] += 1
         if self.seen[name] % self.every[name]:
             return
-        if (time.time_ns() - frame.receive_ns) * 1e-9 > self.config.max_lag_s:
-            self.rio.stats["scans_skipped_behind"] += 1
-            return
+        lag_s = (time.time_ns() - frame.receive_ns) * 1e-9
+        if lag_s > self.config.max_lag_s:
+            self.behind += 1
+            if lag_s > self.config.max_catch_up_s:
+                self._left_out("scans_skipped_behind", lag_s)
+                return
+            if self.behind % min(8, math.ceil(lag_s / self.config.max_lag_s)):
+                self._left_out("scans_thinned_behind", lag_s)
+                return
+        else:
+            self.behind = 0
         radar = self.radars[name]
         pc = detect(iq_to_complex(frame.iq), radar, self.orders[name], self.pc_config)
         self._publish(self.rio.add_scan(RadarScan(frame.frame_time_ns + self.half_frame_ns[name], name, radar.mount,
                                                   pc.xyz_m, pc.doppler_mps)))
+
+    def _left_out(self, counter: str, lag_s: float) -> None:
+        """Count a scan left out for lag; say so on the bus at most once a second (into /events)."""
+        self.rio.stats[counter] += 1
+        now = time.monotonic()
+        if now - self.last_lag_event >= 1.0:
+            left = {k: self.rio.stats[k] for k in ("scans_thinned_behind", "scans_skipped_behind")}
+            self.pub.send(Event(time.time_ns(), "rio", "warning",
+                                f"odometry {lag_s:.1f} s behind: radar scans left out so far {left}"))
+            self.last_lag_event = now
+
+    def counters(self) -> dict[str, int]:
+        return {k: int(self.rio.stats[k]) for k in ("scans_thinned_behind", "scans_skipped_behind", "scans_late")
+                if k in self.rio.stats}
 
     def finish(self) -> None:
         self._publish(self.rio.finish())

@@ -65,6 +65,23 @@ class StripMapWorker(Worker):
         self.changed: set = set()
         self.last_publish = time.monotonic()
 
+    def warm_up(self) -> None:
+        """Image one noise frame of every radar into a throwaway map along a made-up straight drive: the
+        range compression and backprojection kernels compile for the live shapes and dtypes."""
+        from imaging.core.trajectory import SampledTrajectory, StraightLine
+        from imaging.stripmap import StripMap
+
+        rng = np.random.default_rng(0)
+        t0 = 1_000_000_000
+        drive = StraightLine(speed_mps=0.4, t0_ns=t0)
+        traj = SampledTrajectory.from_trajectory(drive, t0 + np.arange(0, 2_000_000_000, 10_000_000, dtype=np.int64))
+        scratch = StripMap(self.config.map)
+        for name, radar in self.radars.items():
+            wf = radar.waveform
+            shape = (wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)
+            noise = (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)).astype(np.complex64)
+            scratch.add_frame(radar, self.orders[name], noise, t0 + 500_000_000, traj)
+
     def _add_poses(self, batch: PoseBatch) -> None:
         """Keep poses in time order; a batch that repeats times already held keeps only its newer ones."""
         t = batch.time_ns
