@@ -61,7 +61,9 @@ def main(argv: list[str]) -> int:
     else:
         print(f"dev.py: unknown command {command!r} (use demo, test, bench or sarbot)", file=sys.stderr)
         return 2
-    return subprocess.run(cmd, cwd=ROOT).returncode
+    # The tests and benchmarks run from the project; sarbot and the demo where the caller is, so that
+    # relative paths (recordings, -o) mean what the caller meant.
+    return subprocess.run(cmd, cwd=ROOT if command in ("test", "bench") else None).returncode
 
 
 if __name__ == "__main__":

@@ -99,6 +99,13 @@ def cmd_image(args) -> int:
 
     from .progress import Progress
 
+    out = Path(args.output)
+    png = Path(args.png) if args.png else out.with_suffix(".png")
+    for path in (out, png):
+        if path.exists() and path.resolve() == Path(args.recording).resolve():
+            raise SarbotError(f"{path}: that is the recording being imaged; choose another output")
+        if path.exists() and not args.overwrite:
+            raise SarbotError(f"{path}: exists already (use --overwrite to replace it)")
     with Recording(args.recording) as rec:
         radar = args.radar or (rec.radar_names[0] if len(rec.radar_names) == 1 else None)
         if radar is None:
@@ -116,8 +123,7 @@ def cmd_image(args) -> int:
         options = ImagingOptions(mode=args.mode, window=args.window, oversample=args.oversample,
                                  tx=_parse_channels(args.tx, "tx"), rx=_parse_channels(args.rx, "rx"))
         img = form_image(rec, radar, grid, traj, frames, options, progress=Progress("backproject"))
-    path = write_image(args.output, img)
-    png = Path(args.png) if args.png else path.with_suffix(".png")
+    path = write_image(out, img)
     # A volume is shown as its maximum over height.
     save_image_png(png, img.image, img.x_m, img.y_m, title=f"{radar} frames {img.attrs['frames']} ({img.attrs['method']})")
     print(f"wrote {path} and {png}")
@@ -454,6 +460,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--tx", help="TX channels, e.g. 0,2 (default all)")
     s.add_argument("--rx", help="RX channels, e.g. 0 (default all)")
     s.add_argument("--png", help="where to write the PNG (default: beside the image)")
+    s.add_argument("--overwrite", action="store_true", help="replace existing output files")
     s.set_defaults(func=cmd_image)
 
     s = sub.add_parser("analyze", help="image quality metrics as JSON")

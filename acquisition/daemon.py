@@ -33,6 +33,9 @@ from .workers import WorkerSpec, worker_process
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
+#: A process that dies sooner than this after its start is restarted with a growing delay.
+MIN_UPTIME_S = 10.0
+
 
 @dataclasses.dataclass
 class Setup:
@@ -64,7 +67,10 @@ def process_specs(setup: Setup, stop) -> list[ProcessSpec]:
     radar_endpoints = [s.endpoint for s in specs]
     if setup.imu_port:
         endpoint = free_tcp_endpoint()
-        specs.append(ProcessSpec("imu", imu_process, (setup.imu_port, endpoint, radar_endpoints, stop), endpoint))
+        # Outlives the IMU process: a restarted driver takes the trigger's PTP time and tick from it.
+        clock_reference = mp.get_context("spawn").Array("q", 3)
+        specs.append(ProcessSpec("imu", imu_process, (setup.imu_port, endpoint, radar_endpoints, stop, clock_reference),
+                                 endpoint))
     if setup.can is not None:
         endpoint = free_tcp_endpoint()
         specs.append(ProcessSpec("can", can_process, (setup.can, endpoint, stop), endpoint))
@@ -83,7 +89,7 @@ class HealthMonitor:
         self.worker_roles = list(worker_roles)
         self._last = (time.monotonic(), dict(recorder.frames), recorder.imu_samples)
 
-    def sample(self, restarts: int) -> Health:
+    def sample(self, restarts: int, sensors_idle_s: float = 0.0) -> Health:
         rec = self.recorder
         t0, frames, imu_n = self._last
         now = time.monotonic()
@@ -103,6 +109,7 @@ class HealthMonitor:
             endpoints=self.endpoints,
             clock=ClockState(dict(rec.ptp_locked), bool(rec.triggers_seen), rec.imu_drift_ppm),
             workers={role: rec.worker_states.get(role) or WorkerState(role, False, 0.0, {}) for role in self.worker_roles},
+            sensors_idle_s=sensors_idle_s,
             time_ns=time.time_ns(),
         )
         self._last = (now, dict(rec.frames), rec.imu_samples)
@@ -153,14 +160,19 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
     monitor = HealthMonitor(recorder, {role: s.endpoint for role, s in specs.items()}, [w.role for w in setup.workers])
     # READY once the workers have compiled their kernels: until then the pipeline would fall behind.
     ready = False
-    flowing = False
+    last_data, sensor_count = time.monotonic(), 0
+    started_at = {role: time.monotonic() for role in procs}
+    quick_failures = dict.fromkeys(procs, 0)
+    restart_at: dict[str, float] = {}  # roles waiting out their backoff
     disk_full = None
     try:
         try:
             while not stopping.is_set() and (t_end is None or time.monotonic() < t_end) and not (until and until.is_set()):
-                if recorder.step(timeout_ms=50):
-                    flowing = True
+                recorder.step(timeout_ms=50)
                 now = time.monotonic()
+                count = sum(recorder.frames.values()) + recorder.imu_samples + recorder.can_frames
+                if count != sensor_count:
+                    last_data, sensor_count = now, count
                 if not ready and (monitor.warm or now - started > setup.warm_up_timeout_s):
                     if not monitor.warm:
                         log.warning("workers not warm after %.0f s; ready anyway", now - started)
@@ -168,7 +180,7 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
                     notify("READY=1")
                     ready = True
                 if now - last_health >= setup.health_interval_s:
-                    report = monitor.sample(restarts)
+                    report = monitor.sample(restarts, now - last_data)
                     status = report.line()
                     log.info("health: %s", status)
                     notify(f"STATUS={status}")
@@ -176,17 +188,30 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
                     if on_health is not None:
                         on_health(report)
                     last_health = now
-                # The watchdog is fed only while data flows: a daemon alive but recording nothing gets restarted.
-                if watchdog_s and flowing and now - last_watchdog >= watchdog_s:
+                # The watchdog says this loop runs: a hung daemon stops feeding it and systemd restarts it.
+                # Sensors that send nothing are not the daemon's fault: health says they are idle, and
+                # restarting would not bring them back.
+                if watchdog_s and now - last_watchdog >= watchdog_s:
                     notify("WATCHDOG=1")
                     last_watchdog = now
-                    flowing = False
                 for role, proc in list(procs.items()):
+                    if role in restart_at:
+                        if now >= restart_at[role]:
+                            del restart_at[role]
+                            procs[role], started_at[role] = start(specs[role]), now
+                        continue
                     if not proc.is_alive():
+                        # A process that dies at start (a port taken, a device missing) would otherwise be
+                        # restarted over and over as fast as it can die: back off, 0.5 s doubling to 30 s.
+                        lived = now - started_at[role]
+                        quick_failures[role] = quick_failures[role] + 1 if lived < MIN_UPTIME_S else 0
+                        delay = min(0.5 * 2 ** (quick_failures[role] - 1), 30.0) if quick_failures[role] else 0.0
                         restarts += 1
-                        recorder.record_event(time.time_ns(), role, "error", f"{role} exited with code {proc.exitcode}; restarted")
-                        log.warning("%s exited with code %s; restarting it", role, proc.exitcode)
-                        procs[role] = start(specs[role])
+                        message = (f"{role} exited with code {proc.exitcode} after {lived:.1f} s; restarting"
+                                   + (f" in {delay:.1f} s" if delay else ""))
+                        recorder.record_event(time.time_ns(), role, "error", message)
+                        log.warning("%s", message)
+                        restart_at[role] = now + delay
             notify("STOPPING=1")
             stop.set()
             deadline = time.monotonic() + 3.0

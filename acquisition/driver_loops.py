@@ -69,27 +69,51 @@ def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pu
 
 
 def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger_time_ns: int | None = None,
-                    radar_endpoints: list[str] = ()) -> None:
+                    radar_endpoints: list[str] = (), clock_reference=None, report_every_s: float = 1.0) -> None:
     """Read the Xsens IMU on ``port`` and publish batches of samples on the PTP time base, and the trigger.
 
     The samples are put on PTP time by the hardware trigger (SyncIn), whose PTP time is ``trigger_time_ns``
     or, when not given, the first radar frame's time on ``radar_endpoints`` (the trigger marks the first
-    chirp). The port may appear late and go away (unplugged, the emulator done): the loop waits for it and
-    publishes an event when it is lost.
+    chirp). ``clock_reference`` (shared memory ``[known, trigger_time_ns, trigger_ticks]``, kept by the
+    supervisor) survives the process: a driver restarted mid-run takes the reference from it, since the
+    IMU marks only one sample. The port may appear late and go away (unplugged, the emulator done): the
+    loop waits for it, and says on the bus (into /events) when it is missing, unreadable or lost, and what
+    the Xbus parser had to skip (checksum errors, resyncs, packet-counter gaps).
     """
     import serial
 
+    trigger_ticks = None
+    if clock_reference is not None and clock_reference[0]:
+        trigger_time_ns, trigger_ticks = int(clock_reference[1]), int(clock_reference[2])
+        log.info("IMU: clock reference from before the restart: trigger at tick %d", trigger_ticks)
     sub = BusSubscriber(list(radar_endpoints), topics=[RadarFrameMessage.TOPIC]) \
         if radar_endpoints and trigger_time_ns is None else None
-    trigger_sent = False
+    trigger_sent = trigger_ticks is not None
     driver = None
+    waiting_since, said_missing = time.monotonic(), False
+    reported, last_report = {}, time.monotonic()
+
+    def warn(message: str) -> None:
+        log.warning("IMU: %s", message)
+        pub.send(Event(time.time_ns(), "imu", "warning", message))
+
     try:
         while not stop.is_set():
             if driver is None:
                 if not os.path.exists(port):
+                    if not said_missing and time.monotonic() - waiting_since > 2.0:
+                        warn(f"{port} does not exist (yet): waiting for it")
+                        said_missing = True
                     time.sleep(0.05)
                     continue
-                driver = ImuDriver(port, trigger_time_ns=trigger_time_ns)
+                try:
+                    driver = ImuDriver(port, trigger_time_ns=trigger_time_ns, trigger_ticks=trigger_ticks)
+                except (serial.SerialException, OSError) as exc:
+                    warn(f"cannot open {port}: {exc}; trying again in 1 s")
+                    time.sleep(1.0)
+                    continue
+                reported = {}
+                said_missing = True  # it existed: a later loss is said as such ("serial port lost")
             if sub is not None and trigger_time_ns is None:
                 msg = sub.receive(timeout_ms=0 if driver.serial.in_waiting else 20)
                 if msg is not None:
@@ -101,16 +125,26 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
             try:
                 samples = driver.read()
             except (serial.SerialException, OSError) as exc:
-                pub.send(Event(time.time_ns(), "imu", "warning", f"serial port lost: {exc}"))
+                warn(f"serial port lost: {exc}")
                 driver.close()
                 driver = None
                 time.sleep(0.2)
                 continue
-            if not trigger_sent and driver.clock.trigger_ticks is not None and driver.clock.trigger_time_ns is not None:
-                pub.send(Trigger(driver.clock.trigger_time_ns, "imu_syncin"))
+            clock = driver.clock
+            if not trigger_sent and clock.trigger_ticks is not None and clock.trigger_time_ns is not None:
+                pub.send(Trigger(clock.trigger_time_ns, "imu_syncin"))
                 trigger_sent = True
+                trigger_ticks = clock.trigger_ticks
+                if clock_reference is not None:
+                    clock_reference[1], clock_reference[2], clock_reference[0] = clock.trigger_time_ns, clock.trigger_ticks, 1
             if samples:
-                pub.send(ImuBatch.from_samples(samples, driver.clock.drift_ppm()))
+                pub.send(ImuBatch.from_samples(samples, clock.drift_ppm()))
+            if time.monotonic() - last_report > report_every_s:
+                now = {k: v for k, v in vars(driver.parser.counters).items() if k not in ("messages",)}
+                changes = {k: v - reported.get(k, 0) for k, v in now.items() if v != reported.get(k, 0)}
+                if changes:
+                    pub.send(Event(time.time_ns(), "imu", "warning", ", ".join(f"{k} +{v}" for k, v in changes.items())))
+                reported, last_report = now, time.monotonic()
     finally:
         if driver is not None:
             driver.close()
@@ -133,7 +167,11 @@ def radar_process(link: RadarLink, waveform: Waveform, endpoint: str, stop) -> N
     """A radar's driver process: listens on the link, publishes its frames on ``endpoint``."""
     become_child(link.name, realtime=True)
     stream = link.open_stream(waveform)
-    rx = UdpReceiver(link.host, link.port, accept_from=link.source)
+    try:
+        rx = UdpReceiver(link.host, link.port, accept_from=link.source)
+    except OSError as exc:  # the port taken, the address not this machine's: say so in one line, and exit
+        log.error("radar %s: %s", link.name, exc.strerror or exc)
+        raise SystemExit(1) from None
     pub = BusPublisher(endpoint)
     log.info("radar %s: %s on %s:%d", link.name, link.wire_format, link.host, rx.address[1])
     try:
@@ -143,12 +181,12 @@ def radar_process(link: RadarLink, waveform: Waveform, endpoint: str, stop) -> N
         pub.close()
 
 
-def imu_process(port: str, endpoint: str, radar_endpoints: list[str], stop) -> None:
+def imu_process(port: str, endpoint: str, radar_endpoints: list[str], stop, clock_reference=None) -> None:
     become_child("imu", realtime=True)
     pub = BusPublisher(endpoint)
     log.info("IMU on %s", port)
     try:
-        imu_driver_loop(port, pub, stop, radar_endpoints=radar_endpoints)
+        imu_driver_loop(port, pub, stop, radar_endpoints=radar_endpoints, clock_reference=clock_reference)
     finally:
         pub.close()
 

@@ -261,6 +261,10 @@ class WorkerState(BusMessage):
         return cls(**_fields_of(cls, msg.header), time_ns=int(msg.sensor_time_ns))
 
 
+#: Sensors silent this long are said to be idle in health (a warning; the daemon itself is fine).
+IDLE_WARNING_S = 5.0
+
+
 @dataclasses.dataclass
 class Latency:
     """From a frame's last datagram (kernel time stamp) to the recorder, ms, over a health interval."""
@@ -295,6 +299,7 @@ class Health(BusMessage):
     endpoints: dict[str, str]
     clock: ClockState
     workers: dict[str, WorkerState] = dataclasses.field(default_factory=dict)
+    sensors_idle_s: float = 0.0  # since the last radar frame, IMU sample or CAN frame
     time_ns: int = 0
 
     @property
@@ -316,7 +321,8 @@ class Health(BusMessage):
 
     def line(self) -> str:
         """One line for the log and systemd's STATUS."""
-        parts = [f"{n} {r:.1f} frames/s" for n, r in self.frames_per_s.items()]
+        parts = [f"sensors idle for {self.sensors_idle_s:.0f} s"] if self.sensors_idle_s >= IDLE_WARNING_S else []
+        parts += [f"{n} {r:.1f} frames/s" for n, r in self.frames_per_s.items()]
         parts.append(f"IMU {self.imu_hz:.0f} Hz")
         drift = self.clock.imu_drift_ppm
         parts.append(f"IMU drift {drift:+.1f} ppm" if drift is not None else "IMU drift unknown")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing as mp
+import os
 import signal
 import socket
 import threading
@@ -19,6 +20,7 @@ from drivers.can_driver import CanConfig, message_from_row
 from drivers.emulators import XbusPty
 from drivers.radar import registry
 from drivers.radar.pcap import read_udp
+from imaging.core.constants import TAI_MINUS_UTC_NS
 from imaging.core.errors import SarbotError
 from imaging.io.recording import Recording
 
@@ -114,10 +116,14 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
         if imu_link:
             if rec.imu() is None:
                 raise SarbotError(f"--imu-link: {path} has no IMU samples to replay")
-            emu = imu_emulator(rec, speed=speed)
             link = Path(imu_link)
-            if link.is_symlink() or link.exists():
+            if link.exists() or link.is_symlink():
+                # Only a link an earlier replay left (to a pseudo-terminal) is replaced; never a real file.
+                if not (link.is_symlink() and os.readlink(link).startswith("/dev/pts/")):
+                    raise SarbotError(f"--imu-link {link}: exists and is not a link to a pseudo-terminal; "
+                                      "give a path that does not exist")
                 link.unlink()
+            emu = imu_emulator(rec, speed=speed)
             link.symlink_to(emu.port)
         can_bus = can.open() if can is not None else None
         time.sleep(start_delay_s)
@@ -148,7 +154,9 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
         go.set()
         can_thread = None
         if can_bus is not None:
-            firsts = [int(rec.frame_time_ns(n)[0]) for n in radar_targets if rec.n_frames(n)]
+            # /can times are receive times on the host clock (+ TAI-UTC); a radar's frame times are its own
+            # clock's (PTP, or a simulation's). The radars' recorded receive times tie the two together.
+            firsts = [int(rec.host_time_ns(n)[0]) + TAI_MINUS_UTC_NS for n in radar_targets if rec.n_frames(n)]
             can_thread = threading.Thread(target=send_can, args=(min(firsts) if firsts else None,))
         if emu is not None:
             time.sleep(max(start.value - time.monotonic(), 0.0))
@@ -176,7 +184,11 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
             emu.done.wait()
             time.sleep(0.5)  # let the reader drain the pty
             emu.close()
-            Path(imu_link).unlink(missing_ok=True)
+            if emu.failure:
+                failures.append(f"IMU: {emu.failure}")
+            link = Path(imu_link)
+            if link.is_symlink() and os.readlink(link) == emu.port:  # ours still: take it away
+                link.unlink()
     if failures:
         raise SarbotError("replay failed: " + "; ".join(failures))
     return sent

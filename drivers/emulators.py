@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import select
 import threading
 import time
 import tty
@@ -29,10 +30,12 @@ class XbusPty:
         Bytes to write before packet k (line noise in tests).
     start_counter : int or None
         Packet counter of the first packet; None for an IMU configured without a packet counter.
+    stall_timeout_s : float
+        The emulator stops (``failure`` says why) when nobody has read the pty for this long.
     """
 
     def __init__(self, gyro_radps, accel_mps2, rate_hz: float, trigger_index: int = 0, start_ticks: int = 123_456,
-                 speed: float | None = None, noise=None, start_counter: int | None = 0):
+                 speed: float | None = None, noise=None, start_counter: int | None = 0, stall_timeout_s: float = 5.0):
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)
         self.port = os.ttyname(self.slave)
@@ -44,6 +47,8 @@ class XbusPty:
         self.speed = speed
         self.noise = noise
         self.start_counter = start_counter
+        self.stall_timeout_s = stall_timeout_s
+        self.failure: str | None = None  # why the emulator stopped early
         self._thread = threading.Thread(target=self._run, daemon=True)
         self.done = threading.Event()
 
@@ -68,6 +73,12 @@ class XbusPty:
             data = (self.noise(k) if self.noise else b"") + self.packet(k)
             view = memoryview(data)
             while view:
+                # The pty's buffer fills when nobody reads it: give up then instead of blocking for ever.
+                if not select.select([], [self.master], [], self.stall_timeout_s)[1]:
+                    self.failure = (f"nobody reads the IMU pty {self.port}: stalled {self.stall_timeout_s:g} s "
+                                    f"at sample {k} of {len(self.gyro)}")
+                    self.done.set()
+                    return
                 n = os.write(self.master, view)
                 view = view[n:]
         self.done.set()

@@ -41,11 +41,13 @@ class ImuClock:
     """Unwraps the 32-bit tick counter and maps ticks to PTP time once the trigger has been seen and its
     PTP time is known (``trigger_time_ns`` may be set later, e.g. from the first radar frame)."""
 
-    def __init__(self, trigger_time_ns: int | None):
+    def __init__(self, trigger_time_ns: int | None, trigger_ticks: int | None = None):
+        """``trigger_ticks``: the (unwrapped) tick count of the trigger sample when it is already known, for a
+        driver restarted mid-run (the IMU sends the SyncIn mark only once)."""
         self.trigger_time_ns = trigger_time_ns
-        self.trigger_ticks: int | None = None
+        self.trigger_ticks: int | None = trigger_ticks
         self._last_raw: int | None = None
-        self._wraps = 0
+        self._wraps = 0 if trigger_ticks is None else trigger_ticks // 2**32
         self._fit_imu: list[float] = []
         self._fit_host: list[float] = []
         self._drift: tuple[int, float | None] = (-1, None)  # (samples when fitted, ppm)
@@ -92,12 +94,13 @@ class ImuClock:
 class ImuDriver:
     """Reads a serial port (a real one, or a pty from the emulator) and yields timed samples."""
 
-    def __init__(self, port: str, trigger_time_ns: int | None, baudrate: int = 921_600, max_pending: int = 100_000):
+    def __init__(self, port: str, trigger_time_ns: int | None, baudrate: int = 921_600, max_pending: int = 100_000,
+                 trigger_ticks: int | None = None):
         import serial
 
         self.serial = serial.Serial(port, baudrate=baudrate, timeout=0.05)
         self.parser = XbusParser()
-        self.clock = ImuClock(trigger_time_ns)
+        self.clock = ImuClock(trigger_time_ns, trigger_ticks)
         self._pending: list[tuple[ImuPacket, int, int]] = []
         self.max_pending = max_pending
         self.dropped_before_trigger = 0

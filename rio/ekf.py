@@ -167,8 +167,11 @@ def _joseph_update(P, H, R_meas, residual, gate):
 class RadarInertialEkf:
     """The filter. Call ``initialise_static`` once, then feed IMU samples and radar measurements in time order."""
 
-    def __init__(self, config: EkfConfig = EkfConfig()):
+    def __init__(self, config: EkfConfig = EkfConfig(), keep_bias_log: bool = True):
+        """``keep_bias_log`` False keeps only the latest (time, b_g, b_a) in ``bias_log``: a filter running
+        for hours (the live odometry) must not grow with every update."""
         self.config = config
+        self.keep_bias_log = keep_bias_log
         self._q_density = np.concatenate([np.zeros(3), np.full(3, config.accel_noise_density ** 2),
                                           np.full(3, config.gyro_noise_density ** 2), np.full(3, config.accel_bias_random_walk ** 2),
                                           np.full(3, config.gyro_bias_random_walk ** 2)])
@@ -268,7 +271,11 @@ class RadarInertialEkf:
         s.R = s.R @ _exp_so3_nb(dx[6:9])
         s.ba = s.ba + dx[9:12]
         s.bg = s.bg + dx[12:15]
-        self.bias_log.append((s.time_ns, s.bg.copy(), s.ba.copy()))
+        entry = (s.time_ns, s.bg.copy(), s.ba.copy())
+        if self.keep_bias_log:
+            self.bias_log.append(entry)
+        else:
+            self.bias_log[-1:] = [entry]
         return UpdateResult(True, chi2)
 
     def update_radar_velocity(self, velocity_sensor_mps: np.ndarray, covariance: np.ndarray, mount) -> UpdateResult:

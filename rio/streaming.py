@@ -78,7 +78,7 @@ class StreamingRio:
             self._init = []
             still = t <= t[0] + int(self.options.static_init_s * 1e9)
             k0 = int(np.argmax(~still))
-            self.ekf = RadarInertialEkf(self.options.ekf)
+            self.ekf = RadarInertialEkf(self.options.ekf, keep_bias_log=False)  # runs for hours: stays flat
             self.ekf.initialise_static(t[k0], a[still], g[still], self.options.initial_position_m, self.options.initial_yaw_rad)
             self.ekf.propagate(t[k0], a[k0], g[k0])
             self._scans = [s for s in self._scans if s.time_ns >= t[k0]]

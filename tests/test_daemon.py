@@ -203,3 +203,43 @@ def test_verbose_logging_reaches_every_driver_process(tmp_path):
     assert record.returncode == 0, err
     assert "DEBUG [left] sarbot.acquisition.driver_loops: radar left: stream ended" in err
     assert "INFO [imu] sarbot.drivers.imu: IMU: trigger seen" in err
+
+
+def test_a_restarted_imu_driver_records_again(tmp_path):
+    """The IMU driver killed mid-run: the supervisor restarts it with the trigger's PTP time and tick it
+    kept, so the new driver times the samples as before (the IMU marks only one sample with SyncIn; a
+    driver without the reference recorded nothing for the rest of the run)."""
+    src = tmp_path / "source.h5"
+    iq, imu = make_source(src, n_frames=150)
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG_TOML)
+    port = free_port(socket.SOCK_DGRAM)
+    link = tmp_path / "imu_tty"
+    replay = subprocess.Popen([*CLI, "replay", str(src), "--radar", f"left=127.0.0.1:{port}", "--imu-link", str(link),
+                               "--start-delay", "4"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    record = subprocess.Popen([*CLI, "record", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar", f"left={port}",
+                               "--imu-port", str(link), "--duration", "17"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True)
+    deadline = time.monotonic() + 30
+    seen = 0
+    while seen < 800 and time.monotonic() < deadline:  # two seconds of IMU in the file
+        time.sleep(0.2)
+        for path in (tmp_path / "out").glob("*.h5"):
+            try:
+                with Recording(path) as rec:
+                    seen = 0 if rec.imu() is None else rec.imu()["time_ns"].size
+            except Exception:
+                pass  # being created
+    assert seen >= 800
+    killed = subprocess.run(["pkill", "-KILL", "-x", "sarbot-imu"])
+    assert killed.returncode == 0  # the IMU driver process, by the name it gives itself
+    out, err = record.communicate(timeout=60)
+    replay.communicate(timeout=30)
+    assert record.returncode == 0, err
+    (path,) = (tmp_path / "out").glob("*.h5")
+    with Recording(path) as rec:
+        got = rec.imu()["time_ns"]
+        assert any(e[1] == "imu" and "exited with code -9" in e[3] for e in rec.events())
+    # Samples keep coming to the end of the run, on the same time base, with a gap only around the restart.
+    assert got.size > 0.8 * imu.time_ns.size and got[-1] >= imu.time_ns[-40]
+    assert np.isin(got, imu.time_ns).all()

@@ -20,7 +20,10 @@ def test_demo_runs_the_whole_pipeline_and_finds_the_targets(tmp_path):
     cache = tmp_path / "empty-jit-cache"
     cache.mkdir()
     env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    out.mkdir()
+    (out / "my_notes.md").write_text("the user's own file, in the folder the demo writes to\n")
     res = subprocess.run([*CLI, "demo", "-o", str(out)], capture_output=True, text=True, timeout=600, env=env)
+    assert (out / "my_notes.md").read_text().startswith("the user's own file")  # the demo deletes only its own
     assert any(cache.rglob("*.nbi")), "the run compiled into the empty cache"
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     assert "Traceback" not in res.stderr
@@ -42,7 +45,8 @@ def test_demo_runs_the_whole_pipeline_and_finds_the_targets(tmp_path):
         assert f.attrs["schema"] == "sarbot.image" and f.attrs["trajectory_source"] == "rio"
         # Every frame of the two left radars, imaged or (the first 2 s, standing) left out as adding no aperture.
         assert f.attrs["frames_imaged"] + f.attrs["frames_standing_still"] >= 380 and f.attrs["frames_standing_still"] >= 70
-        assert 0 < f.attrs["max_lag_s"] < 10.0  # follows the drive (cold, before the warm-up: 26-32 s)
+        # Follows the drive: about 5 s here, warm or cold (cold without the warm-up it was 26-32 s).
+        assert 0 < f.attrs["max_lag_s"] < 15.0
     assert (out / "stripmap_demo.png").stat().st_size > 10_000
     assert "report.md" in res.stdout
 

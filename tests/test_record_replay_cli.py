@@ -20,6 +20,10 @@ waveform = { chirps_per_frame = 32 }
 """
 
 
+def run_cli(*args, timeout=60):
+    return subprocess.run([sys.executable, "-m", "acquisition.cli", *args], capture_output=True, text=True, timeout=timeout)
+
+
 def test_replay_into_record(tmp_path):
     src = tmp_path / "source.h5"
     iq, imu = make_source(src)
@@ -95,7 +99,7 @@ def test_a_killed_driver_is_restarted_and_nothing_received_intact_is_lost(tmp_pa
     assert record.returncode == 0, err
     with Recording(out.split("wrote ")[-1].strip()) as again:
         messages = [m.decode() for m in again.file["events/message"][()]]
-        assert any(m.startswith("radar.left exited with code -9; restarted") for m in messages), messages
+        assert any(m.startswith("radar.left exited with code -9 after") and "; restarting" in m for m in messages), messages
         counters = again.file["radar/left/frame_counter"][()]
         adc = again.file["radar/left/adc"][()]
         valid = again.valid("left")
@@ -105,8 +109,10 @@ def test_a_killed_driver_is_restarted_and_nothing_received_intact_is_lost(tmp_pa
                 np.testing.assert_array_equal(adc[k], iq[c])
 
 
-def test_sd_notify_ready_status_and_a_watchdog_fed_only_while_data_flows(tmp_path):
-    """A real AF_UNIX datagram socket stands in for systemd's notify socket."""
+def test_sd_notify_ready_status_and_a_watchdog_that_tells_idle_sensors_from_a_hung_daemon(tmp_path):
+    """A real AF_UNIX datagram socket stands in for systemd's notify socket. The watchdog is fed while the
+    daemon runs, also when the sensors fall silent (an idle rig must not be restarted every 12 s into a
+    failed unit); the silence shows in the status instead."""
     import os
     import socket
 
@@ -124,7 +130,7 @@ def test_sd_notify_ready_status_and_a_watchdog_fed_only_while_data_flows(tmp_pat
     env = {**os.environ, "NOTIFY_SOCKET": notify_path, "WATCHDOG_USEC": "1000000"}
     cmd = [sys.executable, "-m", "acquisition.cli"]
     record = subprocess.Popen([*cmd, "record", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar", f"left={port}",
-                               "--duration", "9"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               "--duration", "14"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(2.5)
     replay = subprocess.run([*cmd, "replay", str(src), "--radar", f"left=127.0.0.1:{port}", "--speed", "1"],
                             capture_output=True, text=True, timeout=30)  # 3 s of data, then silence
@@ -143,5 +149,86 @@ def test_sd_notify_ready_status_and_a_watchdog_fed_only_while_data_flows(tmp_pat
     assert any(t.startswith("STATUS=left") and "frames/s" in t for t in texts)
     dogs = [t for t, m in messages if m == "WATCHDOG=1"]
     assert dogs, texts
-    # Fed while frames arrived, not in the silence after the replay ended (the last seconds of the run).
-    assert messages[-1][0] - dogs[-1] > 1.5
+    # Fed to the end, through the silence after the replay ended (half of WATCHDOG_USEC apart), ...
+    assert messages[-1][0] - dogs[-1] < 1.5 and np.max(np.diff(dogs)) < 1.5
+    # ... which health calls what it is.
+    assert any(t.startswith("STATUS=sensors idle for") for t in texts), texts
+
+
+def test_nothing_is_destroyed_by_default(tmp_path):
+    """``image -o`` does not replace an existing file (nor ever the recording itself); ``replay --imu-link``
+    never unlinks a file that is not its own link; a replay whose IMU pty nobody reads ends with an error
+    instead of hanging."""
+    src = tmp_path / "source.h5"
+    make_source(src, n_frames=10)
+    grid = "--grid=-0.2:0.2:0.02,1.9:2.1:0.02"
+    existing = tmp_path / "img.h5"
+    existing.write_text("an earlier result\n")
+    res = run_cli("image", str(src), "-o", str(existing), grid, "--trajectory", "truth")
+    assert res.returncode == 2 and "exists already" in res.stderr and "--overwrite" in res.stderr
+    assert existing.read_text() == "an earlier result\n"
+    res = run_cli("image", str(src), "-o", str(src), grid, "--overwrite")
+    assert res.returncode == 2 and "recording being imaged" in res.stderr
+    with Recording(src) as rec:
+        assert rec.n_frames("left") == 10  # the recording is intact
+    notes = tmp_path / "notes.txt"
+    notes.write_text("keep me\n")
+    res = run_cli("replay", str(src), "--imu-link", str(notes), "--speed", "0")
+    assert res.returncode == 2 and "is not a link to a pseudo-terminal" in res.stderr
+    assert notes.read_text() == "keep me\n"
+    long = tmp_path / "long.h5"  # 8 s of IMU: more than the pty's buffer holds
+    make_source(long, n_frames=150)
+    link = tmp_path / "imu"
+    res = run_cli("replay", str(long), "--imu-link", str(link), "--speed", "0", timeout=60)  # nobody reads
+    assert res.returncode == 2 and "nobody reads the IMU pty" in res.stderr, res.stderr
+    assert not link.exists() and not link.is_symlink()
+
+
+def test_can_replays_on_the_host_clock_whatever_the_radar_clock_says(tmp_path):
+    """A recording whose radar clock is three years off the host clock (a simulation recorded by `sarbot
+    record`): /can was timed by the host, so replay sends it alongside the radars, not three years later."""
+    from acquisition.processes import free_ports
+    from imaging.core.constants import TAI_MINUS_UTC_NS
+    from imaging.core.rig import rig_from_dict
+    from imaging.io.recording import RecordingWriter
+
+    rig = rig_from_dict({"radar": {"left": {"waveform": {"chirps_per_frame": 8, "sample_rate_hz": 200e3,
+                                                         "frame_interval_s": 0.05}}}})
+    host0 = time.time_ns()
+    sensor0 = host0 - 3 * 365 * 86_400 * 1_000_000_000
+    n = 10
+    path = tmp_path / "rec.h5"
+    with RecordingWriter(path, rig.radars, adc_dtype="int16") as w:
+        w.append_frames("left", np.zeros((n, 8, 4, 36, 2), np.int16), sensor0 + np.arange(n) * 50_000_000,
+                        np.arange(n), host0 + np.arange(n) * 50_000_000)
+        can_t = host0 + TAI_MINUS_UTC_NS + np.arange(20) * 25_000_000
+        w.append_can(can_t, np.full(20, 0x201), np.full(20, 8), np.ones((20, 8), np.uint8))
+    radar_port, can_port = free_ports(2)
+    res = run_cli("replay", str(path), "--radar", f"left=127.0.0.1:{radar_port}", "--can", "udp_multicast:239.74.163.2",
+                  "--can-arg", f"port={can_port}", "--speed", "1", timeout=60)
+    assert res.returncode == 0, res.stderr
+    assert "can: 20 frames" in res.stdout
+
+
+def test_a_driver_that_fails_at_start_backs_off_and_says_why_in_one_line(tmp_path):
+    """The radar's port is taken (another process holds it): the driver says so in one line and exits;
+    the supervisor restarts it with a growing delay (0.5, 1, 2, 4 s...) instead of about 1.4 times a
+    second, and records every restart."""
+    import socket
+
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG_TOML)
+    holder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    holder.bind(("127.0.0.1", 0))
+    port = holder.getsockname()[1]
+    res = run_cli("record", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar", f"left={port}",
+                  "--duration", "8")
+    holder.close()
+    assert res.returncode == 0, res.stderr
+    assert "Traceback" not in res.stderr
+    assert f"radar left: cannot listen on UDP 127.0.0.1:{port}" in res.stderr
+    (path,) = (tmp_path / "out").glob("*.h5")
+    with Recording(path) as rec:
+        restarts = [e for e in rec.events() if e[1] == "radar.left" and "restarting" in e[3]]
+    assert 2 <= len(restarts) <= 5, restarts  # 8 s at 1.4 restarts/s would be 11
+    assert "in 0.5 s" in restarts[0][3] and "in 1.0 s" in restarts[1][3]

@@ -38,6 +38,9 @@ log = logging.getLogger(f"sarbot.{__name__}")
 
 SCENE = "demo_room"
 APERTURE_M = 0.3
+#: Everything the demo writes into its folder (and replaces on the next run).
+DEMO_FILES = ("simulated.h5", "recording.h5", "trajectory_demo.h5", "stripmap_demo.h5", "stripmap_demo.png",
+              "report.md", "report.json", "imu_tty")
 
 
 def _targets_in_start_frame(scene) -> list[tuple[str, np.ndarray]]:
@@ -68,9 +71,8 @@ def run_demo(out_dir: Path, speed: float = 0.5) -> int:
 
     t_start = time.monotonic()
     out_dir.mkdir(parents=True, exist_ok=True)
-    for old in out_dir.glob("*"):
-        if old.suffix in (".h5", ".png", ".md", ".json") or old.name == "imu_tty":
-            old.unlink()
+    for name in DEMO_FILES:  # its own files of an earlier run, by name: nothing else in the folder is touched
+        (out_dir / name).unlink(missing_ok=True)
     scene = load_scene(SCENE)
     sim_path = out_dir / "simulated.h5"
     print(f"sarbot demo: 1/3 simulating scene {scene.name!r}: {scene.duration_s:.0f} s, four radars, IMU, CAN")

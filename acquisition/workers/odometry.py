@@ -57,7 +57,9 @@ class OdometryWorker(Worker):
                       for name, r in self.radars.items()}
         self.rio = StreamingRio(RioOptions(), imu_rate_hz=rig.imu.rate_hz)
         self.pc_config = PointCloudConfig()
-        self.kept: list[PoseBatch] = []
+        self.trajectory = None  # a TrajectoryWriter once the first poses come: poses go to disk, not memory
+        self.poses_written = 0
+        self.last_flush = time.monotonic()
         self.seen: collections.Counter = collections.Counter()
         self.behind = 0  # scans in a row that came more than max_lag_s late
         self.last_lag_event = 0.0
@@ -93,10 +95,18 @@ class OdometryWorker(Worker):
         rio.finish()
 
     def _publish(self, batch) -> None:
+        from imaging.io.trajectory_file import TrajectoryWriter
+
         if len(batch):
             poses = PoseBatch(batch.time_ns, batch.position_m, batch.orientation_xyzw, batch.velocity_mps)
-            self.kept.append(poses)
             self.pub.send(poses)
+            if self.trajectory is None:
+                self.trajectory = TrajectoryWriter(self.config.trajectory_path, "rio")
+            self.trajectory.append(poses.time_ns, poses.position_m, poses.orientation_xyzw, poses.velocity_mps)
+            self.poses_written += len(poses)
+            if time.monotonic() - self.last_flush > 5.0:
+                self.trajectory.flush()
+                self.last_flush = time.monotonic()
 
     def handle(self, message, live: bool) -> None:
         from rio.odometry import RadarScan
@@ -146,14 +156,7 @@ class OdometryWorker(Worker):
         self.pub.send(PoseEnd(time.time_ns()))
 
     def write_products(self) -> None:
-        from imaging.core.trajectory import SampledTrajectory
-        from imaging.io.trajectory_file import write_trajectory
-
-        if not self.kept:
+        if self.trajectory is None:
             return
-        times = np.concatenate([b.time_ns for b in self.kept])
-        traj = SampledTrajectory(times, np.concatenate([b.position_m for b in self.kept]),
-                                 np.concatenate([b.orientation_xyzw for b in self.kept]),
-                                 np.concatenate([b.velocity_mps for b in self.kept]), source="rio")
-        write_trajectory(self.config.trajectory_path, traj)
-        log.info("RIO: %d poses, %s; wrote %s", times.size, dict(self.rio.stats), self.config.trajectory_path)
+        self.trajectory.close()
+        log.info("RIO: %d poses, %s; wrote %s", self.poses_written, dict(self.rio.stats), self.config.trajectory_path)

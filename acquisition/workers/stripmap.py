@@ -149,8 +149,9 @@ class StripMapWorker(Worker):
                 status.frames_standing_still += 1
             else:
                 status.frames_imaged += 1
-            status.lag_s = (time.time_ns() - t_recv) * 1e-9
-            status.max_lag_s = max(status.max_lag_s, status.lag_s)
+            if not final:  # the last pass after the run stops says how long shutting down took, not the lag
+                status.lag_s = (time.time_ns() - t_recv) * 1e-9
+                status.max_lag_s = max(status.max_lag_s, status.lag_s)
 
     def _publish_tiles(self) -> None:
         cfg = self.config.map

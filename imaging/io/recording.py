@@ -309,6 +309,10 @@ class Recording:
     def frame_time_ns(self, name: str, frames: slice = slice(None)) -> np.ndarray:
         return np.asarray(self._radar_group(name)["frame_time_ns"][frames], np.int64)
 
+    def host_time_ns(self, name: str, frames: slice = slice(None)) -> np.ndarray:
+        """Kernel receive times (CLOCK_REALTIME, UTC) of the frames' last datagrams."""
+        return np.asarray(self._radar_group(name)["host_time_ns"][frames], np.int64)
+
     def frame_counter(self, name: str, frames: slice = slice(None)) -> np.ndarray:
         """The sensor's own frame counters, uint32."""
         return np.asarray(self._radar_group(name)["frame_counter"][frames], np.uint32)

@@ -15,20 +15,57 @@ SCHEMA = "sarbot.trajectory"
 SCHEMA_VERSION = 1
 
 
-def write_trajectory(path: str | Path, traj: SampledTrajectory, covariance_diag: np.ndarray | None = None) -> Path:
-    path = Path(path)
-    with h5py.File(path, "w") as f:
-        f.attrs["schema"] = SCHEMA
-        f.attrs["schema_version"] = SCHEMA_VERSION
-        f.attrs["source"] = traj.source
-        g = f.create_group("trajectory")
-        g["time_ns"] = traj.time_ns
-        g["position_m"] = traj.position_m
-        g["orientation_xyzw"] = traj.orientation_xyzw
-        g["velocity_mps"] = traj.velocity_mps
+_FIELDS = (("time_ns", np.int64, ()), ("position_m", np.float64, (3,)), ("orientation_xyzw", np.float64, (4,)),
+           ("velocity_mps", np.float64, (3,)))
+
+
+class TrajectoryWriter:
+    """A trajectory file written as the poses come (appendable datasets, flushed on request): a long run's
+    poses live on disk, not in memory."""
+
+    def __init__(self, path: str | Path, source: str, covariance_width: int | None = None):
+        self.path = Path(path)
+        self._f = h5py.File(self.path, "w")
+        self._f.attrs["schema"] = SCHEMA
+        self._f.attrs["schema_version"] = SCHEMA_VERSION
+        self._f.attrs["source"] = source
+        g = self._f.create_group("trajectory")
+        fields = list(_FIELDS) + ([("covariance_diag", np.float64, (covariance_width,))] if covariance_width else [])
+        for name, dtype, tail in fields:
+            g.create_dataset(name, (0, *tail), dtype, maxshape=(None, *tail), chunks=(4096, *tail))
+        self.n = 0
+
+    def append(self, time_ns, position_m, orientation_xyzw, velocity_mps, covariance_diag=None) -> None:
+        g = self._f["trajectory"]
+        values = dict(zip((f[0] for f in _FIELDS), (time_ns, position_m, orientation_xyzw, velocity_mps)))
         if covariance_diag is not None:
-            g["covariance_diag"] = covariance_diag
-    return path
+            values["covariance_diag"] = covariance_diag
+        k = int(np.asarray(time_ns).size)
+        for name, value in values.items():
+            ds = g[name]
+            ds.resize(self.n + k, axis=0)
+            ds[self.n:] = value
+        self.n += k
+
+    def flush(self) -> None:
+        self._f.flush()
+
+    def close(self) -> None:
+        if self._f.id.valid:
+            self._f.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def write_trajectory(path: str | Path, traj: SampledTrajectory, covariance_diag: np.ndarray | None = None) -> Path:
+    width = None if covariance_diag is None else np.asarray(covariance_diag).shape[1]
+    with TrajectoryWriter(path, traj.source, width) as w:
+        w.append(traj.time_ns, traj.position_m, traj.orientation_xyzw, traj.velocity_mps, covariance_diag)
+    return Path(path)
 
 
 def read_trajectory(path: str | Path) -> SampledTrajectory:
