@@ -124,6 +124,19 @@ class ArrayBatch(BusMessage):
         return cls(*msg.arrays)
 
 
+class HeaderMessage(BusMessage):
+    """A message of header fields only: every dataclass field travels in the header, ``time_ns`` as the
+    message's sensor time."""
+
+    def to_parts(self) -> Parts:
+        fields = dataclasses.asdict(self)
+        return Parts(self.TOPIC, int(fields.pop("time_ns")), [], fields)
+
+    @classmethod
+    def from_message(cls, msg: Message):
+        return cls(**_fields_of(cls, msg.header), time_ns=int(msg.sensor_time_ns))
+
+
 @dataclasses.dataclass
 class CanBatch(ArrayBatch):
     """CAN frames as /can stores them: time_ns [K], arbitration_id [K], dlc [K], data [K, 64]."""
@@ -136,23 +149,16 @@ class CanBatch(ArrayBatch):
 
 
 @dataclasses.dataclass
-class Trigger(BusMessage):
+class Trigger(HeaderMessage):
     """The hardware trigger that ties a run's sensors together: its PTP time and who saw it."""
 
     TOPIC: ClassVar[str] = "trigger"
     time_ns: int
     source: str
 
-    def to_parts(self) -> Parts:
-        return Parts(self.TOPIC, int(self.time_ns), [], {"source": self.source})
-
-    @classmethod
-    def from_message(cls, msg: Message) -> "Trigger":
-        return cls(int(msg.sensor_time_ns), str(msg.header.get("source", "trigger")))
-
 
 @dataclasses.dataclass
-class Event(BusMessage):
+class Event(HeaderMessage):
     """Something for /events: packet loss, checksum errors, resyncs, restarts."""
 
     TOPIC: ClassVar[str] = "event"
@@ -160,14 +166,6 @@ class Event(BusMessage):
     source: str
     level: str
     message: str
-
-    def to_parts(self) -> Parts:
-        return Parts(self.TOPIC, int(self.time_ns), [], {"source": self.source, "level": self.level, "message": self.message})
-
-    @classmethod
-    def from_message(cls, msg: Message) -> "Event":
-        h = msg.header
-        return cls(int(msg.sensor_time_ns), str(h.get("source", "?")), str(h.get("level", "info")), str(h.get("message", "")))
 
 
 @dataclasses.dataclass
@@ -182,18 +180,11 @@ class PoseBatch(ArrayBatch):
 
 
 @dataclasses.dataclass
-class PoseEnd(BusMessage):
+class PoseEnd(HeaderMessage):
     """The odometry has sent its last pose."""
 
     TOPIC: ClassVar[str] = "pose/end"
     time_ns: int
-
-    def to_parts(self) -> Parts:
-        return Parts(self.TOPIC, int(self.time_ns), [], {})
-
-    @classmethod
-    def from_message(cls, msg: Message) -> "PoseEnd":
-        return cls(int(msg.sensor_time_ns))
 
 
 @dataclasses.dataclass
@@ -217,7 +208,7 @@ class MapTile(BusMessage):
 
 
 @dataclasses.dataclass
-class MapStatus(BusMessage):
+class MapStatus(HeaderMessage):
     """The live strip map's state."""
 
     TOPIC: ClassVar[str] = "map/status"
@@ -231,17 +222,9 @@ class MapStatus(BusMessage):
     tiles: int = 0
     time_ns: int = 0
 
-    def to_parts(self) -> Parts:
-        fields = dataclasses.asdict(self)
-        return Parts(self.TOPIC, fields.pop("time_ns"), [], fields)
-
-    @classmethod
-    def from_message(cls, msg: Message) -> "MapStatus":
-        return cls(**_fields_of(cls, msg.header), time_ns=int(msg.sensor_time_ns))
-
 
 @dataclasses.dataclass
-class WorkerState(BusMessage):
+class WorkerState(HeaderMessage):
     """A worker's state, sent every second: whether its kernels are compiled (``warm``, after
     ``warm_up_s``), and its counters (e.g. radar scans skipped because it fell behind)."""
 
@@ -251,14 +234,6 @@ class WorkerState(BusMessage):
     warm_up_s: float
     counters: dict[str, int]
     time_ns: int = 0
-
-    def to_parts(self) -> Parts:
-        fields = dataclasses.asdict(self)
-        return Parts(self.TOPIC, fields.pop("time_ns"), [], fields)
-
-    @classmethod
-    def from_message(cls, msg: Message) -> "WorkerState":
-        return cls(**_fields_of(cls, msg.header), time_ns=int(msg.sensor_time_ns))
 
 
 #: Sensors silent this long are said to be idle in health (a warning; the daemon itself is fine).
@@ -284,7 +259,7 @@ class ClockState:
 
 
 @dataclasses.dataclass
-class Health(BusMessage):
+class Health(HeaderMessage):
     """The daemon's health over its last interval (also logged and sent to systemd as STATUS)."""
 
     TOPIC: ClassVar[str] = "health"
@@ -306,10 +281,6 @@ class Health(BusMessage):
     def warm(self) -> bool:
         """Every worker has compiled its kernels (True without workers)."""
         return all(w.warm for w in self.workers.values())
-
-    def to_parts(self) -> Parts:
-        fields = dataclasses.asdict(self)
-        return Parts(self.TOPIC, fields.pop("time_ns"), [], fields)
 
     @classmethod
     def from_message(cls, msg: Message) -> "Health":
