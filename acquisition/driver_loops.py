@@ -27,24 +27,32 @@ from .processes import become_child
 log = logging.getLogger(f"sarbot.{__name__}")
 
 
+class CounterChanges:
+    """Which counters rose since last asked, as an event's text ("crc_errors +2, resyncs +1")."""
+
+    def __init__(self, counters: dict[str, int] | None = None):
+        self.last = dict(counters or {})
+
+    def since_last(self, counters: dict[str, int]) -> str | None:
+        rises = {k: v - self.last.get(k, 0) for k, v in counters.items() if v != self.last.get(k, 0)}
+        self.last = dict(counters)
+        return ", ".join(f"{k} +{v}" for k, v in rises.items()) if rises else None
+
+
 def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pub: BusPublisher,
                       stop: threading.Event, report_every_s: float = 1.0) -> RadarStream:
     """Receive datagrams, reassemble frames with ``stream``, publish each frame; wire trouble and kernel
     drops are published as events. Returns the stream."""
     def counted() -> dict[str, int]:
-        return {**trouble(stream.counters), "foreign_source": getattr(receiver, "foreign_source", 0)}
+        return {**trouble(stream.counters), "foreign_source": receiver.foreign_source}
 
-    reported = counted()
+    changes = CounterChanges(counted())
     last_report = time.monotonic()
     kernel_drops = 0
 
     def report(now_ns: int) -> None:
-        nonlocal reported
-        now = counted()
-        changes = {k: now[k] - reported[k] for k in now if now[k] != reported[k]}
-        if changes:
-            pub.send(Event(now_ns, f"radar.{radar}", "warning", ", ".join(f"{k} +{v}" for k, v in changes.items())))
-        reported = now
+        if text := changes.since_last(counted()):
+            pub.send(Event(now_ns, f"radar.{radar}", "warning", text))
 
     while not stop.is_set():
         got = receiver.receive()
@@ -91,7 +99,7 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
     trigger_sent = trigger_ticks is not None
     driver = None
     waiting_since, said_missing = time.monotonic(), False
-    reported, last_report = {}, time.monotonic()
+    parser_changes, last_report = CounterChanges(), time.monotonic()
 
     def warn(message: str) -> None:
         log.warning("IMU: %s", message)
@@ -112,7 +120,7 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
                     warn(f"cannot open {port}: {exc}; trying again in 1 s")
                     time.sleep(1.0)
                     continue
-                reported = {}
+                parser_changes = CounterChanges()  # a new parser counts from zero
                 said_missing = True  # it existed: a later loss is said as such ("serial port lost")
             if sub is not None and trigger_time_ns is None:
                 msg = sub.receive(timeout_ms=0 if driver.serial.in_waiting else 20)
@@ -140,11 +148,10 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
             if samples:
                 pub.send(ImuBatch.from_samples(samples, clock.drift_ppm()))
             if time.monotonic() - last_report > report_every_s:
-                now = {k: v for k, v in vars(driver.parser.counters).items() if k not in ("messages",)}
-                changes = {k: v - reported.get(k, 0) for k, v in now.items() if v != reported.get(k, 0)}
-                if changes:
-                    pub.send(Event(time.time_ns(), "imu", "warning", ", ".join(f"{k} +{v}" for k, v in changes.items())))
-                reported, last_report = now, time.monotonic()
+                trouble_now = {k: v for k, v in vars(driver.parser.counters).items() if k != "messages"}
+                if text := parser_changes.since_last(trouble_now):
+                    pub.send(Event(time.time_ns(), "imu", "warning", text))
+                last_report = time.monotonic()
     finally:
         if driver is not None:
             driver.close()

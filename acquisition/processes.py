@@ -121,9 +121,7 @@ class ProcessSpec:
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
     """A loopback port free at the moment of asking (TCP by default, or socket.SOCK_DGRAM)."""
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_ports(1, kind)[0]
 
 
 def free_ports(n: int, kind: int = socket.SOCK_DGRAM) -> list[int]:

@@ -16,6 +16,7 @@ import threading
 import time
 from pathlib import Path
 
+from drivers.radar import registry
 from imaging.core.rig import Rig
 from imaging.io.recording import RecordingWriter
 
@@ -68,7 +69,7 @@ class Recorder:
         self.base_path = Path(path)
         self.rig = rig
         self.adc_dtype = adc_dtype
-        self.wire_formats = {r.name: (wire_formats or {}).get(r.name, "SRF1") for r in rig.radars}
+        self.wire_formats = {r.name: (wire_formats or {}).get(r.name, registry.DEFAULT) for r in rig.radars}
         self.split_bytes = split_bytes
         self.split_s = split_s
         self.min_free_bytes = min_free_bytes
