@@ -59,17 +59,19 @@ class Setup:
 
 def process_specs(setup: Setup, stop) -> list[ProcessSpec]:
     """The daemon's child processes for ``setup``: drivers first, then the workers, which subscribe to them."""
-    specs = []
+    specs, frame_duration_ns = [], {}
     for link in setup.radars:
         endpoint = free_tcp_endpoint()
         waveform = link.waveform(setup.rig.radar(link.name).waveform)
+        frame_duration_ns[link.name] = waveform.frame_duration_ns
         specs.append(ProcessSpec(f"radar.{link.name}", radar_process, (link, waveform, endpoint, stop), endpoint))
     radar_endpoints = [s.endpoint for s in specs]
     if setup.imu_port:
         endpoint = free_tcp_endpoint()
         # Outlives the IMU process: a restarted driver takes the trigger's PTP time and tick from it.
         clock_reference = mp.get_context("spawn").Array("q", 3)
-        specs.append(ProcessSpec("imu", imu_process, (setup.imu_port, endpoint, radar_endpoints, stop, clock_reference),
+        specs.append(ProcessSpec("imu", imu_process, (setup.imu_port, endpoint, radar_endpoints, stop, clock_reference,
+                                                        frame_duration_ns),
                                  endpoint))
     if setup.can is not None:
         endpoint = free_tcp_endpoint()

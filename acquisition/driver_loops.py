@@ -77,7 +77,9 @@ def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pu
 
 
 def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger_time_ns: int | None = None,
-                    radar_endpoints: list[str] = (), clock_reference=None, report_every_s: float = 1.0) -> None:
+                    radar_endpoints: list[str] = (), clock_reference=None, report_every_s: float = 1.0,
+                    frame_duration_ns: dict[str, int] | None = None, trigger_host_ns: int | None = None,
+                    batch_s: float = 0.05) -> None:
     """Read the Xsens IMU on ``port`` and publish batches of samples on the PTP time base, and the trigger.
 
     The samples are put on PTP time by the hardware trigger (SyncIn), whose PTP time is ``trigger_time_ns``
@@ -87,6 +89,11 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
     IMU marks only one sample. The port may appear late and go away (unplugged, the emulator done): the
     loop waits for it, and says on the bus (into /events) when it is missing, unreadable or lost, and what
     the Xbus parser had to skip (checksum errors, resyncs, packet-counter gaps).
+
+    Should the one packet with the SyncIn mark be lost, the trigger's tick is estimated from the receive
+    times and the trigger's host time (``trigger_host_ns``, or the first radar frame's receive time less its
+    ``frame_duration_ns``), and an event says so. Samples go out in batches of ``batch_s`` (a message per
+    packet would cost the recorder an HDF5 append per sample).
     """
     import serial
 
@@ -100,6 +107,7 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
     driver = None
     waiting_since, said_missing = time.monotonic(), False
     parser_changes, last_report = CounterChanges(), time.monotonic()
+    batch, batch_started = [], time.monotonic()
 
     def warn(message: str) -> None:
         log.warning("IMU: %s", message)
@@ -115,7 +123,8 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
                     time.sleep(0.05)
                     continue
                 try:
-                    driver = ImuDriver(port, trigger_time_ns=trigger_time_ns, trigger_ticks=trigger_ticks)
+                    driver = ImuDriver(port, trigger_time_ns=trigger_time_ns, trigger_ticks=trigger_ticks,
+                                       trigger_host_ns=trigger_host_ns)
                 except (serial.SerialException, OSError) as exc:
                     warn(f"cannot open {port}: {exc}; trying again in 1 s")
                     time.sleep(1.0)
@@ -125,8 +134,10 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
             if sub is not None and trigger_time_ns is None:
                 msg = sub.receive(timeout_ms=0 if driver.serial.in_waiting else 20)
                 if msg is not None:
-                    trigger_time_ns = RadarFrameMessage.from_message(msg).frame.frame_time_ns
-                    driver.set_trigger_time(trigger_time_ns)
+                    first = RadarFrameMessage.from_message(msg)
+                    trigger_time_ns = first.frame.frame_time_ns
+                    trigger_host_ns = first.frame.receive_ns - (frame_duration_ns or {}).get(first.radar, 0)
+                    driver.set_trigger_time(trigger_time_ns, trigger_host_ns)
                     # Only the first frame was needed: subscribed, the radar streams would pile up here.
                     sub.close()
                     sub = None
@@ -140,19 +151,29 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
                 continue
             clock = driver.clock
             if not trigger_sent and clock.trigger_ticks is not None and clock.trigger_time_ns is not None:
-                pub.send(Trigger(clock.trigger_time_ns, "imu_syncin"))
+                if driver.trigger_estimated:
+                    warn(f"no SyncIn mark {driver.syncin_grace_s:g} s after the trigger (its packet lost?): the trigger's "
+                         "IMU tick is estimated from the receive times; IMU times are good to a few ms, not to a tick")
+                pub.send(Trigger(clock.trigger_time_ns, "imu_receive_time" if driver.trigger_estimated else "imu_syncin"))
                 trigger_sent = True
                 trigger_ticks = clock.trigger_ticks
                 if clock_reference is not None:
                     clock_reference[1], clock_reference[2], clock_reference[0] = clock.trigger_time_ns, clock.trigger_ticks, 1
             if samples:
-                pub.send(ImuBatch.from_samples(samples, clock.drift_ppm()))
+                if not batch:
+                    batch_started = time.monotonic()
+                batch += samples
+            if batch and time.monotonic() - batch_started >= batch_s:
+                pub.send(ImuBatch.from_samples(batch, clock.drift_ppm()))
+                batch = []
             if time.monotonic() - last_report > report_every_s:
                 trouble_now = {k: v for k, v in vars(driver.parser.counters).items() if k != "messages"}
                 if text := parser_changes.since_last(trouble_now):
                     pub.send(Event(time.time_ns(), "imu", "warning", text))
                 last_report = time.monotonic()
     finally:
+        if batch:
+            pub.send(ImuBatch.from_samples(batch, driver.clock.drift_ppm() if driver is not None else None))
         if driver is not None:
             driver.close()
         if sub is not None:
@@ -188,12 +209,14 @@ def radar_process(link: RadarLink, waveform: Waveform, endpoint: str, stop) -> N
         pub.close()
 
 
-def imu_process(port: str, endpoint: str, radar_endpoints: list[str], stop, clock_reference=None) -> None:
+def imu_process(port: str, endpoint: str, radar_endpoints: list[str], stop, clock_reference=None,
+                frame_duration_ns: dict[str, int] | None = None) -> None:
     become_child("imu", realtime=True)
     pub = BusPublisher(endpoint)
     log.info("IMU on %s", port)
     try:
-        imu_driver_loop(port, pub, stop, radar_endpoints=radar_endpoints, clock_reference=clock_reference)
+        imu_driver_loop(port, pub, stop, radar_endpoints=radar_endpoints, clock_reference=clock_reference,
+                        frame_duration_ns=frame_duration_ns)
     finally:
         pub.close()
 

@@ -9,6 +9,11 @@ of the sample it coincides with, so:
 Until the trigger is seen the samples have no PTP time and are held back (at most ``max_pending``).
 The IMU clock's drift against the host clock is estimated by a line through (IMU time, host receive
 time) and reported in parts per million.
+
+The SyncIn mark is in one packet only. When that packet is lost (a checksum error on the line) and the
+host time of the trigger is known (the first radar frame's receive time less its duration), the
+trigger's tick is estimated from the same line instead, after ``syncin_grace_s``: the run keeps its IMU,
+timed to within the serial latency (a few ms) rather than to a tick, and ``trigger_estimated`` says so.
 """
 
 from __future__ import annotations
@@ -69,6 +74,20 @@ class ImuClock:
         if len(self._fit_imu) > 20000:
             del self._fit_imu[:10000], self._fit_host[:10000]
 
+    def ticks_at_host(self, host_time_ns: int) -> int | None:
+        """The IMU tick count at a host clock time, from the received samples (None with fewer than 50).
+
+        The line's slope is the least-squares fit; its offset is the lower envelope (the samples that
+        came through fastest), since serial and USB latency only ever delay a sample."""
+        if len(self._fit_imu) < 50:
+            return None
+        x = np.asarray(self._fit_imu) - self._fit_imu[0]
+        y = np.asarray(self._fit_host) - self._fit_host[0]
+        slope = np.polyfit(x, y, 1)[0] if np.ptp(x) > 0 else 1.0
+        offset = float(np.min(y - slope * x))
+        imu_s = (host_time_ns * 1e-9 - self._fit_host[0] - offset) / slope + self._fit_imu[0]
+        return int(round(imu_s * 1e9 / TICK_NS))
+
     def drift_ppm(self) -> float | None:
         """(host clock rate / IMU clock rate - 1) in ppm, from the receive times seen so far.
 
@@ -95,7 +114,9 @@ class ImuDriver:
     """Reads a serial port (a real one, or a pty from the emulator) and yields timed samples."""
 
     def __init__(self, port: str, trigger_time_ns: int | None, baudrate: int = 921_600, max_pending: int = 100_000,
-                 trigger_ticks: int | None = None):
+                 trigger_ticks: int | None = None, trigger_host_ns: int | None = None, syncin_grace_s: float = 1.0):
+        """``trigger_host_ns``: the host clock time of the trigger, when known, for the estimate of its tick
+        should the SyncIn packet be lost (see the module's notes)."""
         import serial
 
         self.serial = serial.Serial(port, baudrate=baudrate, timeout=0.05)
@@ -104,6 +125,9 @@ class ImuDriver:
         self._pending: list[tuple[ImuPacket, int, int]] = []
         self.max_pending = max_pending
         self.dropped_before_trigger = 0
+        self.trigger_host_ns = trigger_host_ns
+        self.syncin_grace_s = syncin_grace_s
+        self.trigger_estimated = False
 
     def read(self) -> list[ImuSample]:
         """Whatever has arrived (waits up to the port timeout for the first byte)."""
@@ -131,17 +155,34 @@ class ImuDriver:
                 continue
             out += self._release_pending()
             out.append(self._sample(packet, ticks, host))
+        if self.clock.trigger_ticks is None and self.trigger_host_ns is not None \
+                and host - self.trigger_host_ns > self.syncin_grace_s * 1e9:
+            self._estimate_trigger_ticks()
         if self._pending and self.clock.trigger_ticks is not None and self.clock.trigger_time_ns is not None:
             out += self._release_pending()
         return out
 
-    def set_trigger_time(self, trigger_time_ns: int) -> None:
-        """The PTP time of the trigger, when it becomes known after the IMU started (first radar frame)."""
+    def _estimate_trigger_ticks(self) -> None:
+        ticks = self.clock.ticks_at_host(self.trigger_host_ns)
+        if ticks is None:
+            return
+        self.clock.trigger_ticks = ticks
+        self.trigger_estimated = True
+        log.warning("IMU: no SyncIn mark %.1f s after the trigger (its packet lost?): trigger tick %d estimated "
+                    "from the receive times", self.syncin_grace_s, ticks)
+
+    def set_trigger_time(self, trigger_time_ns: int, host_time_ns: int | None = None) -> None:
+        """The PTP time of the trigger, when it becomes known after the IMU started (first radar frame), and
+        its host clock time if known (for the estimate of its tick should the SyncIn packet be lost)."""
         self.clock.trigger_time_ns = int(trigger_time_ns)
+        if host_time_ns is not None:
+            self.trigger_host_ns = int(host_time_ns)
 
     def _release_pending(self) -> list[ImuSample]:
         pending, self._pending = self._pending, []
-        return [self._sample(p, t, h) for p, t, h in pending if self.clock.trigger_ticks is not None and t >= self.clock.trigger_ticks]
+        timed = [self._sample(p, t, h) for p, t, h in pending if t >= self.clock.trigger_ticks]
+        self.dropped_before_trigger += len(pending) - len(timed)
+        return timed
 
     def _sample(self, packet: ImuPacket, ticks: int, host: int) -> ImuSample:
         return ImuSample(self.clock.time_ns(ticks), packet.gyro_radps, packet.accel_mps2,

@@ -104,3 +104,91 @@ def test_packets_without_a_counter_are_recorded_with_the_no_counter_mark():
     assert counters.size == n and counters.dtype == np.uint32
     assert np.all(counters == NO_COUNTER)
     np.testing.assert_array_equal(np.diff(np.concatenate([b.time_ns for b in batches])), 2_500_000)
+
+
+class XbusPtyWithBadPacket(XbusPty):
+    """The emulated IMU with one bit flipped in packet ``bad``'s payload (its checksum then fails)."""
+
+    def __init__(self, *args, bad: int, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.bad = bad
+        self.started_ns: int | None = None
+
+    def start(self):
+        self.started_ns = time.time_ns()
+        return super().start()
+
+    def packet(self, k: int) -> bytes:
+        data = bytearray(super().packet(k))
+        if k == self.bad:
+            data[8] ^= 0x10
+        return bytes(data)
+
+
+def test_a_lost_syncin_packet_does_not_lose_the_runs_imu():
+    """The one packet with the SyncIn mark fails its checksum: the driver estimates the trigger's tick from
+    the receive times and the trigger's host time, instead of holding every later sample back for ever."""
+    rng = np.random.default_rng(2)
+    n, trigger = 1200, 40  # 3 s at 400 Hz, real time (the estimate works on receive times)
+    gyro, accel = rng.normal(0, 0.1, (n, 3)), rng.normal([0, 0, 9.81], 0.2, (n, 3))
+    emu = XbusPtyWithBadPacket(gyro, accel, rate_hz=400.0, trigger_index=trigger, speed=1.0, bad=trigger)
+    driver = ImuDriver(emu.port, trigger_time_ns=None, syncin_grace_s=0.5)
+    emu.start()
+    driver.set_trigger_time(T_TRIGGER, host_time_ns=emu.started_ns + trigger * 2_500_000)
+    got = []
+    deadline = time.monotonic() + 10
+    while (not got or got[-1].counter < n - 1) and time.monotonic() < deadline:
+        got += driver.read()
+    emu.close()
+    driver.close()
+    assert driver.parser.counters.checksum_errors == 1
+    assert driver.trigger_estimated and not any(s.sync_in for s in got)
+    counters = np.array([s.counter for s in got])
+    times = np.array([s.time_ns for s in got])
+    assert counters[-1] == n - 1 and len(got) >= n - trigger - 5  # the run's IMU, give or take the estimate
+    np.testing.assert_array_equal(np.diff(times)[np.diff(counters) == 1], 2_500_000)  # still timed by ticks
+    # Placed on PTP time by the receive times: within the serial and scheduling latency of the truth.
+    error_ms = (times - (T_TRIGGER + (counters - trigger) * 2_500_000)) * 1e-6
+    assert np.all(np.abs(error_ms) < 10.0), error_ms[:3]
+
+
+def test_the_driver_loop_says_when_the_trigger_is_estimated_and_sends_samples_in_batches():
+    import threading
+
+    import zmq
+
+    from acquisition.bus import BusPublisher, BusSubscriber
+    from acquisition.driver_loops import imu_driver_loop
+    from acquisition.messages import Event, ImuBatch, Trigger, decode
+
+    n, trigger = 800, 10
+    emu = XbusPtyWithBadPacket(np.zeros((n, 3)), np.tile([0.0, 0.0, 9.81], (n, 1)), rate_hz=400.0,
+                               trigger_index=trigger, speed=1.0, bad=trigger)
+    ctx = zmq.Context()
+    pub = BusPublisher("tcp://127.0.0.1:0", context=ctx)
+    sub = BusSubscriber(pub.endpoint, topics=[ImuBatch.TOPIC, Event.TOPIC, Trigger.TOPIC], context=ctx)
+    stop = threading.Event()
+    time.sleep(0.2)
+    host_trigger = time.time_ns() + 300_000_000 + trigger * 2_500_000
+    loop = threading.Thread(target=imu_driver_loop, args=(emu.port, pub, stop, T_TRIGGER),
+                            kwargs={"trigger_host_ns": host_trigger})
+    loop.start()
+    time.sleep(0.3)
+    emu.start()
+    got = []
+    deadline = time.monotonic() + 10
+    while sum(len(m) for m in got if isinstance(m, ImuBatch)) < n - trigger - 5 and time.monotonic() < deadline:
+        m = sub.receive(timeout_ms=100)
+        if m is not None:
+            got.append(decode(m))
+    stop.set()
+    loop.join(5)
+    emu.close()
+    pub.close(), sub.close(), ctx.term()
+    batches = [m for m in got if isinstance(m, ImuBatch)]
+    assert sum(len(b) for b in batches) >= n - trigger - 5
+    # 2 s of samples in about 40 messages of 20 samples, not 800 of one.
+    assert len(batches) < 80 and np.median([len(b) for b in batches]) >= 10
+    (trig,) = [m for m in got if isinstance(m, Trigger)]
+    assert trig.source == "imu_receive_time" and trig.time_ns == T_TRIGGER
+    assert any(isinstance(m, Event) and "no SyncIn mark" in m.message for m in got)
