@@ -375,9 +375,27 @@ def cmd_replay(args) -> int:
 
     targets = _radar_targets(args.radar)
     sent = replay(Path(args.recording), targets, args.imu_link, None if args.speed <= 0 else args.speed, args.start_delay,
-                  can=_can_config(args))
+                  can=_can_config(args), laps=args.laps)
     print("replayed " + ", ".join(f"{n}: {k} {'frames' if n == 'can' else 'datagrams'}" for n, k in sent.items())
           + (" and the IMU" if args.imu_link else ""))
+    return EXIT_OK
+
+
+def cmd_install_unit(args) -> int:
+    from .install import InstallPlan, install_unit
+
+    plan = InstallPlan(root=Path(args.root), venv=args.venv, user=args.user,
+                       config=Path(args.config) if args.config else None, command=args.command, devices=args.devices,
+                       source=args.source or "", constraints=Path(args.constraints) if args.constraints else None,
+                       no_deps=args.no_deps)
+    done = install_unit(plan)
+    for kind, paths in done.items():
+        for path in paths:
+            print(f"{kind}: {path}")
+    staged = Path(args.root) != Path("/")
+    print(("staged under " + args.root + "; on the robot: " if staged else "installed; next: ")
+          + "systemctl daemon-reload && systemctl enable --now sarbot.target"
+          + " (edit /etc/sarbot/sarbot.env for this robot's devices first)")
     return EXIT_OK
 
 
@@ -518,7 +536,27 @@ def build_parser() -> argparse.ArgumentParser:
     _can_options(s)
     s.add_argument("--speed", type=float, default=1.0, help="multiple of real time; 0 for as fast as possible")
     s.add_argument("--start-delay", type=float, default=0.0, help="seconds to wait before sending (lets drivers start)")
+    s.add_argument("--laps", type=int, default=1,
+                   help="send the drive this many times, back to back, times and counters continuing (soak tests; "
+                        "the drive should end where and as it started, at rest)")
     s.set_defaults(func=cmd_replay)
+
+    s = sub.add_parser("install-unit", help="install sarbot as a systemd service: user, venv under /opt, config, units",
+                       description="Create the service user (systemd-sysusers), a virtual environment with sarbot, "
+                                   "/etc/sarbot/{rig.toml,sarbot.env} (kept when present) and the systemd units, "
+                                   "verified with systemd-analyze. Enables nothing: it prints the commands that do.",
+                       epilog="example: sudo sarbot install-unit --command run --devices "
+                              "'--radar left_front=192.168.33.30:4098 --imu-port /dev/ttyUSB0'")
+    s.add_argument("--root", default="/", help="install under this folder instead of / (staging a package or image)")
+    s.add_argument("--venv", default="/opt/sarbot/.venv", help="virtual environment on the robot (default /opt/sarbot/.venv)")
+    s.add_argument("--user", default="sarbot", help="service user and group (default sarbot)")
+    s.add_argument("--config", help="rig TOML to install as /etc/sarbot/rig.toml (default: the reference rig)")
+    s.add_argument("--command", default="record", help="what the service runs: record or run (default record)")
+    s.add_argument("--devices", default="", help="the robot's --radar/--imu-port/--can options, in quotes")
+    s.add_argument("--source", help="what pip installs (default: this checkout, or this version of sarbot)")
+    s.add_argument("--constraints", help="pip constraints file pinning the dependencies")
+    s.add_argument("--no-deps", action="store_true", help="install sarbot alone (dependencies already there)")
+    s.set_defaults(func=cmd_install_unit)
 
     s = sub.add_parser("experiment", help="reproduce a study on simulated data (paper: the reference robot-SAR study)")
     s.add_argument("name", help="paper")

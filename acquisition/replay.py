@@ -16,6 +16,8 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
+
 from drivers.can_driver import CanConfig, message_from_row
 from drivers.emulators import XbusPty
 from drivers.radar import registry
@@ -36,12 +38,25 @@ def _wait_until(start_monotonic: float, offset_ns: int, speed: float | None) -> 
             time.sleep(wait)
 
 
+def lap_duration_ns(recording: Recording, radars) -> int:
+    """How long one lap of a looped replay lasts: the longest radar's span plus one frame interval, so the
+    next lap's first frame comes one interval after this lap's last."""
+    spans = []
+    for name in radars:
+        times = recording.frame_time_ns(name)
+        if times.size >= 2:
+            spans.append(int(times[-1] - times[0]) + int(np.median(np.diff(times))))
+    return max(spans, default=0)
+
+
 def replay_radar(recording: Recording, radar: str, address, speed: float | None = 1.0, radar_id: int = 0,
-                 start_monotonic: float | None = None) -> int:
+                 start_monotonic: float | None = None, laps: int = 1, lap_ns: int = 0) -> int:
     """Send a radar's frames to ``address`` in the wire format it was recorded in, at the recorded frame
     timing (x ``speed``; None or 0: as fast as the receiver keeps up). ``start_monotonic``: when the first
     frame goes out (time.monotonic(), which all processes of a Linux machine share), so several radars
-    replayed by several processes stay in step. Returns the number of datagrams sent."""
+    replayed by several processes stay in step. ``laps`` > 1 sends the frames again and again, each lap
+    ``lap_ns`` later than the one before and its frame counters continuing the last. Returns the number of
+    datagrams sent."""
     times = recording.frame_time_ns(radar)
     counters = recording.frame_counter(radar)
     encode = registry.for_replay(recording.wire_format(radar), f"{recording.path}: /radar/{radar}").open_encoder(radar_id)
@@ -49,13 +64,17 @@ def replay_radar(recording: Recording, radar: str, address, speed: float | None 
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 8 << 20)
     t0 = time.monotonic() if start_monotonic is None else start_monotonic
     sent = 0
-    for k in range(times.size):
-        _wait_until(t0, times[k] - times[0], speed)
-        for d in encode(int(counters[k]), int(times[k]), recording.adc_iq(radar, slice(k, k + 1))[0]):
-            sock.sendto(d, address)
-            sent += 1
-        if not speed:
-            time.sleep(0.0005)  # as fast as the receiver keeps up on loopback
+    counters_per_lap = int(counters[-1] - counters[0]) + 1 if counters.size else 0
+    for lap in range(laps):
+        for k in range(times.size):
+            t = int(times[k]) + lap * lap_ns
+            _wait_until(t0, t - times[0], speed)
+            counter = (int(counters[k]) + lap * counters_per_lap) & 0xFFFFFFFF
+            for d in encode(counter, t, recording.adc_iq(radar, slice(k, k + 1))[0]):
+                sock.sendto(d, address)
+                sent += 1
+            if not speed:
+                time.sleep(0.0005)  # as fast as the receiver keeps up on loopback
     sock.close()
     return sent
 
@@ -85,33 +104,48 @@ def replay_pcap(path, address, dst_port: int, speed: float | None = 1.0) -> int:
     return len(datagrams)
 
 
-def imu_emulator(recording: Recording, speed: float | None = 1.0) -> XbusPty:
-    """An Xsens IMU on a pty replaying the recording's /imu; the first sample carries the trigger."""
+def imu_emulator(recording: Recording, speed: float | None = 1.0, laps: int = 1, lap_ns: int = 0) -> XbusPty:
+    """An Xsens IMU on a pty replaying the recording's /imu; the first sample carries the trigger. With
+    ``laps`` > 1 each lap lasts ``lap_ns``: the samples of one lap, cut or padded with the last sample
+    (the drive ends at rest) to the lap's length, so the IMU's clock keeps in step with the radars'."""
     imu = recording.imu()
-    return XbusPty(imu["gyro_radps"], imu["accel_mps2"], rate_hz=float(imu["rate_hz"]), trigger_index=0, speed=speed,
-                   start_counter=int(imu["counter"][0]))
+    gyro, accel = imu["gyro_radps"], imu["accel_mps2"]
+    rate = float(imu["rate_hz"])
+    if laps > 1:
+        n = int(round(lap_ns * 1e-9 * rate))
+        take = np.minimum(np.arange(n), len(gyro) - 1)
+        gyro, accel = np.tile(gyro[take], (laps, 1)), np.tile(accel[take], (laps, 1))
+    return XbusPty(gyro, accel, rate_hz=rate, trigger_index=0, speed=speed, start_counter=int(imu["counter"][0]))
 
 
-def _radar_sender_process(path: str, name: str, address, speed, go, start, results) -> None:
+def _radar_sender_process(path: str, name: str, address, speed, go, start, results, laps: int, lap_ns: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         with Recording(path) as rec:
             results.put((name, "ready"))
             go.wait()
-            results.put((name, replay_radar(rec, name, tuple(address), speed, start_monotonic=start.value)))
+            results.put((name, replay_radar(rec, name, tuple(address), speed, start_monotonic=start.value, laps=laps,
+                                            lap_ns=lap_ns)))
     except Exception as exc:  # noqa: BLE001 - reported to the parent, which names the radar
         results.put((name, f"{type(exc).__name__}: {exc}"))
 
 
 def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str | None, speed: float | None,
-           start_delay_s: float = 0.0, can: CanConfig | None = None) -> dict:
+           start_delay_s: float = 0.0, can: CanConfig | None = None, laps: int = 1) -> dict:
     """Send a recording through emulated hardware: each radar's datagrams (in the wire format it was
     recorded in) to its UDP address, the IMU as Xbus bytes on a pty that ``imu_link`` points to, and /can on
-    a python-can bus. Returns what was sent ({radar: datagrams, "can": frames})."""
+    a python-can bus. ``laps`` > 1: the drive again and again, back to back, times and counters
+    continuing (a soak test; the drive should end where and as it started, at rest). Returns what was sent
+    ({radar: datagrams, "can": frames})."""
+    if laps < 1:
+        raise SarbotError(f"--laps: must be at least 1, got {laps}")
     with Recording(path) as rec:
         for name in radar_targets:
             if name not in rec.radar_names:
                 raise SarbotError(f"--radar {name}: {path} has no such radar (radars: {', '.join(rec.radar_names)})")
+        if laps > 1 and can is not None:
+            raise SarbotError("--laps: CAN cannot be replayed in laps (its frames carry no time to move on)")
+        lap_ns = lap_duration_ns(rec, radar_targets) if laps > 1 else 0
         emu = None
         if imu_link:
             if rec.imu() is None:
@@ -123,7 +157,7 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
                     raise SarbotError(f"--imu-link {link}: exists and is not a link to a pseudo-terminal; "
                                       "give a path that does not exist")
                 link.unlink()
-            emu = imu_emulator(rec, speed=speed)
+            emu = imu_emulator(rec, speed=speed, laps=laps, lap_ns=lap_ns)
             link.symlink_to(emu.port)
         can_bus = can.open() if can is not None else None
         time.sleep(start_delay_s)
@@ -142,7 +176,8 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
         results = ctx.Queue()
         go = ctx.Event()
         start = ctx.Value("d", 0.0)  # the senders' common start (time.monotonic() is shared by all processes)
-        procs = {name: ctx.Process(target=_radar_sender_process, args=(str(path), name, address, speed, go, start, results),
+        procs = {name: ctx.Process(target=_radar_sender_process, args=(str(path), name, address, speed, go, start, results,
+                                                                                   laps, lap_ns),
                                    name=f"replay.{name}", daemon=True) for name, address in radar_targets.items()}
         for proc in procs.values():
             proc.start()
