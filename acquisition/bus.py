@@ -31,6 +31,12 @@ class Message:
     arrays: list[np.ndarray]
 
 
+#: Radar frames (0.7 MB each at the reference waveform) queued per slow subscriber on either side of a
+#: connection to a worker before ZeroMQ drops them (counted as bus loss by the worker): a worker that
+#: cannot keep up loses frames, not the machine's memory. The recorder's side keeps the default.
+FRAME_QUEUE = 50
+
+
 class BusPublisher:
     """Publishes on one endpoint; numbers messages per topic."""
 
@@ -78,14 +84,17 @@ class BusSubscriber:
     """Subscribes to topics (prefixes) on one or more endpoints and checks every topic's sequence."""
 
     def __init__(self, endpoints: str | list[str] = DEFAULT_ENDPOINT, topics: list[str] = ("",),
-                 context: zmq.Context | None = None, high_water_mark: int = 10_000):
+                 context: zmq.Context | None = None, high_water_mark: int = 10_000,
+                 high_water_marks: dict[str, int] | None = None):
+        """``high_water_marks``: a queue length of its own for some endpoints (ZeroMQ applies the option to
+        the connections made after it is set)."""
         self.context = context or zmq.Context.instance()
         self.socket = self.context.socket(zmq.SUB)
-        self.socket.setsockopt(zmq.RCVHWM, high_water_mark)
         self.socket.setsockopt(zmq.LINGER, 0)
         for t in topics:
             self.socket.setsockopt(zmq.SUBSCRIBE, t.encode())
         for e in [endpoints] if isinstance(endpoints, str) else endpoints:
+            self.socket.setsockopt(zmq.RCVHWM, (high_water_marks or {}).get(e, high_water_mark))
             self.socket.connect(e)
         self.stats: dict[str, TopicStats] = defaultdict(TopicStats)
         self._expected: dict[tuple[str, str], int] = {}  # (publisher, topic) -> next sequence number

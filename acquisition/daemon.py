@@ -78,7 +78,8 @@ def process_specs(setup: Setup, stop) -> list[ProcessSpec]:
         specs.append(ProcessSpec("can", can_process, (setup.can, endpoint, stop), endpoint))
     driver_endpoints = [s.endpoint for s in specs]
     for w in setup.workers:
-        specs.append(ProcessSpec(w.role, worker_process, (w, driver_endpoints, stop), w.endpoint, worker=True))
+        specs.append(ProcessSpec(w.role, worker_process, (w, driver_endpoints, stop, radar_endpoints), w.endpoint,
+                                 worker=True))
     return specs
 
 
@@ -146,7 +147,8 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
     procs = {role: start(spec) for role, spec in specs.items()}
     recorder = Recorder(path, setup.rig, [s.endpoint for s in specs.values()], flush_interval_s=setup.flush_interval_s,
                         wire_formats={link.name: link.wire_format for link in setup.radars},
-                        split_bytes=setup.split_bytes, split_s=setup.split_s, min_free_bytes=setup.min_free_bytes)
+                        split_bytes=setup.split_bytes, split_s=setup.split_s, min_free_bytes=setup.min_free_bytes,
+                        frame_endpoints=[s.endpoint for role, s in specs.items() if role.startswith("radar.")])
     health_pub = BusPublisher(setup.health_endpoint or "tcp://127.0.0.1:0")
     log.info("health on %s", health_pub.endpoint)
     stopping = threading.Event()

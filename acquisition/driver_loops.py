@@ -20,7 +20,7 @@ from drivers.radar.stream import RadarStream, trouble
 from drivers.radar.udp import UdpReceiver
 from imaging.core.waveform import Waveform
 
-from .bus import BusPublisher, BusSubscriber
+from .bus import FRAME_QUEUE, BusPublisher, BusSubscriber
 from .messages import CanBatch, Event, ImuBatch, RadarFrameMessage, Trigger
 from .processes import become_child
 
@@ -200,7 +200,7 @@ def radar_process(link: RadarLink, waveform: Waveform, endpoint: str, stop) -> N
     except OSError as exc:  # the port taken, the address not this machine's: say so in one line, and exit
         log.error("radar %s: %s", link.name, exc.strerror or exc)
         raise SystemExit(1) from None
-    pub = BusPublisher(endpoint)
+    pub = BusPublisher(endpoint, high_water_mark=FRAME_QUEUE)
     log.info("radar %s: %s on %s:%d", link.name, link.wire_format, link.host, rx.address[1])
     try:
         radar_driver_loop(rx, link.name, stream, pub, stop)

@@ -20,6 +20,10 @@ from typing import Any, Callable
 VERBOSITY_ENV = "SARBOT_VERBOSITY"
 #: SCHED_FIFO priority for the driver processes (the unit sets it; 0 or unset: normal scheduling).
 DRIVER_RT_PRIORITY_ENV = "SARBOT_DRIVER_RT_PRIORITY"
+#: Niceness of the workers (odometry, strip map): below the drivers and the recorder, so that on a busy
+#: machine the live products fall behind (and say so) rather than the recording losing data.
+WORKER_NICE_ENV = "SARBOT_WORKER_NICE"
+WORKER_NICE = 10
 LOG_FORMAT = "%(levelname)s %(name)s: %(message)s"
 
 
@@ -77,12 +81,13 @@ def ensure_jit_cache_dir() -> str | None:
     return None
 
 
-def become_child(role: str, realtime: bool = False) -> None:
+def become_child(role: str, realtime: bool = False, background: bool = False) -> None:
     """Set up a child process: die with the supervisor, carry the role's name, log like the parent.
 
     A driver whose supervisor died (SIGKILL, OOM) must not keep the port or the device busy; the name
     lets top and ps say which process is which. SIGINT is ignored (the supervisor decides when to stop:
-    it sets the stop event); SIGTERM ends the process at once.
+    it sets the stop event); SIGTERM ends the process at once. ``realtime``: a driver (SCHED_FIFO when
+    the unit asks for it); ``background``: a worker, niced below the drivers and the recorder.
     """
     try:
         import ctypes
@@ -95,6 +100,8 @@ def become_child(role: str, realtime: bool = False) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, lambda *_: os._exit(0))
     configure_logging(role=role)
+    if background:
+        os.nice(int(os.environ.get(WORKER_NICE_ENV, WORKER_NICE) or 0))
     priority = int(os.environ.get(DRIVER_RT_PRIORITY_ENV, "0") or 0)
     if realtime and priority > 0:
         # Only the drivers, which must drain their sockets and serial ports in time; a CPU-heavy worker at

@@ -34,6 +34,10 @@ from .messages import (
 log = logging.getLogger(f"sarbot.{__name__}")
 
 
+#: Frames of one radar the recorder may be behind (about 26 s at the reference waveform, 360 MB).
+RECORDER_FRAME_QUEUE = 500
+
+
 class DiskFullError(OSError):
     pass
 
@@ -61,11 +65,15 @@ class Recorder:
         this or below twice what the last flush interval wrote, whichever is more. HDF5 does not report a
         failed write where it happens (it surfaces later, when chunks are evicted, and corrupts the file),
         so the recorder stops while the file is still whole rather than wait for ENOSPC.
+    frame_endpoints : list of str
+        The radars' endpoints: at most ``RECORDER_FRAME_QUEUE`` frames of each wait to be written. A
+        recorder that falls further behind (a machine with too little CPU or a disk too slow) loses frames,
+        each loss written to /events, instead of taking the machine's memory until it is killed.
     """
 
     def __init__(self, path: str | Path, rig: Rig, endpoints, flush_interval_s: float = 0.5, adc_dtype: str = "int16",
                  context=None, wire_formats: dict[str, str] | None = None, split_bytes: int | None = None,
-                 split_s: float | None = None, min_free_bytes: int = 64_000_000):
+                 split_s: float | None = None, min_free_bytes: int = 64_000_000, frame_endpoints=()):
         self.base_path = Path(path)
         self.rig = rig
         self.adc_dtype = adc_dtype
@@ -80,7 +88,8 @@ class Recorder:
         self.writer = self._open_part()
         self._handlers = {RadarFrameMessage: self._store_frame, ImuBatch: self._store_imu, CanBatch: self._store_can,
                           Trigger: self._store_trigger, Event: self._store_event, WorkerState: self._note_worker}
-        self.sub = BusSubscriber(endpoints, topics=[cls.TOPIC for cls in self._handlers], context=context)
+        self.sub = BusSubscriber(endpoints, topics=[cls.TOPIC for cls in self._handlers], context=context,
+                                 high_water_marks=dict.fromkeys(frame_endpoints, RECORDER_FRAME_QUEUE))
         self.flush_interval_s = flush_interval_s
         self._last_flush = time.monotonic()
         self._reported_missed: dict[str, int] = {}
@@ -150,7 +159,8 @@ class Recorder:
         self.writer.append_frames(m.radar, f.iq[None], [f.frame_time_ns], [f.frame_counter], [f.receive_ns],
                                   [1 if f.valid else 0])
         self.frames[m.radar] += 1
-        self.latencies_ns.append(time.time_ns() - f.receive_ns)
+        if f.receive_ns > 0:  # a frame of which no datagram came (lost whole) has no receive time
+            self.latencies_ns.append(time.time_ns() - f.receive_ns)
         self.invalid_frames[m.radar] += 0 if f.valid else 1
         self.ptp_locked[m.radar] = f.ptp_locked
 

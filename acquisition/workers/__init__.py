@@ -13,11 +13,14 @@ import logging
 import time
 from typing import Any
 
-from ..bus import BusPublisher, BusSubscriber
+from ..bus import FRAME_QUEUE, BusPublisher, BusSubscriber
 from ..messages import BusMessage, WorkerState, decode
 from ..processes import become_child, free_tcp_endpoint
 
 log = logging.getLogger(f"sarbot.{__name__}")
+
+#: Most messages a worker takes from its socket between two steps.
+MAX_BATCH = 1000
 
 
 class Worker:
@@ -45,7 +48,8 @@ class Worker:
         """One message. ``live`` False while draining: nothing may be dropped then."""
 
     def step(self) -> None:
-        """After every receive while live (imaging what is ready, publishing on a schedule)."""
+        """After every batch of receives while live (imaging what is ready, publishing on a schedule). It
+        should return within a fraction of a second, so the socket is drained in time."""
 
     def drained(self, message: BusMessage) -> bool:
         """True for the message after which nothing more is expected."""
@@ -64,8 +68,13 @@ def run_worker(worker: Worker, sub: BusSubscriber, stop, state=None) -> None:
     last_state = 0.0
     while not stop.is_set():
         msg = sub.receive(timeout_ms=50)
-        if msg is not None:
+        # Everything that has come, into the worker's own queues, before the next piece of work: left in the
+        # socket, a backlog would grow without bound (the worker bounds its queues, dropping counted).
+        received = 0
+        while msg is not None:
             worker.handle(decode(msg), live=True)
+            received += 1
+            msg = sub.receive(timeout_ms=0) if received < MAX_BATCH else None
         worker.step()
         if state is not None and time.monotonic() - last_state >= 1.0:
             state()
@@ -95,17 +104,21 @@ class WorkerSpec:
     endpoint: str = dataclasses.field(default_factory=free_tcp_endpoint)
 
 
-def worker_process(spec: WorkerSpec, driver_endpoints: list[str], stop) -> None:
-    """A worker's process: subscribe to the drivers (and the worker's own extra endpoints), run, write."""
-    become_child(spec.role)
+def worker_process(spec: WorkerSpec, driver_endpoints: list[str], stop, frame_endpoints: list[str] = ()) -> None:
+    """A worker's process: subscribe to the drivers (and the worker's own extra endpoints), run, write.
+    ``frame_endpoints`` (the radars') get a short queue: a worker that falls behind loses frames (counted,
+    ``bus_lost`` in its state), not the machine's memory."""
+    become_child(spec.role, background=True)
     pub = BusPublisher(spec.endpoint)
     worker = spec.worker(spec.config, pub)
     # Subscribed before warming up: what the drivers send meanwhile queues, and is handled in order after.
-    sub = BusSubscriber([*driver_endpoints, *worker.endpoints], topics=worker.topics)
+    sub = BusSubscriber([*driver_endpoints, *worker.endpoints], topics=worker.topics,
+                        high_water_marks=dict.fromkeys(frame_endpoints, FRAME_QUEUE))
     warm_up_s = [0.0]
 
     def state(warm: bool = True) -> None:
-        pub.send(WorkerState(spec.role, warm, warm_up_s[0], worker.counters(), time.time_ns()))
+        counters = {**worker.counters(), "bus_lost": sub.missed}
+        pub.send(WorkerState(spec.role, warm, warm_up_s[0], counters, time.time_ns()))
 
     try:
         state(warm=False)

@@ -62,6 +62,7 @@ class OdometryWorker(Worker):
         self.last_flush = time.monotonic()
         self.seen: collections.Counter = collections.Counter()
         self.behind = 0  # scans in a row that came more than max_lag_s late
+        self.lag_ms = 0  # of the last scan turned into a point cloud: its last datagram to now
         self.last_lag_event = 0.0
 
     def warm_up(self) -> None:
@@ -132,6 +133,7 @@ class OdometryWorker(Worker):
                 return
         else:
             self.behind = 0
+        self.lag_ms = int(lag_s * 1e3)
         radar = self.radars[name]
         pc = detect(iq_to_complex(frame.iq), radar, self.orders[name], self.pc_config)
         self._publish(self.rio.add_scan(RadarScan(frame.frame_time_ns + self.half_frame_ns[name], name, radar.mount,
@@ -148,8 +150,9 @@ class OdometryWorker(Worker):
             self.last_lag_event = now
 
     def counters(self) -> dict[str, int]:
-        return {k: int(self.rio.stats[k]) for k in ("scans_thinned_behind", "scans_skipped_behind", "scans_late")
-                if k in self.rio.stats}
+        counted = {k: int(self.rio.stats[k]) for k in ("scans_thinned_behind", "scans_skipped_behind", "scans_late")
+                   if k in self.rio.stats}
+        return {**counted, "lag_ms": self.lag_ms}
 
     def finish(self) -> None:
         self._publish(self.rio.finish())

@@ -25,6 +25,8 @@ log = logging.getLogger(f"sarbot.{__name__}")
 
 #: How far back the worker keeps poses (enough for frames waiting on the odometry's hold-back).
 POSE_WINDOW_NS = 5_000_000_000
+#: Longest a live imaging pass runs before the worker takes its messages again.
+STEP_BUDGET_S = 0.25
 
 
 @dataclasses.dataclass
@@ -124,13 +126,15 @@ class StripMapWorker(Worker):
                                  np.concatenate([b.orientation_xyzw for b in self.poses]),
                                  np.concatenate([b.velocity_mps for b in self.poses]), source="rio")
 
-    def _image_ready(self, final: bool = False) -> None:
+    def _image_ready(self, final: bool = False, budget_s: float | None = None) -> None:
+        """Image the queued frames the poses cover, oldest first; live, for at most ``budget_s``."""
         frames, status = self.frames, self.status
         if not frames or not self.poses:
             return
         newest_pose = int(self.poses[-1].time_ns[-1])
         traj = None
-        while frames:
+        until = None if budget_s is None else time.monotonic() + budget_s
+        while frames and (until is None or time.monotonic() < until):
             name, iq, t_frame, t_recv = frames[0]
             if t_frame + self.frame_ns[name] > newest_pose:
                 if not final:
@@ -164,7 +168,7 @@ class StripMapWorker(Worker):
         self.last_publish = time.monotonic()
 
     def step(self) -> None:
-        self._image_ready()
+        self._image_ready(budget_s=STEP_BUDGET_S)
         if time.monotonic() - self.last_publish > 0.5:
             self._publish_tiles()
 

@@ -1,0 +1,354 @@
+"""Soak: the whole daemon at 1x for half an hour, as on the robot, watched for loss, memory growth and lag.
+
+    python benchmarks/soak.py [--minutes 30] [--quick]
+
+The built-in scene ``soak_loop`` (a 26 s closed drive of the reference robot at the reference waveform,
+14 MB/s per radar, and the IMU at 400 Hz) is simulated once and replayed lap after lap (``sarbot replay
+--laps``, times and counters continuing) into ``sarbot run`` as the unit runs it (drivers at real-time
+priority where allowed, workers niced): a driver process per radar, the IMU driver, the recorder, the
+odometry worker and the live strip map. The recording is split every minute; each finished part is
+checked (frames per radar, invalid frames, counter gaps, IMU samples, events) and deleted, so half an
+hour fits on the disk.
+
+By default the left pair of radars is replayed: on this two-core machine the emulated hardware costs
+about as much CPU as the drivers (a sender process per radar), and four radars at 1x with their emulation
+and both workers saturate it (measured with ``--radars`` set to all four and ``--quick``: the recorder
+kept 6 of 19 frames/s per radar and fell behind; the robot does not run the emulation).
+
+Every 10 s it samples each process's resident memory (VmRSS) and CPU, the health report (bus loss,
+invalid frames, restarts) and the workers' lag: the odometry's (last radar scan to its point cloud) and
+the map's (last frame imaged). At the end: frames sent against frames recorded, memory growth per process
+after warm-up (goal: within 20 MB), and the lag over the run (goal: flat).
+
+Writes docs/results/soak.json and docs/results/soak.png (docs/results/soak_quick.* with --quick).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from acquisition.bus import BusSubscriber  # noqa: E402
+from acquisition.messages import Health, MapStatus, decode  # noqa: E402
+from acquisition.processes import free_ports, free_tcp_endpoint  # noqa: E402
+from imaging.io.recording import Recording  # noqa: E402
+
+RESULTS = ROOT / "docs" / "results"
+SARBOT = [sys.executable, "-m", "acquisition.cli"]
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+SAMPLE_EVERY_S = 10.0
+RSS_GOAL_MB = 20.0
+
+
+def process_tree(pid: int) -> dict[int, str]:
+    """The daemon and its children by the names they give themselves (``sarbot-imu``, ...), numbered where
+    two names are the same (15 characters of a name are kept)."""
+    out = {pid: "supervisor+recorder"}
+    seen: dict[str, int] = {}
+    try:
+        tasks = list(Path(f"/proc/{pid}/task").iterdir())
+    except FileNotFoundError:
+        return {}
+    children = sorted(int(c) for t in tasks for c in (t / "children").read_text().split())
+    for child in children:
+        try:
+            name = Path(f"/proc/{child}/comm").read_text().strip()
+        except FileNotFoundError:
+            continue
+        seen[name] = seen.get(name, 0) + 1
+        out[child] = name if seen[name] == 1 else f"{name}#{seen[name]}"
+    return out
+
+
+def rss_mb(pid: int) -> float | None:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    except FileNotFoundError:
+        return None
+    return None
+
+
+def cpu_s(pid: int) -> float | None:
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except FileNotFoundError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / CLK_TCK
+
+
+class PartChecker:
+    """Counts what the finished parts of the recording hold, then deletes them (the disk would fill)."""
+
+    def __init__(self, folder: Path, radars: list[str]):
+        self.folder = folder
+        self.frames = dict.fromkeys(radars, 0)
+        self.invalid = dict.fromkeys(radars, 0)
+        self.counter_gaps = dict.fromkeys(radars, 0)
+        self.imu_samples = 0
+        self.events: list[str] = []
+        self.parts = 0
+        self._last_counter: dict[str, int] = {}
+
+    def parts_on_disk(self) -> list[Path]:
+        return sorted(self.folder.glob("recording_*.h5"))
+
+    def check(self, path: Path) -> None:
+        with Recording(path) as rec:
+            for name in self.frames:
+                counters = rec.frame_counter(name).astype(np.int64)
+                self.frames[name] += counters.size
+                self.invalid[name] += int(np.sum(rec.valid(name) == 0)) if counters.size else 0
+                if counters.size:
+                    previous = self._last_counter.get(name, counters[0] - 1)
+                    steps = np.diff(np.concatenate([[previous], counters]))
+                    self.counter_gaps[name] += int(np.sum(steps != 1))
+                    self._last_counter[name] = int(counters[-1])
+            imu = rec.imu()
+            self.imu_samples += 0 if imu is None else int(imu["time_ns"].size)
+            self.events += [f"{source} {level}: {message}" for _, source, level, message in rec.events()]
+        self.parts += 1
+
+    def check_finished(self) -> None:
+        """Every part but the newest is closed (the recorder closes a part before it opens the next)."""
+        for path in self.parts_on_disk()[:-1]:
+            self.check(path)
+            path.unlink()
+
+    def imu_lag_s(self) -> float | None:
+        """How far the newest IMU sample in the file being written is behind now (host receive time)."""
+        parts = self.parts_on_disk()
+        if not parts:
+            return None
+        try:
+            with Recording(parts[-1]) as rec:
+                imu = rec.imu()
+                if imu is None or imu["host_time_ns"].size == 0:
+                    return None
+                return (time.time_ns() - int(imu["host_time_ns"][-1])) * 1e-9
+        except Exception:  # noqa: BLE001 - the part is being created or its header not flushed yet
+            return None
+
+
+def simulate(work: Path) -> Path:
+    path = work / "soak_loop.h5"
+    subprocess.run([*SARBOT, "simulate", "soak_loop", "-o", str(path)], cwd=ROOT, check=True,
+                   stdout=subprocess.DEVNULL)
+    return path
+
+
+def soak(minutes: float, work: Path, radars: list[str]) -> dict:
+    with Recording(simulate(work)) as rec:
+        frames_per_lap = rec.n_frames(radars[0])
+        lap_s = frames_per_lap * float(np.median(np.diff(rec.frame_time_ns(radars[0])))) * 1e-9
+    sim_path = work / "soak_loop.h5"
+    laps = max(1, math.ceil(minutes * 60 / lap_s))
+    out = work / "out"
+    ports = dict(zip(radars, free_ports(len(radars))))
+    health_endpoint = free_tcp_endpoint()
+    imu_link = work / "imu_tty"
+    run_cmd = [*SARBOT, "run", "--config", str(ROOT / "imaging" / "rigs" / "default.toml"), "-o", str(out),
+               "--imu-port", str(imu_link), "--split-time", "60", "--health-endpoint", health_endpoint,
+               "--min-free", "4G", "--map-radars", ",".join(radars), "--rio-radars", ",".join(radars), *[a for n, p in ports.items() for a in ("--radar", f"{n}={p}")]]
+    log_file = open(work / "run.log", "w")
+    # As the unit runs it: the drivers at real-time priority (where this user may), the workers niced.
+    env = {**os.environ, "SARBOT_DRIVER_RT_PRIORITY": "40"}
+    daemon = subprocess.Popen(run_cmd, cwd=ROOT, stdout=log_file, stderr=subprocess.STDOUT, text=True, env=env)
+    sub = BusSubscriber(health_endpoint, topics=[Health.TOPIC])
+    map_sub = None
+    checker = PartChecker(out, radars)
+    samples: list[dict] = []
+    last_health: Health | None = None
+    last_map: MapStatus | None = None
+    t_warm = time.monotonic()
+    deadline = time.monotonic() + 600
+    while time.monotonic() < deadline:  # the workers compile their kernels before the pipeline is warm
+        m = sub.receive(timeout_ms=500)
+        if daemon.poll() is not None:
+            raise SystemExit(f"sarbot run exited with {daemon.returncode}; see {work / 'run.log'}")
+        if m is not None:
+            last_health = Health.from_message(m)
+            if last_health.warm:
+                break
+    warm_up_s = time.monotonic() - t_warm
+    print(f"soak: pipeline warm after {warm_up_s:.0f} s; replaying {laps} laps of {lap_s:.1f} s "
+          f"({laps * lap_s / 60:.1f} min)", flush=True)
+    replay = subprocess.Popen([*SARBOT, "replay", str(sim_path), "--imu-link", str(imu_link), "--laps", str(laps),
+                               "--start-delay", "1", *[a for n, p in ports.items() for a in ("--radar", f"{n}=127.0.0.1:{p}")]],
+                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    t0 = time.monotonic()
+    cpu_before: dict[int, float] = {}
+    next_sample = t0 + SAMPLE_EVERY_S
+    while replay.poll() is None or time.monotonic() < next_sample - SAMPLE_EVERY_S + 5:
+        m = sub.receive(timeout_ms=200)
+        if m is not None:
+            last_health = Health.from_message(m)
+            if map_sub is None and "stripmap" in last_health.endpoints:
+                map_sub = BusSubscriber(last_health.endpoints["stripmap"], topics=[MapStatus.TOPIC])
+        while map_sub is not None and (mm := map_sub.receive(timeout_ms=0)) is not None:
+            last_map = decode(mm)
+        if time.monotonic() < next_sample:
+            continue
+        next_sample += SAMPLE_EVERY_S
+        tree = process_tree(daemon.pid)
+        sample = {"t_s": round(time.monotonic() - t0, 1), "rss_mb": {}, "cpu_pct": {}}
+        for pid, name in tree.items():
+            rss, cpu = rss_mb(pid), cpu_s(pid)
+            if rss is None or cpu is None:
+                continue
+            sample["rss_mb"][name] = round(rss, 1)
+            if pid in cpu_before:
+                sample["cpu_pct"][name] = round(100 * (cpu - cpu_before[pid]) / SAMPLE_EVERY_S, 1)
+            cpu_before[pid] = cpu
+        if last_health is not None:
+            odometry = last_health.workers.get("rio")
+            sample.update(bus_lost=last_health.bus_lost, restarts=last_health.restarts,
+                          invalid=sum(last_health.invalid_frames.values()), frames_per_s=last_health.frames_per_s,
+                          imu_hz=last_health.imu_hz,
+                          odometry_lag_s=None if odometry is None else odometry.counters.get("lag_ms", 0) / 1e3,
+                          odometry_counters=None if odometry is None else odometry.counters)
+        if last_map is not None:
+            sample.update(map_lag_s=round(last_map.lag_s, 3), map_dropped=last_map.frames_dropped_behind,
+                          map_imaged=last_map.frames_imaged)
+        sample["imu_in_file_lag_s"] = checker.imu_lag_s()
+        checker.check_finished()
+        samples.append(sample)
+        print(f"soak: {sample['t_s']:6.0f} s  RSS {sum(sample['rss_mb'].values()):6.0f} MB  "
+              f"odometry lag {sample.get('odometry_lag_s')}  map lag {sample.get('map_lag_s')}  "
+              f"map dropped {sample.get('map_dropped')}  bus lost {sample.get('bus_lost')}", flush=True)
+        if daemon.poll() is not None:
+            break
+    replay_out, replay_err = replay.communicate(timeout=120)
+    time.sleep(3.0)
+    daemon.send_signal(signal.SIGINT)
+    try:
+        daemon.wait(timeout=180)
+    except subprocess.TimeoutExpired:
+        daemon.kill()
+        daemon.wait()
+    log_file.close()
+    sub.close()
+    if map_sub is not None:
+        map_sub.close()
+    for path in checker.parts_on_disk():
+        checker.check(path)
+        path.unlink()
+    log_text = (work / "run.log").read_text()
+    result = summarise(samples, checker, laps, frames_per_lap, lap_s, warm_up_s, replay.returncode, replay_err,
+                       daemon.returncode, log_text.splitlines()[-20:])
+    result["drivers_realtime"] = "not granted" not in log_text
+    return result
+
+
+def summarise(samples, checker, laps, frames_per_lap, lap_s, warm_up_s, replay_code, replay_err, daemon_code,
+              log_tail) -> dict:
+    duration_s = samples[-1]["t_s"] if samples else 0.0
+    # Memory after warm-up: from the end of the third minute (or a tenth of the run) to the end.
+    settle_s = min(180.0, 0.1 * duration_s) if duration_s > 300 else 0.3 * duration_s
+    names = sorted({n for s in samples for n in s["rss_mb"]})
+    growth = {}
+    for name in names:
+        series = [(s["t_s"], s["rss_mb"][name]) for s in samples if name in s["rss_mb"] and s["t_s"] >= settle_s]
+        if len(series) >= 2:
+            values = np.array([v for _, v in series])
+            growth[name] = {"after_warm_up_mb": float(values[0]), "end_mb": float(values[-1]),
+                            "max_mb": float(values.max()), "growth_mb": float(values.max() - values[0])}
+
+    def lag_stats(key):
+        values = np.array([s[key] for s in samples if s.get(key) is not None], float)
+        if values.size == 0:
+            return None
+        half = values.size // 2
+        return {"p50_s": float(np.median(values)), "max_s": float(values.max()),
+                "first_half_p50_s": float(np.median(values[:half])) if half else None,
+                "second_half_p50_s": float(np.median(values[half:]))}
+
+    sent = laps * frames_per_lap
+    last = samples[-1] if samples else {}
+    result = {
+        "minutes": duration_s / 60, "laps": laps, "lap_s": lap_s, "warm_up_s": warm_up_s,
+        "frames_sent_per_radar": sent, "frames_recorded": checker.frames, "invalid_frames": checker.invalid,
+        "counter_gaps": checker.counter_gaps, "imu_samples": checker.imu_samples,
+        "imu_samples_sent": int(round(laps * lap_s * 400)), "parts": checker.parts,
+        "bus_lost": last.get("bus_lost"), "restarts": last.get("restarts"),
+        "map_frames_dropped": last.get("map_dropped"), "map_frames_imaged": last.get("map_imaged"),
+        "odometry_counters": last.get("odometry_counters"),
+        "rss": growth, "rss_goal_mb": RSS_GOAL_MB,
+        "rss_flat": all(g["growth_mb"] <= RSS_GOAL_MB for g in growth.values()),
+        "odometry_lag": lag_stats("odometry_lag_s"), "map_lag": lag_stats("map_lag_s"),
+        "imu_in_file_lag": lag_stats("imu_in_file_lag_s"),
+        "no_loss": all(checker.frames[n] == sent and checker.invalid[n] == 0 for n in checker.frames)
+        and last.get("bus_lost") == 0,
+        "warnings_and_errors": sorted({e for e in checker.events if " info:" not in e})[:50],
+        "replay_exit": replay_code, "replay_stderr_tail": replay_err.splitlines()[-5:],
+        "daemon_exit": daemon_code, "daemon_log_tail": log_tail, "samples": samples,
+    }
+    return result
+
+
+def chart(result: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    samples = result["samples"]
+    t = np.array([s["t_s"] for s in samples]) / 60
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
+    for name in sorted({n for s in samples for n in s["rss_mb"]}):
+        ax1.plot([s["t_s"] / 60 for s in samples if name in s["rss_mb"]],
+                 [s["rss_mb"][name] for s in samples if name in s["rss_mb"]], label=name)
+    ax1.set_ylabel("resident memory, MB")
+    ax1.legend(fontsize=7, ncol=3)
+    ax1.set_title(f"soak at 1x: {result['minutes']:.0f} min, four radars + IMU, recorder, odometry, live map")
+    for key, label in (("odometry_lag_s", "odometry lag"), ("map_lag_s", "map lag"),
+                       ("imu_in_file_lag_s", "IMU in file lag")):
+        ax2.plot(t, [s.get(key) if s.get(key) is not None else np.nan for s in samples], label=label)
+    ax2.set_ylabel("lag, s")
+    ax2.set_xlabel("time, min")
+    ax2.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--minutes", type=float, default=30.0)
+    ap.add_argument("--quick", action="store_true", help="3 minutes (a check that the soak runs)")
+    ap.add_argument("--radars", default="left_front,left_rear",
+                    help="radars replayed and mapped (default the left pair: four at 1x, with their emulation on the "
+                         "same two cores, saturate this machine; see the module notes)")
+    args = ap.parse_args()
+    minutes = 3.0 if args.quick else args.minutes
+    radars = args.radars.split(",")
+    with tempfile.TemporaryDirectory(prefix="sarbot-soak-") as tmp:
+        result = soak(minutes, Path(tmp), radars)
+    result["radars"] = radars
+    result["commit"] = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                                      text=True).stdout.strip()
+    stem = "soak_quick" if args.quick else "soak"
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / f"{stem}.json").write_text(json.dumps(result, indent=1) + "\n")
+    chart(result, RESULTS / f"{stem}.png")
+    print(json.dumps({k: v for k, v in result.items() if k not in ("samples", "daemon_log_tail")}, indent=1))
+    print(f"wrote {RESULTS / (stem + '.json')} and {stem}.png")
+    return 0 if result["no_loss"] and result["rss_flat"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
