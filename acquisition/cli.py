@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 from pathlib import Path
 
@@ -234,6 +235,8 @@ def _radar_targets(items: list[str] | None) -> dict[str, tuple[str, int]]:
             out[name] = (host, int(port))
         except ValueError:
             raise SarbotError(f"--radar {item!r}: expected NAME=[HOST:]PORT") from None
+        if not name or not host or not 0 < out[name][1] < 65536:
+            raise SarbotError(f"--radar {item!r}: expected NAME=[HOST:]PORT with a port in 1..65535")
     return out
 
 
@@ -265,9 +268,27 @@ def _size_bytes(text: str | None, option: str = "--split-size") -> int | None:
         value = float(t[:-1]) * units[t[-1]] if t and t[-1] in units else float(t)
     except ValueError:
         raise SarbotError(f"{option} {text!r}: expected a size such as 500M or 2G") from None
-    if value <= 0:
-        raise SarbotError(f"{option} {text!r}: must be positive")
+    if not (math.isfinite(value) and value > 0):
+        raise SarbotError(f"{option} {text!r}: must be a positive size")
     return int(value)
+
+
+def check_duration(value: float | None, option: str = "--duration") -> None:
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise SarbotError(f"{option} {value}: must be a positive number of seconds")
+
+
+def check_replay(args) -> dict[str, tuple[str, int]]:
+    """The replay options, checked before anything is opened or sent; returns the radars' targets."""
+    targets = _radar_targets(args.radar)
+    if not math.isfinite(args.speed) or args.speed < 0:
+        raise SarbotError(f"--speed {args.speed}: must be a multiple of real time >= 0 (0: as fast as possible)")
+    if not math.isfinite(args.start_delay) or args.start_delay < 0:
+        raise SarbotError(f"--start-delay {args.start_delay}: must be a number of seconds >= 0")
+    if args.laps < 1:
+        raise SarbotError(f"--laps {args.laps}: must be at least 1")
+    _can_config(args)
+    return targets
 
 
 def record_setup(args):
@@ -299,8 +320,7 @@ def record_setup(args):
     can = _can_config(args)
     if not links and not args.imu_port and can is None:
         raise SarbotError("nothing to record: give --radar NAME=[HOST:]PORT, --dca1000 NAME=PORT:CFG, --imu-port DEVICE and/or --can")
-    if args.split_time is not None and args.split_time <= 0:
-        raise SarbotError(f"--split-time {args.split_time}: must be positive")
+    check_duration(args.split_time, "--split-time")
     return Setup(rig, links, args.imu_port, can, split_bytes=_size_bytes(args.split_size), split_s=args.split_time,
                  min_free_bytes=_size_bytes(args.min_free, "--min-free"), health_endpoint=args.health_endpoint)
 
@@ -322,7 +342,9 @@ def _record(setup, out: Path, duration_s: float | None, extra_paths=(), **kwargs
 
 
 def cmd_record(args) -> int:
-    return _record(record_setup(args), Path(args.output), args.duration)
+    setup = record_setup(args)
+    check_duration(args.duration)
+    return _record(setup, Path(args.output), args.duration)
 
 
 def run_workers(setup, args, out_dir: Path, stamp: str):
@@ -361,6 +383,7 @@ def cmd_run(args) -> int:
     import time
 
     setup = record_setup(args)
+    check_duration(args.duration)
     stamp = time.strftime("%Y%m%dT%H%M%S")
     out = Path(args.output)
     traj_path, map_path, config = run_workers(setup, args, out, stamp)
@@ -373,7 +396,7 @@ def cmd_run(args) -> int:
 def cmd_replay(args) -> int:
     from .replay import replay
 
-    targets = _radar_targets(args.radar)
+    targets = check_replay(args)
     sent = replay(Path(args.recording), targets, args.imu_link, None if args.speed <= 0 else args.speed, args.start_delay,
                   can=_can_config(args), laps=args.laps)
     print("replayed " + ", ".join(f"{n}: {k} {'frames' if n == 'can' else 'datagrams'}" for n, k in sent.items())

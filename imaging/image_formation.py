@@ -31,6 +31,15 @@ class ImagingOptions:
     rx: tuple[int, ...] | None = None
     frames_per_block: int = 8
 
+    def __post_init__(self) -> None:
+        from imaging.core.config import require
+        from imaging.core.windows import WINDOWS
+
+        require(self.mode in ("nearest", "linear", "exact"), "mode", f"must be nearest, linear or exact, got {self.mode!r}")
+        require(self.window in WINDOWS, "window", f"must be one of {', '.join(WINDOWS)}, got {self.window!r}")
+        require(1 <= self.oversample <= 1024, "oversample", f"must be 1 to 1024, got {self.oversample}")
+        require(self.frames_per_block >= 1, "frames_per_block", f"must be at least 1, got {self.frames_per_block}")
+
 
 def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajectory, tx_order, options: ImagingOptions,
                    time_window_ns: tuple[int, int] | None = None):

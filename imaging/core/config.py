@@ -73,6 +73,8 @@ def from_dict(cls: type, table: dict[str, Any], prefix: str = "") -> Any:
     Unknown keys are errors (a typo must not silently fall back to a default). The dataclass's own
     ``__post_init__`` then checks ranges and raises ConfigError with the field name.
     """
+    if not isinstance(table, dict):
+        raise ConfigError(prefix or "<file>", f"expected a table, got {table!r}")
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     unknown = set(table) - set(fields)
@@ -92,6 +94,8 @@ def from_dict(cls: type, table: dict[str, Any], prefix: str = "") -> Any:
         if prefix and not exc.field.startswith(prefix):
             raise ConfigError(_join(prefix, exc.field), str(exc).split(": ", 1)[-1]) from None
         raise
+    except (TypeError, ValueError, ArithmeticError) as exc:  # a check the dataclass lacks: still name the table
+        raise ConfigError(prefix or cls.__name__, f"invalid settings ({exc})") from None
 
 
 def _join(prefix: str, name: str) -> str:

@@ -191,6 +191,8 @@ def _mount_from_table(table: dict[str, Any], prefix: str) -> Mount:
         return Mount(translation, table.pop("mount_rotation_xyzw", [0.0, 0.0, 0.0, 1.0]))
     except ConfigError as exc:
         raise ConfigError(f"{prefix}.{exc.field}", str(exc).split(": ", 1)[-1]) from None
+    except (TypeError, ValueError) as exc:  # strings, nested lists where numbers belong
+        raise ConfigError(f"{prefix}.mount", f"expected numbers for the mount ({exc})") from None
 
 
 def rig_from_dict(table: dict[str, Any], source: str | None = None) -> Rig:
@@ -198,7 +200,10 @@ def rig_from_dict(table: dict[str, Any], source: str | None = None) -> Rig:
     try:
         table = dict(table)
         radar_tables = table.pop("radar", None)
-        imu_table = dict(table.pop("imu", {}))
+        imu_table = table.pop("imu", {})
+        if not isinstance(imu_table, dict):
+            raise ConfigError("imu", "expected a table")
+        imu_table = dict(imu_table)
         if table:
             raise ConfigError(sorted(table)[0], "unknown section (known: radar, imu)")
         if not isinstance(radar_tables, dict) or not radar_tables:

@@ -130,6 +130,12 @@ def _positive_or_none(value, field: str) -> float | None:
     return float(value)
 
 
+#: Most scatterers a [[clutter]] box or a [room] may hold (each is simulated on every chirp).
+MAX_SCATTERERS = 100_000
+#: Longest scene, s: the raw ADC of four radars is 55 MB/s.
+MAX_DURATION_S = 24 * 3600.0
+
+
 def _clutter_targets(box: dict[str, Any], prefix: str) -> list[PointTarget]:
     """``[[clutter]]``: ``count`` point scatterers of ``amplitude`` placed at random (``seed``) in the box
     ``box_m = [[x0, x1], [y0, y1], [z0, z1]]`` (furniture, cables, the odd screw: what a room has)."""
@@ -144,12 +150,20 @@ def _clutter_targets(box: dict[str, Any], prefix: str) -> list[PointTarget]:
         raise ConfigError(prefix, str(exc)) from None
     if lo_hi.shape != (3, 2) or np.any(lo_hi[:, 1] < lo_hi[:, 0]):
         raise ConfigError(f"{prefix}.box_m", "expected [[x0, x1], [y0, y1], [z0, z1]] with x0 <= x1 and so on")
-    if count < 0:
-        raise ConfigError(f"{prefix}.count", "must not be negative")
+    if not 0 <= count <= MAX_SCATTERERS:
+        raise ConfigError(f"{prefix}.count", f"must be 0 to {MAX_SCATTERERS}, got {count}")
+    if not np.all(np.isfinite(lo_hi)):
+        raise ConfigError(f"{prefix}.box_m", "must be finite")
     if box:
         raise ConfigError(f"{prefix}.{sorted(box)[0]}", "unknown setting")
     points = rng.uniform(lo_hi[:, 0], lo_hi[:, 1], (count, 3))
     return [PointTarget(tuple(p), amplitude=amplitude) for p in points]
+
+
+def _bounded_count(value: Any, field: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_SCATTERERS:
+        raise ConfigError(field, f"expected a count from 0 to {MAX_SCATTERERS}, got {value!r}")
+    return value
 
 
 def scene_from_dict(table: dict[str, Any], source: str | None = None, base: Path | None = None) -> Scene:
@@ -196,15 +210,19 @@ def scene_from_dict(table: dict[str, Any], source: str | None = None, base: Path
                 static_points = room_scatterers(
                     size_m=tuple(room.pop("size_m", (12.0, 8.0))), centre_m=tuple(room.pop("centre_m", (0.0, 0.0))),
                     height_m=float(room.pop("height_m", 2.5)), spacing_m=float(room.pop("spacing_m", 0.3)),
-                    clutter=int(room.pop("clutter", 80)), rng=np.random.default_rng(int(room.pop("seed", 0))))
-            except (TypeError, ValueError) as exc:
+                    clutter=_bounded_count(room.pop("clutter", 80), "room.clutter"),
+                    rng=np.random.default_rng(int(room.pop("seed", 0))))
+            except (TypeError, ValueError, ArithmeticError) as exc:
                 raise ConfigError("room", str(exc)) from None
             if room:
                 raise ConfigError(f"room.{sorted(room)[0]}", "unknown setting")
         people = [from_dict(Person, p, prefix=f"person[{i}]") for i, p in enumerate(table.pop("person", []))]
-        duration_s = float(table.pop("duration_s", 5.0))
-        if duration_s <= 0:
-            raise ConfigError("duration_s", f"must be positive, got {duration_s}")
+        duration_s = table.pop("duration_s", 5.0)
+        if isinstance(duration_s, bool) or not isinstance(duration_s, (int, float)):
+            raise ConfigError("duration_s", f"expected a number of seconds, got {duration_s!r}")
+        duration_s = float(duration_s)
+        if not 0 < duration_s <= MAX_DURATION_S:
+            raise ConfigError("duration_s", f"must be positive and at most {MAX_DURATION_S:g} s, got {duration_s}")
         snr = table.pop("snr_db", None)
         if snr is not None and (isinstance(snr, bool) or not isinstance(snr, (int, float))):
             raise ConfigError("snr_db", f"expected a number, got {snr!r}")
@@ -233,11 +251,15 @@ def scene_from_dict(table: dict[str, Any], source: str | None = None, base: Path
             raise ConfigError("detections", "a detection-level scene needs a [room] or point targets to detect")
         if table:
             raise ConfigError(sorted(table)[0], "unknown setting")
+        if not (0 < scene.truth_rate_hz <= 100_000):
+            raise ConfigError("truth_rate_hz", f"must be in (0, 100000] Hz, got {scene.truth_rate_hz}")
         return scene
     except ConfigError as exc:
         if source and exc.source is None:
             raise ConfigError(exc.field, str(exc).split(": ", 1)[-1], source=source) from None
         raise
+    except (TypeError, ValueError, ArithmeticError) as exc:  # a value of the wrong kind the checks above missed
+        raise ConfigError("scene", f"invalid settings ({exc})", source=source) from None
 
 
 def frame_times_ns(scene: Scene, radar: str) -> np.ndarray:
