@@ -404,6 +404,38 @@ def cmd_replay(args) -> int:
     return EXIT_OK
 
 
+def cmd_info(args) -> int:
+    from .info import format_info, info
+
+    if args.tum and len(args.files) != 1:
+        raise SarbotError("--tum: give one file (a recording's /truth or a trajectory)")
+    reports = [info(path) for path in args.files]
+    if args.json:
+        print(json.dumps(reports if len(reports) > 1 else reports[0], indent=2, default=_json_default))
+    else:
+        print("\n".join(format_info(r) for r in reports))
+    if args.tum:
+        from imaging.io.recording import Recording
+        from imaging.io.trajectory_file import read_trajectory, write_tum
+
+        report = reports[0]
+        if report["kind"] == "trajectory":
+            traj = read_trajectory(args.files[0])
+        elif report["kind"] == "recording":
+            with Recording(args.files[0]) as rec:
+                traj = rec.truth()
+            if traj is None:
+                raise SarbotError(f"--tum: {args.files[0]} has no /truth to export")
+        else:
+            raise SarbotError(f"--tum: {args.files[0]} is an image; give a recording or a trajectory")
+        out = Path(args.tum)
+        if out.exists() and not args.overwrite:
+            raise SarbotError(f"--tum {out}: exists already (use --overwrite to replace it)")
+        write_tum(out, traj)
+        print(f"wrote {out} ({traj.time_ns.size} poses, TUM format for evo)", file=sys.stderr if args.json else sys.stdout)
+    return EXIT_OK
+
+
 def cmd_install_unit(args) -> int:
     from .install import InstallPlan, install_unit
 
@@ -563,6 +595,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="send the drive this many times, back to back, times and counters continuing (soak tests; "
                         "the drive should end where and as it started, at rest)")
     s.set_defaults(func=cmd_replay)
+
+    s = sub.add_parser("info", help="what a recording, trajectory or image holds (--json for scripts)",
+                       epilog="examples: sarbot info rec.h5 | sarbot info traj.h5 --json | "
+                              "sarbot info rec.h5 --tum truth.txt (then: evo_ape tum truth.txt traj.txt)")
+    s.add_argument("files", nargs="+", help="sarbot HDF5 files")
+    s.add_argument("--json", action="store_true", help="JSON instead of text")
+    s.add_argument("--tum", help="also write the recording's /truth or the trajectory in TUM format to this file")
+    s.add_argument("--overwrite", action="store_true", help="replace an existing --tum file")
+    s.set_defaults(func=cmd_info)
 
     s = sub.add_parser("install-unit", help="install sarbot as a systemd service: user, venv under /opt, config, units",
                        description="Create the service user (systemd-sysusers), a virtual environment with sarbot, "

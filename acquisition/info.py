@@ -1,0 +1,163 @@
+"""``sarbot info FILE``: what a recording, trajectory or image holds, as text or JSON.
+
+For a recording: per radar the waveform, frames, rate, invalid frames, counter gaps and duration; the
+IMU's rate, sample count, counter gaps and clock drift; CAN frames, triggers, events by level, truth.
+For a trajectory: source, poses, rate, duration, path length. For an image: size, pixel, extent,
+frames and how it was made. The kind is told by the file's ``schema`` attribute.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from imaging.core.errors import FileFormatError
+
+
+def file_kind(path: str | Path) -> str:
+    """``recording``, ``trajectory`` or ``image``, from the schema attribute; FileFormatError otherwise."""
+    from imaging.io import image_file, recording, trajectory_file
+
+    path = Path(path)
+    if not path.exists():
+        raise FileFormatError(f"{path}: no such file")
+    try:
+        with h5py.File(path, "r") as f:
+            schema = f.attrs.get("schema")
+    except OSError as exc:
+        if "lock" in str(exc).lower():  # held by a recorder: a recording being written
+            return "recording"
+        raise FileFormatError(f"{path}: not a readable HDF5 file, damaged or cut short") from None
+    schema = schema.decode() if isinstance(schema, bytes) else schema
+    kinds = {recording.SCHEMA: "recording", trajectory_file.SCHEMA: "trajectory", image_file.SCHEMA: "image"}
+    if schema not in kinds:
+        raise FileFormatError(f"{path}: not a sarbot file (schema attribute {schema!r}; expected one of "
+                              f"{', '.join(sorted(kinds))})")
+    return kinds[schema]
+
+
+def _rate_hz(time_ns: np.ndarray) -> float | None:
+    if time_ns.size < 2:
+        return None
+    return float(1e9 / np.median(np.diff(time_ns.astype(np.int64))))
+
+
+def _counter_gaps(counter: np.ndarray, modulo: int) -> int:
+    """Samples missing between consecutive counters (wrapping at ``modulo``)."""
+    if counter.size < 2:
+        return 0
+    steps = np.diff(counter.astype(np.int64)) % modulo
+    return int(np.sum(np.where(steps > 0, steps - 1, 0)))
+
+
+def recording_info(path: str | Path) -> dict[str, Any]:
+    from drivers.imu import NO_COUNTER
+    from imaging.io.recording import Recording
+
+    with Recording(path) as rec:
+        out: dict[str, Any] = {"file": str(path), "kind": "recording", "radars": {}}
+        starts, ends = [], []
+        for name in rec.radar_names:
+            t = rec.frame_time_ns(name)
+            wf = rec.radar(name).waveform
+            valid = rec.valid(name) if t.size else np.zeros(0)
+            info = {"frames": int(t.size), "invalid_frames": int(np.sum(valid == 0)),
+                    "frame_rate_hz": _rate_hz(t), "counter_gaps": _counter_gaps(rec.frame_counter(name), 2**32),
+                    "wire_format": rec.wire_format(name), "raw_adc": rec.has_adc(name),
+                    "waveform": {"f0_ghz": wf.f0_hz / 1e9, "bandwidth_mhz": wf.bandwidth_hz / 1e6,
+                                 "chirps_per_frame": wf.chirps_per_frame, "samples_per_chirp": wf.samples_per_chirp,
+                                 "n_tx": wf.n_tx, "n_rx": wf.n_rx, "frame_interval_ms": wf.frame_interval_s * 1e3}}
+            if t.size:
+                info["duration_s"] = float((t[-1] - t[0]) * 1e-9)
+                starts.append(int(t[0]))
+                ends.append(int(t[-1]))
+            out["radars"][name] = info
+        imu = rec.imu()
+        if imu is not None:
+            counter = imu["counter"].astype(np.int64)
+            counted = counter[counter != NO_COUNTER]
+            out["imu"] = {"samples": int(imu["time_ns"].size), "rate_hz": _rate_hz(imu["time_ns"]),
+                          "nominal_rate_hz": float(imu.get("rate_hz", np.nan)),
+                          "counter_gaps": _counter_gaps(counted, 2**16),
+                          "clock_drift_ppm": float(imu["clock_drift_ppm"]) if "clock_drift_ppm" in imu else None}
+            starts.append(int(imu["time_ns"][0]))
+            ends.append(int(imu["time_ns"][-1]))
+        out["can_frames"] = int(rec.can()["time_ns"].size)
+        out["triggers"] = int(rec.triggers().size)
+        events = rec.events()
+        levels: dict[str, int] = {}
+        for _, _, level, _ in events:
+            levels[level] = levels.get(level, 0) + 1
+        out["events"] = {"count": len(events), "by_level": levels,
+                         "first": [f"{source} {level}: {message}" for _, source, level, message in events[:10]]}
+        out["truth"] = rec.truth() is not None
+        if starts:
+            out["duration_s"] = float((max(ends) - min(starts)) * 1e-9)
+    return out
+
+
+def trajectory_info(path: str | Path) -> dict[str, Any]:
+    from imaging.io.trajectory_file import read_trajectory
+
+    traj = read_trajectory(path)
+    t = traj.time_ns
+    steps = np.linalg.norm(np.diff(traj.position_m, axis=0), axis=1) if t.size > 1 else np.zeros(0)
+    return {"file": str(path), "kind": "trajectory", "source": traj.source, "poses": int(t.size),
+            "rate_hz": _rate_hz(t), "duration_s": float((t[-1] - t[0]) * 1e-9) if t.size else 0.0,
+            "path_length_m": float(steps.sum())}
+
+
+def image_info(path: str | Path) -> dict[str, Any]:
+    from imaging.io.image_file import read_image
+
+    img = read_image(path)
+    attrs = {k: (v.tolist() if isinstance(v, np.ndarray) else v.item() if isinstance(v, np.generic) else v)
+             for k, v in img.attrs.items()}
+    return {"file": str(path), "kind": "image", "shape": list(img.image.shape),
+            "pixel_m": [float(np.diff(img.x_m[:2])[0]) if img.x_m.size > 1 else None,
+                        float(np.diff(img.y_m[:2])[0]) if img.y_m.size > 1 else None],
+            "x_m": [float(img.x_m[0]), float(img.x_m[-1])], "y_m": [float(img.y_m[0]), float(img.y_m[-1])],
+            "attrs": attrs}
+
+
+def info(path: str | Path) -> dict[str, Any]:
+    kind = file_kind(path)
+    return {"recording": recording_info, "trajectory": trajectory_info, "image": image_info}[kind](path)
+
+
+def format_info(d: dict[str, Any]) -> str:
+    """The info as lines a person reads."""
+    lines = [f"{d['file']}: sarbot {d['kind']}"]
+    if d["kind"] == "recording":
+        if "duration_s" in d:
+            lines.append(f"  duration {d['duration_s']:.1f} s; truth {'yes' if d['truth'] else 'no'}; "
+                         f"{d['triggers']} trigger(s); {d['can_frames']} CAN frames")
+        for name, r in d["radars"].items():
+            wf = r["waveform"]
+            rate = f"{r['frame_rate_hz']:.2f} frames/s" if r["frame_rate_hz"] else "-"
+            lines.append(f"  radar {name}: {r['frames']} frames ({rate}), {r['invalid_frames']} invalid, "
+                         f"{r['counter_gaps']} missing by counter; {r['wire_format'] or 'simulated'}; "
+                         f"{wf['f0_ghz']:.2f} GHz, {wf['bandwidth_mhz']:.0f} MHz, {wf['chirps_per_frame']} chirps x "
+                         f"{wf['samples_per_chirp']} samples, {wf['n_tx']} TX x {wf['n_rx']} RX")
+        if "imu" in d:
+            i = d["imu"]
+            drift = f"{i['clock_drift_ppm']:+.1f} ppm" if i["clock_drift_ppm"] is not None else "unknown"
+            lines.append(f"  IMU: {i['samples']} samples at {i['rate_hz'] or 0:.1f} Hz, {i['counter_gaps']} missing by "
+                         f"counter, clock drift {drift}")
+        else:
+            lines.append("  IMU: none")
+        ev = d["events"]
+        lines.append(f"  events: {ev['count']} " + (str(ev["by_level"]) if ev["count"] else ""))
+        lines += [f"    {e}" for e in ev["first"]]
+    elif d["kind"] == "trajectory":
+        lines.append(f"  {d['source']}: {d['poses']} poses at {d['rate_hz'] or 0:.1f} Hz over {d['duration_s']:.1f} s, "
+                     f"path {d['path_length_m']:.2f} m")
+    else:
+        lines.append(f"  {' x '.join(map(str, d['shape']))} pixels of {d['pixel_m']} m, x {d['x_m']} m, y {d['y_m']} m")
+        for key in ("radar", "frames", "n_frames", "method", "trajectory_source"):
+            if key in d["attrs"]:
+                lines.append(f"  {key}: {d['attrs'][key]}")
+    return "\n".join(lines)

@@ -1,0 +1,109 @@
+"""`sarbot info`: the numbers it reports are the file's, for recordings, trajectories and images."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+from test_round_trip import RIG
+
+from imaging.core.trajectory import SampledTrajectory
+from imaging.io.recording import RecordingWriter
+from imaging.io.trajectory_file import write_trajectory
+
+CLI = [sys.executable, "-m", "acquisition.cli"]
+
+
+def sarbot(*args, cwd=None):
+    return subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=120, cwd=cwd)
+
+
+def make_recording(path):
+    """20 frames of the rig's radar at its frame interval, frame 7 invalid and counters 12-13 missing; 400 Hz
+    IMU with two samples missing by counter; two events; no truth."""
+    radar = RIG.radar("left")
+    wf = radar.waveform
+    counters = np.r_[0:12, 14:22]
+    t = 1_700_000_000_000_000_000 + counters * int(round(wf.frame_interval_s * 1e9))
+    iq = np.zeros((counters.size, wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp, 2), np.int16)
+    valid = np.ones(counters.size, np.uint8)
+    valid[7] = 0
+    n = 400
+    imu_counter = np.r_[0:100, 102:n + 2].astype(np.uint32)
+    t_imu = t[0] + imu_counter.astype(np.int64) * 2_500_000
+    with RecordingWriter(path, [radar], imu=RIG.imu, adc_dtype="int16", truth=False) as w:
+        w.append_frames("left", iq, t, counters, t, valid)
+        w.append_imu(t_imu, np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32), imu_counter, t_imu)
+        w.append_trigger(t[0], "sync_box")
+        w.append_event(int(t[3]), "radar.left", "warning", "kernel dropped 3 datagram(s)")
+        w.append_event(int(t[9]), "bus", "error", "radar/left: 1 message(s) lost on the bus")
+        w.set_imu_clock_drift_ppm(12.5)
+    return wf
+
+
+def test_info_on_a_recording_says_what_is_in_it(tmp_path):
+    path = tmp_path / "rec.h5"
+    wf = make_recording(path)
+    res = sarbot("info", str(path), "--json")
+    assert res.returncode == 0, res.stderr
+    d = json.loads(res.stdout)
+    left = d["radars"]["left"]
+    assert (left["frames"], left["invalid_frames"], left["counter_gaps"]) == (20, 1, 2)
+    assert abs(left["frame_rate_hz"] - 1 / wf.frame_interval_s) < 1e-6
+    assert left["waveform"]["chirps_per_frame"] == wf.chirps_per_frame
+    assert d["imu"]["samples"] == 400 and d["imu"]["counter_gaps"] == 2 and d["imu"]["clock_drift_ppm"] == 12.5
+    assert abs(d["imu"]["rate_hz"] - 400.0) < 1e-6
+    assert d["events"]["by_level"] == {"warning": 1, "error": 1} and d["triggers"] == 1 and d["truth"] is False
+    text = sarbot("info", str(path))
+    assert text.returncode == 0
+    assert "radar left: 20 frames" in text.stdout and "1 invalid, 2 missing by counter" in text.stdout
+    assert "clock drift +12.5 ppm" in text.stdout
+    # No truth to export: a one-line error.
+    tum = sarbot("info", str(path), "--tum", str(tmp_path / "t.txt"))
+    assert tum.returncode == 2 and "has no /truth" in tum.stderr
+
+
+def test_info_on_a_trajectory_and_its_tum_export(tmp_path):
+    t = 1_700_000_000_000_000_000 + np.arange(101, dtype=np.int64) * 10_000_000  # 1 s at 100 Hz
+    x = np.linspace(0.0, 0.5, 101)
+    pos = np.column_stack([x, np.zeros(101), np.zeros(101)])
+    quat = np.tile([0.0, 0.0, 0.0, 1.0], (101, 1))
+    traj = SampledTrajectory(t, pos, quat, np.tile([0.5, 0.0, 0.0], (101, 1)), source="rio")
+    path = write_trajectory(tmp_path / "traj.h5", traj)
+    res = sarbot("info", str(path), "--json", "--tum", str(tmp_path / "traj.txt"))
+    assert res.returncode == 0, res.stderr
+    d = json.loads(res.stdout)
+    assert d["poses"] == 101 and abs(d["rate_hz"] - 100.0) < 1e-9 and abs(d["path_length_m"] - 0.5) < 1e-9
+    rows = np.loadtxt(tmp_path / "traj.txt")
+    assert rows.shape == (101, 8)
+    np.testing.assert_allclose(rows[:, 1], x, atol=1e-9)
+    np.testing.assert_allclose(rows[:, 0] - rows[0, 0], np.arange(101) * 0.01, atol=1e-6)
+    again = sarbot("info", str(path), "--tum", str(tmp_path / "traj.txt"))
+    assert again.returncode == 2 and "exists already" in again.stderr  # never overwritten unasked
+
+
+def test_info_on_files_that_are_not_sarbots(tmp_path):
+    import h5py
+
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as f:
+        f.attrs["schema"] = "someone.else"
+    (tmp_path / "text.h5").write_text("not hdf5")
+    for path, message in ((other, "not a sarbot file"), (tmp_path / "text.h5", "not a readable HDF5 file"),
+                          (tmp_path / "missing.h5", "no such file")):
+        res = sarbot("info", str(path))
+        assert res.returncode == 2 and message in res.stderr and "Traceback" not in res.stderr
+
+
+def test_info_on_an_image(tmp_path):
+    from imaging.io.image_file import SarImage, write_image
+
+    x, y = np.arange(-0.5, 0.5, 0.01), np.arange(1.5, 2.5, 0.02)
+    img = SarImage(np.ones((y.size, x.size), np.complex64), x, y, attrs={"radar": "left_front", "wavelength_m": 0.0039,
+                                                                        "n_frames": 30})
+    path = write_image(tmp_path / "img.h5", img)
+    res = sarbot("info", str(path), "--json")
+    assert res.returncode == 0, res.stderr
+    d = json.loads(res.stdout)
+    assert d["shape"] == [y.size, x.size] and np.allclose(d["pixel_m"], [0.01, 0.02])
+    assert d["attrs"]["radar"] == "left_front" and d["attrs"]["n_frames"] == 30
