@@ -5,6 +5,7 @@
     python3 dev.py test            # the test suite (what CI runs)
     python3 dev.py bench           # the benchmarks, figures to docs/results/
     python3 dev.py sarbot ARGS...  # any sarbot command
+    python3 dev.py constraints     # pin the run-time dependencies as tested (constraints.txt)
 
 Only the Python standard library is used here, so this works on a fresh machine with Python 3.11+.
 The environment lives in .venv/ and is reinstalled when pyproject.toml changes.
@@ -44,6 +45,34 @@ def ensure_environment() -> None:
     STAMP.write_text(_pyproject_digest())
 
 
+#: Writes constraints.txt: every package sarbot needs at run time (its dependencies and theirs), pinned to
+#: the versions the tests passed with here, for the robot's install (``pip install -c constraints.txt``).
+CONSTRAINTS = r"""
+import re
+from importlib.metadata import PackageNotFoundError, distribution
+seen, todo = {}, ["sarbot"]
+while todo:
+    name = todo.pop()
+    key = re.sub(r"[-_.]+", "-", name).lower()
+    if key in seen:
+        continue
+    try:
+        dist = distribution(name)
+    except PackageNotFoundError:  # only under a marker that does not hold here (another platform)
+        continue
+    seen[key] = dist.version
+    for req in dist.requires or []:
+        if "extra ==" in req or "platform_system" in req and "Windows" in req:
+            continue
+        todo.append(re.split(r"[ ;<>=!~\[(]", req, maxsplit=1)[0])
+seen.pop("sarbot")
+lines = ["# Pinned run-time dependencies of sarbot, as tested (python3 dev.py constraints writes this file).",
+         "# On the robot: sarbot install-unit uses it; or pip install -c constraints.txt ."]
+open("constraints.txt", "w").write("\n".join(lines + [f"{k}=={v}" for k, v in sorted(seen.items())]) + "\n")
+print(f"wrote constraints.txt ({len(seen)} packages)")
+"""
+
+
 def main(argv: list[str]) -> int:
     if not argv or argv[0] in {"-h", "--help"}:
         print(__doc__)
@@ -58,8 +87,10 @@ def main(argv: list[str]) -> int:
         cmd = [str(BIN / "sarbot"), "demo", *rest]
     elif command == "sarbot":
         cmd = [str(BIN / "sarbot"), *rest]
+    elif command == "constraints":
+        return subprocess.run([str(BIN / "python"), "-c", CONSTRAINTS], cwd=ROOT).returncode
     else:
-        print(f"dev.py: unknown command {command!r} (use demo, test, bench or sarbot)", file=sys.stderr)
+        print(f"dev.py: unknown command {command!r} (use demo, test, bench, sarbot or constraints)", file=sys.stderr)
         return 2
     # The tests and benchmarks run from the project; sarbot and the demo where the caller is, so that
     # relative paths (recordings, -o) mean what the caller meant.

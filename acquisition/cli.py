@@ -436,6 +436,36 @@ def cmd_info(args) -> int:
     return EXIT_OK
 
 
+def bash_completion(parser: argparse.ArgumentParser) -> str:
+    """A bash completion script for ``parser``: the commands, and each command's options."""
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    top = [o for a in parser._actions for o in a.option_strings]
+    cases = []
+    for name, p in sub.choices.items():
+        options = " ".join(o for a in p._actions for o in a.option_strings)
+        cases.append(f'        {name}) opts="{options}" ;;')
+    return "\n".join([
+        "# bash completion for sarbot: eval \"$(sarbot completion bash)\" (e.g. in ~/.bashrc)",
+        "_sarbot() {",
+        '    local cur="${COMP_WORDS[COMP_CWORD]}" cmd="" opts="" w',
+        '    for w in "${COMP_WORDS[@]:1:COMP_CWORD-1}"; do case "$w" in -*) ;; *) cmd="$w"; break ;; esac; done',
+        '    if [ -z "$cmd" ]; then',
+        f'        COMPREPLY=($(compgen -W "{" ".join(sub.choices)} {" ".join(top)}" -- "$cur")); return',
+        "    fi",
+        '    case "$cmd" in',
+        *cases,
+        "    esac",
+        '    if [[ "$cur" == -* ]]; then COMPREPLY=($(compgen -W "$opts" -- "$cur")); else COMPREPLY=($(compgen -f -- "$cur")); fi',
+        "}",
+        "complete -o filenames -F _sarbot sarbot",
+        ""])
+
+
+def cmd_completion(args) -> int:
+    print(bash_completion(build_parser()), end="")
+    return EXIT_OK
+
+
 def cmd_install_unit(args) -> int:
     from .install import InstallPlan, install_unit
 
@@ -508,9 +538,20 @@ def _acquisition_options(s) -> None:
     s.add_argument("--health-endpoint", help="ZeroMQ endpoint to publish health on (default: a free loopback port, logged)")
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("sarbot")
+    except PackageNotFoundError:  # run from a checkout that is not installed
+        return "unknown (not installed)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="sarbot", description="SAR imaging and radar-inertial odometry for mobile robots.")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    p.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only (no progress, no info lines)")
+    p.add_argument("--version", action="version", version=f"sarbot {_version()}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     s = sub.add_parser("simulate", help="simulate a scene into a recording")
@@ -596,6 +637,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "the drive should end where and as it started, at rest)")
     s.set_defaults(func=cmd_replay)
 
+    s = sub.add_parser("completion", help="print a shell completion script: eval \"$(sarbot completion bash)\"")
+    s.add_argument("shell", choices=["bash"], help="the shell (bash; zsh runs it with bashcompinit)")
+    s.set_defaults(func=cmd_completion)
+
     s = sub.add_parser("info", help="what a recording, trajectory or image holds (--json for scripts)",
                        epilog="examples: sarbot info rec.h5 | sarbot info traj.h5 --json | "
                               "sarbot info rec.h5 --tum truth.txt (then: evo_ape tum truth.txt traj.txt)")
@@ -658,7 +703,7 @@ def _join_negative_values(argv: list[str]) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(_join_negative_values(sys.argv[1:] if argv is None else list(argv)))
-    configure_logging(args.verbose)  # also for every process the command starts (through the environment)
+    configure_logging(-1 if args.quiet else args.verbose)  # also every process the command starts (environment)
     ensure_jit_cache_dir()  # before numba is imported, here or in a child
     try:
         return args.func(args)

@@ -68,6 +68,9 @@ class InstallPlan:
             raise SarbotError(f"--constraints: {self.constraints} does not exist")
         if not self.source:
             self.source = str(_project_source())
+            pinned = Path(self.source) / "constraints.txt"
+            if self.constraints is None and pinned.is_file():  # a checkout: the versions its tests passed with
+                self.constraints = pinned
 
     def at(self, path: str) -> Path:
         """``path`` on the robot, under ``root``."""

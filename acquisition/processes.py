@@ -28,7 +28,8 @@ LOG_FORMAT = "%(levelname)s %(name)s: %(message)s"
 
 
 def configure_logging(verbosity: int | None = None, role: str | None = None) -> None:
-    """Log to stderr: sarbot's loggers at INFO (-v: DEBUG), everything else at WARNING (-vv: DEBUG).
+    """Log to stderr: sarbot's loggers at INFO (-v: DEBUG; -q, verbosity -1: WARNING), everything else at
+    WARNING (-vv: DEBUG).
 
     ``verbosity`` None reads it from the environment, as a child process does; the command line sets it
     there, so every process of a run logs alike. A child's lines carry its role. Every sarbot module logs
@@ -45,7 +46,8 @@ def configure_logging(verbosity: int | None = None, role: str | None = None) -> 
     handler.setFormatter(logging.Formatter(fmt))
     root.addHandler(handler)
     root.setLevel(logging.DEBUG if verbosity >= 2 else logging.WARNING)
-    logging.getLogger("sarbot").setLevel(logging.DEBUG if verbosity >= 1 else logging.INFO)
+    logging.getLogger("sarbot").setLevel(logging.DEBUG if verbosity >= 1 else logging.INFO if verbosity == 0
+                                         else logging.WARNING)
 
 
 def ensure_jit_cache_dir() -> str | None:
