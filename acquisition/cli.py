@@ -404,6 +404,15 @@ def cmd_replay(args) -> int:
     return EXIT_OK
 
 
+def cmd_export(args) -> int:
+    from .exporters.mcap_file import export_mcap
+    from .progress import Progress
+
+    counts = export_mcap(args.recording, args.output, overwrite=args.overwrite, progress=Progress("export", unit="frame"))
+    print(f"wrote {args.output}: " + ", ".join(f"{topic} {n}" for topic, n in counts.items()))
+    return EXIT_OK
+
+
 def cmd_info(args) -> int:
     from .info import format_info, info
 
@@ -640,6 +649,13 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("completion", help="print a shell completion script: eval \"$(sarbot completion bash)\"")
     s.add_argument("shell", choices=["bash"], help="the shell (bash; zsh runs it with bashcompinit)")
     s.set_defaults(func=cmd_completion)
+
+    s = sub.add_parser("export", help="a recording as MCAP (Foxglove and the mcap tools)",
+                       epilog="example: sarbot export rec.h5 -o rec.mcap (then open rec.mcap in Foxglove)")
+    s.add_argument("recording")
+    s.add_argument("-o", "--output", required=True, help="the .mcap file to write")
+    s.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    s.set_defaults(func=cmd_export)
 
     s = sub.add_parser("info", help="what a recording, trajectory or image holds (--json for scripts)",
                        epilog="examples: sarbot info rec.h5 | sarbot info traj.h5 --json | "

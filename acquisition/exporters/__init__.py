@@ -1,0 +1,1 @@
+"""Recordings out to the formats other robotics tools read (MCAP for Foxglove)."""

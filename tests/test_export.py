@@ -1,0 +1,86 @@
+"""`sarbot export`: a recording as MCAP, read back with the mcap reader, message for message."""
+
+import base64
+import json
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+from mcap.reader import make_reader
+from test_round_trip import make_source
+
+from imaging.io.recording import Recording
+
+CLI = [sys.executable, "-m", "acquisition.cli"]
+
+
+def test_recording_to_mcap_and_back_sample_for_sample(tmp_path):
+    src = tmp_path / "rec.h5"
+    make_source(src, n_frames=12)
+    out = tmp_path / "rec.mcap"
+    res = subprocess.run([*CLI, "export", str(src), "-o", str(out)], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    messages: dict[str, list] = {}
+    schemas = {}
+    with out.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        for schema, channel, message in reader.iter_messages(log_time_order=False):
+            messages.setdefault(channel.topic, []).append((message.log_time, json.loads(message.data)))
+            schemas[channel.topic] = (schema.name, schema.encoding, channel.message_encoding)
+    with Recording(src) as rec:
+        times, counters, iq = rec.frame_time_ns("left"), rec.frame_counter("left"), rec.adc_iq("left")
+        imu, can, triggers = rec.imu(), rec.can(), rec.triggers()
+    # Every message is there, counted by the file's own statistics as well.
+    assert len(messages["/radar/left/adc"]) == times.size == 12
+    assert len(messages["/imu"]) == imu["time_ns"].size and len(messages["/can"]) == can["time_ns"].size
+    assert len(messages["/trigger"]) == triggers.size
+    assert summary.statistics.message_count == sum(len(v) for v in messages.values())
+    assert schemas["/radar/left/adc"] == ("sarbot.RadarFrame", "jsonschema", "json")
+    # Raw frames bit for bit, with their times and counters.
+    for k, (log_time, m) in enumerate(messages["/radar/left/adc"]):
+        assert log_time == times[k] and m["frame_counter"] == counters[k] and m["valid"] is True
+        got = np.frombuffer(base64.b64decode(m["data"]), "<i2").reshape(m["shape"])
+        np.testing.assert_array_equal(got, iq[k])
+        assert m["timestamp"]["sec"] * 1_000_000_000 + m["timestamp"]["nsec"] == times[k]
+    # IMU samples exactly (float32 in the file, exact in JSON's float64).
+    gyro = np.array([[m["angular_velocity"][a] for a in "xyz"] for _, m in messages["/imu"]])
+    accel = np.array([[m["linear_acceleration"][a] for a in "xyz"] for _, m in messages["/imu"]])
+    np.testing.assert_array_equal(gyro, imu["gyro_radps"].astype(np.float64))
+    np.testing.assert_array_equal(accel, imu["accel_mps2"].astype(np.float64))
+    np.testing.assert_array_equal([t for t, _ in messages["/imu"]], imu["time_ns"])
+    can_data = [base64.b64decode(m["data"]) for _, m in messages["/can"]]
+    assert can_data == [bytes(d[:n]) for d, n in zip(can["data"], can["dlc"])]
+    # Never over an existing file unasked.
+    again = subprocess.run([*CLI, "export", str(src), "-o", str(out)], capture_output=True, text=True, timeout=120)
+    assert again.returncode == 2 and "exists already" in again.stderr
+
+
+def test_truth_and_events_become_foxglove_poses_and_logs(tmp_path):
+    from conftest import point_pass
+
+    from imaging.sim.simulator import simulate_recording
+
+    src = tmp_path / "pass.h5"
+    simulate_recording(point_pass(1.0, duration_s=0.25), src)
+
+    with h5py.File(src, "a") as f:  # an event as the recorder writes them
+        g = f["events"]
+        for key, value in (("time_ns", 1), ("source", "radar.left_front"), ("level", "error"), ("message", "lost 3")):
+            g[key].resize((g[key].shape[0] + 1,))
+            g[key][-1] = value
+    out = tmp_path / "pass.mcap"
+    res = subprocess.run([*CLI, "export", str(src), "-o", str(out)], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    with Recording(src) as rec:
+        truth = rec.truth()
+    with out.open("rb") as f:
+        got = {}
+        for schema, channel, message in make_reader(f).iter_messages():
+            got.setdefault(channel.topic, []).append((schema.name, json.loads(message.data)))
+    assert len(got["/truth"]) == truth.time_ns.size and got["/truth"][0][0] == "foxglove.PoseInFrame"
+    p = got["/truth"][-1][1]["pose"]["position"]
+    np.testing.assert_allclose([p["x"], p["y"], p["z"]], truth.position_m[-1])
+    (log,) = got["/events"]
+    assert log[0] == "foxglove.Log" and log[1]["level"] == 4 and log[1]["message"] == "lost 3"
