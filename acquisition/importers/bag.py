@@ -1,4 +1,7 @@
-"""Import a ROS1 bag (sensor_msgs/Imu, PointCloud2 radar scans, a radar trigger) into a recording, no ROS needed.
+"""Import a ROS bag (sensor_msgs/Imu, PointCloud2 radar scans, a radar trigger) into a recording, no ROS needed.
+
+ROS 1 bags and ROS 2 bags (a folder with sqlite3 or MCAP storage) are read alike, through rosbags'
+AnyReader.
 
 The radar scans of the reference dataset carry zero header stamps, so each scan takes its time from the
 hardware trigger that started its frame (the last trigger received before the scan, by bag record time),
@@ -57,23 +60,25 @@ def _cloud_points(msg) -> np.ndarray:
 
 def import_bag(bag_path: str | Path, calib_path: str | Path, output: str | Path, radar_name: str = "radar",
                overwrite: bool = False, progress=None) -> dict:
-    """Convert the bag into a recording with /imu, /trigger and the radar's /detections."""
-    from rosbags.rosbag1 import Reader
+    """Convert the bag (a ROS 1 ``.bag`` file or a ROS 2 bag folder) into a recording with /imu, /trigger and
+    the radar's /detections."""
+    from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
     calib = read_calibration(calib_path)
     bag_path = Path(bag_path)
     if not bag_path.exists():
         raise FileFormatError(f"{bag_path}: no such bag")
-    typestore = get_typestore(Stores.ROS1_NOETIC)
+    # Types the bag does not define itself (ROS 2 bags without message definitions) are taken as Humble's.
+    typestore = get_typestore(Stores.ROS2_HUMBLE)
     imu_t, gyro, acc = [], [], []
     triggers = []  # (record time, stamp ns)
     scans = []  # (record time, points)
     try:
-        reader = Reader(bag_path)
+        reader = AnyReader([bag_path], default_typestore=typestore)
         reader.open()
     except Exception as exc:
-        raise FileFormatError(f"{bag_path}: not a readable ROS1 bag ({exc.__class__.__name__}: {exc})") from None
+        raise FileFormatError(f"{bag_path}: not a readable ROS 1 or ROS 2 bag ({exc.__class__.__name__}: {exc})") from None
     try:
         topics = {c.topic for c in reader.connections}
         for key in ("topic_imu", "topic_radar_scan", "topic_radar_trigger"):
@@ -82,7 +87,7 @@ def import_bag(bag_path: str | Path, calib_path: str | Path, output: str | Path,
         wanted = [c for c in reader.connections if c.topic in (calib["topic_imu"], calib["topic_radar_scan"], calib["topic_radar_trigger"])]
         total = sum(c.msgcount for c in wanted)
         for i, (conn, t_rec, raw) in enumerate(reader.messages(connections=wanted)):
-            msg = typestore.deserialize_ros1(raw, conn.msgtype)
+            msg = reader.deserialize(raw, conn.msgtype)
             if conn.topic == calib["topic_imu"]:
                 imu_t.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
                 gyro.append((msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z))
