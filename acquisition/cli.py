@@ -406,9 +406,14 @@ def cmd_replay(args) -> int:
 
 def cmd_export(args) -> int:
     from .exporters.mcap_file import export_mcap
+    from .exporters.ros2_bag import export_ros2
     from .progress import Progress
 
-    counts = export_mcap(args.recording, args.output, overwrite=args.overwrite, progress=Progress("export", unit="frame"))
+    progress = Progress("export", unit="frame")
+    if args.ros2:
+        counts = export_ros2(args.recording, args.output, storage=args.storage, progress=progress)
+    else:
+        counts = export_mcap(args.recording, args.output, overwrite=args.overwrite, progress=progress)
     print(f"wrote {args.output}: " + ", ".join(f"{topic} {n}" for topic, n in counts.items()))
     return EXIT_OK
 
@@ -650,10 +655,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("shell", choices=["bash"], help="the shell (bash; zsh runs it with bashcompinit)")
     s.set_defaults(func=cmd_completion)
 
-    s = sub.add_parser("export", help="a recording as MCAP (Foxglove and the mcap tools)",
-                       epilog="example: sarbot export rec.h5 -o rec.mcap (then open rec.mcap in Foxglove)")
+    s = sub.add_parser("export", help="a recording as MCAP (Foxglove and the mcap tools) or a ROS 2 bag",
+                       epilog="examples: sarbot export rec.h5 -o rec.mcap (then open it in Foxglove); "
+                              "sarbot export rec.h5 -o rec_bag --ros2 (then: ros2 bag play rec_bag)")
     s.add_argument("recording")
-    s.add_argument("-o", "--output", required=True, help="the .mcap file to write")
+    s.add_argument("-o", "--output", required=True, help="the .mcap file, or with --ros2 the bag folder, to write")
+    s.add_argument("--ros2", action="store_true", help="a ROS 2 bag (standard messages; raw frames as sarbot_msgs)")
+    s.add_argument("--storage", default="mcap", help="ROS 2 bag storage: mcap (default) or sqlite3")
     s.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     s.set_defaults(func=cmd_export)
 

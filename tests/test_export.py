@@ -84,3 +84,29 @@ def test_truth_and_events_become_foxglove_poses_and_logs(tmp_path):
     np.testing.assert_allclose([p["x"], p["y"], p["z"]], truth.position_m[-1])
     (log,) = got["/events"]
     assert log[0] == "foxglove.Log" and log[1]["level"] == 4 and log[1]["message"] == "lost 3"
+
+
+def test_recording_to_a_ros2_bag_read_back_with_anyreader(tmp_path):
+    from rosbags.highlevel import AnyReader
+
+    src = tmp_path / "rec.h5"
+    make_source(src, n_frames=6)
+    out = tmp_path / "rec_bag"
+    res = subprocess.run([*CLI, "export", str(src), "-o", str(out), "--ros2", "--storage", "sqlite3"],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    with Recording(src) as rec:
+        times, counters, iq, imu = rec.frame_time_ns("left"), rec.frame_counter("left"), rec.adc_iq("left"), rec.imu()
+    got: dict[str, list] = {}
+    with AnyReader([out]) as reader:  # the bag's own message definitions, the custom one included
+        for conn, t, raw in reader.messages():
+            got.setdefault(conn.topic, []).append((t, reader.deserialize(raw, conn.msgtype)))
+    assert len(got["/radar/left/adc"]) == 6 and len(got["/imu"]) == imu["time_ns"].size
+    for k, (t, m) in enumerate(got["/radar/left/adc"]):
+        assert t == times[k] and m.frame_counter == counters[k] and m.valid
+        np.testing.assert_array_equal(np.asarray(m.iq).reshape(m.chirps, m.rx, m.samples, 2), iq[k])
+        assert m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec == times[k]
+    gyro = np.array([[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z] for _, m in got["/imu"]])
+    np.testing.assert_array_equal(gyro, imu["gyro_radps"].astype(np.float64))
+    again = subprocess.run([*CLI, "export", str(src), "-o", str(out), "--ros2"], capture_output=True, text=True)
+    assert again.returncode == 2 and "exists already" in again.stderr
