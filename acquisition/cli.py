@@ -364,9 +364,14 @@ def run_workers(setup, args, out_dir: Path, stamp: str):
         raise SarbotError(f"--map-presum {args.map_presum!r}: expected 'auto' or a positive integer")
     config = StripMapConfig(pixel_m=args.map_pixel, aperture_m=args.map_aperture, range_min_m=args.map_range[0],
                             range_max_m=args.map_range[1], z_m=args.map_height)
+    view = None
+    if args.view:
+        from .workers.view import parse_view_address
+
+        view = parse_view_address(args.view)
     return add_pipeline_workers(setup, out_dir, stamp, config, args.max_speed,
                                 _names(args.map_radars, "--map-radars", names), _names(args.rio_radars, "--rio-radars", names),
-                                presum)
+                                presum, view)
 
 
 def _names(text: str | None, option: str, known: set[str]) -> list[str]:
@@ -512,9 +517,14 @@ def cmd_experiment(args) -> int:
 def cmd_demo(args) -> int:
     from .studies.demo import run_demo
 
-    if args.speed <= 0:
+    if not (math.isfinite(args.speed) and args.speed > 0):
         raise SarbotError(f"--speed {args.speed}: must be positive")
-    return run_demo(Path(args.output), speed=args.speed)
+    view = None
+    if args.view:
+        from .workers.view import parse_view_address
+
+        view = parse_view_address(args.view)
+    return run_demo(Path(args.output), speed=args.speed, view=view)
 
 
 # -- parser ---------------------------------------------------------------------------------------------
@@ -637,6 +647,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--max-speed", type=float, default=0.5, help="fastest the robot drives, m/s (sets automatic pre-summing)")
     s.add_argument("--map-radars", help="radars to image (comma-separated; default all)")
     s.add_argument("--rio-radars", help="radars the odometry uses (comma-separated; default all)")
+    s.add_argument("--view", metavar="[HOST:]PORT",
+                   help="serve the live map, pose, health and events on the Foxglove WebSocket protocol (loopback "
+                        "unless HOST is given), e.g. --view 8765, then open ws://localhost:8765 in Foxglove")
     s.set_defaults(func=cmd_run)
 
     s = sub.add_parser("replay", help="send a recording through emulated hardware (UDP, pty, CAN)")
@@ -702,6 +715,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--speed", type=float, default=0.5,
                    help="replay speed, a multiple of real time (default 0.5: the emulated hardware shares the two "
                         "cores with the daemon; on its own the daemon keeps up at 1x)")
+    s.add_argument("--view", metavar="[HOST:]PORT",
+                   help="watch it live: the map, pose, health and events on the Foxglove WebSocket protocol, "
+                        "e.g. --view 8765, then open ws://localhost:8765 in Foxglove")
     s.set_defaults(func=cmd_demo)
     return p
 

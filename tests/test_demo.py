@@ -1,9 +1,12 @@
 """`sarbot demo`, the README's main job: the whole pipeline on emulated hardware, checked end to end."""
 
+import asyncio
 import json
 import os
+import struct
 import subprocess
 import sys
+import threading
 
 import h5py
 import numpy as np
@@ -13,16 +16,65 @@ from imaging.io.recording import Recording
 CLI = [sys.executable, "-m", "acquisition.cli"]
 
 
+class FoxgloveClient(threading.Thread):
+    """A Foxglove WebSocket client (the protocol Foxglove speaks): connects as soon as the server is up,
+    subscribes to every channel it advertises and keeps what comes, by topic."""
+
+    def __init__(self, port: int):
+        super().__init__(daemon=True)
+        self.port = port
+        self.channels: dict[int, dict] = {}
+        self.messages: dict[str, list[bytes]] = {}
+        self.stop = threading.Event()
+
+    def run(self):
+        asyncio.run(self._run())
+
+    async def _run(self):
+        import websockets
+
+        while not self.stop.is_set():
+            try:
+                async with websockets.connect(f"ws://127.0.0.1:{self.port}", max_size=None,
+                                              subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"]) as ws:
+                    while not self.stop.is_set():
+                        try:
+                            m = await asyncio.wait_for(ws.recv(), 0.5)
+                        except asyncio.TimeoutError:
+                            continue
+                        if isinstance(m, str):
+                            d = json.loads(m)
+                            if d["op"] == "advertise":
+                                new = [c for c in d["channels"] if c["id"] not in self.channels]
+                                self.channels.update({c["id"]: c for c in new})
+                                await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                                    {"id": c["id"], "channelId": c["id"]} for c in new]}))
+                        elif m[0] == 1:  # message data: opcode, subscription id u32, log time u64, payload
+                            (sub,) = struct.unpack_from("<I", m, 1)
+                            self.messages.setdefault(self.channels[sub]["topic"], []).append(m[13:])
+            except (OSError, websockets.exceptions.WebSocketException):
+                await asyncio.sleep(0.2)  # not up yet (the demo simulates first), or gone at the end
+
+
 def test_demo_runs_the_whole_pipeline_and_finds_the_targets(tmp_path):
     """On a cold JIT cache, as on a fresh machine: the first run must pass too (the workers compile their
-    kernels before the daemon says it is ready, and the hardware starts then)."""
+    kernels before the daemon says it is ready, and the hardware starts then). Watched live on the Foxglove
+    WebSocket protocol (``--view``): the client gets the map as it grows, the pose and the health."""
+    from acquisition.processes import free_port
+
     out = tmp_path / "demo"
     cache = tmp_path / "empty-jit-cache"
     cache.mkdir()
     env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
     out.mkdir()
     (out / "my_notes.md").write_text("the user's own file, in the folder the demo writes to\n")
-    res = subprocess.run([*CLI, "demo", "-o", str(out)], capture_output=True, text=True, timeout=600, env=env)
+    port = free_port()
+    client = FoxgloveClient(port)
+    client.start()
+    res = subprocess.run([*CLI, "demo", "-o", str(out), "--view", str(port)], capture_output=True, text=True,
+                         timeout=600, env=env)
+    client.stop.set()
+    client.join(5)
     assert (out / "my_notes.md").read_text().startswith("the user's own file")  # the demo deletes only its own
     assert any(cache.rglob("*.nbi")), "the run compiled into the empty cache"
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
@@ -49,6 +101,15 @@ def test_demo_runs_the_whole_pipeline_and_finds_the_targets(tmp_path):
         assert 0 < f.attrs["max_lag_s"] < 15.0
     assert (out / "stripmap_demo.png").stat().st_size > 10_000
     assert "report.md" in res.stdout
+    # What the live view served while the demo ran.
+    schemas = {c["topic"]: c["schemaName"] for c in client.channels.values()}
+    assert schemas["/map"] == "foxglove.Grid" and schemas["/pose"] == "foxglove.PoseInFrame"
+    assert len(client.messages["/map"]) >= 5, {k: len(v) for k, v in client.messages.items()}
+    sizes = [len(m) for m in client.messages["/map"]]
+    assert sizes[-1] > 4 * 64 * 64 and sizes[-1] >= sizes[0]  # the mosaic grows as the drive goes on
+    assert len(client.messages["/pose"]) >= 20 and len(client.messages["/tf"]) >= 20
+    health = [json.loads(m) for m in client.messages["/health"]]
+    assert len(health) >= 5 and "left_front" in health[-1]["frames_per_s"] and "summary" in health[-1]
 
 
 def test_run_without_an_imu_is_a_one_line_error(tmp_path):

@@ -89,7 +89,7 @@ def small_recording(tmp_path_factory):
 
 OPTIONS_RECORD = ["--radar", "--dca1000", "--imu-port", "--can", "--can-arg", "--can-trigger-id", "--duration",
                   "--split-size", "--split-time", "--min-free", "--health-endpoint"]
-OPTIONS_RUN = ["--map-aperture", "--map-pixel", "--map-range", "--map-height", "--map-presum", "--max-speed",
+OPTIONS_RUN = ["--view", "--map-aperture", "--map-pixel", "--map-range", "--map-height", "--map-presum", "--max-speed",
                "--map-radars", "--rio-radars"]
 OPTIONS_REPLAY = ["--radar", "--speed", "--start-delay", "--laps", "--can-trigger-id"]
 

@@ -61,7 +61,7 @@ def _emulate_hardware(sim_path: str, targets: dict, imu_link: str, speed: float,
     replay(Path(sim_path), targets, imu_link, speed, start_delay_s=4.0, can=can)
 
 
-def run_demo(out_dir: Path, speed: float = 0.5) -> int:
+def run_demo(out_dir: Path, speed: float = 0.5, view: tuple[str, int] | None = None) -> int:
     from drivers.can_driver import CanConfig
     from drivers.radar.link import RadarLink
 
@@ -87,7 +87,7 @@ def run_demo(out_dir: Path, speed: float = 0.5) -> int:
     config = StripMapConfig(aperture_m=APERTURE_M, range_min_m=1.0, range_max_m=4.0, z_m=0.3)
     # The rod and the reflector stand on the left: the map images the two left radars; the odometry uses all four.
     traj_path, map_path, config = add_pipeline_workers(setup, out_dir, "demo", config, max_speed_mps=0.5,
-                                                       map_radars=["left_front", "left_rear"])
+                                                       map_radars=["left_front", "left_rear"], view=view)
     rec_path = out_dir / "recording.h5"
     print(f"sarbot demo: 2/3 replaying it through emulated hardware into the daemon (drivers, recorder, odometry, "
           f"strip map with pre-summing {config.presum}) at {speed:g}x real time")

@@ -12,12 +12,13 @@ from .stripmap import StripMapWorker, StripMapWorkerConfig
 
 def add_pipeline_workers(setup, out_dir: Path, stamp: str, config, max_speed_mps: float = 0.5,
                          map_radars: list[str] | None = None, rio_radars: list[str] | None = None,
-                         presum: int | None = None):
+                         presum: int | None = None, view: tuple[str, int] | None = None):
     """Give ``setup`` (``acquisition.daemon.Setup``) the odometry and strip-map workers.
 
     ``config`` is the ``imaging.stripmap.StripMapConfig``; ``presum`` None picks the largest pre-summing
-    whose phase spread stays within pi/4 at ``max_speed_mps``. Returns the trajectory path, the map path
-    and the strip-map settings used.
+    whose phase spread stays within pi/4 at ``max_speed_mps``. ``view`` (host, port): also serve the run
+    on the Foxglove WebSocket protocol (``workers.view``). Returns the trajectory path, the map path and the
+    strip-map settings used.
     """
     from imaging.stripmap import max_presum
 
@@ -33,4 +34,12 @@ def add_pipeline_workers(setup, out_dir: Path, stamp: str, config, max_speed_mps
     stripmap = WorkerSpec("stripmap", StripMapWorker,
                           StripMapWorkerConfig(setup.rig, map_radars, config, odometry.endpoint, str(map_path)))
     setup.workers = [odometry, stripmap]
+    if view is not None:
+        from ..processes import free_tcp_endpoint
+        from .view import ViewWorker, ViewWorkerConfig
+
+        if not setup.health_endpoint:  # the view shows health: it needs to know where it is published
+            setup.health_endpoint = free_tcp_endpoint()
+        setup.workers.append(WorkerSpec("view", ViewWorker, ViewWorkerConfig(
+            view[0], view[1], stripmap.endpoint, odometry.endpoint, setup.health_endpoint)))
     return traj_path, map_path, config

@@ -1,0 +1,196 @@
+"""The live view: the run on the Foxglove WebSocket protocol (``foxglove-sdk``), for Foxglove or any client.
+
+``sarbot run --view [HOST:]PORT`` adds this worker. It subscribes to the strip map's tiles, the odometry's
+poses, the daemon's health and every event, and serves:
+
+- ``/map`` (``foxglove.Grid``, frame ``world``): the strip map's magnitude in dB (float32 field ``db``,
+  0 dB at the brightest pixel so far), the whole mosaic, re-sent when tiles changed (at most
+  ``map_rate_hz``);
+- ``/pose`` (``foxglove.PoseInFrame``) and ``/tf`` (``foxglove.FrameTransforms``, world -> base_link), the
+  newest odometry pose at most ``pose_rate_hz``;
+- ``/health`` (JSON: the daemon's health report and its one-line summary) and ``/events``
+  (``foxglove.Log``).
+
+Loopback by default: the map and the robot's position are not for the whole network unless asked.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import time
+
+import numpy as np
+
+from ..messages import Event, Health, MapTile, PoseBatch
+from . import Worker
+
+log = logging.getLogger(f"sarbot.{__name__}")
+
+_LEVELS = ("debug", "info", "warning", "error", "fatal")
+
+
+@dataclasses.dataclass
+class ViewWorkerConfig:
+    host: str
+    port: int
+    map_endpoint: str
+    pose_endpoint: str
+    health_endpoint: str
+    map_rate_hz: float = 2.0
+    pose_rate_hz: float = 20.0
+
+
+def parse_view_address(text: str) -> tuple[str, int]:
+    """``[HOST:]PORT`` -> (host, port); loopback when no host is given."""
+    from imaging.core.errors import SarbotError
+
+    host, _, port = text.rpartition(":")
+    host = host or "127.0.0.1"
+    if not port.isdigit() or not 0 < int(port) < 65536:
+        raise SarbotError(f"--view {text!r}: expected [HOST:]PORT with a port in 1..65535")
+    return host, int(port)
+
+
+def _stamp(t_ns: int):
+    from foxglove.messages import Timestamp
+
+    return Timestamp(sec=int(t_ns) // 1_000_000_000, nsec=int(t_ns) % 1_000_000_000)
+
+
+class ViewWorker(Worker):
+    drain_quiet_s = 0.5
+    drain_max_s = 2.0
+
+    def __init__(self, config: ViewWorkerConfig, pub):
+        self.config = config
+        self.pub = pub
+        self.topics = [MapTile.TOPIC, PoseBatch.TOPIC, Health.TOPIC, Event.TOPIC]
+        self.endpoints = [config.map_endpoint, config.pose_endpoint, config.health_endpoint]
+        self.tiles: dict[tuple[int, int], np.ndarray] = {}  # magnitude, float32
+        self.pixel_m = self.tile_px = None
+        self.map_changed = False
+        self.last_map = self.last_pose_sent = 0.0
+        self.pose = None  # (t, position, orientation) of the newest pose
+        self.pose_changed = False
+        self.server = None
+        self.sent = {"map": 0, "pose": 0, "health": 0, "events": 0}
+
+    def warm_up(self) -> None:
+        import foxglove
+        from foxglove.channels import (
+            FrameTransformsChannel,
+            GridChannel,
+            LogChannel,
+            PoseInFrameChannel,
+        )
+
+        self.server = foxglove.start_server(name="sarbot", host=self.config.host, port=self.config.port)
+        self.grid_channel = GridChannel("/map")
+        self.pose_channel = PoseInFrameChannel("/pose")
+        self.tf_channel = FrameTransformsChannel("/tf")
+        self.log_channel = LogChannel("/events")
+        self.health_channel = foxglove.Channel("/health", message_encoding="json",
+                                               schema={"type": "object", "title": "sarbot.Health"})
+        log.info("live view: Foxglove WebSocket on ws://%s:%d", self.config.host, self.server.port)
+
+    def counters(self) -> dict[str, int]:
+        return {f"sent_{k}": v for k, v in self.sent.items()}
+
+    def handle(self, message, live: bool) -> None:
+        if isinstance(message, MapTile):
+            self.tiles[tuple(message.key)] = np.abs(message.image).astype(np.float32)
+            self.pixel_m, self.tile_px = message.pixel_m, message.tile_px
+            self.map_changed = True
+        elif isinstance(message, PoseBatch) and len(message):
+            self.pose = (int(message.time_ns[-1]), message.position_m[-1], message.orientation_xyzw[-1])
+            self.pose_changed = True
+        elif isinstance(message, Health):
+            body = {**dataclasses.asdict(message), "summary": message.line()}
+            self.health_channel.log(json.dumps(body, default=_plain).encode())
+            self.sent["health"] += 1
+        elif isinstance(message, Event):
+            from foxglove.messages import Log, LogLevel
+
+            level = message.level if message.level in _LEVELS else "info"
+            self.log_channel.log(Log(timestamp=_stamp(message.time_ns), level=getattr(LogLevel, level.capitalize()),
+                                     message=message.message, name=message.source, file="", line=0))
+            self.sent["events"] += 1
+
+    def step(self) -> None:
+        now = time.monotonic()
+        if self.pose_changed and now - self.last_pose_sent >= 1.0 / self.config.pose_rate_hz:
+            self._send_pose()
+            self.last_pose_sent = now
+        if self.map_changed and now - self.last_map >= 1.0 / self.config.map_rate_hz:
+            self._send_map()
+            self.last_map = now
+
+    def finish(self) -> None:
+        if self.map_changed:
+            self._send_map()
+        if self.pose_changed:
+            self._send_pose()
+
+    def write_products(self) -> None:
+        if self.server is not None:
+            self.server.stop()
+
+    def _send_pose(self) -> None:
+        from foxglove.messages import (
+            FrameTransform,
+            FrameTransforms,
+            Pose,
+            PoseInFrame,
+            Quaternion,
+            Vector3,
+        )
+
+        t, p, q = self.pose
+        position = Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+        orientation = Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))
+        self.pose_channel.log(PoseInFrame(timestamp=_stamp(t), frame_id="world",
+                                          pose=Pose(position=position, orientation=orientation)))
+        self.tf_channel.log(FrameTransforms(transforms=[FrameTransform(
+            timestamp=_stamp(t), parent_frame_id="world", child_frame_id="base_link", translation=position,
+            rotation=orientation)]))
+        self.pose_changed = False
+        self.sent["pose"] += 1
+
+    def _send_map(self) -> None:
+        from foxglove.messages import (
+            Grid,
+            PackedElementField,
+            PackedElementFieldNumericType,
+            Pose,
+            Quaternion,
+            Vector2,
+            Vector3,
+        )
+
+        keys = np.array(list(self.tiles))
+        lo, hi = keys.min(axis=0), keys.max(axis=0)
+        n = self.tile_px
+        mag = np.zeros(((hi[1] - lo[1] + 1) * n, (hi[0] - lo[0] + 1) * n), np.float32)
+        for (ix, iy), tile in self.tiles.items():
+            mag[(iy - lo[1]) * n:(iy - lo[1] + 1) * n, (ix - lo[0]) * n:(ix - lo[0] + 1) * n] = tile
+        peak = float(mag.max()) or 1.0
+        db = (20.0 * np.log10(np.maximum(mag / peak, 1e-6))).astype("<f4")  # floor at -120 dB where nothing is
+        tile_m = n * self.pixel_m
+        origin = Pose(position=Vector3(x=float(lo[0] * tile_m), y=float(lo[1] * tile_m), z=0.0),
+                      orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
+        self.grid_channel.log(Grid(
+            timestamp=_stamp(time.time_ns()), frame_id="world", pose=origin, column_count=db.shape[1],
+            cell_size=Vector2(x=float(self.pixel_m), y=float(self.pixel_m)), row_stride=4 * db.shape[1], cell_stride=4,
+            fields=[PackedElementField(name="db", offset=0, type=PackedElementFieldNumericType.Float32)], data=db.tobytes()))
+        self.map_changed = False
+        self.sent["map"] += 1
+
+
+def _plain(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    return str(obj)
