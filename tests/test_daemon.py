@@ -228,10 +228,10 @@ def test_a_restarted_imu_driver_records_again(tmp_path):
         for path in (tmp_path / "out").glob("*.h5"):
             try:
                 with Recording(path) as rec:
-                    imu = rec.imu()
-                    seen = 0 if imu is None else imu["time_ns"].size
+                    in_file = rec.imu()
+                    seen = 0 if in_file is None else in_file["time_ns"].size
                     if seen:  # how far the newest sample in the file is behind its arrival at the host
-                        behind_s.append((time.time_ns() - int(imu["host_time_ns"][-1])) * 1e-9)
+                        behind_s.append((time.time_ns() - int(in_file["host_time_ns"][-1])) * 1e-9)
             except Exception:
                 pass  # being created
     assert seen >= 800
