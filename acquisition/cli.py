@@ -578,14 +578,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"sarbot {_version()}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    s = sub.add_parser("simulate", help="simulate a scene into a recording")
+    s = sub.add_parser("simulate", help="simulate a scene into a recording",
+                       epilog="example: sarbot simulate --list; sarbot simulate paper_pass_0.4 -o pass.h5; sarbot simulate my_scene.toml -o rec.h5")
     s.add_argument("scene", nargs="?", help="built-in scene name or scene TOML file")
     s.add_argument("-o", "--output", help="recording file to write (.h5)")
     s.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     s.add_argument("--list", action="store_true", help="list the built-in scenes")
     s.set_defaults(func=cmd_simulate)
 
-    s = sub.add_parser("image", help="form a SAR image by backprojection")
+    s = sub.add_parser("image", help="form a SAR image by backprojection",
+                       epilog="example: sarbot image pass.h5 -o img.h5 --radar left_front --frames 30:60 --grid -0.5:0.5:0.002,1.8:2.2:0.004")
     s.add_argument("recording")
     s.add_argument("-o", "--output", required=True, help="image file to write (.h5); a PNG goes beside it")
     s.add_argument("--radar", help="radar name (needed when the recording has several)")
@@ -601,7 +603,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--overwrite", action="store_true", help="replace existing output files")
     s.set_defaults(func=cmd_image)
 
-    s = sub.add_parser("analyze", help="image quality metrics as JSON")
+    s = sub.add_parser("analyze", help="image quality metrics as JSON",
+                       epilog="example: sarbot analyze img.h5 --at 0,2; sarbot analyze a.h5 b.h5 c.h5 (integration gain)")
     s.add_argument("images", nargs="+", help="image file(s); several with different frame counts also fit the integration gain")
     s.add_argument("--at", help="x,y: analyse the peak nearest this point (default: the strongest)")
     s.add_argument("--radius", type=float, default=0.1, help="search radius around --at, metres")
@@ -609,7 +612,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--half-length", type=float, default=0.3, help="half length of the cuts, metres")
     s.set_defaults(func=cmd_analyze)
 
-    s = sub.add_parser("rio", help="radar-inertial odometry: a trajectory from IMU and radar detections")
+    s = sub.add_parser("rio", help="radar-inertial odometry: a trajectory from IMU and radar detections",
+                       epilog="example: sarbot simulate rio_room_drive -o drive.h5; sarbot rio drive.h5 -o traj.h5 --tum traj.txt")
     s.add_argument("recording")
     s.add_argument("-o", "--output", required=True, help="trajectory file to write (.h5)")
     s.add_argument("--tum", help="also write TUM text (t x y z qx qy qz qw) for evo")
@@ -624,7 +628,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "motion within a frame (default 0.05; 0.1 for a hand-held rig)")
     s.set_defaults(func=cmd_rio)
 
-    s = sub.add_parser("import-bag", help="convert a ROS1 bag (IMU, radar point clouds, trigger) to a recording")
+    s = sub.add_parser("import-bag", help="convert a ROS 1 or ROS 2 bag (IMU, radar point clouds, trigger) to a recording",
+                       epilog="example: sarbot import-bag demo.bag --calib calib.yaml -o rec.h5 (a ROS 2 bag: give its folder)")
     s.add_argument("bag")
     s.add_argument("--calib", required=True, help="calibration YAML (topics, radar extrinsics, frame length)")
     s.add_argument("-o", "--output", required=True)
@@ -632,11 +637,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--overwrite", action="store_true")
     s.set_defaults(func=cmd_import_bag)
 
-    s = sub.add_parser("record", help="run the drivers and record everything to HDF5")
+    s = sub.add_parser("record", help="run the drivers and record everything to HDF5",
+                       epilog="example: sarbot record --config rig.toml -o out/ --radar left_front=50001 --imu-port /dev/ttyUSB0 --split-time 600")
     _acquisition_options(s)
     s.set_defaults(func=cmd_record)
 
-    s = sub.add_parser("run", help="the whole pipeline: drivers, recorder, odometry and the live strip map")
+    s = sub.add_parser("run", help="the whole pipeline: drivers, recorder, odometry and the live strip map",
+                       epilog="example: sarbot run --config rig.toml -o out/ --radar left_front=192.168.33.30:50001 --imu-port /dev/ttyUSB0 --view 8765")
     _acquisition_options(s)
     s.add_argument("--map-aperture", type=float, default=0.3, help="synthetic aperture per pixel, metres (default 0.3)")
     s.add_argument("--map-pixel", type=float, default=0.01, help="map pixel size, metres (default 0.01)")
@@ -652,7 +659,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "unless HOST is given), e.g. --view 8765, then open ws://localhost:8765 in Foxglove")
     s.set_defaults(func=cmd_run)
 
-    s = sub.add_parser("replay", help="send a recording through emulated hardware (UDP, pty, CAN)")
+    s = sub.add_parser("replay", help="send a recording through emulated hardware (UDP, pty, CAN)",
+                       epilog="example: sarbot replay rec.h5 --radar left_front=127.0.0.1:50001 --imu-link /tmp/imu --speed 1")
     s.add_argument("recording")
     s.add_argument("--radar", action="append", help="NAME=HOST:PORT to send the radar's datagrams to (SRF1 or DCA1000, as recorded)")
     s.add_argument("--imu-link", help="create this symlink to the pty the emulated IMU writes to")
@@ -710,7 +718,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--quick", action="store_true", help="fewer apertures, phases and amplitudes (a smoke run)")
     s.set_defaults(func=cmd_experiment)
 
-    s = sub.add_parser("demo", help="the whole pipeline on emulated hardware fed by a built-in scene")
+    s = sub.add_parser("demo", help="the whole pipeline on emulated hardware fed by a built-in scene",
+                       epilog="example: sarbot demo; sarbot demo --view 8765 (watch it in Foxglove at ws://localhost:8765)")
     s.add_argument("-o", "--output", default="sarbot-demo", help="output folder (default ./sarbot-demo)")
     s.add_argument("--speed", type=float, default=0.5,
                    help="replay speed, a multiple of real time (default 0.5: the emulated hardware shares the two "
