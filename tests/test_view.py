@@ -105,6 +105,18 @@ def test_the_map_arrives_as_a_grid_in_db_with_pose_tf_and_events():
     assert worker.counters() == {"sent_map": 1, "sent_pose": 1, "sent_health": 0, "sent_events": 1}
 
 
+def test_a_large_map_is_sent_coarser_keeping_its_brightest_pixels():
+    from acquisition.workers.view import block_max
+
+    image = np.zeros((1000, 3001), np.float32)
+    image[517, 2999] = 5.0
+    small, k = block_max(image, 400_000)
+    assert k == 3 and small.shape == (334, 1001) and small.size <= 400_000
+    assert small[517 // 3, 2999 // 3] == 5.0 and small.sum() == 5.0
+    same, k1 = block_max(image, image.size)
+    assert k1 == 1 and same is image
+
+
 @pytest.mark.parametrize("text, expected", [("8765", ("127.0.0.1", 8765)), ("0.0.0.0:9000", ("0.0.0.0", 9000))])
 def test_view_address(text, expected):
     assert parse_view_address(text) == expected

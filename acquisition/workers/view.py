@@ -5,7 +5,8 @@ poses, the daemon's health and every event, and serves:
 
 - ``/map`` (``foxglove.Grid``, frame ``world``): the strip map's magnitude in dB (float32 field ``db``,
   0 dB at the brightest pixel so far), the whole mosaic, re-sent when tiles changed (at most
-  ``map_rate_hz``);
+  ``map_rate_hz``); a mosaic of more than ``max_cells`` pixels is sent coarser (the brightest of each
+  k x k block), so a long drive does not flood the connection;
 - ``/pose`` (``foxglove.PoseInFrame``) and ``/tf`` (``foxglove.FrameTransforms``, world -> base_link), the
   newest odometry pose at most ``pose_rate_hz``;
 - ``/health`` (JSON: the daemon's health report and its one-line summary) and ``/events``
@@ -40,6 +41,7 @@ class ViewWorkerConfig:
     health_endpoint: str
     map_rate_hz: float = 2.0
     pose_rate_hz: float = 20.0
+    max_cells: int = 2_000_000
 
 
 def parse_view_address(text: str) -> tuple[str, int]:
@@ -175,6 +177,7 @@ class ViewWorker(Worker):
         mag = np.zeros(((hi[1] - lo[1] + 1) * n, (hi[0] - lo[0] + 1) * n), np.float32)
         for (ix, iy), tile in self.tiles.items():
             mag[(iy - lo[1]) * n:(iy - lo[1] + 1) * n, (ix - lo[0]) * n:(ix - lo[0] + 1) * n] = tile
+        mag, k = block_max(mag, self.config.max_cells)
         peak = float(mag.max()) or 1.0
         db = (20.0 * np.log10(np.maximum(mag / peak, 1e-6))).astype("<f4")  # floor at -120 dB where nothing is
         tile_m = n * self.pixel_m
@@ -182,10 +185,25 @@ class ViewWorker(Worker):
                       orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
         self.grid_channel.log(Grid(
             timestamp=_stamp(time.time_ns()), frame_id="world", pose=origin, column_count=db.shape[1],
-            cell_size=Vector2(x=float(self.pixel_m), y=float(self.pixel_m)), row_stride=4 * db.shape[1], cell_stride=4,
+            cell_size=Vector2(x=float(k * self.pixel_m), y=float(k * self.pixel_m)), row_stride=4 * db.shape[1],
+            cell_stride=4,
             fields=[PackedElementField(name="db", offset=0, type=PackedElementFieldNumericType.Float32)], data=db.tobytes()))
         self.map_changed = False
         self.sent["map"] += 1
+
+
+def block_max(image: np.ndarray, max_cells: int) -> tuple[np.ndarray, int]:
+    """``image`` reduced by the smallest integer factor k that leaves at most ``max_cells`` pixels, each the
+    largest of its k x k block (a point target stays visible); returns the image and k."""
+    k = 1
+    while (-(-image.shape[0] // k)) * (-(-image.shape[1] // k)) > max_cells:
+        k += 1
+    if k == 1:
+        return image, 1
+    ny, nx = -(-image.shape[0] // k) * k, -(-image.shape[1] // k) * k
+    padded = np.zeros((ny, nx), image.dtype)
+    padded[:image.shape[0], :image.shape[1]] = image
+    return padded.reshape(ny // k, k, nx // k, k).max(axis=(1, 3)), k
 
 
 def _plain(obj):
