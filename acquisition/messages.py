@@ -76,6 +76,26 @@ class RadarFrameMessage(BusMessage):
 
 
 @dataclasses.dataclass
+class PointCloudMessage(BusMessage):
+    """A radar scan's detections, as the odometry made them: ``xyz_m`` [N, 3] in the radar's frame, radial
+    ``doppler_mps`` [N], at the scan's measurement time."""
+
+    TOPIC: ClassVar[str] = "points/"
+    radar: str
+    time_ns: int
+    xyz_m: np.ndarray
+    doppler_mps: np.ndarray
+
+    def to_parts(self) -> Parts:
+        return Parts(f"{self.TOPIC}{self.radar}", int(self.time_ns),
+                     [np.asarray(self.xyz_m, np.float32), np.asarray(self.doppler_mps, np.float32)], {})
+
+    @classmethod
+    def from_message(cls, msg: Message) -> "PointCloudMessage":
+        return cls(msg.topic.split("/", 1)[1], int(msg.sensor_time_ns), msg.arrays[0], msg.arrays[1])
+
+
+@dataclasses.dataclass
 class ImuBatch(BusMessage):
     """Timed IMU samples: PTP times [N] int64, gyro [N, 3] rad/s, specific force [N, 3] m/s^2, the IMU's
     counters [N] uint32 and host receive times [N] int64; the IMU clock's drift against the host, ppm."""
@@ -321,4 +341,6 @@ def decode(msg: Message) -> BusMessage:
     """The typed message a bus message carries (by its topic); KeyError for a topic sarbot does not know."""
     if msg.topic.startswith(RadarFrameMessage.TOPIC):
         return RadarFrameMessage.from_message(msg)
+    if msg.topic.startswith(PointCloudMessage.TOPIC):
+        return PointCloudMessage.from_message(msg)
     return _BY_TOPIC[msg.topic].from_message(msg)

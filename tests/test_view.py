@@ -9,7 +9,7 @@ import struct
 import numpy as np
 import pytest
 
-from acquisition.messages import Event, MapTile, PoseBatch
+from acquisition.messages import Event, ImuBatch, MapTile, PointCloudMessage, PoseBatch
 from acquisition.processes import free_port
 from acquisition.workers.view import ViewWorker, ViewWorkerConfig, parse_view_address
 from imaging.core.errors import SarbotError
@@ -74,9 +74,12 @@ async def _watch(port, feed, n_expected):
 
 def test_the_map_arrives_as_a_grid_in_db_with_pose_tf_and_events():
     port = free_port()
-    worker = ViewWorker(ViewWorkerConfig("127.0.0.1", port, "tcp://unused:1", "tcp://unused:2", "tcp://unused:3"), None)
+    mounts = {"left_front": ([0.15, 0.2, 0.3], [0.0, 0.0, 0.7071068, 0.7071068])}
+    worker = ViewWorker(ViewWorkerConfig("127.0.0.1", port, "tcp://unused:1", "tcp://unused:2", "tcp://unused:3",
+                                         mounts=mounts), None)
     worker.warm_up()
     rng = np.random.default_rng(0)
+    xyz, doppler = rng.normal(size=(5, 3)).astype(np.float32), rng.normal(size=5).astype(np.float32)
     tiles = {(2, 5): (rng.normal(size=(16, 16)) + 1j * rng.normal(size=(16, 16))).astype(np.complex64),
              (3, 5): (rng.normal(size=(16, 16)) + 1j * rng.normal(size=(16, 16))).astype(np.complex64)}
 
@@ -86,10 +89,14 @@ def test_the_map_arrives_as_a_grid_in_db_with_pose_tf_and_events():
         worker.handle(PoseBatch(np.array([7_000_000_123], np.int64), np.array([[1.0, 2.0, 0.0]]),
                                 np.array([[0.0, 0.0, 0.0, 1.0]]), np.zeros((1, 3))), live=True)
         worker.handle(Event(5, "radar.left_front", "warning", "kernel dropped 3 datagram(s)"), live=True)
+        worker.handle(PointCloudMessage("left_front", 7_000_000_000, xyz, doppler), live=True)
+        worker.handle(ImuBatch(np.array([7_000_000_000], np.int64), np.array([[0.1, 0.2, 0.3]], np.float32),
+                               np.array([[0.0, 0.0, 9.81]], np.float32), np.zeros(1, np.uint32),
+                               np.array([7_000_000_000], np.int64), None), live=True)
         worker.step()
 
     try:
-        channels, got = asyncio.run(_watch(port, feed, n_expected=4))
+        channels, got = asyncio.run(_watch(port, feed, n_expected=6))
     finally:
         worker.write_products()
     topics = {c["topic"]: c["schemaName"] for c in channels.values()}
@@ -102,7 +109,14 @@ def test_the_map_arrives_as_a_grid_in_db_with_pose_tf_and_events():
     np.testing.assert_allclose(db, 20 * np.log10(mosaic / mosaic.max()), atol=1e-4)
     assert b"kernel dropped 3 datagram(s)" in got["/events"][0]
     assert len(got["/pose"]) == 1 and len(got["/tf"]) == 1
-    assert worker.counters() == {"sent_map": 1, "sent_pose": 1, "sent_health": 0, "sent_events": 1}
+    assert b"left_front" in got["/tf"][0]  # base_link -> the radar, by its mount
+    (cloud,) = got["/radar/left_front/points"]
+    packed = protobuf_fields(cloud)[6][0]  # foxglove.PointCloud.data
+    np.testing.assert_array_equal(np.frombuffer(packed, "<f4").reshape(5, 4), np.column_stack([xyz, doppler]))
+    imu = json.loads(got["/imu"][0])
+    assert imu["time_ns"] == 7_000_000_000 and imu["accel_mps2"][2] == pytest.approx(9.81, abs=1e-5)
+    assert worker.counters() == {"sent_map": 1, "sent_pose": 1, "sent_health": 0, "sent_events": 1, "sent_points": 1,
+                                 "sent_imu": 1}
 
 
 def test_a_large_map_is_sent_coarser_keeping_its_brightest_pixels():

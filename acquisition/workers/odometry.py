@@ -14,7 +14,14 @@ import numpy as np
 from imaging.core.rig import Rig
 from imaging.core.samples import iq_to_complex
 
-from ..messages import Event, ImuBatch, PoseBatch, PoseEnd, RadarFrameMessage
+from ..messages import (
+    Event,
+    ImuBatch,
+    PointCloudMessage,
+    PoseBatch,
+    PoseEnd,
+    RadarFrameMessage,
+)
 from . import Worker
 
 log = logging.getLogger(f"sarbot.{__name__}")
@@ -136,8 +143,9 @@ class OdometryWorker(Worker):
         self.lag_ms = int(lag_s * 1e3)
         radar = self.radars[name]
         pc = detect(iq_to_complex(frame.iq), radar, self.orders[name], self.pc_config)
-        self._publish(self.rio.add_scan(RadarScan(frame.frame_time_ns + self.half_frame_ns[name], name, radar.mount,
-                                                  pc.xyz_m, pc.doppler_mps)))
+        t_scan = frame.frame_time_ns + self.half_frame_ns[name]
+        self.pub.send(PointCloudMessage(name, t_scan, pc.xyz_m, pc.doppler_mps))  # for the live view
+        self._publish(self.rio.add_scan(RadarScan(t_scan, name, radar.mount, pc.xyz_m, pc.doppler_mps)))
 
     def _left_out(self, counter: str, lag_s: float) -> None:
         """Count a scan left out for lag; say so on the bus at most once a second (into /events)."""

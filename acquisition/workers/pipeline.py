@@ -40,6 +40,7 @@ def add_pipeline_workers(setup, out_dir: Path, stamp: str, config, max_speed_mps
 
         if not setup.health_endpoint:  # the view shows health: it needs to know where it is published
             setup.health_endpoint = free_tcp_endpoint()
+        mounts = {r.name: (r.mount.translation_m.tolist(), r.mount.rotation_xyzw.tolist()) for r in setup.rig.radars}
         setup.workers.append(WorkerSpec("view", ViewWorker, ViewWorkerConfig(
-            view[0], view[1], stripmap.endpoint, odometry.endpoint, setup.health_endpoint)))
+            view[0], view[1], stripmap.endpoint, odometry.endpoint, setup.health_endpoint, mounts=mounts)))
     return traj_path, map_path, config

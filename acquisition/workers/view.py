@@ -7,8 +7,11 @@ poses, the daemon's health and every event, and serves:
   0 dB at the brightest pixel so far), the whole mosaic, re-sent when tiles changed (at most
   ``map_rate_hz``); a mosaic of more than ``max_cells`` pixels is sent coarser (the brightest of each
   k x k block), so a long drive does not flood the connection;
-- ``/pose`` (``foxglove.PoseInFrame``) and ``/tf`` (``foxglove.FrameTransforms``, world -> base_link), the
-  newest odometry pose at most ``pose_rate_hz``;
+- ``/pose`` (``foxglove.PoseInFrame``) and ``/tf`` (``foxglove.FrameTransforms``: world -> base_link, and
+  base_link -> each radar by its mount), the newest odometry pose at most ``pose_rate_hz``;
+- ``/radar/<name>/points`` (``foxglove.PointCloud``, frame ``<name>``): the detections the odometry made of
+  each scan (x, y, z, doppler as float32);
+- ``/imu`` (JSON: gyro rad/s, specific force m/s^2), the newest sample at most ``pose_rate_hz``;
 - ``/health`` (JSON: the daemon's health report and its one-line summary) and ``/events``
   (``foxglove.Log``).
 
@@ -24,7 +27,7 @@ import time
 
 import numpy as np
 
-from ..messages import Event, Health, MapTile, PoseBatch
+from ..messages import Event, Health, ImuBatch, MapTile, PointCloudMessage, PoseBatch
 from . import Worker
 
 log = logging.getLogger(f"sarbot.{__name__}")
@@ -42,6 +45,8 @@ class ViewWorkerConfig:
     map_rate_hz: float = 2.0
     pose_rate_hz: float = 20.0
     max_cells: int = 2_000_000
+    #: radar name -> (translation [3] m, rotation xyzw [4]) in the body frame, for /tf
+    mounts: dict = dataclasses.field(default_factory=dict)
 
 
 def parse_view_address(text: str) -> tuple[str, int]:
@@ -68,7 +73,7 @@ class ViewWorker(Worker):
     def __init__(self, config: ViewWorkerConfig, pub):
         self.config = config
         self.pub = pub
-        self.topics = [MapTile.TOPIC, PoseBatch.TOPIC, Health.TOPIC, Event.TOPIC]
+        self.topics = [MapTile.TOPIC, PoseBatch.TOPIC, Health.TOPIC, Event.TOPIC, PointCloudMessage.TOPIC, ImuBatch.TOPIC]
         self.endpoints = [config.map_endpoint, config.pose_endpoint, config.health_endpoint]
         self.tiles: dict[tuple[int, int], np.ndarray] = {}  # magnitude, float32
         self.pixel_m = self.tile_px = None
@@ -77,7 +82,10 @@ class ViewWorker(Worker):
         self.pose = None  # (t, position, orientation) of the newest pose
         self.pose_changed = False
         self.server = None
-        self.sent = {"map": 0, "pose": 0, "health": 0, "events": 0}
+        self.point_channels: dict = {}
+        self.imu = None  # the newest sample (t, gyro, accel)
+        self.last_imu_sent = 0.0
+        self.sent = {"map": 0, "pose": 0, "health": 0, "events": 0, "points": 0, "imu": 0}
 
     def warm_up(self) -> None:
         import foxglove
@@ -85,6 +93,7 @@ class ViewWorker(Worker):
             FrameTransformsChannel,
             GridChannel,
             LogChannel,
+            PointCloudChannel,
             PoseInFrameChannel,
         )
 
@@ -95,6 +104,10 @@ class ViewWorker(Worker):
         self.log_channel = LogChannel("/events")
         self.health_channel = foxglove.Channel("/health", message_encoding="json",
                                                schema={"type": "object", "title": "sarbot.Health"})
+        self.imu_channel = foxglove.Channel("/imu", message_encoding="json",
+                                            schema={"type": "object", "title": "sarbot.Imu"})
+        for name in self.config.mounts:  # advertised from the start, so a client sees every topic at once
+            self.point_channels[name] = PointCloudChannel(f"/radar/{name}/points")
         log.info("live view: Foxglove WebSocket on ws://%s:%d", self.config.host, self.server.port)
 
     def counters(self) -> dict[str, int]:
@@ -108,6 +121,10 @@ class ViewWorker(Worker):
         elif isinstance(message, PoseBatch) and len(message):
             self.pose = (int(message.time_ns[-1]), message.position_m[-1], message.orientation_xyzw[-1])
             self.pose_changed = True
+        elif isinstance(message, PointCloudMessage):
+            self._send_points(message)
+        elif isinstance(message, ImuBatch) and len(message):
+            self.imu = (int(message.time_ns[-1]), message.gyro_radps[-1], message.accel_mps2[-1])
         elif isinstance(message, Health):
             body = {**dataclasses.asdict(message), "summary": message.line()}
             self.health_channel.log(json.dumps(body, default=_plain).encode())
@@ -125,6 +142,12 @@ class ViewWorker(Worker):
         if self.pose_changed and now - self.last_pose_sent >= 1.0 / self.config.pose_rate_hz:
             self._send_pose()
             self.last_pose_sent = now
+        if self.imu is not None and now - self.last_imu_sent >= 1.0 / self.config.pose_rate_hz:
+            t, g, a = self.imu
+            self.imu_channel.log(json.dumps({"time_ns": t, "gyro_radps": [float(v) for v in g],
+                                             "accel_mps2": [float(v) for v in a]}).encode())
+            self.imu, self.last_imu_sent = None, now
+            self.sent["imu"] += 1
         if self.map_changed and now - self.last_map >= 1.0 / self.config.map_rate_hz:
             self._send_map()
             self.last_map = now
@@ -154,11 +177,39 @@ class ViewWorker(Worker):
         orientation = Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))
         self.pose_channel.log(PoseInFrame(timestamp=_stamp(t), frame_id="world",
                                           pose=Pose(position=position, orientation=orientation)))
+        mounts = [FrameTransform(timestamp=_stamp(t), parent_frame_id="base_link", child_frame_id=name,
+                                 translation=Vector3(x=float(tr[0]), y=float(tr[1]), z=float(tr[2])),
+                                 rotation=Quaternion(x=float(r[0]), y=float(r[1]), z=float(r[2]), w=float(r[3])))
+                  for name, (tr, r) in self.config.mounts.items()]
         self.tf_channel.log(FrameTransforms(transforms=[FrameTransform(
             timestamp=_stamp(t), parent_frame_id="world", child_frame_id="base_link", translation=position,
-            rotation=orientation)]))
+            rotation=orientation), *mounts]))
         self.pose_changed = False
         self.sent["pose"] += 1
+
+    def _send_points(self, m: PointCloudMessage) -> None:
+        from foxglove.channels import PointCloudChannel
+        from foxglove.messages import (
+            PackedElementField,
+            PackedElementFieldNumericType,
+            PointCloud,
+            Pose,
+            Quaternion,
+            Vector3,
+        )
+
+        channel = self.point_channels.get(m.radar)
+        if channel is None:
+            channel = self.point_channels[m.radar] = PointCloudChannel(f"/radar/{m.radar}/points")
+        points = np.column_stack([np.asarray(m.xyz_m, "<f4"), np.asarray(m.doppler_mps, "<f4")]).astype("<f4")
+        f32 = PackedElementFieldNumericType.Float32
+        channel.log(PointCloud(
+            timestamp=_stamp(m.time_ns), frame_id=m.radar,
+            pose=Pose(position=Vector3(x=0.0, y=0.0, z=0.0), orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)),
+            point_stride=16, fields=[PackedElementField(name=n, offset=4 * i, type=f32)
+                                     for i, n in enumerate(("x", "y", "z", "doppler"))],
+            data=points.tobytes()))
+        self.sent["points"] += 1
 
     def _send_map(self) -> None:
         from foxglove.messages import (
