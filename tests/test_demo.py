@@ -108,6 +108,9 @@ def test_demo_runs_the_whole_pipeline_and_finds_the_targets(tmp_path):
     sizes = [len(m) for m in client.messages["/map"]]
     assert sizes[-1] > 4 * 64 * 64 and sizes[-1] >= sizes[0]  # the mosaic grows as the drive goes on
     assert len(client.messages["/pose"]) >= 20 and len(client.messages["/tf"]) >= 20
+    for radar in ("left_front", "left_rear", "right_front", "right_rear"):  # the odometry's detections
+        assert len(client.messages.get(f"/radar/{radar}/points", [])) >= 10, radar
+    assert len(client.messages["/imu"]) >= 20
     health = [json.loads(m) for m in client.messages["/health"]]
     assert len(health) >= 5 and "left_front" in health[-1]["frames_per_s"] and "summary" in health[-1]
 
