@@ -110,3 +110,38 @@ def test_recording_to_a_ros2_bag_read_back_with_anyreader(tmp_path):
     np.testing.assert_array_equal(gyro, imu["gyro_radps"].astype(np.float64))
     again = subprocess.run([*CLI, "export", str(src), "-o", str(out), "--ros2"], capture_output=True, text=True)
     assert again.returncode == 2 and "exists already" in again.stderr
+
+
+def test_point_clouds_in_both_formats(tmp_path):
+    """A recording of detections (a point-cloud radar): each scan one foxglove.PointCloud in MCAP and one
+    sensor_msgs/PointCloud2 in the ROS 2 bag, points bit for bit."""
+    from rosbags.highlevel import AnyReader
+    from test_round_trip import RIG
+
+    from imaging.io.recording import RecordingWriter
+
+    radar = RIG.radar("left")
+    rng = np.random.default_rng(3)
+    t0 = 1_700_000_000_000_000_000
+    scans = [rng.normal(size=(n, 5)).astype(np.float32) for n in (4, 7, 1)]
+    src = tmp_path / "points.h5"
+    with RecordingWriter(src, [radar], imu=RIG.imu, truth=False, detections=["left"]) as w:
+        w.append_scans("left", t0 + np.arange(3) * 100_000_000, np.arange(3), t0 + np.arange(3) * 100_000_000)
+        for k, pts in enumerate(scans):
+            t = t0 + k * 100_000_000 + 50_000_000
+            w.append_detections("left", np.full(len(pts), t), np.full(len(pts), k), pts[:, :3], pts[:, 3], pts[:, 4])
+    mcap_path, bag_path = tmp_path / "points.mcap", tmp_path / "points_bag"
+    for out, extra in ((mcap_path, []), (bag_path, ["--ros2"])):
+        res = subprocess.run([*CLI, "export", str(src), "-o", str(out), *extra], capture_output=True, text=True, timeout=120)
+        assert res.returncode == 0, res.stderr
+    with mcap_path.open("rb") as f:
+        clouds = [json.loads(m.data) for _, c, m in make_reader(f).iter_messages() if c.topic == "/radar/left/points"]
+    with AnyReader([bag_path]) as reader:
+        conns = [c for c in reader.connections if c.topic == "/radar/left/points"]
+        ros = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(connections=conns)]
+    assert len(clouds) == len(ros) == 3
+    for pts, cloud, msg in zip(scans, clouds, ros):
+        got = np.frombuffer(base64.b64decode(cloud["data"]), "<f4").reshape(-1, 5)
+        np.testing.assert_array_equal(got, pts)
+        assert msg.width == len(pts) and msg.point_step == 20
+        np.testing.assert_array_equal(np.frombuffer(bytes(msg.data), "<f4").reshape(-1, 5), pts)
