@@ -17,8 +17,8 @@ kept 6 of 19 frames/s per radar and fell behind; the robot does not run the emul
 
 Every 10 s it samples each process's resident memory (VmRSS) and CPU, the health report (bus loss,
 invalid frames, restarts) and the workers' lag: the odometry's (last radar scan to its point cloud) and
-the map's (last frame imaged). At the end: frames sent against frames recorded, memory growth per process
-after warm-up (goal: within 20 MB), and the lag over the run (goal: flat).
+the map's (last frame imaged). At the end: frames sent against frames recorded, memory per process after
+warm-up (its drift, goal within 20 MB, and its largest excursion), and the lag over the run (goal: flat).
 
 Writes docs/results/soak.json and docs/results/soak.png (docs/results/soak_quick.* with --quick).
 """
@@ -254,20 +254,27 @@ def soak(minutes: float, work: Path, radars: list[str]) -> dict:
     return result
 
 
+def rss_summary(samples: list[dict], duration_s: float) -> dict:
+    """Per process, after warm-up (from the third minute, or a tenth of a shorter run): ``drift_mb``, the
+    median of the last tenth of the samples less that of the first tenth (the trend a leak shows), and
+    ``excursion_mb``, the highest sample less the first (what a backlog borrows for a while)."""
+    settle_s = min(180.0, 0.1 * duration_s) if duration_s > 300 else 0.3 * duration_s
+    out = {}
+    for name in sorted({n for s in samples for n in s["rss_mb"]}):
+        values = np.array([s["rss_mb"][name] for s in samples if name in s["rss_mb"] and s["t_s"] >= settle_s])
+        if values.size < 2:
+            continue
+        tenth = max(1, values.size // 10)
+        out[name] = {"after_warm_up_mb": float(values[0]), "end_mb": float(values[-1]), "max_mb": float(values.max()),
+                     "drift_mb": float(np.median(values[-tenth:]) - np.median(values[:tenth])),
+                     "excursion_mb": float(values.max() - values[0])}
+    return out
+
+
 def summarise(samples, checker, laps, frames_per_lap, lap_s, warm_up_s, replay_code, replay_err, daemon_code,
               log_tail) -> dict:
     duration_s = samples[-1]["t_s"] if samples else 0.0
-    # Memory after warm-up: from the end of the third minute (or a tenth of the run) to the end.
-    settle_s = min(180.0, 0.1 * duration_s) if duration_s > 300 else 0.3 * duration_s
-    names = sorted({n for s in samples for n in s["rss_mb"]})
-    growth = {}
-    for name in names:
-        series = [(s["t_s"], s["rss_mb"][name]) for s in samples if name in s["rss_mb"] and s["t_s"] >= settle_s]
-        if len(series) >= 2:
-            values = np.array([v for _, v in series])
-            growth[name] = {"after_warm_up_mb": float(values[0]), "end_mb": float(values[-1]),
-                            "max_mb": float(values.max()), "growth_mb": float(values.max() - values[0])}
-
+    growth = rss_summary(samples, duration_s)
     def lag_stats(key):
         values = np.array([s[key] for s in samples if s.get(key) is not None], float)
         if values.size == 0:
@@ -288,7 +295,7 @@ def summarise(samples, checker, laps, frames_per_lap, lap_s, warm_up_s, replay_c
         "map_frames_dropped": last.get("map_dropped"), "map_frames_imaged": last.get("map_imaged"),
         "odometry_counters": last.get("odometry_counters"),
         "rss": growth, "rss_goal_mb": RSS_GOAL_MB,
-        "rss_flat": all(g["growth_mb"] <= RSS_GOAL_MB for g in growth.values()),
+        "rss_flat": all(g["drift_mb"] <= RSS_GOAL_MB for g in growth.values()),
         "odometry_lag": lag_stats("odometry_lag_s"), "map_lag": lag_stats("map_lag_s"),
         "imu_in_file_lag": lag_stats("imu_in_file_lag_s"),
         "no_loss": all(checker.frames[n] == sent and checker.invalid[n] == 0 for n in checker.frames)
@@ -314,7 +321,8 @@ def chart(result: dict, path: Path) -> None:
                  [s["rss_mb"][name] for s in samples if name in s["rss_mb"]], label=name)
     ax1.set_ylabel("resident memory, MB")
     ax1.legend(fontsize=7, ncol=3)
-    ax1.set_title(f"soak at 1x: {result['minutes']:.0f} min, four radars + IMU, recorder, odometry, live map")
+    radars = result.get("radars", [])
+    ax1.set_title(f"soak at 1x: {result['minutes']:.0f} min, {len(radars)} radars + IMU, recorder, odometry, live map")
     for key, label in (("odometry_lag_s", "odometry lag"), ("map_lag_s", "map lag"),
                        ("imu_in_file_lag_s", "IMU in file lag")):
         ax2.plot(t, [s.get(key) if s.get(key) is not None else np.nan for s in samples], label=label)
@@ -330,10 +338,21 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--minutes", type=float, default=30.0)
     ap.add_argument("--quick", action="store_true", help="3 minutes (a check that the soak runs)")
+    ap.add_argument("--summary-of", metavar="JSON",
+                    help="no run: summarise and chart the samples of an earlier run's JSON again")
     ap.add_argument("--radars", default="left_front,left_rear",
                     help="radars replayed and mapped (default the left pair: four at 1x, with their emulation on the "
                          "same two cores, saturate this machine; see the module notes)")
     args = ap.parse_args()
+    if args.summary_of:
+        path = Path(args.summary_of)
+        result = json.loads(path.read_text())
+        result["rss"] = rss_summary(result["samples"], result["samples"][-1]["t_s"])
+        result["rss_flat"] = all(g["drift_mb"] <= RSS_GOAL_MB for g in result["rss"].values())
+        path.write_text(json.dumps(result, indent=1) + "\n")
+        chart(result, path.with_suffix(".png"))
+        print(json.dumps(result["rss"], indent=1))
+        return 0 if result["no_loss"] and result["rss_flat"] else 1
     minutes = 3.0 if args.quick else args.minutes
     radars = args.radars.split(",")
     with tempfile.TemporaryDirectory(prefix="sarbot-soak-") as tmp:
