@@ -59,6 +59,14 @@ def _parse_xy(text: str, option: str) -> tuple[float, float]:
         raise SarbotError(f"{option} {text!r}: expected x,y in metres") from None
 
 
+def _new_output(path, overwrite: bool, option: str = "") -> Path:
+    """An output file path; one that exists already only with ``--overwrite`` (nothing is destroyed unasked)."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise SarbotError(f"{option}{path}: exists already (use --overwrite to replace it)")
+    return path
+
+
 def _json_default(obj):
     if isinstance(obj, np.ndarray):
         return obj.tolist()
@@ -82,9 +90,7 @@ def cmd_simulate(args) -> int:
     if not args.scene or not args.output:
         raise SarbotError("simulate needs a SCENE and -o OUTPUT (or --list)")
     scene = load_scene(args.scene)
-    out = Path(args.output)
-    if out.exists() and not args.overwrite:
-        raise SarbotError(f"{out}: exists already (use --overwrite to replace it)")
+    out = _new_output(args.output, args.overwrite)
     counts = simulate_recording(scene, out, progress=Progress("simulate"), overwrite=args.overwrite)
     print(f"wrote {out}: scene {scene.name}, " + ", ".join(f"{n} frames of {r}" for r, n in counts.items()))
     return EXIT_OK
@@ -105,8 +111,7 @@ def cmd_image(args) -> int:
     for path in (out, png):
         if path.exists() and path.resolve() == Path(args.recording).resolve():
             raise SarbotError(f"{path}: that is the recording being imaged; choose another output")
-        if path.exists() and not args.overwrite:
-            raise SarbotError(f"{path}: exists already (use --overwrite to replace it)")
+        _new_output(path, args.overwrite)
     with Recording(args.recording) as rec:
         radar = args.radar or (rec.radar_names[0] if len(rec.radar_names) == 1 else None)
         if radar is None:
@@ -216,9 +221,7 @@ def cmd_import_bag(args) -> int:
     from .importers.bag import import_bag
     from .progress import Progress
 
-    out = Path(args.output)
-    if out.exists() and not args.overwrite:
-        raise SarbotError(f"{out}: exists already (use --overwrite to replace it)")
+    out = _new_output(args.output, args.overwrite)
     counts = import_bag(args.bag, args.calib, out, radar_name=args.radar_name, overwrite=args.overwrite,
                         progress=Progress("import"))
     print(f"wrote {out}: " + ", ".join(f"{k} {v:.6g}" for k, v in counts.items()))
@@ -447,9 +450,7 @@ def cmd_info(args) -> int:
                 raise SarbotError(f"--tum: {args.files[0]} has no /truth to export")
         else:
             raise SarbotError(f"--tum: {args.files[0]} is an image; give a recording or a trajectory")
-        out = Path(args.tum)
-        if out.exists() and not args.overwrite:
-            raise SarbotError(f"--tum {out}: exists already (use --overwrite to replace it)")
+        out = _new_output(args.tum, args.overwrite, "--tum ")
         write_tum(out, traj)
         print(f"wrote {out} ({traj.time_ns.size} poses, TUM format for evo)", file=sys.stderr if args.json else sys.stdout)
     return EXIT_OK
