@@ -41,6 +41,7 @@ class OdometryWorkerConfig:
     scan_rate_hz: float = 10.0
     max_lag_s: float = 0.3
     max_catch_up_s: float = 30.0
+    publish_points: bool = False  # each scan's detections on points/<radar> (for the live view)
 
 
 class OdometryWorker(Worker):
@@ -144,7 +145,8 @@ class OdometryWorker(Worker):
         radar = self.radars[name]
         pc = detect(iq_to_complex(frame.iq), radar, self.orders[name], self.pc_config)
         t_scan = frame.frame_time_ns + self.half_frame_ns[name]
-        self.pub.send(PointCloudMessage(name, t_scan, pc.xyz_m, pc.doppler_mps))  # for the live view
+        if self.config.publish_points:
+            self.pub.send(PointCloudMessage(name, t_scan, pc.xyz_m, pc.doppler_mps))
         self._publish(self.rio.add_scan(RadarScan(t_scan, name, radar.mount, pc.xyz_m, pc.doppler_mps)))
 
     def _left_out(self, counter: str, lag_s: float) -> None:
