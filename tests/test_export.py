@@ -36,6 +36,7 @@ def test_recording_to_mcap_and_back_sample_for_sample(tmp_path):
     assert len(messages["/radar/left/adc"]) == times.size == 12
     assert len(messages["/imu"]) == imu["time_ns"].size and len(messages["/can"]) == can["time_ns"].size
     assert len(messages["/trigger"]) == triggers.size
+    assert [m["source"] for _, m in messages["/trigger"]] == ["sync_box"]  # as make_source wrote it
     assert summary.statistics.message_count == sum(len(v) for v in messages.values())
     assert schemas["/radar/left/adc"] == ("sarbot.RadarFrame", "jsonschema", "json")
     # Raw frames bit for bit, with their times and counters.

@@ -21,6 +21,8 @@ import numpy as np
 
 from imaging.core.errors import SarbotError
 
+from . import POINT_FIELDS, detection_scans
+
 _TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
 _VEC3 = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
 _QUAT = {"type": "object", "properties": {k: {"type": "number"} for k in "xyzw"}}
@@ -118,11 +120,8 @@ def export_mcap(recording: str | Path, output: str | Path, overwrite: bool = Fal
         for t, ident, dlc, data in zip(can["time_ns"], can["arbitration_id"], can["dlc"], can["data"]):
             out.send("/can", "sarbot.CanFrame", t, {"timestamp": _stamp(t), "id": int(ident), "dlc": int(dlc),
                                                     "data": base64.b64encode(bytes(data[:dlc])).decode()})
-        g = rec.file["trigger"] if "trigger" in rec.file else None
-        if g is not None:
-            for t, source in zip(g["time_ns"][()], g["source"][()]):
-                source = source.decode() if isinstance(source, bytes) else str(source)
-                out.send("/trigger", "sarbot.Trigger", t, {"timestamp": _stamp(t), "source": source})
+        for t, source in zip(rec.triggers(), rec.trigger_sources()):
+            out.send("/trigger", "sarbot.Trigger", t, {"timestamp": _stamp(t), "source": source})
         for t, source, level, message in rec.events():
             out.send("/events", "foxglove.Log", t, {"timestamp": _stamp(t), "level": _LEVELS.get(level, 2),
                                                     "message": message, "name": source, "file": "", "line": 0})
@@ -138,15 +137,10 @@ def export_mcap(recording: str | Path, output: str | Path, overwrite: bool = Fal
 
 
 def _points(out: _Out, rec, name: str) -> None:
-    det = rec.detections(name)
     mount = rec.radar(name).mount
     pose = {"position": _xyz(mount.translation_m), "orientation": dict(zip("xyzw", map(float, mount.rotation_xyzw)))}
-    fields = [{"name": n, "offset": 4 * i, "type": _FLOAT32} for i, n in enumerate(("x", "y", "z", "doppler", "snr"))]
-    scans = det["scan"]
-    for scan in np.unique(scans):
-        sel = scans == scan
-        t = int(det["time_ns"][sel][0])
-        pts = np.column_stack([det["xyz_m"][sel], det["doppler_mps"][sel], det["snr_db"][sel]]).astype("<f4")
+    fields = [{"name": n, "offset": 4 * i, "type": _FLOAT32} for i, n in enumerate(POINT_FIELDS)]
+    for t, pts in detection_scans(rec, name):
         out.send(f"/radar/{name}/points", "foxglove.PointCloud", t,
                  {"timestamp": _stamp(t), "frame_id": "base_link", "pose": pose, "point_stride": 20, "fields": fields,
                   "data": base64.b64encode(pts.tobytes()).decode()})

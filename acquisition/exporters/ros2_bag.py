@@ -15,6 +15,8 @@ import numpy as np
 
 from imaging.core.errors import SarbotError
 
+from . import POINT_FIELDS, detection_scans
+
 RADAR_FRAME = "sarbot_msgs/msg/RadarFrame"
 RADAR_FRAME_MSG = """std_msgs/Header header
 uint32 frame_counter
@@ -99,13 +101,8 @@ def export_ros2(recording: str | Path, output: str | Path, storage: str = "mcap"
 
 def _points(write, T, header, rec, name: str) -> None:
     PointCloud2, PointField = T["sensor_msgs/msg/PointCloud2"], T["sensor_msgs/msg/PointField"]
-    det = rec.detections(name)
-    fields = [PointField(name=n, offset=4 * i, datatype=PointField.FLOAT32, count=1)
-              for i, n in enumerate(("x", "y", "z", "doppler", "snr"))]
-    for scan in np.unique(det["scan"]):
-        sel = det["scan"] == scan
-        t = int(det["time_ns"][sel][0])
-        pts = np.column_stack([det["xyz_m"][sel], det["doppler_mps"][sel], det["snr_db"][sel]]).astype("<f4")
+    fields = [PointField(name=n, offset=4 * i, datatype=PointField.FLOAT32, count=1) for i, n in enumerate(POINT_FIELDS)]
+    for t, pts in detection_scans(rec, name):
         write(f"/radar/{name}/points", "sensor_msgs/msg/PointCloud2", t,
               PointCloud2(header=header(t, name), height=1, width=len(pts), fields=fields, is_bigendian=False,
                           point_step=20, row_step=20 * len(pts), data=pts.view(np.uint8).reshape(-1), is_dense=True))

@@ -349,6 +349,12 @@ class Recording:
     def triggers(self) -> np.ndarray:
         return self._f["trigger/time_ns"][()] if "trigger" in self._f else np.zeros(0, np.int64)
 
+    def trigger_sources(self) -> list[str]:
+        """Who saw each trigger (``/trigger/source``), in the order of ``triggers()``."""
+        if "trigger" not in self._f:
+            return []
+        return [v.decode() if isinstance(v, bytes) else str(v) for v in self._f["trigger/source"][()]]
+
     def can(self) -> dict[str, np.ndarray]:
         """/can as arrays (empty when the run had no CAN traffic or the file predates it)."""
         g = self._f.get("can")
