@@ -228,6 +228,31 @@ def cmd_import_bag(args) -> int:
     return EXIT_OK
 
 
+def cmd_import_ti(args) -> int:
+    from .importers.ti_capture import import_ti_capture
+    from .progress import Progress
+
+    velocity = _floats(args.velocity, 3, "--velocity")
+    out = _new_output(args.output, args.overwrite)
+    swap = {"auto": None, "yes": True, "no": False}[args.iq_swap]
+    got = import_ti_capture(args.capture, args.cfg, out, layout=args.layout, sample_format=args.sample_format,
+                            iq_swap=swap, radar_name=args.radar_name, velocity_mps=velocity, overwrite=args.overwrite,
+                            progress=Progress("import"))
+    print(f"wrote {out}: {got['frames']} frames, layout {got['layout']}{' (Q before I)' if got['iq_swap'] else ''}, "
+          f"{got['sample_format']} samples, sideband ratio {got['sideband_db']:+.1f} dB")
+    return EXIT_OK
+
+
+def _floats(text: str, n: int, option: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != n or not all(math.isfinite(v) for v in values):
+        raise SarbotError(f"{option} {text!r}: expected {n} finite numbers separated by commas")
+    return values
+
+
 def _radar_targets(items: list[str] | None) -> dict[str, tuple[str, int]]:
     """``--radar NAME=[HOST:]PORT`` of replay: where to send each radar's datagrams."""
     out = {}
@@ -637,6 +662,25 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--radar-name", default="radar")
     s.add_argument("--overwrite", action="store_true")
     s.set_defaults(func=cmd_import_bag)
+
+    s = sub.add_parser("import-ti", help="convert a TI raw ADC capture (adc_data.bin and the radar's .cfg) to a recording",
+                       epilog="example: sarbot import-ti adc_data.bin --cfg profile.cfg -o rec.h5 --velocity 0,0.05,0 "
+                              "(a radar on a rail moving 5 cm/s to its left; layout and sample format are found from the data)")
+    s.add_argument("capture", nargs="+", help="capture file(s), in order (mmWave Studio splits long captures)")
+    s.add_argument("--cfg", required=True, help="the TI .cfg the radar ran (waveform, chirps, RX, frame period)")
+    s.add_argument("-o", "--output", required=True)
+    s.add_argument("--layout", default="auto", choices=["auto", "lvds2", "lvds4", "interleaved"],
+                   help="lvds2: xWR16xx/18xx/68xx; lvds4: xWR12xx/14xx; interleaved: channel-interleaved I/Q pairs "
+                        "(default auto: the reading whose beat signal is one-sided)")
+    s.add_argument("--sample-format", default="auto", choices=["auto", "twos", "offset"],
+                   help="two's complement or offset binary (default auto)")
+    s.add_argument("--iq-swap", default="auto", choices=["auto", "yes", "no"],
+                   help="Q before I (default: as found, or as the .cfg's adcbufCfg says when --layout is given)")
+    s.add_argument("--velocity", default="0,0,0", help="VX,VY,VZ: the radar's constant velocity in m/s, world frame; it "
+                   "starts at the origin looking along +x (default 0,0,0: at rest). Written to /truth")
+    s.add_argument("--radar-name", default="ti")
+    s.add_argument("--overwrite", action="store_true")
+    s.set_defaults(func=cmd_import_ti)
 
     s = sub.add_parser("record", help="run the drivers and record everything to HDF5",
                        epilog="example: sarbot record --config rig.toml -o out/ --radar left_front=50001 --imu-port /dev/ttyUSB0 --split-time 600")

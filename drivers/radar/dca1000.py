@@ -5,8 +5,9 @@ count is the stream offset of the datagram's first sample, so datagrams are plac
 aligned to frames, and a lost datagram leaves a gap of exactly its size, which is zero-filled; every frame
 it touches is marked invalid. Frames are ``TiRadarConfig.frame_bytes`` long, back to back.
 
-Sample layout of the xWR18xx in complex 1x mode: per chirp, per RX, samples in pairs as four int16
-words ``Q0 Q1 I0 I1`` (this reproduces the reference values of the mmwave-capture-std test capture).
+Sample layout of the xWR18xx in complex 1x mode (``ti_capture`` layout ``lvds2``): per chirp, per RX,
+samples in pairs as four int16 words ``Q0 Q1 I0 I1`` with ``adcbufCfg``'s SampleSwap set (TI's default;
+this reproduces the reference values of the mmwave-capture-std test capture), ``I0 I1 Q0 Q1`` without.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from imaging.core.waveform import Waveform
 
 from .registry import WireFormat
 from .stream import RadarFrame
+from .ti_capture import capture_to_iq, iq_to_capture
 from .ti_cfg import TiRadarConfig, load_ti_cfg
 
 DATA_PORT = 4098
@@ -180,24 +182,18 @@ class Dca1000Assembler:
         return out
 
 
-def complex_1x_to_iq(frame: bytes | np.ndarray, chirps: int, n_rx: int, samples: int) -> np.ndarray:
+def complex_1x_to_iq(frame: bytes | np.ndarray, chirps: int, n_rx: int, samples: int, iq_swap: bool = True) -> np.ndarray:
     """int16 [chirps, n_rx, samples, 2] (I, Q) from the complex-1x byte layout, without going through floats."""
     words = np.frombuffer(bytes(frame), dtype="<i2")
     if words.size != 2 * chirps * n_rx * samples:
         raise Dca1000Error(f"{words.size // 2} complex samples do not fill [{chirps}, {n_rx}, {samples}]")
-    quad = words.reshape(-1, 4)  # Q0 Q1 I0 I1
-    out = np.empty((quad.shape[0], 2, 2), np.int16)
-    out[:, 0, 0], out[:, 0, 1] = quad[:, 2], quad[:, 0]
-    out[:, 1, 0], out[:, 1, 1] = quad[:, 3], quad[:, 1]
-    return out.reshape(chirps, n_rx, samples, 2)
+    return capture_to_iq(words, "lvds2", chirps, n_rx, samples, iq_swap)[0]
 
 
-def iq_to_complex_1x(iq: np.ndarray) -> bytes:
+def iq_to_complex_1x(iq: np.ndarray, iq_swap: bool = True) -> bytes:
     """The inverse of :func:`complex_1x_to_iq`: int16 [..., samples, 2] (even sample count) to wire bytes."""
-    pairs = np.ascontiguousarray(iq, dtype="<i2").reshape(-1, 2, 2)  # [pair][sample 0/1][I/Q]
-    quad = np.empty((pairs.shape[0], 4), "<i2")
-    quad[:, 0], quad[:, 1], quad[:, 2], quad[:, 3] = pairs[:, 0, 1], pairs[:, 1, 1], pairs[:, 0, 0], pairs[:, 1, 0]
-    return quad.tobytes()
+    iq = np.asarray(iq, np.int16)
+    return iq_to_capture(iq.reshape(-1, 1, 1, iq.shape[-2], 2), "lvds2", iq_swap).tobytes()
 
 
 class Dca1000Stream:
@@ -219,7 +215,7 @@ class Dca1000Stream:
     def _frames(self, frames) -> list[RadarFrame]:
         c = self.cfg
         return [RadarFrame(f.index, f.first_receive_ns, f.first_receive_ns, f.valid, f.bytes_missing,
-                           complex_1x_to_iq(f.data, c.chirps_per_frame, c.n_rx, c.adc_samples)) for f in frames]
+                           complex_1x_to_iq(f.data, c.chirps_per_frame, c.n_rx, c.adc_samples, c.iq_swap)) for f in frames]
 
     def feed(self, datagram: bytes, receive_ns: int) -> list[RadarFrame]:
         return self._frames(self._asm.feed(datagram, receive_ns))
@@ -231,12 +227,13 @@ class Dca1000Stream:
 class Dca1000Encoder:
     """Frames to the DCA1000's byte stream: sequence numbers and byte counts run on across frames."""
 
-    def __init__(self):
+    def __init__(self, iq_swap: bool = True):
         self.sequence = 1
         self.stream_bytes = 0
+        self.iq_swap = iq_swap  # TI's default; a recording does not keep its radar's adcbufCfg
 
     def __call__(self, frame_counter: int, frame_time_ns: int, iq: np.ndarray) -> list[bytes]:
-        wire = iq_to_complex_1x(iq)
+        wire = iq_to_complex_1x(iq, self.iq_swap)
         datagrams = encode_data_packets(wire, start_seq=self.sequence, start_byte=self.stream_bytes)
         self.sequence += len(datagrams)
         self.stream_bytes += len(wire)

@@ -24,6 +24,7 @@ class TiRadarConfig:
     loops: int
     frame_periodicity_ms: float
     complex_output: bool
+    iq_swap: bool = True  # adcbufCfg SampleSwap: Q in the first (least significant) half of each pair
 
     @property
     def n_rx(self) -> int:
@@ -95,13 +96,19 @@ def parse_ti_cfg(text: str, source: str = "<cfg>") -> TiRadarConfig:
         la, adc = cmds["adcCfg"][0]
         if len(adc) >= 2:
             complex_output = num(adc[1], "adcCfg", la, int) != 0
+    iq_swap = True
+    if "adcbufCfg" in cmds:
+        lb, buf = cmds["adcbufCfg"][0]
+        # SDK 2+ puts a subframe index first (5 values); SDK 1.x has 4: format, swap, interleave, threshold.
+        if len(buf) >= 4:
+            iq_swap = num(buf[2] if len(buf) >= 5 else buf[1], "adcbufCfg", lb, int) != 0
     return TiRadarConfig(
         start_freq_ghz=num(profile[1], "profileCfg", ln), idle_time_us=num(profile[2], "profileCfg", ln),
         ramp_end_time_us=num(profile[4], "profileCfg", ln), freq_slope_mhz_per_us=num(profile[7], "profileCfg", ln),
         adc_samples=num(profile[9], "profileCfg", ln, int), sample_rate_ksps=num(profile[10], "profileCfg", ln),
         rx_mask=num(channel[0], "channelCfg", lc, int), tx_order=tuple(chirps[k] for k in range(first, last + 1)),
         loops=num(frame[2], "frameCfg", lf, int), frame_periodicity_ms=num(frame[4], "frameCfg", lf),
-        complex_output=complex_output)
+        complex_output=complex_output, iq_swap=iq_swap)
 
 
 def load_ti_cfg(path: str | Path) -> TiRadarConfig:
