@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imaging.core.errors import SarbotError
+from imaging.core.errors import HardwareError, SarbotError
 
 from .processes import configure_logging, ensure_jit_cache_dir
 
@@ -24,6 +24,7 @@ log = logging.getLogger(f"sarbot.{__name__}")
 EXIT_OK = 0
 EXIT_USAGE = 2  # bad input: arguments, files, configuration
 EXIT_DISK_FULL = 3  # recording stopped: no space left; the file is readable up to its last flush
+EXIT_HARDWARE = 4  # a device did not answer or refused its configuration (DCA1000, radar CLI)
 EXIT_INTERRUPTED = 130
 
 
@@ -350,7 +351,40 @@ def record_setup(args):
         raise SarbotError("nothing to record: give --radar NAME=[HOST:]PORT, --dca1000 NAME=PORT:CFG, --imu-port DEVICE and/or --can")
     check_duration(args.split_time, "--split-time")
     return Setup(rig, links, args.imu_port, can, split_bytes=_size_bytes(args.split_size), split_s=args.split_time,
-                 min_free_bytes=_size_bytes(args.min_free, "--min-free"), health_endpoint=args.health_endpoint)
+                 min_free_bytes=_size_bytes(args.min_free, "--min-free"), health_endpoint=args.health_endpoint,
+                 controls=_ti_controls(args, links))
+
+
+def _ti_controls(args, links) -> list:
+    """What --dca1000-arm and --radar-cli ask sarbot to drive, one TiRadarControl per radar."""
+    from drivers.radar.ti_arming import TiRadarControl, parse_arm_option
+
+    dca_links = {link.name: link for link in links if link.wire_format == "DCA1000"}
+    per_radar: dict[str, dict] = {}
+
+    def link_of(name: str, option: str):
+        if name not in dca_links:
+            raise SarbotError(f"{option} {name}: not a DCA1000 radar of this recording (give it with --dca1000 "
+                              f"{name}=PORT:CFG{'; DCA1000 radars: ' + ', '.join(dca_links) if dca_links else ''})")
+        return dca_links[name]
+
+    for item in getattr(args, "dca1000_arm", None) or []:
+        try:
+            name, kwargs = parse_arm_option(item)
+        except ValueError as exc:
+            raise SarbotError(f"--dca1000-arm {item!r}: {exc}") from None
+        link_of(name, "--dca1000-arm")
+        per_radar.setdefault(name, {}).update(kwargs)
+    for item in getattr(args, "radar_cli", None) or []:
+        name, sep, device = item.partition("=")
+        if not (name and sep and device):
+            raise SarbotError(f"--radar-cli {item!r}: expected NAME=DEVICE")
+        link_of(name, "--radar-cli")
+        if not Path(device).exists():
+            raise SarbotError(f"--radar-cli {item!r}: no such device {device}")
+        per_radar.setdefault(name, {})["cli_port"] = device
+    return [TiRadarControl(name, str(dca_links[name].options["cfg"]), dca_links[name].port, **kwargs)
+            for name, kwargs in per_radar.items()]
 
 
 def _record(setup, out: Path, duration_s: float | None, extra_paths=(), **kwargs) -> int:
@@ -579,6 +613,13 @@ def _acquisition_options(s) -> None:
                         "format=DCA1000,cfg=xwr18xx.cfg")
     s.add_argument("--dca1000", action="append", metavar="NAME=PORT:CFG",
                    help="shorthand for --radar NAME=PORT,format=DCA1000,cfg=CFG (a TI radar through a DCA1000)")
+    s.add_argument("--dca1000-arm", action="append", metavar="NAME[=HOST[:PORT]][,listen=[HOST:]PORT][,lanes=2|4][,delay_us=US]",
+                   help="arm that --dca1000 radar's capture card before recording and stop it after (its configuration "
+                        "protocol; default address 192.168.33.180:4096, replies on this host's port 4096, 2 LVDS lanes "
+                        "(4 for xWR12xx/14xx), packet delay 25 us)")
+    s.add_argument("--radar-cli", action="append", metavar="NAME=DEVICE",
+                   help="send that --dca1000 radar's .cfg to its CLI serial port (each line must be answered Done), "
+                        "sensorStart once the DCA1000 records, sensorStop at the end")
     s.add_argument("--imu-port", help="serial device of the Xsens IMU (or the pty replay links)")
     _can_options(s)
     s.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C / SIGTERM)")
@@ -801,6 +842,9 @@ def main(argv: list[str] | None = None) -> int:
     ensure_jit_cache_dir()  # before numba is imported, here or in a child
     try:
         return args.func(args)
+    except HardwareError as exc:
+        print(f"sarbot: error: {exc}", file=sys.stderr)
+        return EXIT_HARDWARE
     except SarbotError as exc:
         print(f"sarbot: error: {exc}", file=sys.stderr)
         return EXIT_USAGE

@@ -24,6 +24,7 @@ from drivers.radar.link import RadarLink
 from imaging.core.rig import Rig
 
 from .bus import BusPublisher
+from .devices import DeviceBringUp
 from .driver_loops import can_process, imu_process, radar_process
 from .messages import ClockState, Health, Latency, WorkerState
 from .processes import ProcessSpec, free_tcp_endpoint
@@ -55,6 +56,9 @@ class Setup:
     worker_stop_timeout_s: float = 60.0
     warm_up_timeout_s: float = 300.0
     workers: list[WorkerSpec] = dataclasses.field(default_factory=list)
+    #: Devices to bring up once the drivers listen, and down before they stop (``TiRadarControl``).
+    controls: list = dataclasses.field(default_factory=list)
+    control_listen_timeout_s: float = 30.0
 
 
 def process_specs(setup: Setup, stop) -> list[ProcessSpec]:
@@ -131,7 +135,9 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
     returns the files written (``path``, or a time-stamped name in ``out_dir``). ``on_health`` is called
     with every ``Health`` report.
 
-    Raises DiskFullError (after stopping everything and closing the file) when the disk fills up.
+    Raises DiskFullError (after stopping everything and closing the file) when the disk fills up, and
+    HardwareError when a device of ``setup.controls`` refuses to come up (the run stops; the file keeps
+    what came before and the device's answer in /events).
     """
     out_dir.mkdir(parents=True, exist_ok=True)
     path = path or out_dir / time.strftime("recording_%Y%m%dT%H%M%S.h5")
@@ -169,10 +175,14 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
     quick_failures = dict.fromkeys(procs, 0)
     restart_at: dict[str, float] = {}  # roles waiting out their backoff
     disk_full = None
+    devices = DeviceBringUp(setup.controls, setup.control_listen_timeout_s).start()
     try:
         try:
             while not stopping.is_set() and (t_end is None or time.monotonic() < t_end) and not (until and until.is_set()):
                 recorder.step(timeout_ms=50)
+                devices.drain(recorder.record_event)
+                if devices.failed.is_set():
+                    break
                 now = time.monotonic()
                 count = sum(recorder.frames.values()) + recorder.imu_samples + recorder.can_frames
                 if count != sensor_count:
@@ -217,6 +227,7 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
                         log.warning("%s", message)
                         restart_at[role] = now + delay
             notify("STOPPING=1")
+            devices.stop(recorder.record_event)  # the radars stop sending before their drivers stop listening
             stop.set()
             deadline = time.monotonic() + 3.0
             while time.monotonic() < deadline:  # drain what the drivers flush on the way out
@@ -231,6 +242,13 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
             notify(f"STATUS=stopped: {exc.strerror}")
             log.error("%s", exc.strerror)
     finally:
+        def record_event_if_possible(*event):  # a full disk must not keep the devices running
+            try:
+                recorder.record_event(*event)
+            except Exception:  # noqa: BLE001 - logged already by DeviceBringUp
+                pass
+
+        devices.stop(record_event_if_possible)
         stop.set()
         for role, proc in procs.items():
             # Workers finish their products (trajectory, map) after the drivers stop; give them time.
@@ -246,4 +264,6 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
              recorder.frames, recorder.imu_samples, recorder.can_frames, restarts)
     if disk_full is not None:
         raise disk_full
+    if devices.error is not None:
+        raise devices.error
     return recorder.paths

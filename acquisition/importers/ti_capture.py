@@ -30,7 +30,7 @@ from imaging.core.rig import AntennaArray, Mount, RadarConfig
 from imaging.core.trajectory import TrajectorySample
 from imaging.io.recording import RecordingWriter
 
-log = logging.getLogger(__name__)
+log = logging.getLogger(f"sarbot.{__name__}")
 
 #: The best reading must show at least this sideband ratio, and beat every other reading (its own mirror
 #: aside) by MARGIN_DB, to be taken without --layout.

@@ -20,3 +20,8 @@ class ConfigError(SarbotError, ValueError):
 
 class FileFormatError(SarbotError):
     """A file that cannot be read, or is not of the schema expected."""
+
+
+class HardwareError(SarbotError):
+    """A device that did not answer, or refused what it was sent (the DCA1000, a radar's CLI). The message
+    names the device, the step and what came back; the command line exits with code 4."""
