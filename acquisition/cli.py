@@ -477,10 +477,13 @@ def cmd_export(args) -> int:
     from .progress import Progress
 
     progress = Progress("export", unit="frame")
+    if args.ros2 and (args.map or args.trajectory):
+        raise SarbotError("--map and --trajectory go into MCAP only (ROS 2 has no message for a dB map); leave out --ros2")
     if args.ros2:
         counts = export_ros2(args.recording, args.output, storage=args.storage, progress=progress)
     else:
-        counts = export_mcap(args.recording, args.output, overwrite=args.overwrite, progress=progress)
+        counts = export_mcap(args.recording, args.output, overwrite=args.overwrite, progress=progress,
+                             maps=args.map or (), trajectories=args.trajectory or ())
     print(f"wrote {args.output}: " + ", ".join(f"{topic} {n}" for topic, n in counts.items()))
     return EXIT_OK
 
@@ -763,12 +766,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_completion)
 
     s = sub.add_parser("export", help="a recording as MCAP (Foxglove and the mcap tools) or a ROS 2 bag",
-                       epilog="examples: sarbot export rec.h5 -o rec.mcap (then open it in Foxglove); "
+                       epilog="examples: sarbot export rec.h5 -o rec.mcap --map stripmap.h5 --trajectory traj.h5 (then open it in Foxglove); "
                               "sarbot export rec.h5 -o rec_bag --ros2 (then: ros2 bag play rec_bag)")
     s.add_argument("recording")
     s.add_argument("-o", "--output", required=True, help="the .mcap file, or with --ros2 the bag folder, to write")
     s.add_argument("--ros2", action="store_true", help="a ROS 2 bag (standard messages; raw frames as sarbot_msgs)")
     s.add_argument("--storage", default="mcap", help="ROS 2 bag storage: mcap (default) or sqlite3")
+    s.add_argument("--map", action="append", metavar="IMAGE.h5",
+                   help="add a SAR image or strip map (sarbot run's stripmap_*.h5, sarbot image) as /map, a foxglove.Grid in dB")
+    s.add_argument("--trajectory", action="append", metavar="TRAJ.h5",
+                   help="add an odometry trajectory (sarbot run's trajectory_*.h5, sarbot rio) as /pose")
     s.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     s.set_defaults(func=cmd_export)
 

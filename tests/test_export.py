@@ -87,6 +87,50 @@ def test_truth_and_events_become_foxglove_poses_and_logs(tmp_path):
     assert log[0] == "foxglove.Log" and log[1]["level"] == 4 and log[1]["message"] == "lost 3"
 
 
+def test_a_strip_map_and_a_trajectory_go_along(tmp_path):
+    """The products of sarbot run beside the recording: the map as a foxglove.Grid in dB, the odometry as poses."""
+    from imaging.io.image_file import SarImage, write_image
+    from imaging.io.trajectory_file import write_trajectory
+
+    src = tmp_path / "rec.h5"
+    make_source(src, n_frames=4)
+    rng = np.random.default_rng(2)
+    x, y = np.arange(-1.0, 1.0, 0.01), np.arange(1.5, 2.5, 0.02)
+    image = (rng.normal(size=(y.size, x.size)) + 1j * rng.normal(size=(y.size, x.size))).astype(np.complex64)
+    image[30, 150] = 40.0
+    write_image(tmp_path / "map.h5", SarImage(image, x, y, np.array([0.3]), {"wavelength_m": 0.0039}))
+    with Recording(src) as rec:
+        end_ns = int(rec.frame_time_ns("left")[-1])
+    from imaging.core.trajectory import SampledTrajectory
+
+    t = end_ns - np.arange(5)[::-1] * 10_000_000
+    traj = SampledTrajectory(t, np.column_stack([np.linspace(0, 1, 5), np.zeros(5), np.zeros(5)]), np.tile([0, 0, 0, 1.0], (5, 1)))
+    write_trajectory(tmp_path / "traj.h5", traj)
+    out = tmp_path / "rec.mcap"
+    res = subprocess.run([*CLI, "export", str(src), "-o", str(out), "--map", str(tmp_path / "map.h5"),
+                          "--trajectory", str(tmp_path / "traj.h5")], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    got = {}
+    with out.open("rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            got.setdefault(channel.topic, []).append((schema.name, message.log_time, json.loads(message.data)))
+    ((schema, log_time, grid),) = got["/map"]
+    assert schema == "foxglove.Grid" and log_time == end_ns and grid["column_count"] == x.size
+    db = np.frombuffer(base64.b64decode(grid["data"]), "<f4").reshape(-1, grid["row_stride"] // 4)
+    mag = np.abs(image)
+    np.testing.assert_allclose(db, 20 * np.log10(mag / mag.max()), atol=1e-4)
+    assert db[30, 150] == 0.0
+    # Cell (row r, column c) is centred on (x[c], y[r]).
+    corner, cell = grid["pose"]["position"], grid["cell_size"]
+    assert abs(corner["x"] + 150.5 * cell["x"] - x[150]) < 1e-9
+    assert abs(corner["y"] + 30.5 * cell["y"] - y[30]) < 1e-9 and corner["z"] == 0.3
+    poses = got["/pose"]
+    assert [lt for _, lt, _ in poses] == t.tolist() and poses[-1][2]["pose"]["position"]["x"] == 1.0
+    bad = subprocess.run([*CLI, "export", str(src), "-o", str(tmp_path / "b.mcap"), "--map", str(src)],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and str(src) in bad.stderr and not (tmp_path / "b.mcap").exists()
+
+
 def test_recording_to_a_ros2_bag_read_back_with_anyreader(tmp_path):
     from rosbags.highlevel import AnyReader
 

@@ -8,7 +8,12 @@ Topics, each message at its sensor time (``log_time``, ns):
   where the recording has them;
 - ``/imu`` (``sarbot.Imu``): one sample, gyro rad/s, specific force m/s^2, the IMU's counter;
 - ``/can`` (``sarbot.CanFrame``), ``/trigger`` (``sarbot.Trigger``), ``/events`` (``foxglove.Log``);
-- ``/truth`` (``foxglove.PoseInFrame``, frame ``world``) where the recording has it.
+- ``/truth`` (``foxglove.PoseInFrame``, frame ``world``) where the recording has it;
+- with ``maps``: ``/map`` (``foxglove.Grid``, frame ``world``): each SAR image (a strip map, ``sarbot image``)
+  as float32 dB, 0 dB at its peak, stamped at the recording's end; a volume by its brightest voxel per column;
+- with ``trajectories``: ``/pose`` (``foxglove.PoseInFrame``): each pose of an odometry trajectory.
+
+With several maps or trajectories, each topic gets the file's stem: ``/map/stripmap_demo``.
 """
 
 from __future__ import annotations
@@ -41,6 +46,12 @@ SCHEMAS = {
     "sarbot.Trigger": {"timestamp": _TIME, "source": {"type": "string"}},
     "foxglove.Log": {"timestamp": _TIME, "level": {"type": "integer"}, "message": {"type": "string"},
                      "name": {"type": "string"}, "file": {"type": "string"}, "line": {"type": "integer"}},
+    "foxglove.Grid": {"timestamp": _TIME, "frame_id": {"type": "string"},
+                      "pose": {"type": "object", "properties": {"position": _VEC3, "orientation": _QUAT}},
+                      "column_count": {"type": "integer"},
+                      "cell_size": {"type": "object", "properties": {k: {"type": "number"} for k in "xy"}},
+                      "row_stride": {"type": "integer"}, "cell_stride": {"type": "integer"},
+                      "fields": {"type": "array"}, "data": _BYTES},
     "foxglove.PoseInFrame": {"timestamp": _TIME, "frame_id": {"type": "string"},
                              "pose": {"type": "object", "properties": {"position": _VEC3, "orientation": _QUAT}}},
 }
@@ -79,15 +90,21 @@ class _Out:
         self.counts[topic] += 1
 
 
-def export_mcap(recording: str | Path, output: str | Path, overwrite: bool = False, progress=None) -> dict[str, int]:
-    """Write ``recording`` as MCAP to ``output``; returns the number of messages per topic."""
+def export_mcap(recording: str | Path, output: str | Path, overwrite: bool = False, progress=None, maps=(),
+                trajectories=()) -> dict[str, int]:
+    """Write ``recording`` (and the image files ``maps``, the trajectory files ``trajectories``) as MCAP to
+    ``output``; returns the number of messages per topic."""
+    from imaging.io.image_file import read_image
     from imaging.io.recording import Recording
+    from imaging.io.trajectory_file import read_trajectory
 
     output = Path(output)
     if output.exists() and not overwrite:
         raise SarbotError(f"{output}: exists already (use --overwrite to replace it)")
     if output.suffix.lower() != ".mcap":
         raise SarbotError(f"{output}: give a .mcap file name")
+    images = {_topic("/map", p, maps): read_image(p) for p in maps}  # unreadable files fail before any writing
+    tracks = {_topic("/pose", p, trajectories): read_trajectory(p) for p in trajectories}
     partial = output.with_name(output.name + ".partial")
     with Recording(recording) as rec, partial.open("wb") as stream:
         out = _Out(stream)
@@ -131,9 +148,45 @@ def export_mcap(recording: str | Path, output: str | Path, overwrite: bool = Fal
                 out.send("/truth", "foxglove.PoseInFrame", t,
                          {"timestamp": _stamp(t), "frame_id": "world",
                           "pose": {"position": _xyz(p), "orientation": dict(zip("xyzw", map(float, q)))}})
+        for topic, track in tracks.items():
+            for t, p, q in zip(track.time_ns, track.position_m, track.orientation_xyzw):
+                out.send(topic, "foxglove.PoseInFrame", t,
+                         {"timestamp": _stamp(t), "frame_id": "world",
+                          "pose": {"position": _xyz(p), "orientation": dict(zip("xyzw", map(float, q)))}})
+        end_ns = max([int(rec.frame_time_ns(n)[-1]) for n in rec.radar_names if rec.n_frames(n)] or [0])
+        for topic, image in images.items():
+            out.send(topic, "foxglove.Grid", end_ns, grid_message(image, end_ns))
         out.writer.finish()
     partial.replace(output)  # a half-written file never carries the name
     return dict(out.counts)
+
+
+def _topic(base: str, path, paths) -> str:
+    return base if len(paths) == 1 else f"{base}/{Path(path).stem}"
+
+
+def grid_db(image) -> np.ndarray:
+    """float32 [ny, nx] dB of a SarImage, 0 at its peak, floored at -120 dB (a volume: its brightest voxel
+    along z)."""
+    mag = np.abs(image.image)
+    if mag.ndim == 3:
+        mag = mag.max(axis=0)
+    peak = float(mag.max()) or 1.0
+    return (20.0 * np.log10(np.maximum(mag / peak, 1e-6))).astype("<f4")
+
+
+def grid_message(image, t_ns: int) -> dict:
+    """A SarImage as a foxglove.Grid (JSON): row r, column c at (x_m[c], y_m[r]) in the world frame."""
+    db = grid_db(image)
+    dx = float(image.x_m[1] - image.x_m[0]) if image.x_m.size > 1 else 1.0
+    dy = float(image.y_m[1] - image.y_m[0]) if image.y_m.size > 1 else dx
+    z = float(image.z_m[0]) if image.z_m is not None and np.size(image.z_m) else 0.0
+    corner = {"x": float(image.x_m[0]) - dx / 2, "y": float(image.y_m[0]) - dy / 2, "z": z}
+    return {"timestamp": _stamp(t_ns), "frame_id": "world",
+            "pose": {"position": corner, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
+            "column_count": int(db.shape[1]), "cell_size": {"x": dx, "y": dy}, "row_stride": 4 * int(db.shape[1]),
+            "cell_stride": 4, "fields": [{"name": "db", "offset": 0, "type": _FLOAT32}],
+            "data": base64.b64encode(db.tobytes()).decode()}
 
 
 def _points(out: _Out, rec, name: str) -> None:
