@@ -3,6 +3,7 @@ radar CLI on a pty, and ``sarbot record --dca1000-arm --radar-cli`` end to end a
 
 from __future__ import annotations
 
+import functools
 import os
 import socket
 import subprocess
@@ -34,8 +35,16 @@ from imaging.core.errors import HardwareError
 from imaging.io.recording import Recording
 
 ROOT = Path(__file__).resolve().parents[1]
-REFERENCE = [d.payload for d in read_udp(SHARED_DATA / "dca1000_iwr1843_one_frame" / "config_commands.pcap")]
-REFERENCE_BY_COMMAND = {decode_response(r)[0]: r for r in REFERENCE}
+
+
+@functools.cache
+def reference() -> list[bytes]:
+    """The board's replies in the reference exchange, in capture order."""
+    return [d.payload for d in read_udp(SHARED_DATA / "dca1000_iwr1843_one_frame" / "config_commands.pcap")]
+
+
+def reference_reply(command: int) -> bytes:
+    return next(r for r in reference() if decode_response(r)[0] == command)
 
 
 def free_udp_port() -> int:
@@ -73,13 +82,13 @@ def test_encodings_agree_with_the_xwr_package():
     for command, payload in ((Command.SYSTEM_CONNECTION, b""), (Command.CONFIG_FPGA_GEN, FpgaConfig().payload()),
                              (Command.CONFIG_PACKET_DELAY, packet_delay_payload(5.0)), (Command.RECORD_START, b"")):
         assert encode_request(command, payload) == types.Request(types.Command(int(command)), payload).to_bytes()
-    reply = types.Response.from_bytes(REFERENCE_BY_COMMAND[Command.READ_FPGA_VERSION])
+    reply = types.Response.from_bytes(reference_reply(Command.READ_FPGA_VERSION))
     assert FpgaVersion.from_status(reply.status) == FpgaVersion(2, 8, False)
 
 
 def test_the_emulator_answers_the_reference_exchange_byte_for_byte(board):
     """The reference capture holds the board's answers to each command once, in code order."""
-    commands = [decode_response(r)[0] for r in REFERENCE]
+    commands = [decode_response(r)[0] for r in reference()]
     assert commands == [0x01, 0x02, 0x05, 0x06, 0x0B, 0x03, 0x04, 0x09, 0x0A, 0x0E]
     payloads = {0x0B: packet_delay_payload(25), 0x03: FpgaConfig().payload(), 0x04: bytes(18)}
     with Dca1000Control(board.address, ("127.0.0.1", 0), timeout_s=0.05, attempts=10) as dca:
@@ -87,7 +96,7 @@ def test_the_emulator_answers_the_reference_exchange_byte_for_byte(board):
             dca.request(Command(command), payloads.get(command, b""))
             if command == 0x03:
                 time.sleep(0.2)  # the FPGA is deaf for a moment after its configuration
-    assert [reply for _, reply in dca.transcript] == REFERENCE
+    assert [reply for _, reply in dca.transcript] == reference()
 
 
 def test_arming_sequence_and_every_answer_match_the_reference(board):
@@ -99,7 +108,7 @@ def test_arming_sequence_and_every_answer_match_the_reference(board):
     # system connection, version, FPGA config, pings until it answers again, packet delay, start; then stop.
     assert sent[:3] == [0x09, 0x0E, 0x03] and sent[-3:] == [0x0B, 0x05, 0x06] and set(sent[3:-3]) == {0x09}
     for request, reply in dca.transcript:
-        assert reply == REFERENCE_BY_COMMAND[decode_request(request)[0]]
+        assert reply == reference_reply(decode_request(request)[0])
     assert [decode_request(q)[0] for q, a in board.transcript if a is None]  # pings the deaf FPGA did not answer
     assert board.packet_delay_us == pytest.approx(25.0) and not board.recording
 
