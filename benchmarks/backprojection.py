@@ -2,8 +2,11 @@
 
 For each interpolation mode and thread count: throughput in backprojections per second (one grid point x
 one profile), as a ratio to the plain numpy reference run in the same process, and the image's
-signal-to-error ratio against the exact matched filter. Also: what float32 geometry would do 5 km from the
-origin, and a measured floor for the two unavoidable parts of the kernel (float64 geometry, the gather).
+signal-to-error ratio against the exact matched filter. Also: what naive float32 geometry would do 5 km
+from the origin (sarbot's block-relative float32 does not lose it), the cost of handing ``backproject``
+profiles that are not in its guarded layout (one copy per call), a measured floor for the two unavoidable
+parts of the kernel (float64 geometry, the gather), and, where torch and torchbp are importable
+(benchmarks/README.md says how to install them), torchbp's Cartesian CPU kernel on the same problem.
 
     python benchmarks/backprojection.py [--quick]
 
@@ -38,9 +41,6 @@ from imaging.sim.simulator import simulate_frames  # noqa: E402
 from imaging.sim.targets import PointTarget  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
-#: Published figure for the best open CPU kernel we know (C++/OpenMP, linear interpolation, float32
-#: geometry) on this 2-core machine; quoted, not measured here.
-EXTERNAL_REFERENCE_GBPS = 0.7
 
 
 def make_case(n_frames: int, nx: int, ny: int, origin=(0.0, 0.0)):
@@ -126,7 +126,8 @@ def main() -> int:
     print(f"case: {n_p} profiles (chirps x RX) x {n_g} grid points = {n_p * n_g / 1e9:.2f} G backprojections")
     sub = grid.reshape(-1, 3)[:: max(1, n_g // 2048)]  # accuracy subset for the exact matched filter
 
-    profiles = {os_: range_compress(samples, wf.f0_hz, wf.frequency_step_hz, oversample=os_) for os_ in (8, 16, 32, 64)}
+    profiles = {os_: range_compress(samples, wf.f0_hz, wf.frequency_step_hz, oversample=os_, guarded=True)
+                for os_ in (8, 16, 32, 64)}
     exact_sub = backproject(profiles[16], tx, rx, sub, mode="exact")
 
     # numpy reference: linear mode, on a slice of profiles (its cost is linear in both).
@@ -159,6 +160,16 @@ def main() -> int:
 
     # Floors on 2 threads: float64 geometry alone, the gather alone.
     numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+    unguarded = range_compress(samples, wf.f0_hz, wf.frequency_step_hz, oversample=16)  # the kernel must copy these
+    t_copy = best_time(lambda: backproject(unguarded, tx, rx, grid), repeats)
+    default_t = n_p * n_g / next(r for r in rows if r["default"] and r["threads"] == min(2, numba.config.NUMBA_NUM_THREADS))["backprojections_per_s"]
+    copy_cost = {"backprojections_per_s": n_p * n_g / t_copy, "slowdown": t_copy / default_t,
+                 "profile_bytes": int(profiles[16].rows.nbytes)}
+    print(f"profiles not in the guarded layout: {n_p * n_g / t_copy / 1e9:.3f} G/s ({t_copy / default_t:.2f}x the time: "
+          f"a {profiles[16].rows.nbytes / 1e6:.0f} MB copy per call)")
+    torchbp = torchbp_comparison(profiles[16], tx, rx, grid, wf, sub, exact_sub, n_p * n_g / default_t, repeats)
+    print("torchbp: " + (f"{torchbp['backprojections_per_s'] / 1e9:.3f} G/s; sarbot is {torchbp['sarbot_ratio']:.2f}x"
+                         if "backprojections_per_s" in torchbp else torchbp["status"]))
     g = grid.reshape(-1, 3)
     gx, gy, gz = (np.ascontiguousarray(g[:, k]) for k in range(3))
     out = np.zeros(n_g)
@@ -182,9 +193,9 @@ def main() -> int:
     far_img = backproject(prof_far, tx_far, rx_far, grid_far)
     far32 = backproject_reference(prof_far, tx_far.astype(np.float32).astype(np.float64), rx_far.astype(np.float32).astype(np.float64),
                                   grid_far.astype(np.float32).astype(np.float64))
-    far_origin = {"ser_float64_geometry_db": ser_db(far_img, near_img), "ser_float32_geometry_db": ser_db(far32, near_img)}
-    print(f"5 km from the origin: SER against the same scene at the origin: float64 geometry {far_origin['ser_float64_geometry_db']:.1f} dB, "
-          f"float32 geometry {far_origin['ser_float32_geometry_db']:.1f} dB")
+    far_origin = {"ser_sarbot_db": ser_db(far_img, near_img), "ser_naive_float32_positions_db": ser_db(far32, near_img)}
+    print(f"5 km from the origin: SER against the same scene at the origin: sarbot (float64 positions, block-relative "
+          f"float32) {far_origin['ser_sarbot_db']:.1f} dB, naive float32 positions {far_origin['ser_naive_float32_positions_db']:.1f} dB")
 
     default2 = next(r for r in rows if r["default"] and r["threads"] == max(x["threads"] for x in rows))
     result = {
@@ -192,24 +203,60 @@ def main() -> int:
                     "numpy": np.__version__},
         "case": {"profiles": n_p, "grid_points": n_g, "samples_per_chirp": wf.samples_per_chirp, "quick": args.quick},
         "numpy_reference_backprojections_per_s": numpy_bps,
-        "external_reference_backprojections_per_s": EXTERNAL_REFERENCE_GBPS * 1e9,
+        "torchbp": torchbp,
+        "unguarded_profiles": copy_cost,
         "results": rows,
         "floors": floors,
         "far_from_origin": far_origin,
         "default_mode": {"mode": "linear", "oversample": 16, "backprojections_per_s": default2["backprojections_per_s"],
                          "speedup_vs_numpy": default2["speedup_vs_numpy"], "ser_db": default2["ser_db"],
-                         "vs_external_reference": default2["backprojections_per_s"] / (EXTERNAL_REFERENCE_GBPS * 1e9),
+                         "vs_torchbp": torchbp.get("sarbot_ratio"),
                          "fraction_of_floor": default2["backprojections_per_s"] / floors["geometry_plus_gather_per_s"]},
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     name = "backprojection_quick" if args.quick else "backprojection"
     (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2))
-    chart(rows, numpy_bps, floors, RESULTS / f"{name}.png")
+    chart(rows, numpy_bps, floors, torchbp, RESULTS / f"{name}.png")
     print(f"wrote {RESULTS / (name + '.json')} and {name}.png")
     return 0
 
 
-def chart(rows, numpy_bps, floors, path):
+def torchbp_comparison(prof, tx, rx, grid, wf, sub, exact_sub, sarbot_bps: float, repeats: int) -> dict:
+    """torchbp's Cartesian CPU kernel (``backprojection_cart_2d``, monostatic) on the same profiles: each
+    profile from the midpoint of its TX and RX (the phase centre), the grid plane shifted to z = 0 as its
+    kernel assumes. Its time, and the SER of its image's magnitude against sarbot's exact matched filter (its
+    phase conventions differ from sarbot's, the magnitude does not)."""
+    try:
+        import torch
+        import torchbp
+    except ImportError as exc:
+        return {"status": f"skipped: {exc.name} is not importable (see benchmarks/README.md to install torch and torchbp)"}
+    try:
+        z = float(grid[0, 0, 2])
+        pos = torch.from_numpy(((tx + rx) / 2 - [0.0, 0.0, z]).astype(np.float32))
+        data = torch.from_numpy(np.ascontiguousarray(prof.data))
+        x, y = grid[0, :, 0], grid[:, 0, 1]
+        cart = {"x": (float(x[0]), float(x[-1])), "y": (float(y[0]), float(y[-1])), "nx": x.size, "ny": y.size}
+        torch.set_num_threads(min(2, os.cpu_count() or 1))
+        kw = dict(fc=prof.carrier_hz, r_res=prof.range_step_m / 2, pos=pos, d0=-prof.range_start_m / 2)
+
+        def run():
+            return torchbp.ops.backprojection_cart_2d(data, cart, **kw)
+
+        t = best_time(run, repeats)
+        img = run().numpy().reshape(x.size, y.size).T  # its image is [nx, ny]
+        bps = prof.data.shape[0] * x.size * y.size / t
+        ours = np.abs(exact_sub)
+        theirs = np.abs(img.reshape(-1)[:: max(1, img.size // 2048)])  # the points of ``sub``
+        scale = np.vdot(theirs, ours).real / np.vdot(theirs, theirs).real
+        return {"status": "measured", "version": getattr(torchbp, "__version__", "unknown"), "torch": torch.__version__,
+                "backprojections_per_s": bps, "sarbot_ratio": sarbot_bps / bps,
+                "magnitude_ser_db": ser_db(scale * theirs, ours)}
+    except Exception as exc:  # noqa: BLE001 - a comparison that fails is reported, not fatal
+        return {"status": f"failed: {type(exc).__name__}: {exc}"}
+
+
+def chart(rows, numpy_bps, floors, torchbp, path):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -225,7 +272,8 @@ def chart(rows, numpy_bps, floors, path):
         label = f"{r['mode']} x{r['oversample']}" + (" (default)" if r["default"] else "") + ("  [exact: SER inf]" if r["mode"] == "exact" else "")
         ax.annotate(label, (r["backprojections_per_s"] / 1e9, ser), xytext=(5, 4), textcoords="offset points", fontsize=8)
     ax.axvline(numpy_bps / 1e9, color="grey", ls=":", label=f"numpy reference ({numpy_bps / 1e6:.0f} M/s)")
-    ax.axvline(EXTERNAL_REFERENCE_GBPS, color="tab:red", ls="--", label="best open CPU kernel, float32 geometry (quoted)")
+    if "backprojections_per_s" in torchbp:
+        ax.axvline(torchbp["backprojections_per_s"] / 1e9, color="tab:red", ls="--", label="torchbp Cartesian CPU kernel (measured)")
     ax.axvline(floors["geometry_plus_gather_per_s"] / 1e9, color="tab:green", ls="-.", label="floor: float64 geometry + gather")
     ax.axhline(60, color="k", lw=0.5)
     ax.set_xscale("log")

@@ -5,8 +5,20 @@ For every grid point g and profile p (one chirp at one RX):
     dr = |tx_p - g| + |rx_p - g| - r_ref_p
     image[g] += profile_p(dr) * exp(-j 2 pi f_c dr / c)
 
-Geometry and phase are computed in float64, so an image kilometres from the world origin focuses as well as
-one near it. The profile is sampled by one of three modes:
+Positions are float64 (an image kilometres from the world origin, or a radar kilometres from its scene,
+focuses as well as one near). The kernel works per block of grid points: the block's centre c and each
+profile's antenna-to-centre vectors u and distances |u| are float64, computed once per (block, profile);
+per pixel, with d its small offset from c, the range differences come in float32 in the form
+
+    |u + d| - |u| = (2 u.d + d.d) / (|u + d| + |u|)
+
+whose every term is either small or needed only to relative precision, at twice float64's SIMD width.
+What float32 does lose is in the pixel's range offset itself: its rounding, 2^-24 of the block's extent,
+is a phase error of k times that. Blocks are therefore compact (a 2-D grid is walked in 16 x 16 patches),
+and a set of points whose blocks are wider than ``PHASE_ROUNDING_RAD / (k 2^-24)`` (1 m at 77 GHz; a
+scattered set) takes the float64 kernel. On the benchmark case the SER against the exact matched filter
+is unchanged to 0.01 dB, near the origin and 5 km out. The phase is reduced in half turns, polynomials on
+[-pi/2, pi/2] and the sign of the half-turn count. The profile is sampled by one of three modes:
 
 ``nearest``  nearest bin of a (heavily) oversampled profile; cheapest per sample, needs a large oversampling.
 ``linear``   linear interpolation between bins (default; about 68 dB signal-to-error at 16x oversampling,
@@ -30,6 +42,9 @@ from imaging.range_compression import RangeProfiles
 
 MODES = ("nearest", "linear", "exact")
 BLOCK = 256  # grid points per work item: the accumulators (2 KiB) stay in L1 beside a profile row
+#: The float32 kernel's budget for the phase error of rounding a pixel's range offset (-80 dB).
+PHASE_ROUNDING_RAD = 1e-4
+PATCH = 16  # a 2-D grid is walked in PATCH x PATCH squares: BLOCK points close together
 PROFILE_CHUNK = 256  # profiles per parallel sweep over the grid (their rows stay in L2/L3)
 
 _TWO_PI = 2.0 * math.pi
@@ -54,7 +69,118 @@ def _cos_sin(phase):
     return cy * cy - sy * sy, np.float32(2.0) * sy * cy
 
 
-@numba.njit(parallel=True, fastmath=True, cache=True)
+@numba.njit(inline="always", fastmath=True)
+def _cos_sin_half_turns(x):
+    """(cos, sin) of a float32 phase: reduced to half turns, float32 polynomials on [-pi/2, pi/2], the sign
+    flipped for an odd number of half turns. Branch-free (it vectorises); to ~2e-7 plus the reduction's
+    float32 rounding (|x| * 6e-8; |x| stays below a few thousand radians here)."""
+    h = x * np.float32(1.0 / math.pi)
+    n = np.floor(h + np.float32(0.5))
+    y = (h - n) * np.float32(math.pi)
+    sign = np.float32(1.0) - np.float32(2.0) * (n - np.float32(2.0) * np.floor(np.float32(0.5) * n))
+    y2 = y * y
+    s = y * (np.float32(1.0) + y2 * (np.float32(-1.0 / 6) + y2 * (np.float32(1.0 / 120) + y2 * (
+        np.float32(-1.0 / 5040) + y2 * (np.float32(1.0 / 362880) + y2 * np.float32(-1.0 / 39916800))))))
+    c = np.float32(1.0) + y2 * (np.float32(-0.5) + y2 * (np.float32(1.0 / 24) + y2 * (np.float32(-1.0 / 720) + y2 * (
+        np.float32(1.0 / 40320) + y2 * (np.float32(-1.0 / 3628800) + y2 * np.float32(1.0 / 479001600))))))
+    return sign * c, sign * s
+
+
+@numba.njit(parallel=True, fastmath=True, cache=True, nogil=True)
+def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, linear, out):
+    """As ``_bp_interp`` (same arguments), with the block-relative float32 geometry of the module's
+    docstring; for blocks no wider than PHASE_ROUNDING_RAD / (k 2^-24)."""
+    n_g = gx.size
+    hi = np.float64(rows.shape[1] - 2)
+    n_blocks = (n_g + BLOCK - 1) // BLOCK
+    inv32 = np.float32(inv_dr)
+    k32 = np.float32(k)
+    for blk in numba.prange(n_blocks):
+        g0 = blk * BLOCK
+        nb = min(g0 + BLOCK, n_g) - g0
+        acc_re = np.zeros(nb, np.float32)
+        acc_im = np.zeros(nb, np.float32)
+        idx = np.empty(nb, np.uint32)
+        frac = np.empty(nb, np.float32)
+        cos_ = np.empty(nb, np.float32)
+        sin_ = np.empty(nb, np.float32)
+        v0 = np.empty(nb, np.complex64)
+        v1 = np.empty(nb, np.complex64)
+        cx = 0.5 * (gx[g0:g0 + nb].min() + gx[g0:g0 + nb].max())
+        cy = 0.5 * (gy[g0:g0 + nb].min() + gy[g0:g0 + nb].max())
+        cz = 0.5 * (gz[g0:g0 + nb].min() + gz[g0:g0 + nb].max())
+        dx = np.empty(nb, np.float32)
+        dy = np.empty(nb, np.float32)
+        dz = np.empty(nb, np.float32)
+        dd = np.empty(nb, np.float32)
+        for i in range(nb):
+            dx[i] = np.float32(gx[g0 + i] - cx)
+            dy[i] = np.float32(gy[g0 + i] - cy)
+            dz[i] = np.float32(gz[g0 + i] - cz)
+            dd[i] = dx[i] * dx[i] + dy[i] * dy[i] + dz[i] * dz[i]
+        for p in range(p0, p1):
+            ua0, ua1, ua2 = cx - tx[p, 0], cy - tx[p, 1], cz - tx[p, 2]
+            ub0, ub1, ub2 = cx - rx[p, 0], cy - rx[p, 1], cz - rx[p, 2]
+            ua = math.sqrt(ua0 * ua0 + ua1 * ua1 + ua2 * ua2)
+            ub = math.sqrt(ub0 * ub0 + ub1 * ub1 + ub2 * ub2)
+            dr_c = ua + ub - r_ref[p]
+            # The block centre's bin and phase in float64; per pixel only what the offset adds, in float32.
+            pos_c = (dr_c - r0) * inv_dr + 1.0
+            base = np.floor(pos_c)
+            frac_c = np.float32(pos_c - base)
+            lo = np.float32(-base)
+            top = np.float32(hi - base)
+            turns = k * dr_c * (1.0 / _TWO_PI)
+            phase_c = np.float32((turns - np.floor(turns + 0.5)) * _TWO_PI)
+            ibase = np.int64(base)
+            a0, a1, a2, a_n = np.float32(ua0), np.float32(ua1), np.float32(ua2), np.float32(ua)
+            b0, b1, b2, b_n = np.float32(ub0), np.float32(ub1), np.float32(ub2), np.float32(ub)
+            for i in range(nb):
+                va0, va1, va2 = a0 + dx[i], a1 + dy[i], a2 + dz[i]
+                vb0, vb1, vb2 = b0 + dx[i], b1 + dy[i], b2 + dz[i]
+                da = (np.float32(2.0) * (a0 * dx[i] + a1 * dy[i] + a2 * dz[i]) + dd[i]) / (
+                    math.sqrt(va0 * va0 + va1 * va1 + va2 * va2) + a_n)
+                db = (np.float32(2.0) * (b0 * dx[i] + b1 * dy[i] + b2 * dz[i]) + dd[i]) / (
+                    math.sqrt(vb0 * vb0 + vb1 * vb1 + vb2 * vb2) + b_n)
+                ddr = da + db
+                # Position relative to the centre's bin (+1 guard bin in base); clamped onto the guard bins.
+                lp = frac_c + ddr * inv32
+                lp = lp if lp > lo else lo
+                lp = lp if lp < top else top
+                if linear:
+                    fl = np.floor(lp)
+                    idx[i] = np.uint32(ibase + np.int64(fl))
+                    frac[i] = lp - fl
+                else:
+                    idx[i] = np.uint32(ibase + np.int64(np.floor(lp + np.float32(0.5))))
+                c, s = _cos_sin_half_turns(phase_c + k32 * ddr)
+                cos_[i] = c
+                sin_[i] = s
+            row = rows[p]
+            if linear:
+                for i in range(nb):
+                    j = idx[i]
+                    v0[i] = row[j]
+                    v1[i] = row[j + np.uint32(1)]
+                for i in range(nb):
+                    t = frac[i]
+                    vr = v0[i].real + t * (v1[i].real - v0[i].real)
+                    vi = v0[i].imag + t * (v1[i].imag - v0[i].imag)
+                    acc_re[i] += vr * cos_[i] + vi * sin_[i]
+                    acc_im[i] += vi * cos_[i] - vr * sin_[i]
+            else:
+                for i in range(nb):
+                    v0[i] = row[idx[i]]
+                for i in range(nb):
+                    vr = v0[i].real
+                    vi = v0[i].imag
+                    acc_re[i] += vr * cos_[i] + vi * sin_[i]
+                    acc_im[i] += vi * cos_[i] - vr * sin_[i]
+        for i in range(nb):
+            out[g0 + i] += complex(acc_re[i], acc_im[i])
+
+
+@numba.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def _bp_interp(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, linear, out):
     """Profiles p0..p1-1 of rows [P, n_bins + 3] (complex64, one zero guard bin before, two after) into out.
 
@@ -129,7 +255,7 @@ def _bp_interp(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, linear, o
             out[g0 + i] += complex(acc_re[i], acc_im[i])
 
 
-@numba.njit(parallel=True, fastmath=False, cache=True)
+@numba.njit(parallel=True, fastmath=False, cache=True, nogil=True)
 def _bp_exact(samples, f0, fstep, tx, rx, r_ref, gx, gy, gz, out):
     n_p, n_s = samples.shape
     n_g = gx.size
@@ -166,6 +292,30 @@ def _guarded(data: np.ndarray) -> np.ndarray:
     rows = np.zeros((n_p, n_b + 3), np.complex64)
     rows[:, 1:n_b + 1] = data
     return rows
+
+
+def patch_order(shape: tuple[int, ...]) -> np.ndarray | None:
+    """The order that walks a grid of this shape ([..., ny, nx]) in PATCH x PATCH squares, each layer in
+    turn; None for a 1-D set of points (kept in the order given)."""
+    if len(shape) < 2 or shape[-1] <= PATCH and shape[-2] <= PATCH:
+        return None
+    ny, nx = shape[-2], shape[-1]
+    iy, ix = np.divmod(np.arange(ny * nx), nx)
+    key = ((iy // PATCH) * ((nx + PATCH - 1) // PATCH) + ix // PATCH) * PATCH * PATCH + (iy % PATCH) * PATCH + ix % PATCH
+    layer = np.argsort(key, kind="stable")
+    layers = int(np.prod(shape[:-2], dtype=np.int64))
+    return (np.arange(layers)[:, None] * (ny * nx) + layer[None, :]).ravel()
+
+
+def max_block_extent_m(gx: np.ndarray, gy: np.ndarray, gz: np.ndarray) -> float:
+    """The largest extent (max over x, y, z of max - min) of any BLOCK of consecutive points."""
+    n = gx.size
+    pad = (-n) % BLOCK
+    worst = 0.0
+    for v in (gx, gy, gz):
+        blocks = np.concatenate([v, np.full(pad, v[-1])]).reshape(-1, BLOCK)
+        worst = max(worst, float((blocks.max(axis=1) - blocks.min(axis=1)).max()))
+    return worst
 
 
 def _as_points(grid_m: np.ndarray):
@@ -232,12 +382,22 @@ def backproject(
         _bp_exact(samples, profiles.f0_hz, profiles.frequency_step_hz, tx, rx, r_ref, gx, gy, gz, flat_out)
     else:
         k = 2.0 * math.pi * profiles.carrier_hz / SPEED_OF_LIGHT_MPS
-        rows = _guarded(data)
+        rows = profiles.rows
+        if rows is None or rows.shape != (n_p, data.shape[1] + 3) or not np.shares_memory(rows, data):
+            rows = _guarded(data)  # profiles not compressed with guarded=True: one copy into the kernel's layout
+        order = patch_order(shape)
+        if order is not None:
+            gx, gy, gz = gx[order], gy[order], gz[order]
+        fast = max_block_extent_m(gx, gy, gz) * k * 2.0 ** -24 <= PHASE_ROUNDING_RAD
+        kernel = _bp_interp_blocks if fast else _bp_interp
+        acc = flat_out if order is None else np.zeros(flat_out.size, np.complex128)
         # Profiles in chunks, all grid blocks per chunk: the chunk's rows stay in cache while every block
         # reads them, instead of every block streaming all profiles from memory.
         for p0 in range(0, n_p, PROFILE_CHUNK):
-            _bp_interp(rows, p0, min(p0 + PROFILE_CHUNK, n_p), profiles.range_start_m, 1.0 / profiles.range_step_m, k,
-                       tx, rx, r_ref, gx, gy, gz, mode == "linear", flat_out)
+            kernel(rows, p0, min(p0 + PROFILE_CHUNK, n_p), profiles.range_start_m, 1.0 / profiles.range_step_m, k,
+                   tx, rx, r_ref, gx, gy, gz, mode == "linear", acc)
+        if order is not None:
+            flat_out[order] += acc
     if not out.flags.c_contiguous:
         out += flat_out.reshape(shape)
     return out

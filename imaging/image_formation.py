@@ -74,6 +74,7 @@ def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajector
     profiles = range_compress(
         samples.reshape(n_keep * rx_sel.size, wf.samples_per_chirp), wf.f0_hz, wf.frequency_step_hz,
         window=options.window, oversample=options.oversample, keep_samples=options.mode == "exact",
+        guarded=True, workers=-1,
     )
     tx_m = np.repeat(track.tx_m, rx_sel.size, axis=0)
     rx_m = track.rx_m[:, rx_sel, :].reshape(-1, 3)

@@ -23,6 +23,9 @@ class RangeProfiles:
     linear phase of the fast-time origin is removed and the carrier is the centre frequency, which makes
     the profile vary slowly with range so that interpolating it is accurate (same result, exactly).
     ``samples`` keeps the windowed, normalised fast-time samples for the exact matched filter.
+    ``rows``, when compression was asked for ``guarded`` profiles, is the buffer ``data`` is a view of:
+    [P, n_bins + 3] with one zero bin before each profile and two after, the layout the backprojection
+    kernel reads, so it needs no copy of the profiles.
     """
 
     data: np.ndarray  # complex64 [..., n_bins]
@@ -32,6 +35,7 @@ class RangeProfiles:
     f0_hz: float
     frequency_step_hz: float
     samples: np.ndarray | None = None  # complex64 [..., n_samples], windowed / sum(window)
+    rows: np.ndarray | None = None  # complex64 [P, n_bins + 3]: data with its guard bins
 
     @property
     def n_bins(self) -> int:
@@ -53,6 +57,8 @@ def range_compress(
     centred: bool = True,
     signed: bool = False,
     keep_samples: bool = True,
+    guarded: bool = False,
+    workers: int | None = None,
 ) -> RangeProfiles:
     """Window and FFT along the last axis.
 
@@ -69,6 +75,11 @@ def range_compress(
         Remove the linear phase of the fast-time origin (carrier becomes the centre frequency).
     signed : bool
         Put range zero in the middle (for data whose range axis is relative to a reference range).
+    guarded : bool
+        Write the profiles into the backprojection kernel's layout (``RangeProfiles.rows``); samples must
+        then be 2-D [P, n].
+    workers : int, optional
+        Threads for the FFT (scipy.fft's ``workers``; -1: all cores). One by default.
 
     Returns
     -------
@@ -80,26 +91,37 @@ def range_compress(
     n_fft = int(n_fft or oversample * n)
     if n_fft < n:
         raise ValueError(f"n_fft={n_fft} is shorter than the {n} samples")
+    if guarded and samples.ndim != 2:
+        raise ValueError(f"guarded profiles need samples [P, n], got shape {samples.shape}")
     w = get_window(window, n)
-    windowed = (samples * (w / w.sum())).astype(np.complex64)
-    spectrum = scipy.fft.fft(windowed, n_fft, axis=-1)  # single precision stays single (numpy's works in double)
-    step = SPEED_OF_LIGHT_MPS / (n_fft * frequency_step_hz)
-    start = 0.0
+    w = (w / w.sum()).astype(np.float32)  # float32: complex64 samples stay complex64, no double-width temporaries
+    lead = 1 if guarded else 0
+    rows = np.zeros((*samples.shape[:-1], n_fft + (3 if guarded else 0)), np.complex64)
+    buf = rows[..., lead:lead + n_fft]
+    np.multiply(samples, w, out=buf[..., :n], casting="same_kind")
+    windowed = buf[..., :n].copy() if keep_samples else None
+    # In place where scipy can (it can for a complex64 view): the profiles are written once, where the
+    # kernel reads them. numpy's FFT would work in double precision.
+    spectrum = scipy.fft.fft(buf, axis=-1, overwrite_x=True, workers=workers)
     if signed:
         spectrum = scipy.fft.fftshift(spectrum, axes=-1)
-        start = -(n_fft // 2) * step
+    if not np.shares_memory(spectrum, rows):
+        buf[...] = spectrum
+    step = SPEED_OF_LIGHT_MPS / (n_fft * frequency_step_hz)
+    start = -(n_fft // 2) * step if signed else 0.0
     carrier = f0_hz
     if centred:
         m = 0.5 * (n - 1)
         r = start + step * np.arange(n_fft)
-        spectrum *= np.exp(2j * np.pi * m * frequency_step_hz * r / SPEED_OF_LIGHT_MPS).astype(np.complex64)
+        buf *= np.exp(2j * np.pi * m * frequency_step_hz * r / SPEED_OF_LIGHT_MPS).astype(np.complex64)
         carrier = f0_hz + m * frequency_step_hz
     return RangeProfiles(
-        data=spectrum.astype(np.complex64),
+        data=buf,
         range_start_m=start,
         range_step_m=step,
         carrier_hz=carrier,
         f0_hz=f0_hz,
         frequency_step_hz=frequency_step_hz,
-        samples=windowed if keep_samples else None,
+        samples=windowed,
+        rows=rows if guarded else None,
     )

@@ -144,7 +144,8 @@ class StripMap:
         track = antenna_track(radar, trajectory, chirp_times, tx_index)
         n_rx = wf.n_rx
         profiles = range_compress(samples.reshape(-1, wf.samples_per_chirp), wf.f0_hz, wf.frequency_step_hz,
-                                  window=cfg.window, oversample=cfg.oversample, keep_samples=cfg.mode == "exact")
+                                  window=cfg.window, oversample=cfg.oversample, keep_samples=cfg.mode == "exact",
+                                  guarded=True)
         tx_m = np.repeat(track.tx_m, n_rx, axis=0)
         rx_m = track.rx_m.reshape(-1, 3)
         look = np.repeat(track.boresight[:, :2], n_rx, axis=0)

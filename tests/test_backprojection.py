@@ -2,7 +2,16 @@ import numpy as np
 import pytest
 from reference_backprojection import backproject_reference
 
-from imaging.backprojection import BLOCK, _cos_sin, backproject
+from imaging.backprojection import (
+    BLOCK,
+    PATCH,
+    PHASE_ROUNDING_RAD,
+    _cos_sin,
+    _cos_sin_half_turns,
+    backproject,
+    max_block_extent_m,
+    patch_order,
+)
 from imaging.range_compression import range_compress
 
 C = 299_792_458.0
@@ -66,6 +75,63 @@ def test_default_mode_accuracy_against_matched_filter():
     assert ser_db("linear", prof) > 60.0  # the issue's goal for the default mode
     assert ser_db("linear", prof) > ser_db("nearest", prof) + 10.0
     assert ser_db("linear", prof) > ser_db("linear", prof8) + 9.0  # error ~ bin^2: 12 dB per doubling
+
+
+def grid_case(shape, far=0.0, spacing_m=0.004):
+    """The synthetic case's antennas and profiles with a regular grid (``shape`` [..., ny, nx]) around its
+    first scatterer: what the float32 block kernel takes."""
+    prof, tx, rx, points, _ = synthetic_case(np.random.default_rng(11), far=far)
+    centre = points[0]
+    *layers, ny, nx = shape
+    z = centre[2] + spacing_m * (np.arange(layers[0]) - layers[0] // 2) if layers else np.array([centre[2]])
+    x = centre[0] + spacing_m * (np.arange(nx) - nx // 2)
+    y = centre[1] + spacing_m * (np.arange(ny) - ny // 2)
+    zz, yy, xx = np.meshgrid(z, y, x, indexing="ij")
+    grid = np.stack([xx, yy, zz], axis=-1).reshape(*shape, 3)
+    return prof, tx, rx, grid
+
+
+@pytest.mark.parametrize("shape", [(40, 70), (3, 20, 30)])
+@pytest.mark.parametrize("far", [0.0, 5000.0])
+@pytest.mark.parametrize("mode", ["nearest", "linear"])
+def test_float32_block_kernel_matches_numpy_reference_on_grids(shape, far, mode):
+    prof, tx, rx, grid = grid_case(shape, far)
+    flat = grid.reshape(-1, 3)
+    order = patch_order(shape)
+    k = 2 * np.pi * prof.carrier_hz / C
+    # The grid takes the float32 kernel (compact patches), the synthetic case's scattered points do not.
+    assert max_block_extent_m(*(flat[order, i] for i in range(3))) * k * 2.0 ** -24 <= PHASE_ROUNDING_RAD
+    scattered = synthetic_case(np.random.default_rng(11))[3]
+    assert max_block_extent_m(*(scattered[:, i] for i in range(3))) * k * 2.0 ** -24 > PHASE_ROUNDING_RAD
+    got = backproject(prof, tx, rx, grid, mode=mode)
+    want = backproject_reference(prof, tx, rx, grid, mode=mode)
+    assert got.shape == shape
+    scale = np.abs(want).max()
+    assert np.abs(got - want).max() < 2e-5 * scale
+    assert np.abs(want.reshape(-1)[np.argmax(np.abs(want))]) > 0.5 * prof.data.shape[0]  # the scatterer focuses
+
+
+def test_patch_order_walks_squares():
+    shape = (2, 37, 50)
+    order = patch_order(shape)
+    assert np.array_equal(np.sort(order), np.arange(2 * 37 * 50))
+    iz, rest = np.divmod(order, 37 * 50)
+    iy, ix = np.divmod(rest, 50)
+    first = slice(0, PATCH * PATCH)
+    assert (iz[first] == 0).all() and iy[first].max() < PATCH and ix[first].max() < PATCH
+    # every run of BLOCK points stays within a few patches of one layer
+    for b in range(0, order.size, BLOCK):
+        assert np.ptp(iz[b:b + BLOCK]) == 0 or b + BLOCK > 37 * 50 * (iz[b] + 1)
+    assert patch_order((5, 3)) is None and patch_order((100,)) is None
+
+
+def test_half_turn_sin_cos_against_numpy():
+    phase = np.concatenate([np.linspace(-50, 50, 10001), np.linspace(-2000, 2000, 4001)]).astype(np.float32)
+    got = np.array([_cos_sin_half_turns(p) for p in phase])
+    # float32 polynomials plus the float32 reduction of |x| up to 2000 rad (2^-24 x 2000 = 1.2e-4)
+    tol = 3e-7 + np.abs(phase.astype(np.float64)) * 2.0 ** -23
+    assert np.all(np.abs(got[:, 0] - np.cos(phase.astype(np.float64))) < tol)
+    assert np.all(np.abs(got[:, 1] - np.sin(phase.astype(np.float64))) < tol)
 
 
 def test_far_from_origin_kernel_stays_exact():

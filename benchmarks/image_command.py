@@ -1,0 +1,125 @@
+"""`sarbot image` as a whole command against its backprojection kernel alone, on the backprojection
+benchmark's case (16 frames of the left-front radar, all 16 channels, a 256 x 256 grid).
+
+The command reads the recording, range-compresses, places the antennas, backprojects, writes the image
+and its PNG. Its throughput (grid points x profiles per second of wall time) is printed as a fraction of
+the kernel's on the same profiles in the same process, with the time of each stage.
+
+    python benchmarks/image_command.py [--quick]
+
+Writes docs/results/image_command.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+
+from acquisition import cli  # noqa: E402
+from imaging.backprojection import backproject  # noqa: E402
+from imaging.core.grid import Grid  # noqa: E402
+from imaging.core.rig import default_rig  # noqa: E402
+from imaging.core.trajectory import StraightLine  # noqa: E402
+from imaging.image_formation import ImagingOptions, frame_profiles  # noqa: E402
+from imaging.io.image_file import write_image  # noqa: E402
+from imaging.io.recording import Recording  # noqa: E402
+from imaging.sim.scene import DEFAULT_START_TIME_NS, Scene  # noqa: E402
+from imaging.sim.simulator import simulate_recording  # noqa: E402
+from imaging.sim.targets import PointTarget  # noqa: E402
+
+RESULTS = ROOT / "docs" / "results"
+
+
+def make_recording(path: Path, n_frames: int) -> None:
+    rig = default_rig()
+    wf = rig.radar("left_front").waveform
+    duration = n_frames * wf.frame_interval_s
+    traj = StraightLine(start_m=(-0.15 - 0.4 * duration / 2, -0.2, 0.0), speed_mps=0.4, t0_ns=DEFAULT_START_TIME_NS)
+    targets = [PointTarget((dx, 2.0 + dy, 0.3)) for dx, dy in [(0, 0), (-0.2, 0.1), (0.25, -0.2), (0.1, 0.3), (-0.3, -0.3)]]
+    scene = Scene(name="bench", rig=rig, trajectory=traj, targets=targets, duration_s=duration - 1e-3,
+                  radars=["left_front"], snr_db=0.0, seed=0, adc_counts_per_unit=2000.0)  # int16, as a radar sends
+    simulate_recording(scene, path)
+
+
+def best(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return min(times)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true")
+    args = ap.parse_args()
+    n_frames, n_px, repeats = (4, 128, 1) if args.quick else (16, 256, 3)
+    grid_text = f"-0.5:0.5:{1.0 / n_px},1.5:2.5:{1.0 / n_px},0.3"
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        rec_path = tmp / "bench.h5"
+        make_recording(rec_path, n_frames)
+        grid = Grid.parse(grid_text, default_z_m=0.3)
+        points = grid.points()
+        options = ImagingOptions()
+        with Recording(rec_path) as rec:
+            radar = rec.radar("left_front")
+            truth = rec.truth()
+            n = rec.n_frames("left_front")
+
+            def compress():
+                return frame_profiles(rec.adc("left_front"), rec.frame_time_ns("left_front"), radar, truth,
+                                      rec.tdm_tx_order("left_front"), options)
+
+            profiles, tx_m, rx_m, _, _ = compress()
+            n_p = profiles.data.shape[0]
+            backproject(profiles, tx_m, rx_m, points[:2, :2])  # compile
+            t_kernel = best(lambda: backproject(profiles, tx_m, rx_m, points), repeats)
+            t_compress = best(compress, repeats)
+            image = backproject(profiles, tx_m, rx_m, points)
+
+        from imaging.io.image_file import SarImage
+        from imaging.plot import save_image_png
+
+        img = SarImage(image, grid.x_m, grid.y_m, grid.z_m, {"wavelength_m": 0.0039})
+        t_write = best(lambda: write_image(tmp / "w.h5", img), repeats)
+        t_png = best(lambda: save_image_png(tmp / "w.png", image, grid.x_m, grid.y_m, title="bench"), repeats)
+
+        def command():
+            for f in ("img.h5", "img.png"):
+                (tmp / f).unlink(missing_ok=True)
+            code = cli.main(["-q", "image", str(rec_path), "-o", str(tmp / "img.h5"), "--grid", grid_text])
+            assert code == 0
+
+        command()  # warm: imports, compiled kernels from the cache
+        t_command = best(command, repeats)
+    work = n_p * points.reshape(-1, 3).shape[0]
+    result = {
+        "case": {"frames": n, "profiles": n_p, "grid_points": int(points.size // 3), "quick": args.quick},
+        "kernel_backprojections_per_s": work / t_kernel,
+        "command_backprojections_per_s": work / t_command,
+        "command_fraction_of_kernel": t_kernel / t_command,
+        "seconds": {"command": t_command, "kernel": t_kernel, "read_and_range_compress": t_compress,
+                    "write_image": t_write, "png": t_png,
+                    "rest": t_command - t_kernel - t_compress - t_write - t_png},
+    }
+    s = result["seconds"]
+    print(f"kernel {work / t_kernel / 1e9:.3f} G/s, sarbot image {work / t_command / 1e9:.3f} G/s "
+          f"({100 * t_kernel / t_command:.0f} % of the kernel); seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in s.items()))
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    name = "image_command_quick" if args.quick else "image_command"
+    (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2))
+    print(f"wrote {RESULTS / (name + '.json')}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
