@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -29,7 +30,7 @@ class ImagingOptions:
     oversample: int = 16
     tx: tuple[int, ...] | None = None
     rx: tuple[int, ...] | None = None
-    frames_per_block: int = 8
+    frames_per_block: int = 8  # range compression of the next block overlaps the backprojection of this one
 
     def __post_init__(self) -> None:
         from imaging.core.config import require
@@ -132,23 +133,32 @@ def form_image(
     n_profiles = 0
     step = options.frames_per_block
     frame_indices = np.arange(sel.start, sel.stop)[valid]
-    for b in range(0, frame_indices.size, step):
+
+    def prepare(b: int):
+        """Read and range-compress block b (in a thread, while the kernel backprojects the one before)."""
         idx = frame_indices[b:b + step]
         block = slice(int(idx[0]), int(idx[-1]) + 1)
         adc = recording.adc(radar_name, block)
         ftimes = recording.frame_time_ns(radar_name, block)
         keep = np.isin(np.arange(block.start, block.stop), idx)
-        profiles, tx_m, rx_m, times, track = frame_profiles(adc[keep], ftimes[keep], radar, trajectory, tx_order,
-                                                            options, time_window_ns)
-        if profiles.data.shape[0] and profiles.data.size:
-            backproject(profiles, tx_m, rx_m, points, mode=options.mode, out=image)
-            n_profiles += profiles.data.shape[0]
-            mids.append(0.5 * (tx_m + rx_m))
-            tracks_times.append(times)
-            boresights.append(track.boresight)
-            speeds.append(np.linalg.norm(trajectory.sample(track.time_ns).velocity_mps, axis=1))
-        if progress is not None:
-            progress(min(b + step, frame_indices.size), frame_indices.size)
+        return frame_profiles(adc[keep], ftimes[keep], radar, trajectory, tx_order, options, time_window_ns)
+
+    starts = list(range(0, frame_indices.size, step))
+    with ThreadPoolExecutor(1, thread_name_prefix="range-compress") as pool:
+        pending = pool.submit(prepare, starts[0]) if starts else None
+        for n, b in enumerate(starts):
+            profiles, tx_m, rx_m, times, track = pending.result()
+            pending = pool.submit(prepare, starts[n + 1]) if n + 1 < len(starts) else None
+            if profiles.data.shape[0] and profiles.data.size:
+                backproject(profiles, tx_m, rx_m, points, mode=options.mode, out=image)
+                n_profiles += profiles.data.shape[0]
+                mids.append(0.5 * (tx_m + rx_m))
+                tracks_times.append(times)
+                boresights.append(track.boresight)
+                speeds.append(np.linalg.norm(trajectory.sample(track.time_ns).velocity_mps, axis=1))
+            del profiles  # before the next block's are made: at most two blocks of profiles in memory
+            if progress is not None:
+                progress(min(b + step, frame_indices.size), frame_indices.size)
     if n_profiles == 0:
         raise SarbotError(f"{recording.path}: radar {radar_name}: no chirp falls in the selected frames and time window")
     mid = np.concatenate(mids)
