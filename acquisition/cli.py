@@ -137,6 +137,42 @@ def cmd_image(args) -> int:
     return EXIT_OK
 
 
+def cmd_batch(args) -> int:
+    import json
+    import os
+
+    from .batch import parse_sweep, plan_jobs, run_batch
+    from .progress import Progress
+
+    if args.workers < 1:
+        raise SarbotError(f"--workers {args.workers}: must be at least 1")
+    if args.tile_frames is not None and args.tile_frames < 1:
+        raise SarbotError(f"--tile-frames {args.tile_frames}: must be at least 1")
+    frames = _parse_frames(args.frames)
+    threads = None if args.scheduler else max(1, (os.cpu_count() or 1) // args.workers)
+    base = {"mode": args.mode, "window": args.window, "oversample": args.oversample}
+    jobs = plan_jobs(args.recordings, args.grid, args.output, radar=args.radar, frames=(frames.start, frames.stop),
+                     tile_frames=args.tile_frames, sweep=parse_sweep(args.sweep), base_options=base,
+                     trajectory=args.trajectory, png=args.png, threads=threads)
+    out_dir = Path(args.output)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for job in jobs:
+        _new_output(Path(job.output), args.overwrite)
+    where = args.scheduler or f"a local cluster of {args.workers} worker process(es)"
+    log.info("%d image(s) on %s", len(jobs), where)
+    results = run_batch(jobs, args.scheduler, args.workers, progress=Progress("batch", unit="image"))
+    summary = out_dir / "batch.json"
+    summary.write_text(json.dumps({"cluster": where, "jobs": results}, indent=2))
+    failed = [r for r in results if r["error"]]
+    for r in results:
+        if not r["error"]:
+            print(f"wrote {r['output']} ({r['seconds']:.1f} s)")
+    for r in failed:
+        print(f"sarbot: error: {r['label']}: {r['error']}", file=sys.stderr)
+    print(f"wrote {summary}: {len(results) - len(failed)} of {len(results)} images")
+    return EXIT_USAGE if failed else EXIT_OK
+
+
 def cmd_analyze(args) -> int:
     from imaging import metrics
     from imaging.io.image_file import read_image
@@ -672,6 +708,30 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--png", help="where to write the PNG (default: beside the image)")
     s.add_argument("--overwrite", action="store_true", help="replace existing output files")
     s.set_defaults(func=cmd_image)
+
+    s = sub.add_parser("batch", help="many images on a Dask cluster: recordings, tiles of a long drive, parameter sweeps",
+                       epilog="examples: sarbot batch a.h5 b.h5 c.h5 d.h5 --grid -0.5:0.5:0.004,1.5:2.5:0.004 -o images/; "
+                              "sarbot batch drive.h5 --tile-frames 40 --grid ... -o tiles/; "
+                              "sarbot batch pass.h5 --sweep mode=nearest,linear --sweep oversample=8,16 --grid ... -o sweep/ "
+                              "--scheduler tcp://cluster:8786")
+    s.add_argument("recordings", nargs="+", help="recording files")
+    s.add_argument("--grid", required=True, help="x0:x1:dx,y0:y1:dy[,z] in metres, world frame (as for image)")
+    s.add_argument("-o", "--output", required=True, help="folder for the images and batch.json (one summary per image)")
+    s.add_argument("--radar", help="radar name (needed when a recording has several)")
+    s.add_argument("--frames", help="frame range A:B (B excluded) of every recording; all by default")
+    s.add_argument("--tile-frames", type=int, help="one image per this many consecutive frames (a long drive, tile by tile)")
+    s.add_argument("--sweep", action="append", metavar="KEY=V1,V2,...",
+                   help="vary an option (mode, window, oversample); several --sweep make every combination")
+    s.add_argument("--trajectory", default="truth", help="'truth' or a trajectory HDF5 file, for every recording")
+    s.add_argument("--mode", default="linear", choices=["nearest", "linear", "exact"])
+    s.add_argument("--window", default="hann", choices=["rectangular", "hann", "hamming", "taylor"])
+    s.add_argument("--oversample", type=int, default=16)
+    s.add_argument("--png", action="store_true", help="a PNG beside every image")
+    s.add_argument("--scheduler", metavar="ADDRESS", help="a running dask.distributed scheduler (tcp://host:8786); its "
+                   "workers need sarbot and the files at the same paths. Default: a local cluster")
+    s.add_argument("--workers", type=int, default=2, help="worker processes of the local cluster (default 2)")
+    s.add_argument("--overwrite", action="store_true", help="replace existing images")
+    s.set_defaults(func=cmd_batch)
 
     s = sub.add_parser("analyze", help="image quality metrics as JSON",
                        epilog="example: sarbot analyze img.h5 --at 0,2; sarbot analyze a.h5 b.h5 c.h5 (integration gain)")
