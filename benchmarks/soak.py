@@ -223,6 +223,7 @@ def soak(minutes: float, work: Path, radars: list[str]) -> dict:
                           odometry_counters=None if odometry is None else odometry.counters)
         if last_map is not None:
             sample.update(map_lag_s=round(last_map.lag_s, 3), map_dropped=last_map.frames_dropped_behind,
+                          map_presummed_more=last_map.frames_presummed_more,
                           map_imaged=last_map.frames_imaged)
         sample["imu_in_file_lag_s"] = checker.imu_lag_s()
         checker.check_finished()

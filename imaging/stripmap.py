@@ -122,19 +122,21 @@ class StripMap:
         return key[0] * t + self._axis, key[1] * t + self._axis
 
     def frame_profiles(self, radar: RadarConfig, tx_order: np.ndarray, adc: np.ndarray, frame_time_ns: int,
-                       trajectory: Trajectory):
-        """Range profiles [P, bins] and TX/RX positions [P, 3] of one frame, pre-summed per TX."""
+                       trajectory: Trajectory, presum: int | None = None):
+        """Range profiles [P, bins] and TX/RX positions [P, 3] of one frame, pre-summed per TX (``presum``
+        chirps, the configuration's by default)."""
         cfg = self.config
+        presum = presum or cfg.presum
         wf = radar.waveform
         tx_order = np.asarray(tx_order)
         times = frame_time_ns + np.round(np.arange(wf.chirps_per_frame) * wf.chirp_interval_s * 1e9).astype(np.int64)
         samples, chirp_times, tx_index = [], [], []
         for tx in range(wf.n_tx):
             k = np.flatnonzero(tx_order == tx)
-            n = k.size // cfg.presum * cfg.presum
+            n = k.size // presum * presum
             if n == 0:
                 continue
-            groups = k[:n].reshape(-1, cfg.presum)
+            groups = k[:n].reshape(-1, presum)
             samples.append(adc[groups].sum(axis=1))  # [G, rx, samples]; a sum keeps the image scale of presum 1
             chirp_times.append(times[groups].mean(axis=1).round().astype(np.int64))
             tx_index.append(np.full(groups.shape[0], tx))
@@ -179,15 +181,17 @@ class StripMap:
                 & (along <= ahead * math.tan(math.radians(cfg.beam_half_angle_deg))))
 
     def add_frame(self, radar: RadarConfig, tx_order: np.ndarray, adc: np.ndarray, frame_time_ns: int,
-                  trajectory: Trajectory) -> FrameFootprint:
-        """Backproject one frame (complex [chirps, rx, samples]) into the map; returns the tiles it changed."""
+                  trajectory: Trajectory, presum: int | None = None) -> FrameFootprint:
+        """Backproject one frame (complex [chirps, rx, samples]) into the map; returns the tiles it changed.
+        ``presum`` overrides the configuration's (a live map catching up sums more chirps per profile: the
+        same image scale, fewer profiles, more phase spread across each sum)."""
         cfg = self.config
         wf = radar.waveform
         mid = frame_time_ns + wf.frame_duration_ns // 2
         if np.linalg.norm(trajectory.sample(np.array([mid])).velocity_mps[0, :2]) < cfg.min_speed_mps:
             self.frames_standing += 1
             return FrameFootprint([], 0, skipped="standing still")
-        profiles, tx_m, rx_m, look = self.frame_profiles(radar, tx_order, adc, frame_time_ns, trajectory)
+        profiles, tx_m, rx_m, look = self.frame_profiles(radar, tx_order, adc, frame_time_ns, trajectory, presum)
         centre = 0.5 * (tx_m + rx_m)
         c_mean = centre.mean(axis=0)[:2]
         l_mean = look.mean(axis=0)

@@ -27,12 +27,17 @@ log = logging.getLogger(f"sarbot.{__name__}")
 POSE_WINDOW_NS = 5_000_000_000
 #: Longest a live imaging pass runs before the worker takes its messages again.
 STEP_BUDGET_S = 0.25
+#: Behind by more than this much sensor time, the worker sums twice the chirps per profile, four times past
+#: twice this, and so on (up to all of a TX's chirps in a frame): fewer profiles, a coarser map, before it
+#: drops a frame (at ``max_queue_s``).
+CATCH_UP_STEP_S = 1.0
 
 
 @dataclasses.dataclass
 class StripMapWorkerConfig:
     """``radars`` None: all of the rig's. ``map`` is the ``imaging.stripmap.StripMapConfig``. Frames wait
-    for poses at most ``max_queue_s`` (of sensor time) before the oldest are dropped, counted."""
+    for poses at most ``max_queue_s`` (of sensor time) before the oldest are dropped, counted; before that,
+    a backlog is imaged with more pre-summing (``catch_up_step_s``), counted too."""
 
     rig: Rig
     radars: list[str] | None
@@ -40,6 +45,7 @@ class StripMapWorkerConfig:
     pose_endpoint: str
     map_path: str
     max_queue_s: float = 10.0
+    catch_up_step_s: float = CATCH_UP_STEP_S
 
 
 class StripMapWorker(Worker):
@@ -141,12 +147,17 @@ class StripMapWorker(Worker):
                     return
                 frames.popleft()  # never covered by the odometry: the drive ended
                 continue
+            factor = 1 if final else self.catch_up_factor(name)
             frames.popleft()
             traj = traj or self._trajectory()
             if traj is None:
                 return
             t0 = time.monotonic()
-            footprint = self.map.add_frame(self.radars[name], self.orders[name], iq_to_complex(iq), t_frame, traj)
+            footprint = self.map.add_frame(self.radars[name], self.orders[name], iq_to_complex(iq), t_frame, traj,
+                                           presum=self.config.map.presum * factor)
+            status.presum_factor = factor
+            if factor > 1 and not footprint.skipped:
+                status.frames_presummed_more += 1
             self.changed.update(footprint.tiles)
             status.busy_s += time.monotonic() - t0
             if footprint.skipped:
@@ -156,6 +167,15 @@ class StripMapWorker(Worker):
             if not final:  # the last pass after the run stops says how long shutting down took, not the lag
                 status.lag_s = (time.time_ns() - t_recv) * 1e-9
                 status.max_lag_s = max(status.max_lag_s, status.lag_s)
+
+    def catch_up_factor(self, radar: str) -> int:
+        """Extra pre-summing for the oldest queued frame: 1 while the queue holds less than
+        ``catch_up_step_s`` of sensor time, then doubling per step, up to all of a TX's chirps."""
+        backlog_s = (self.frames[-1][2] - self.frames[0][2]) * 1e-9 if self.frames else 0.0
+        steps = int(backlog_s / self.config.catch_up_step_s) if self.config.catch_up_step_s > 0 else 0
+        wf = self.radars[radar].waveform
+        most = max(1, wf.chirps_per_frame // wf.n_tx // self.config.map.presum)
+        return min(2 ** min(steps, 16), most)
 
     def _publish_tiles(self) -> None:
         cfg = self.config.map
