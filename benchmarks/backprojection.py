@@ -167,6 +167,23 @@ def main() -> int:
                  "profile_bytes": int(profiles[16].rows.nbytes)}
     print(f"profiles not in the guarded layout: {n_p * n_g / t_copy / 1e9:.3f} G/s ({t_copy / default_t:.2f}x the time: "
           f"a {profiles[16].rows.nbytes / 1e6:.0f} MB copy per call)")
+    # The float32 block kernel against the float64 one it replaced, interleaved runs on the same profiles.
+    import imaging.backprojection as bp_module
+
+    budget = bp_module.PHASE_ROUNDING_RAD
+    t32, t64 = [], []
+    for _ in range(repeats + 1):
+        t32.append(best_time(lambda: backproject(profiles[16], tx, rx, grid), 1))
+        bp_module.PHASE_ROUNDING_RAD = 0.0  # no block qualifies: the float64 kernel
+        t64.append(best_time(lambda: backproject(profiles[16], tx, rx, grid), 1))
+        bp_module.PHASE_ROUNDING_RAD = budget
+    bp_module.PHASE_ROUNDING_RAD = 0.0
+    ser64 = ser_db(backproject(profiles[16], tx, rx, sub), exact_sub)
+    bp_module.PHASE_ROUNDING_RAD = budget
+    float32_vs_float64 = {"float32_blocks_per_s": n_p * n_g / min(t32), "float64_per_s": n_p * n_g / min(t64),
+                          "speedup": min(t64) / min(t32), "ser_float32_blocks_db": default_ser(rows), "ser_float64_db": ser64}
+    print(f"float32 block kernel {n_p * n_g / min(t32) / 1e9:.3f} G/s against the float64 kernel {n_p * n_g / min(t64) / 1e9:.3f} "
+          f"G/s: {min(t64) / min(t32):.2f}x, SER {default_ser(rows):.2f} dB against {ser64:.2f} dB")
     torchbp = torchbp_comparison(profiles[16], tx, rx, grid, wf, sub, exact_sub, n_p * n_g / default_t, repeats)
     print("torchbp: " + (f"{torchbp['backprojections_per_s'] / 1e9:.3f} G/s; sarbot is {torchbp['sarbot_ratio']:.2f}x"
                          if "backprojections_per_s" in torchbp else torchbp["status"]))
@@ -205,6 +222,7 @@ def main() -> int:
         "numpy_reference_backprojections_per_s": numpy_bps,
         "torchbp": torchbp,
         "unguarded_profiles": copy_cost,
+        "float32_blocks_vs_float64": float32_vs_float64,
         "results": rows,
         "floors": floors,
         "far_from_origin": far_origin,
@@ -219,6 +237,10 @@ def main() -> int:
     chart(rows, numpy_bps, floors, torchbp, RESULTS / f"{name}.png")
     print(f"wrote {RESULTS / (name + '.json')} and {name}.png")
     return 0
+
+
+def default_ser(rows) -> float:
+    return next(r["ser_db"] for r in rows if r["default"])
 
 
 def torchbp_comparison(prof, tx, rx, grid, wf, sub, exact_sub, sarbot_bps: float, repeats: int) -> dict:

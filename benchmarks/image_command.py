@@ -17,11 +17,12 @@ import argparse
 import json
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+
+from backprojection import best_time  # noqa: E402
 
 from acquisition import cli  # noqa: E402
 from imaging.backprojection import backproject  # noqa: E402
@@ -49,15 +50,6 @@ def make_recording(path: Path, n_frames: int) -> None:
     simulate_recording(scene, path)
 
 
-def best(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return min(times)
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
@@ -83,19 +75,19 @@ def main() -> int:
             profiles, tx_m, rx_m, _, _ = compress()
             n_p = profiles.data.shape[0]
             backproject(profiles, tx_m, rx_m, points[:2, :2])  # compile
-            t_kernel = best(lambda: backproject(profiles, tx_m, rx_m, points), repeats)
-            t_compress = best(compress, repeats)
+            t_kernel = best_time(lambda: backproject(profiles, tx_m, rx_m, points), repeats)
+            t_compress = best_time(compress, repeats)
             image = backproject(profiles, tx_m, rx_m, points)
-            del profiles
+            profiles = None  # freed before form_image makes its own
             # The library call behind the command: read, range-compress (overlapped), backproject.
-            t_form = best(lambda: form_image(rec, "left_front", grid, truth, options=options), repeats)
+            t_form = best_time(lambda: form_image(rec, "left_front", grid, truth, options=options), repeats)
 
         from imaging.io.image_file import SarImage
         from imaging.plot import save_image_png
 
         img = SarImage(image, grid.x_m, grid.y_m, grid.z_m, {"wavelength_m": 0.0039})
-        t_write = best(lambda: write_image(tmp / "w.h5", img), repeats)
-        t_png = best(lambda: save_image_png(tmp / "w.png", image, grid.x_m, grid.y_m, title="bench"), repeats)
+        t_write = best_time(lambda: write_image(tmp / "w.h5", img), repeats)
+        t_png = best_time(lambda: save_image_png(tmp / "w.png", image, grid.x_m, grid.y_m, title="bench"), repeats)
 
         def command():
             for f in ("img.h5", "img.png"):
@@ -104,7 +96,7 @@ def main() -> int:
             assert code == 0
 
         command()  # warm: imports, compiled kernels from the cache
-        t_command = best(command, repeats)
+        t_command = best_time(command, repeats)
     work = n_p * points.reshape(-1, 3).shape[0]
     result = {
         "case": {"frames": n, "profiles": n_p, "grid_points": int(points.size // 3), "quick": args.quick},

@@ -13,6 +13,15 @@ import numpy as np
 from .xbus import STATUS_SYNC_IN, ImuPacket, encode_mtdata2
 
 
+def close_fds(*fds: int) -> None:
+    """Close a pseudo-terminal's ends (or any descriptors), whichever are still open."""
+    for fd in fds:
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+
+
 class XbusPty:
     """An Xsens IMU on a pseudo-terminal: writes MTData2 packets to the master end; ``port`` is the device
     path a driver opens like a serial port.
@@ -85,8 +94,4 @@ class XbusPty:
 
     def close(self) -> None:
         self._thread.join(timeout=5)
-        for fd in (self.master, self.slave):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
+        close_fds(self.master, self.slave)

@@ -86,6 +86,33 @@ def _cos_sin_half_turns(x):
     return sign * c, sign * s
 
 
+@numba.njit(inline="always", fastmath=True)
+def _gather_accumulate(row, idx, frac, cos_, sin_, v0, v1, acc_re, acc_im, linear):
+    """The second and third passes of a (block, profile): gather the profile at idx (scalar loads and
+    stores only: LLVM will not vectorise a gather here), then interpolate and accumulate value * exp(-j k dr)
+    (vectorised)."""
+    nb = idx.size
+    if linear:
+        for i in range(nb):
+            j = idx[i]
+            v0[i] = row[j]
+            v1[i] = row[j + np.uint32(1)]
+        for i in range(nb):
+            t = frac[i]
+            vr = v0[i].real + t * (v1[i].real - v0[i].real)
+            vi = v0[i].imag + t * (v1[i].imag - v0[i].imag)
+            acc_re[i] += vr * cos_[i] + vi * sin_[i]
+            acc_im[i] += vi * cos_[i] - vr * sin_[i]
+    else:
+        for i in range(nb):
+            v0[i] = row[idx[i]]
+        for i in range(nb):
+            vr = v0[i].real
+            vi = v0[i].imag
+            acc_re[i] += vr * cos_[i] + vi * sin_[i]
+            acc_im[i] += vi * cos_[i] - vr * sin_[i]
+
+
 @numba.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, linear, out):
     """As ``_bp_interp`` (same arguments), with the block-relative float32 geometry of the module's
@@ -156,26 +183,7 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
                 c, s = _cos_sin_half_turns(phase_c + k32 * ddr)
                 cos_[i] = c
                 sin_[i] = s
-            row = rows[p]
-            if linear:
-                for i in range(nb):
-                    j = idx[i]
-                    v0[i] = row[j]
-                    v1[i] = row[j + np.uint32(1)]
-                for i in range(nb):
-                    t = frac[i]
-                    vr = v0[i].real + t * (v1[i].real - v0[i].real)
-                    vi = v0[i].imag + t * (v1[i].imag - v0[i].imag)
-                    acc_re[i] += vr * cos_[i] + vi * sin_[i]
-                    acc_im[i] += vi * cos_[i] - vr * sin_[i]
-            else:
-                for i in range(nb):
-                    v0[i] = row[idx[i]]
-                for i in range(nb):
-                    vr = v0[i].real
-                    vi = v0[i].imag
-                    acc_re[i] += vr * cos_[i] + vi * sin_[i]
-                    acc_im[i] += vi * cos_[i] - vr * sin_[i]
+            _gather_accumulate(rows[p], idx, frac, cos_, sin_, v0, v1, acc_re, acc_im, linear)
         for i in range(nb):
             out[g0 + i] += complex(acc_re[i], acc_im[i])
 
@@ -230,27 +238,7 @@ def _bp_interp(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, linear, o
                 c, s = _cos_sin(k * dr)
                 cos_[i] = c
                 sin_[i] = s
-            row = rows[p]
-            if linear:
-                for i in range(nb):
-                    j = idx[i]
-                    v0[i] = row[j]
-                    v1[i] = row[j + np.uint32(1)]
-                for i in range(nb):
-                    t = frac[i]
-                    vr = v0[i].real + t * (v1[i].real - v0[i].real)
-                    vi = v0[i].imag + t * (v1[i].imag - v0[i].imag)
-                    # value * exp(-j k dr)
-                    acc_re[i] += vr * cos_[i] + vi * sin_[i]
-                    acc_im[i] += vi * cos_[i] - vr * sin_[i]
-            else:
-                for i in range(nb):
-                    v0[i] = row[idx[i]]
-                for i in range(nb):
-                    vr = v0[i].real
-                    vi = v0[i].imag
-                    acc_re[i] += vr * cos_[i] + vi * sin_[i]
-                    acc_im[i] += vi * cos_[i] - vr * sin_[i]
+            _gather_accumulate(rows[p], idx, frac, cos_, sin_, v0, v1, acc_re, acc_im, linear)
         for i in range(nb):
             out[g0 + i] += complex(acc_re[i], acc_im[i])
 

@@ -16,6 +16,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..emulators import close_fds
 from .dca1000 import Dca1000Encoder
 from .dca1000_control import (
     PACKET_DELAY_RANGE_US,
@@ -225,11 +226,7 @@ class TiRadarCliPty:
     def close(self) -> None:
         self._closed.set()
         self._thread.join(timeout=5)
-        for fd in (self.master, self.slave):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
+        close_fds(self.master, self.slave)
 
     def answer(self, line: str) -> str:
         word, *args = line.split()
