@@ -143,6 +143,27 @@ def test_lost_requests_are_sent_again_and_a_refusal_is_an_error(board):
             dca.arm()
 
 
+def test_two_boards_answer_on_one_host_port():
+    """Every DCA1000 of a rig replies to the host's port 4096: arming them one after the other shares it."""
+    from drivers.radar.ti_arming import TiRadarControl
+
+    boards = [Dca1000Emulator(lambda k: None, ("127.0.0.1", free_udp_port()), busy_after_config_s=0.05).start()
+              for _ in range(2)]
+    port = free_udp_port()
+    try:
+        armed = [TiRadarControl(f"r{k}", "unused.cfg", 0, dca_address=b.address, dca_listen=("127.0.0.1", port),
+                                timeout_s=0.05).open() for k, b in enumerate(boards)]
+        for a in armed:
+            assert "recording" in a.arm()
+        assert all(b.recording for b in boards)
+        for a in armed:
+            assert a.disarm() == []
+        assert not any(b.recording for b in boards)
+    finally:
+        for b in boards:
+            b.close()
+
+
 def test_a_missing_board_is_named():
     with Dca1000Control(("127.0.0.1", free_udp_port()), ("127.0.0.1", 0), timeout_s=0.05, attempts=2) as dca:
         with pytest.raises(HardwareError, match=r"no reply to SYSTEM_CONNECTION after 2 attempt\(s\)"):

@@ -45,7 +45,7 @@ class TiRadarControl:
 class ArmedRadar:
     def __init__(self, control: TiRadarControl):
         self.control = control
-        self.dca: Dca1000Control | None = None
+        self.dca_armed: str | None = None  # the board's address once it records
         self.cli: TiRadarCli | None = None
         self.started = False
 
@@ -58,9 +58,11 @@ class ArmedRadar:
             n = self.cli.configure(Path(c.cfg_path).read_text(errors="replace"), c.cfg_path)
             done.append(f"radar configured from {c.cfg_path} on {c.cli_port} ({n} commands, each Done)")
         if c.dca_address:
-            self.dca = Dca1000Control(c.dca_address, c.dca_listen, timeout_s=c.timeout_s)
-            version = self.dca.arm(FpgaConfig(c.lvds_lanes), c.packet_delay_us)
-            done.append(f"DCA1000 {self.dca.where} (FPGA {version}) recording, {c.lvds_lanes} LVDS lanes, "
+            # The reply port is held only while talking: every board of a rig answers on the host's port 4096.
+            with Dca1000Control(c.dca_address, c.dca_listen, timeout_s=c.timeout_s) as dca:
+                version = dca.arm(FpgaConfig(c.lvds_lanes), c.packet_delay_us)
+                self.dca_armed = dca.where
+            done.append(f"DCA1000 {self.dca_armed} (FPGA {version}) recording, {c.lvds_lanes} LVDS lanes, "
                         f"packet delay {c.packet_delay_us:g} us")
         if self.cli:
             self.cli.start()
@@ -78,12 +80,13 @@ class ArmedRadar:
             except HardwareError as exc:
                 problems.append(str(exc))
             self.cli.close()
-        if self.dca:
+        if self.dca_armed:
             try:
-                self.dca.stop_record()
+                with Dca1000Control(self.control.dca_address, self.control.dca_listen, timeout_s=self.control.timeout_s) as dca:
+                    dca.stop_record()
             except HardwareError as exc:
                 problems.append(str(exc))
-            self.dca.close()
+            self.dca_armed = None
         return problems
 
 
