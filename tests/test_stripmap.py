@@ -215,7 +215,8 @@ def test_a_worker_behind_sums_more_chirps_before_it_drops_a_frame(drive):
     config = StripMapConfig(pixel_m=0.01, aperture_m=0.3, range_min_m=1.5, range_max_m=2.5, z_m=0.3, presum=2)
 
     def run(frames):
-        worker = StripMapWorker(StripMapWorkerConfig(Rig((radar,)), None, config, "tcp://unused:1", "unused.h5"), None)
+        worker = StripMapWorker(StripMapWorkerConfig(Rig((radar,)), None, config, "tcp://unused:1", "unused.h5",
+                                                     catch_up_start_s=1.0, catch_up_step_s=1.0), None)
         worker.handle(poses, live=True)
         for k in frames:
             frame = RadarFrame(k, int(times[k]), int(times[k]), True, 0, complex_to_iq(adc[k], 1000.0))

@@ -27,17 +27,20 @@ log = logging.getLogger(f"sarbot.{__name__}")
 POSE_WINDOW_NS = 5_000_000_000
 #: Longest a live imaging pass runs before the worker takes its messages again.
 STEP_BUDGET_S = 0.25
-#: Behind by more than this much sensor time, the worker sums twice the chirps per profile, four times past
-#: twice this, and so on (up to all of a TX's chirps in a frame): fewer profiles, a coarser map, before it
-#: drops a frame (at ``max_queue_s``).
-CATCH_UP_STEP_S = 1.0
+#: Behind by more than CATCH_UP_START_S of sensor time, the worker sums twice the chirps per profile, four
+#: times CATCH_UP_STEP_S later, and so on (up to all of a TX's chirps in a frame): fewer profiles, a coarser
+#: map, before it drops a frame (at ``max_queue_s``). A few seconds behind is normal on a busy machine (the
+#: odometry holds poses back, a split closes a file) and costs nothing but lag, so the map keeps its quality
+#: until then.
+CATCH_UP_START_S = 4.0
+CATCH_UP_STEP_S = 2.0
 
 
 @dataclasses.dataclass
 class StripMapWorkerConfig:
     """``radars`` None: all of the rig's. ``map`` is the ``imaging.stripmap.StripMapConfig``. Frames wait
     for poses at most ``max_queue_s`` (of sensor time) before the oldest are dropped, counted; before that,
-    a backlog is imaged with more pre-summing (``catch_up_step_s``), counted too."""
+    a backlog is imaged with more pre-summing (``catch_up_start_s``, ``catch_up_step_s``), counted too."""
 
     rig: Rig
     radars: list[str] | None
@@ -45,6 +48,7 @@ class StripMapWorkerConfig:
     pose_endpoint: str
     map_path: str
     max_queue_s: float = 10.0
+    catch_up_start_s: float = CATCH_UP_START_S
     catch_up_step_s: float = CATCH_UP_STEP_S
 
 
@@ -170,12 +174,19 @@ class StripMapWorker(Worker):
 
     def catch_up_factor(self, radar: str) -> int:
         """Extra pre-summing for the oldest queued frame: 1 while the queue holds less than
-        ``catch_up_step_s`` of sensor time, then doubling per step, up to all of a TX's chirps."""
+        ``catch_up_start_s`` of sensor time, then 2, doubling every ``catch_up_step_s`` more, up to all of a
+        TX's chirps."""
+        cfg = self.config
         backlog_s = (self.frames[-1][2] - self.frames[0][2]) * 1e-9 if self.frames else 0.0
-        steps = int(backlog_s / self.config.catch_up_step_s) if self.config.catch_up_step_s > 0 else 0
+        if backlog_s < cfg.catch_up_start_s:
+            return self._cap(radar, 1)
+        steps = 1 + (int((backlog_s - cfg.catch_up_start_s) / cfg.catch_up_step_s) if cfg.catch_up_step_s > 0 else 0)
+        return self._cap(radar, 2 ** min(steps, 16))
+
+    def _cap(self, radar: str, factor: int) -> int:
         wf = self.radars[radar].waveform
         most = max(1, wf.chirps_per_frame // wf.n_tx // self.config.map.presum)
-        return min(2 ** min(steps, 16), most)
+        return min(factor, most)
 
     def _publish_tiles(self) -> None:
         cfg = self.config.map
