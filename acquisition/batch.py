@@ -56,34 +56,23 @@ def run_job(job: ImageJob) -> dict:
     try:
         import numba
 
-        from imaging.core.grid import Grid
-        from imaging.image_formation import ImagingOptions, form_image
+        from imaging.image_formation import ImagingOptions, image_recording, image_title
         from imaging.io.image_file import write_image
         from imaging.io.recording import Recording
-        from imaging.io.trajectory_file import read_trajectory
 
         if job.threads:
             numba.set_num_threads(max(1, min(job.threads, numba.config.NUMBA_NUM_THREADS)))
         with Recording(job.recording) as rec:
-            radar = job.radar or (rec.radar_names[0] if len(rec.radar_names) == 1 else None)
-            if radar is None:
-                raise SarbotError(f"{job.recording}: several radars ({', '.join(rec.radar_names)}); give --radar")
-            config = rec.radar(radar)
-            traj = rec.truth() if job.trajectory == "truth" else read_trajectory(job.trajectory)
-            if traj is None:
-                raise SarbotError(f"{job.recording}: no /truth in this recording; give --trajectory FILE")
-            z0 = float(np.mean(traj.position_m[:, 2])) + float(config.mount.translation_m[2])
-            grid = Grid.parse(job.grid, default_z_m=z0)
-            img = form_image(rec, radar, grid, traj, slice(*job.frames), ImagingOptions(**dict(job.options)))
+            img = image_recording(rec, job.radar, job.grid, job.trajectory, slice(*job.frames),
+                                  ImagingOptions(**dict(job.options)))
         path = write_image(job.output, img)
         if job.png:
             from imaging.plot import save_image_png
 
-            save_image_png(Path(job.output).with_suffix(".png"), img.image, img.x_m, img.y_m,
-                           title=f"{radar} frames {img.attrs['frames']} ({img.attrs['method']})")
+            save_image_png(Path(job.output).with_suffix(".png"), img.image, img.x_m, img.y_m, title=image_title(img))
         mag = np.abs(img.image)
         k = np.unravel_index(int(np.argmax(mag)), mag.shape)
-        return {"output": str(path), "label": job.label, "radar": radar, "frames": img.attrs["frames"],
+        return {"output": str(path), "label": job.label, "radar": img.attrs["radar"], "frames": img.attrs["frames"],
                 "options": dict(job.options), "peak": float(mag[k]), "peak_index": [int(i) for i in k],
                 "n_profiles": int(img.attrs["n_profiles"]), "seconds": time.perf_counter() - started,
                 "worker_pid": os.getpid(), "error": None}
@@ -112,7 +101,7 @@ def plan_jobs(recordings, grid: str, out_dir, *, radar: str | None = None, frame
               tile_frames: int | None = None, sweep: list[dict] = ({},), base_options: dict | None = None,
               trajectory: str = "truth", png: bool = False, threads: int | None = None) -> list[ImageJob]:
     """Recordings x tiles (``tile_frames`` consecutive frames each, within ``frames``) x sweep points."""
-    from imaging.image_formation import ImagingOptions
+    from imaging.image_formation import ImagingOptions, choose_radar
     from imaging.io.recording import Recording
 
     out_dir = Path(out_dir)
@@ -123,10 +112,7 @@ def plan_jobs(recordings, grid: str, out_dir, *, radar: str | None = None, frame
             raise SarbotError(f"{rec_path}: no such recording")
         if tile_frames:
             with Recording(rec_path) as rec:
-                name = radar or (rec.radar_names[0] if len(rec.radar_names) == 1 else None)
-                if name is None:
-                    raise SarbotError(f"{rec_path}: several radars ({', '.join(rec.radar_names)}); give --radar")
-                start, stop, _ = slice(*frames).indices(rec.n_frames(name))
+                start, stop, _ = slice(*frames).indices(rec.n_frames(choose_radar(rec, radar)))
             tiles = [(a, min(a + tile_frames, stop)) for a in range(start, stop, tile_frames)]
         else:
             tiles = [tuple(frames)]

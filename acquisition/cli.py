@@ -98,11 +98,9 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_image(args) -> int:
-    from imaging.core.grid import Grid
-    from imaging.image_formation import ImagingOptions, form_image
+    from imaging.image_formation import ImagingOptions, image_recording, image_title
     from imaging.io.image_file import write_image
     from imaging.io.recording import Recording
-    from imaging.io.trajectory_file import read_trajectory
     from imaging.plot import save_image_png
 
     from .progress import Progress
@@ -113,26 +111,14 @@ def cmd_image(args) -> int:
         if path.exists() and path.resolve() == Path(args.recording).resolve():
             raise SarbotError(f"{path}: that is the recording being imaged; choose another output")
         _new_output(path, args.overwrite)
+    options = ImagingOptions(mode=args.mode, window=args.window, oversample=args.oversample,
+                             tx=_parse_channels(args.tx, "tx"), rx=_parse_channels(args.rx, "rx"))
     with Recording(args.recording) as rec:
-        radar = args.radar or (rec.radar_names[0] if len(rec.radar_names) == 1 else None)
-        if radar is None:
-            raise SarbotError(f"{args.recording}: several radars ({', '.join(rec.radar_names)}); choose one with --radar")
-        config = rec.radar(radar)  # checks the name
-        trajectory = None if args.trajectory == "truth" else read_trajectory(args.trajectory)
-        truth = rec.truth() if trajectory is None else None
-        if trajectory is None and truth is None:
-            raise SarbotError(f"{args.recording}: no /truth in this recording; give --trajectory FILE")
-        traj = trajectory or truth
-        frames = _parse_frames(args.frames)
-        # Default grid height: the radar's mean height over the recording.
-        z0 = float(np.mean(traj.position_m[:, 2])) + float(config.mount.translation_m[2]) if hasattr(traj, "position_m") else 0.0
-        grid = Grid.parse(args.grid, default_z_m=z0)
-        options = ImagingOptions(mode=args.mode, window=args.window, oversample=args.oversample,
-                                 tx=_parse_channels(args.tx, "tx"), rx=_parse_channels(args.rx, "rx"))
-        img = form_image(rec, radar, grid, traj, frames, options, progress=Progress("backproject"))
+        img = image_recording(rec, args.radar, args.grid, args.trajectory, _parse_frames(args.frames), options,
+                              progress=Progress("backproject"))
     path = write_image(out, img)
     # A volume is shown as its maximum over height.
-    save_image_png(png, img.image, img.x_m, img.y_m, title=f"{radar} frames {img.attrs['frames']} ({img.attrs['method']})")
+    save_image_png(png, img.image, img.x_m, img.y_m, title=image_title(img))
     print(f"wrote {path} and {png}")
     return EXIT_OK
 

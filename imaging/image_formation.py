@@ -183,6 +183,37 @@ def form_image(
     return SarImage(image, grid.x_m, grid.y_m, grid.z_m if grid.z_m.size > 1 else grid.z_m[:1], attrs)
 
 
+def choose_radar(recording: Recording, radar: str | None) -> str:
+    """``radar`` (checked against the recording), or the recording's only radar."""
+    if radar is None:
+        if len(recording.radar_names) != 1:
+            raise SarbotError(f"{recording.path}: several radars ({', '.join(recording.radar_names)}); choose one with --radar")
+        radar = recording.radar_names[0]
+    recording.radar(radar)  # checks the name
+    return radar
+
+
+def image_recording(recording: Recording, radar: str | None, grid_spec: str, trajectory: str = "truth",
+                    frames: slice = slice(None), options: ImagingOptions | None = None, progress=None) -> SarImage:
+    """What ``sarbot image`` (and every job of ``sarbot batch``) forms: ``radar`` (None: the only one),
+    on ``trajectory`` ("truth" or a trajectory file), on the grid ``x0:x1:dx,y0:y1:dy[,z]`` whose height
+    defaults to the radar's mean height over the recording."""
+    from imaging.io.trajectory_file import read_trajectory
+
+    radar = choose_radar(recording, radar)
+    traj = recording.truth() if trajectory == "truth" else read_trajectory(trajectory)
+    if traj is None:
+        raise SarbotError(f"{recording.path}: no /truth in this recording; give --trajectory FILE")
+    mount_z = float(recording.radar(radar).mount.translation_m[2])
+    z0 = float(np.mean(traj.position_m[:, 2])) + mount_z if hasattr(traj, "position_m") else 0.0
+    return form_image(recording, radar, Grid.parse(grid_spec, default_z_m=z0), traj, frames, options, progress=progress)
+
+
+def image_title(img: SarImage) -> str:
+    """The PNG title of an image formed from a recording."""
+    return f"{img.attrs['radar']} frames {img.attrs['frames']} ({img.attrs['method']})"
+
+
 def _horizontal_unit(v: np.ndarray) -> np.ndarray:
     h = np.array([v[0], v[1], 0.0])
     return h / np.linalg.norm(h)

@@ -29,7 +29,8 @@ from drivers.radar.dca1000_control import (
     packet_delay_payload,
 )
 from drivers.radar.pcap import read_udp
-from drivers.radar.ti_cli import TiRadarCli, cfg_commands
+from drivers.radar.ti_cfg import cfg_commands
+from drivers.radar.ti_cli import TiRadarCli
 from drivers.radar.ti_emulators import Dca1000Emulator, TiRadarCliPty
 from imaging.core.errors import HardwareError
 from imaging.io.recording import Recording

@@ -26,7 +26,7 @@ import numpy as np
 
 from imaging.core.errors import SarbotError
 
-from . import POINT_FIELDS, detection_scans
+from . import POINT_FIELDS, detection_scans, grid_db
 
 _TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
 _VEC3 = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
@@ -144,15 +144,9 @@ def export_mcap(recording: str | Path, output: str | Path, overwrite: bool = Fal
                                                     "message": message, "name": source, "file": "", "line": 0})
         truth = rec.truth()
         if truth is not None:
-            for t, p, q in zip(truth.time_ns, truth.position_m, truth.orientation_xyzw):
-                out.send("/truth", "foxglove.PoseInFrame", t,
-                         {"timestamp": _stamp(t), "frame_id": "world",
-                          "pose": {"position": _xyz(p), "orientation": dict(zip("xyzw", map(float, q)))}})
+            _poses(out, "/truth", truth)
         for topic, track in tracks.items():
-            for t, p, q in zip(track.time_ns, track.position_m, track.orientation_xyzw):
-                out.send(topic, "foxglove.PoseInFrame", t,
-                         {"timestamp": _stamp(t), "frame_id": "world",
-                          "pose": {"position": _xyz(p), "orientation": dict(zip("xyzw", map(float, q)))}})
+            _poses(out, topic, track)
         end_ns = max([int(rec.frame_time_ns(n)[-1]) for n in rec.radar_names if rec.n_frames(n)] or [0])
         for topic, image in images.items():
             out.send(topic, "foxglove.Grid", end_ns, grid_message(image, end_ns))
@@ -161,23 +155,22 @@ def export_mcap(recording: str | Path, output: str | Path, overwrite: bool = Fal
     return dict(out.counts)
 
 
+def _poses(out: _Out, topic: str, trajectory) -> None:
+    for t, p, q in zip(trajectory.time_ns, trajectory.position_m, trajectory.orientation_xyzw):
+        out.send(topic, "foxglove.PoseInFrame", t,
+                 {"timestamp": _stamp(t), "frame_id": "world",
+                  "pose": {"position": _xyz(p), "orientation": dict(zip("xyzw", map(float, q)))}})
+
+
 def _topic(base: str, path, paths) -> str:
     return base if len(paths) == 1 else f"{base}/{Path(path).stem}"
 
 
-def grid_db(image) -> np.ndarray:
-    """float32 [ny, nx] dB of a SarImage, 0 at its peak, floored at -120 dB (a volume: its brightest voxel
-    along z)."""
-    mag = np.abs(image.image)
-    if mag.ndim == 3:
-        mag = mag.max(axis=0)
-    peak = float(mag.max()) or 1.0
-    return (20.0 * np.log10(np.maximum(mag / peak, 1e-6))).astype("<f4")
-
-
 def grid_message(image, t_ns: int) -> dict:
-    """A SarImage as a foxglove.Grid (JSON): row r, column c at (x_m[c], y_m[r]) in the world frame."""
-    db = grid_db(image)
+    """A SarImage as a foxglove.Grid (JSON): row r, column c at (x_m[c], y_m[r]) in the world frame; a
+    volume by its brightest voxel along z."""
+    mag = np.abs(image.image)
+    db = grid_db(mag.max(axis=0) if mag.ndim == 3 else mag)
     dx = float(image.x_m[1] - image.x_m[0]) if image.x_m.size > 1 else 1.0
     dy = float(image.y_m[1] - image.y_m[0]) if image.y_m.size > 1 else dx
     z = float(image.z_m[0]) if image.z_m is not None and np.size(image.z_m) else 0.0

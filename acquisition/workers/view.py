@@ -27,6 +27,7 @@ import time
 
 import numpy as np
 
+from ..exporters import grid_db
 from ..messages import Event, Health, ImuBatch, MapTile, PointCloudMessage, PoseBatch
 from . import Worker
 
@@ -229,8 +230,7 @@ class ViewWorker(Worker):
         for (ix, iy), tile in self.tiles.items():
             mag[(iy - lo[1]) * n:(iy - lo[1] + 1) * n, (ix - lo[0]) * n:(ix - lo[0] + 1) * n] = tile
         mag, k = block_max(mag, self.config.max_cells)
-        peak = float(mag.max()) or 1.0
-        db = (20.0 * np.log10(np.maximum(mag / peak, 1e-6))).astype("<f4")  # floor at -120 dB where nothing is
+        db = grid_db(mag)
         tile_m = n * self.pixel_m
         origin = Pose(position=Vector3(x=float(lo[0] * tile_m), y=float(lo[1] * tile_m), z=0.0),
                       orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))

@@ -53,14 +53,23 @@ class TiRadarConfig:
             frame_interval_s=self.frame_periodicity_ms * 1e-3, sample_rate_hz=fs, n_tx=self.n_tx, n_rx=self.n_rx)
 
 
-def parse_ti_cfg(text: str, source: str = "<cfg>") -> TiRadarConfig:
-    """Parse the commands sarbot needs; an error names the command and line."""
-    cmds: dict[str, list[tuple[int, list[str]]]] = {}
+def cfg_commands(text: str) -> list[tuple[int, str]]:
+    """(line number, command) of every line of a ``.cfg`` that is a command (``%`` comments and blank lines
+    left out), as the radar's CLI is sent it and as it is parsed."""
+    out = []
     for lineno, line in enumerate(text.splitlines(), 1):
         line = line.split("%", 1)[0].strip()
         if line:
-            word, *args = line.split()
-            cmds.setdefault(word, []).append((lineno, args))
+            out.append((lineno, " ".join(line.split())))
+    return out
+
+
+def parse_ti_cfg(text: str, source: str = "<cfg>") -> TiRadarConfig:
+    """Parse the commands sarbot needs; an error names the command and line."""
+    cmds: dict[str, list[tuple[int, list[str]]]] = {}
+    for lineno, command in cfg_commands(text):
+        word, *args = command.split()
+        cmds.setdefault(word, []).append((lineno, args))
 
     def need(word: str, n: int):
         if word not in cmds:

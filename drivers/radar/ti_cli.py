@@ -17,21 +17,13 @@ import serial
 
 from imaging.core.errors import HardwareError
 
+from .ti_cfg import cfg_commands
+
 log = logging.getLogger(f"sarbot.{__name__}")
 
 PROMPT = b"mmwDemo:/>"
 START = "sensorStart"
 STOP = "sensorStop"
-
-
-def cfg_commands(text: str) -> list[tuple[int, str]]:
-    """(line number, command) of every line the radar is to be sent."""
-    out = []
-    for lineno, line in enumerate(text.splitlines(), 1):
-        line = line.split("%", 1)[0].strip()
-        if line:
-            out.append((lineno, " ".join(line.split())))
-    return out
 
 
 class TiRadarCli:
