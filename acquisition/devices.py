@@ -17,16 +17,16 @@ log = logging.getLogger(f"sarbot.{__name__}")
 
 def udp_port_listening(port: int) -> bool | None:
     """Whether some socket of this machine is bound to UDP ``port`` (Linux /proc; None where it cannot tell)."""
-    found = None
+    readable = False
     for table in (Path("/proc/net/udp"), Path("/proc/net/udp6")):
         try:
             lines = table.read_text().splitlines()[1:]
         except OSError:
             continue
-        found = bool(found)
+        readable = True
         if any(int(line.split()[1].rsplit(":", 1)[1], 16) == port for line in lines if len(line.split()) > 1):
             return True
-    return found
+    return False if readable else None
 
 
 class DeviceBringUp:
@@ -51,7 +51,7 @@ class DeviceBringUp:
         return self
 
     def _event(self, source: str, level: str, message: str) -> None:
-        getattr(log, {"info": "info", "warning": "warning"}.get(level, "error"))("%s: %s", source, message)
+        log.log({"info": logging.INFO, "warning": logging.WARNING}.get(level, logging.ERROR), "%s: %s", source, message)
         self.events.put((time.time_ns(), source, level, message))
 
     def _run(self) -> None:

@@ -32,6 +32,7 @@ The kernels run in parallel over blocks of grid points; inside a block the loop 
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numba
@@ -282,9 +283,11 @@ def _guarded(data: np.ndarray) -> np.ndarray:
     return rows
 
 
+@functools.lru_cache(maxsize=8)
 def patch_order(shape: tuple[int, ...]) -> np.ndarray | None:
     """The order that walks a grid of this shape ([..., ny, nx]) in PATCH x PATCH squares, each layer in
-    turn; None for a 1-D set of points (kept in the order given)."""
+    turn; None for a 1-D set of points (kept in the order given). Cached: ``form_image`` and the strip map
+    backproject block after block onto the same grid (callers only index with it)."""
     if len(shape) < 2 or shape[-1] <= PATCH and shape[-2] <= PATCH:
         return None
     ny, nx = shape[-2], shape[-1]
@@ -292,7 +295,9 @@ def patch_order(shape: tuple[int, ...]) -> np.ndarray | None:
     key = ((iy // PATCH) * ((nx + PATCH - 1) // PATCH) + ix // PATCH) * PATCH * PATCH + (iy % PATCH) * PATCH + ix % PATCH
     layer = np.argsort(key, kind="stable")
     layers = int(np.prod(shape[:-2], dtype=np.int64))
-    return (np.arange(layers)[:, None] * (ny * nx) + layer[None, :]).ravel()
+    order = (np.arange(layers)[:, None] * (ny * nx) + layer[None, :]).ravel()
+    order.flags.writeable = False  # shared by every call on this shape
+    return order
 
 
 def max_block_extent_m(gx: np.ndarray, gy: np.ndarray, gz: np.ndarray) -> float:

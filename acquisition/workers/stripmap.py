@@ -179,14 +179,10 @@ class StripMapWorker(Worker):
         cfg = self.config
         backlog_s = (self.frames[-1][2] - self.frames[0][2]) * 1e-9 if self.frames else 0.0
         if backlog_s < cfg.catch_up_start_s:
-            return self._cap(radar, 1)
+            return 1
         steps = 1 + (int((backlog_s - cfg.catch_up_start_s) / cfg.catch_up_step_s) if cfg.catch_up_step_s > 0 else 0)
-        return self._cap(radar, 2 ** min(steps, 16))
-
-    def _cap(self, radar: str, factor: int) -> int:
         wf = self.radars[radar].waveform
-        most = max(1, wf.chirps_per_frame // wf.n_tx // self.config.map.presum)
-        return min(factor, most)
+        return min(2 ** min(steps, 16), max(1, wf.chirps_per_frame // wf.n_tx // cfg.map.presum))
 
     def _publish_tiles(self) -> None:
         cfg = self.config.map

@@ -49,6 +49,10 @@ class ArmedRadar:
         self.cli: TiRadarCli | None = None
         self.started = False
 
+    def _board(self) -> Dca1000Control:
+        c = self.control
+        return Dca1000Control(c.dca_address, c.dca_listen, timeout_s=c.timeout_s)
+
     def arm(self) -> str:
         """Configure, arm and start; returns what was done, for the log and the recording's events."""
         c = self.control
@@ -59,7 +63,7 @@ class ArmedRadar:
             done.append(f"radar configured from {c.cfg_path} on {c.cli_port} ({n} commands, each Done)")
         if c.dca_address:
             # The reply port is held only while talking: every board of a rig answers on the host's port 4096.
-            with Dca1000Control(c.dca_address, c.dca_listen, timeout_s=c.timeout_s) as dca:
+            with self._board() as dca:
                 version = dca.arm(FpgaConfig(c.lvds_lanes), c.packet_delay_us)
                 self.dca_armed = dca.where
             done.append(f"DCA1000 {self.dca_armed} (FPGA {version}) recording, {c.lvds_lanes} LVDS lanes, "
@@ -82,7 +86,7 @@ class ArmedRadar:
             self.cli.close()
         if self.dca_armed:
             try:
-                with Dca1000Control(self.control.dca_address, self.control.dca_listen, timeout_s=self.control.timeout_s) as dca:
+                with self._board() as dca:
                     dca.stop_record()
             except HardwareError as exc:
                 problems.append(str(exc))
