@@ -43,7 +43,7 @@ class ImagingOptions:
 
 
 def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajectory, tx_order, options: ImagingOptions,
-                   time_window_ns: tuple[int, int] | None = None):
+                   time_window_ns: tuple[int, int] | None = None, track_error=None):
     """Range profiles and bistatic antenna positions of a block of frames.
 
     Parameters
@@ -54,6 +54,8 @@ def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajector
         TX index of each chirp within a frame.
     time_window_ns : (start, stop), optional
         Keep only chirps starting in [start, stop).
+    track_error : imaging.autofocus.TrackError, optional
+        A displacement of the radar along its boresight the trajectory does not know (from autofocus).
 
     Returns
     -------
@@ -70,6 +72,10 @@ def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajector
         keep &= (times >= time_window_ns[0]) & (times < time_window_ns[1])
     rx_sel = np.arange(wf.n_rx) if options.rx is None else np.asarray(options.rx)
     track = antenna_track(radar, trajectory, times[keep], tx_index[keep])
+    if track_error is not None:
+        d = track_error.at((track.time_ns - np.int64(track_error.time_origin_ns)) * 1e-9)[:, None] * track.boresight
+        track.tx_m = track.tx_m + d
+        track.rx_m = track.rx_m + d[:, None, :]
     samples = adc.reshape(n_f * wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)[keep][:, rx_sel, :]
     n_keep = samples.shape[0]
     profiles = range_compress(
@@ -95,6 +101,52 @@ def _parse_frames(frames, n_frames: int, path) -> slice:
     raise TypeError("frames must be a slice")
 
 
+class _BlockReader:
+    """One radar's selected valid frames, read and range-compressed ``options.frames_per_block`` at a time."""
+
+    def __init__(self, recording: Recording, radar_name: str, trajectory: Trajectory | None, frames: slice,
+                 options: ImagingOptions, time_window_ns, track_error) -> None:
+        self.recording, self.radar_name, self.options = recording, radar_name, options
+        self.time_window_ns, self.track_error = time_window_ns, track_error
+        self.radar = recording.radar(radar_name)
+        if trajectory is None:
+            trajectory = recording.truth()
+            if trajectory is None:
+                raise SarbotError(f"{recording.path}: no /truth trajectory in this recording; give a trajectory file")
+        self.trajectory = trajectory
+        self.sel = _parse_frames(frames, recording.n_frames(radar_name), recording.path)
+        wf = self.radar.waveform
+        for name, chans, n in (("tx", options.tx, wf.n_tx), ("rx", options.rx, wf.n_rx)):
+            if chans is not None and (len(chans) == 0 or min(chans) < 0 or max(chans) >= n):
+                raise SarbotError(f"{name} channels {list(chans)} out of range: radar {radar_name} has {n}")
+        self.tx_order = recording.tdm_tx_order(radar_name)
+        valid = recording.valid(radar_name, self.sel)
+        if not np.all(valid):
+            log.warning("radar %s: leaving out %d invalid frame(s)", radar_name, int(np.sum(~valid)))
+        self.frame_indices = np.arange(self.sel.start, self.sel.stop)[valid]
+
+    def block(self, b: int):
+        """Read and range-compress the block starting at the b-th selected frame: frame_profiles' result."""
+        idx = self.frame_indices[b:b + self.options.frames_per_block]
+        block = slice(int(idx[0]), int(idx[-1]) + 1)
+        adc = self.recording.adc(self.radar_name, block)
+        ftimes = self.recording.frame_time_ns(self.radar_name, block)
+        keep = np.isin(np.arange(block.start, block.stop), idx)
+        return frame_profiles(adc[keep], ftimes[keep], self.radar, self.trajectory, self.tx_order, self.options,
+                              self.time_window_ns, self.track_error)
+
+    def profile_blocks(self, time_origin_ns: int):
+        """Every block as an autofocus ProfileBlock (direction: the radar's boresight at each chirp)."""
+        from imaging.autofocus import ProfileBlock
+
+        n_rx = self.radar.waveform.n_rx if self.options.rx is None else len(self.options.rx)
+        for b in range(0, self.frame_indices.size, self.options.frames_per_block):
+            profiles, tx_m, rx_m, times, track = self.block(b)
+            if profiles.data.shape[0]:
+                yield ProfileBlock(profiles, tx_m, rx_m, (times - np.int64(time_origin_ns)) * 1e-9,
+                                   np.repeat(track.boresight, n_rx, axis=0))
+
+
 def form_image(
     recording: Recording,
     radar_name: str,
@@ -104,44 +156,24 @@ def form_image(
     options: ImagingOptions | None = None,
     time_window_ns: tuple[int, int] | None = None,
     progress=None,
+    track_error=None,
 ) -> SarImage:
     """Backproject one radar's frames onto ``grid``.
 
     Frames flagged invalid in the recording (data lost on the wire) are left out and logged. The image
     attributes record what theory needs: aperture length, look direction, speed, wavelength, bandwidth.
+    ``track_error`` (from autofocus) moves the radar along its boresight by that much at every chirp.
     """
     options = options or ImagingOptions()
-    radar = recording.radar(radar_name)
-    if trajectory is None:
-        trajectory = recording.truth()
-        if trajectory is None:
-            raise SarbotError(f"{recording.path}: no /truth trajectory in this recording; give a trajectory file")
-    n_frames = recording.n_frames(radar_name)
-    sel = _parse_frames(frames, n_frames, recording.path)
-    wf = radar.waveform
-    for name, chans, n in (("tx", options.tx, wf.n_tx), ("rx", options.rx, wf.n_rx)):
-        if chans is not None and (len(chans) == 0 or min(chans) < 0 or max(chans) >= n):
-            raise SarbotError(f"{name} channels {list(chans)} out of range: radar {radar_name} has {n}")
-    tx_order = recording.tdm_tx_order(radar_name)
+    reader = _BlockReader(recording, radar_name, trajectory, frames, options, time_window_ns, track_error)
+    sel, frame_indices, trajectory, wf = reader.sel, reader.frame_indices, reader.trajectory, reader.radar.waveform
     image = np.zeros(grid.shape, np.complex128)
     points = grid.points()
-    valid = recording.valid(radar_name, sel)
-    if not np.all(valid):
-        log.warning("radar %s: leaving out %d invalid frame(s)", radar_name, int(np.sum(~valid)))
     mids, tracks_times, speeds = [], [], []
     boresights = []
     n_profiles = 0
     step = options.frames_per_block
-    frame_indices = np.arange(sel.start, sel.stop)[valid]
-
-    def prepare(b: int):
-        """Read and range-compress block b (in a thread, while the kernel backprojects the one before)."""
-        idx = frame_indices[b:b + step]
-        block = slice(int(idx[0]), int(idx[-1]) + 1)
-        adc = recording.adc(radar_name, block)
-        ftimes = recording.frame_time_ns(radar_name, block)
-        keep = np.isin(np.arange(block.start, block.stop), idx)
-        return frame_profiles(adc[keep], ftimes[keep], radar, trajectory, tx_order, options, time_window_ns)
+    prepare = reader.block
 
     starts = list(range(0, frame_indices.size, step))
     with ThreadPoolExecutor(1, thread_name_prefix="range-compress") as pool:
@@ -181,6 +213,52 @@ def form_image(
         "source_file": str(recording.path),
     }
     return SarImage(image, grid.x_m, grid.y_m, grid.z_m if grid.z_m.size > 1 else grid.z_m[:1], attrs)
+
+
+def focus_image(
+    recording: Recording,
+    radar_name: str,
+    grid: Grid,
+    trajectory: Trajectory | None = None,
+    frames: slice = slice(None),
+    options: ImagingOptions | None = None,
+    autofocus=None,
+    time_window_ns: tuple[int, int] | None = None,
+    progress=None,
+) -> SarImage:
+    """``form_image``, then autofocus: the radar's track error along its boresight estimated from the image
+    (``imaging.autofocus``) and the image formed again on the corrected track.
+
+    ``autofocus`` is an ``AutofocusOptions`` (method "none" forms the plain image). The estimate goes into
+    the image: ``SarImage.track_error`` (written to ``/autofocus`` in the file) and attributes
+    ``autofocus``, ``autofocus_entropy_before``/``_after``, ``autofocus_applied``.
+    """
+    from imaging.autofocus import AutofocusOptions, estimate_track_error
+
+    autofocus = autofocus or AutofocusOptions()
+    options = options or ImagingOptions()
+    stages = 1 if autofocus.method == "none" else 3
+
+    def stage(k):
+        return None if progress is None else (lambda done, total: progress(k * total + done, stages * total))
+
+    img = form_image(recording, radar_name, grid, trajectory, frames, options, time_window_ns, stage(0))
+    if autofocus.method == "none":
+        return img
+    reader = _BlockReader(recording, radar_name, trajectory, frames, options, time_window_ns, None)
+    origin = int(recording.frame_time_ns(radar_name, slice(reader.sel.start, reader.sel.start + 1))[0])
+    result = estimate_track_error(lambda: reader.profile_blocks(origin), img.image, grid.points(), autofocus)
+    result.track_error.time_origin_ns = origin
+    if progress is not None:
+        progress(2, 3)
+    if result.applied:
+        img = form_image(recording, radar_name, grid, trajectory, frames, options, time_window_ns, stage(2),
+                         track_error=result.track_error)
+    img.attrs.update({"autofocus": autofocus.method, "autofocus_applied": int(result.applied),
+                      "autofocus_entropy_before": result.entropy_before, "autofocus_entropy_after": result.entropy_after,
+                      "autofocus_groups": result.groups, "autofocus_pixels": result.pixels})
+    img.track_error = result.track_error
+    return img
 
 
 def choose_radar(recording: Recording, radar: str | None) -> str:

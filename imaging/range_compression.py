@@ -36,6 +36,7 @@ class RangeProfiles:
     frequency_step_hz: float
     samples: np.ndarray | None = None  # complex64 [..., n_samples], windowed / sum(window)
     rows: np.ndarray | None = None  # complex64 [P, n_bins + 3]: data with its guard bins
+    bandwidth_hz: float | None = None  # samples x frequency step (None where not known)
 
     @property
     def n_bins(self) -> int:
@@ -124,4 +125,5 @@ def range_compress(
         frequency_step_hz=frequency_step_hz,
         samples=windowed,
         rows=rows if guarded else None,
+        bandwidth_hz=n * frequency_step_hz,
     )

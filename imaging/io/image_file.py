@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +26,8 @@ class SarImage:
     y_m: np.ndarray
     z_m: np.ndarray | None = None
     attrs: dict[str, Any] = dataclasses.field(default_factory=dict)
+    #: imaging.autofocus.TrackError where the image was autofocused (the file's /autofocus group)
+    track_error: Any = None
 
     @property
     def wavelength_m(self) -> float:
@@ -44,6 +47,14 @@ def write_image(path: str | Path, img: SarImage) -> Path:
         f.create_dataset("y_m", data=img.y_m)
         if img.z_m is not None:
             f.create_dataset("z_m", data=np.atleast_1d(img.z_m))
+        te = img.track_error
+        if te is not None:
+            g = f.create_group("autofocus")
+            g.attrs["method"] = te.method
+            g.attrs["time_origin_ns"] = np.int64(te.time_origin_ns)
+            g.attrs["model"] = json.dumps(te.model) if te.model is not None else ""
+            g.create_dataset("time_ns", data=np.int64(te.time_origin_ns) + np.round(te.time_s * 1e9).astype(np.int64))
+            g.create_dataset("track_error_m", data=te.displacement_m)
     return path
 
 
@@ -54,4 +65,18 @@ def read_image(path: str | Path) -> SarImage:
             if name not in f:
                 raise FileFormatError(f"{path}: dataset /{name} is missing")
         attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
-        return SarImage(f["image"][()], f["x_m"][()], f["y_m"][()], f["z_m"][()] if "z_m" in f else None, attrs)
+        track_error = None
+        if "autofocus" in f:
+            from imaging.autofocus import TrackError
+
+            g = f["autofocus"]
+            try:
+                origin = int(g.attrs["time_origin_ns"])
+                model = g.attrs.get("model", "")
+                model = model.decode() if isinstance(model, bytes) else model
+                track_error = TrackError((g["time_ns"][()] - origin) * 1e-9, g["track_error_m"][()], str(g.attrs["method"]),
+                                         json.loads(model) if model else None, origin)
+            except (KeyError, ValueError) as exc:
+                raise FileFormatError(f"{path}: /autofocus is damaged ({exc})") from None
+        return SarImage(f["image"][()], f["x_m"][()], f["y_m"][()], f["z_m"][()] if "z_m" in f else None, attrs,
+                        track_error)
