@@ -233,14 +233,19 @@ def focus_image(
     the image: ``SarImage.track_error`` (written to ``/autofocus`` in the file) and attributes
     ``autofocus``, ``autofocus_entropy_before``/``_after``, ``autofocus_applied``.
     """
-    from imaging.autofocus import AutofocusOptions, estimate_track_error
+    from imaging.autofocus import AutofocusOptions, estimate_track_error, image_entropy
 
     autofocus = autofocus or AutofocusOptions()
     options = options or ImagingOptions()
     stages = 1 if autofocus.method == "none" else 3
+    frames_total = [1]
 
     def stage(k):
-        return None if progress is None else (lambda done, total: progress(k * total + done, stages * total))
+        """Progress of stage k of form, estimate, form again, in frames of all three."""
+        def report(done, total):
+            frames_total[0] = total
+            progress(k * total + done, stages * total)
+        return None if progress is None else report
 
     img = form_image(recording, radar_name, grid, trajectory, frames, options, time_window_ns, stage(0))
     if autofocus.method == "none":
@@ -250,10 +255,16 @@ def focus_image(
     result = estimate_track_error(lambda: reader.profile_blocks(origin), img.image, grid.points(), autofocus)
     result.track_error.time_origin_ns = origin
     if progress is not None:
-        progress(2, 3)
+        progress(2 * frames_total[0], 3 * frames_total[0])
     if result.applied:
-        img = form_image(recording, radar_name, grid, trajectory, frames, options, time_window_ns, stage(2),
-                         track_error=result.track_error)
+        focused = form_image(recording, radar_name, grid, trajectory, frames, options, time_window_ns, stage(2),
+                             track_error=result.track_error)
+        # The estimate was judged on its pixels; the whole image must be sharper too, or it is not used.
+        if image_entropy(focused.image) < image_entropy(img.image):
+            img = focused
+        else:
+            result.applied = False
+            result.note = "the corrected image was not sharper than the plain one; left unapplied"
     img.attrs.update({"autofocus": autofocus.method, "autofocus_applied": int(result.applied),
                       "autofocus_entropy_before": result.entropy_before, "autofocus_entropy_after": result.entropy_after,
                       "autofocus_groups": result.groups, "autofocus_pixels": result.pixels})
@@ -272,10 +283,12 @@ def choose_radar(recording: Recording, radar: str | None) -> str:
 
 
 def image_recording(recording: Recording, radar: str | None, grid_spec: str, trajectory: str = "truth",
-                    frames: slice = slice(None), options: ImagingOptions | None = None, progress=None) -> SarImage:
+                    frames: slice = slice(None), options: ImagingOptions | None = None, progress=None,
+                    autofocus=None) -> SarImage:
     """What ``sarbot image`` (and every job of ``sarbot batch``) forms: ``radar`` (None: the only one),
     on ``trajectory`` ("truth" or a trajectory file), on the grid ``x0:x1:dx,y0:y1:dy[,z]`` whose height
-    defaults to the radar's mean height over the recording."""
+    defaults to the radar's mean height over the recording; autofocused with ``autofocus``
+    (``AutofocusOptions``) unless it is None or its method "none"."""
     from imaging.io.trajectory_file import read_trajectory
 
     radar = choose_radar(recording, radar)
@@ -284,7 +297,10 @@ def image_recording(recording: Recording, radar: str | None, grid_spec: str, tra
         raise SarbotError(f"{recording.path}: no /truth in this recording; give --trajectory FILE")
     mount_z = float(recording.radar(radar).mount.translation_m[2])
     z0 = float(np.mean(traj.position_m[:, 2])) + mount_z if hasattr(traj, "position_m") else 0.0
-    return form_image(recording, radar, Grid.parse(grid_spec, default_z_m=z0), traj, frames, options, progress=progress)
+    grid = Grid.parse(grid_spec, default_z_m=z0)
+    if autofocus is not None and autofocus.method != "none":
+        return focus_image(recording, radar, grid, traj, frames, options, autofocus, progress=progress)
+    return form_image(recording, radar, grid, traj, frames, options, progress=progress)
 
 
 def image_title(img: SarImage) -> str:
