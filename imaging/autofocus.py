@@ -37,6 +37,10 @@ with nothing to focus on is never made worse.
 ``fit_vibration`` reads frequency, amplitude and phase of a vibration off an estimated track error by a
 sinusoid fit (with the unobservable offset and drift as nuisance terms), so the vibration no longer has to
 be inferred from the level of its paired side lobes.
+
+Autofocus needs something to focus on: an image (noise, diffuse clutter) whose brightest pixel stands less
+than ``min_contrast_db`` above its median intensity is left as it is (noise alone reaches 13 dB at a
+million pixels; a point target tens of dB).
 """
 
 from __future__ import annotations
@@ -80,6 +84,7 @@ class AutofocusOptions:
     poly_order: int = 3
     sinusoids: int = 1
     entropy_iterations: int = 200
+    min_contrast_db: float = 20.0  # brightest pixel over the median intensity: below it, nothing to focus on
 
     def __post_init__(self) -> None:
         require(self.method in METHODS, "method", f"must be one of {', '.join(METHODS)}, got {self.method!r}")
@@ -91,6 +96,7 @@ class AutofocusOptions:
         require(1 <= self.pga_iterations <= 100, "pga_iterations", f"must be 1 to 100, got {self.pga_iterations}")
         require(1 <= self.poly_order <= 8, "poly_order", f"must be 1 to 8, got {self.poly_order}")
         require(0 <= self.sinusoids <= 4, "sinusoids", f"must be 0 to 4, got {self.sinusoids}")
+        require(math.isfinite(self.min_contrast_db), "min_contrast_db", f"must be finite, got {self.min_contrast_db}")
 
 
 @dataclasses.dataclass
@@ -536,6 +542,15 @@ def estimate_track_error(blocks: Callable[[], Iterable[ProfileBlock]], image: np
         Its pixels' world positions.
     """
     options = options or AutofocusOptions()
+    power = np.abs(image) ** 2
+    contrast_db = 10 * math.log10(power.max() / np.median(power)) if power.max() > 0 else 0.0
+    log.debug("autofocus: brightest pixel %.1f dB above the median", contrast_db)
+    if contrast_db < options.min_contrast_db:
+        note = (f"nothing to focus on: the brightest pixel stands {contrast_db:.1f} dB above the median intensity, "
+                f"less than {options.min_contrast_db:g} dB")
+        log.info("autofocus (%s): %s", options.method, note)
+        e = image_entropy(image)
+        return AutofocusResult(TrackError(np.zeros(2), np.zeros(2), options.method), e, e, False, 0, 0, 0, note)
     pixels = select_pixels(image, points_m, options)
     t_lo, t_hi = np.inf, -np.inf
     for blk in blocks():
