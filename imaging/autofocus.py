@@ -81,7 +81,7 @@ class AutofocusOptions:
     patch_px: int = 64
     pga_iterations: int = 8
     pga_tolerance_rad: float = 0.01
-    poly_order: int = 3
+    poly_order: int = 6
     sinusoids: int = 1
     entropy_iterations: int = 200
     min_contrast_db: float = 20.0  # brightest pixel over the median intensity: below it, nothing to focus on
@@ -128,9 +128,8 @@ class TrackError:
     time_origin_ns: int = 0
 
     def at(self, time_s: np.ndarray) -> np.ndarray:
-        """The displacement at any time (linear between group centres, held beyond them)."""
-        if self.model is not None and self.model.get("kind") == "legendre+sinusoids":
-            return evaluate_model(self.model, np.asarray(time_s, float))
+        """The displacement at any time (linear between group centres, held beyond them). The model, where
+        there is one, is not used here: its offset and drift are arbitrary and would move the image."""
         return np.interp(np.asarray(time_s, float), self.time_s, self.displacement_m)
 
     @property
@@ -529,7 +528,8 @@ def resolution_m(g: GroupImages) -> float:
 
 
 def estimate_track_error(blocks: Callable[[], Iterable[ProfileBlock]], image: np.ndarray, points_m: np.ndarray,
-                         options: AutofocusOptions | None = None) -> AutofocusResult:
+                         options: AutofocusOptions | None = None, time_range_s: tuple[float, float] | None = None
+                         ) -> AutofocusResult:
     """Estimate the track error of an image formed from ``blocks`` (called again for a second pass).
 
     Parameters
@@ -540,6 +540,8 @@ def estimate_track_error(blocks: Callable[[], Iterable[ProfileBlock]], image: np
         The image formed on the assumed track.
     points_m : ndarray, shape image.shape + (3,)
         Its pixels' world positions.
+    time_range_s : (first, last), optional
+        The profiles' time span, where the caller knows it (else one more pass over the blocks finds it).
     """
     options = options or AutofocusOptions()
     power = np.abs(image) ** 2
@@ -552,8 +554,8 @@ def estimate_track_error(blocks: Callable[[], Iterable[ProfileBlock]], image: np
         e = image_entropy(image)
         return AutofocusResult(TrackError(np.zeros(2), np.zeros(2), options.method), e, e, False, 0, 0, 0, note)
     pixels = select_pixels(image, points_m, options)
-    t_lo, t_hi = np.inf, -np.inf
-    for blk in blocks():
+    t_lo, t_hi = time_range_s if time_range_s is not None else (np.inf, -np.inf)
+    for blk in blocks() if time_range_s is None else ():
         if blk.time_s.size:
             t_lo, t_hi = min(t_lo, float(blk.time_s.min())), max(t_hi, float(blk.time_s.max()))
     if not np.isfinite(t_lo) or t_hi <= t_lo:
@@ -613,18 +615,13 @@ def fit_vibration(track_error: TrackError, poly_order: int = 1) -> VibrationFit:
     """Frequency, amplitude and phase of the strongest sinusoid in an estimated track error.
 
     The offset and drift (and, with ``poly_order`` >= 2, a slow bend) are fitted beside it and set aside: the
-    estimate does not know them, and over an aperture of one or two periods they are not orthogonal to
-    the sinusoid. With a parametric estimate, its own sinusoid is taken directly.
+    estimate does not know them. The fit is made on the estimated displacement, whichever estimator made it:
+    over an aperture of one or two periods a sinusoid and a bend are far from orthogonal, so the entropy
+    model's own split between them is not a measurement of either, while their sum is.
     """
-    m = track_error.model
-    if m is not None and m.get("sinusoids"):
-        f, a, b = max(m["sinusoids"], key=lambda s: math.hypot(s[1], s[2]))
-        t0 = m["t_centre_s"]
-        resid = 0.0
-    else:
-        t0, _, coef, freqs, resid = _fit_sinusoids(track_error.time_s, track_error.displacement_m, poly_order, 1)
-        n_poly = max(poly_order - 1, 0)
-        f, a, b = freqs[0], coef[2 + n_poly], coef[3 + n_poly]
+    t0, _, coef, freqs, resid = _fit_sinusoids(track_error.time_s, track_error.displacement_m, poly_order, 1)
+    n_poly = max(poly_order - 1, 0)
+    f, a, b = freqs[0], coef[2 + n_poly], coef[3 + n_poly]
     # a cos(w (t - t0)) + b sin(w (t - t0)) = A sin(w t + phase)
     amp = math.hypot(a, b)
     phase = math.atan2(a, b) - 2 * math.pi * f * t0

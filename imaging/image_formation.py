@@ -251,8 +251,14 @@ def focus_image(
     if autofocus.method == "none":
         return img
     reader = _BlockReader(recording, radar_name, trajectory, frames, options, time_window_ns, None)
-    origin = int(recording.frame_time_ns(radar_name, slice(reader.sel.start, reader.sel.start + 1))[0])
-    result = estimate_track_error(lambda: reader.profile_blocks(origin), img.image, grid.points(), autofocus)
+    frame_times = recording.frame_time_ns(radar_name, reader.sel)
+    origin = int(frame_times[0])
+    wf = reader.radar.waveform
+    span = [origin, int(frame_times[-1]) + int(wf.chirps_per_frame * wf.chirp_interval_s * 1e9)]
+    if time_window_ns is not None:
+        span = [max(span[0], time_window_ns[0]), min(span[1], time_window_ns[1])]
+    result = estimate_track_error(lambda: reader.profile_blocks(origin), img.image, grid.points(), autofocus,
+                                  time_range_s=((span[0] - origin) * 1e-9, (span[1] - origin) * 1e-9))
     result.track_error.time_origin_ns = origin
     if progress is not None:
         progress(2 * frames_total[0], 3 * frames_total[0])

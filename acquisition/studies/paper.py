@@ -33,7 +33,7 @@ from imaging import metrics
 from imaging.core.geometry import Vibration, antenna_track, chirp_times_ns
 from imaging.core.grid import Grid
 from imaging.core.trajectory import SampledTrajectory, StraightLine
-from imaging.image_formation import ImagingOptions, form_image
+from imaging.image_formation import ImagingOptions, focus_image, form_image
 from imaging.io.recording import Recording
 from imaging.sim.scene import load_scene
 from imaging.sim.simulator import simulate_recording
@@ -69,10 +69,14 @@ def broadside_time_ns(rec: Recording, trajectory, xy) -> int:
 
 
 def image_at(rec: Recording, trajectory, xy, aperture_m: float, speed_mps: float, half=(0.15, 0.1), step=(0.001, 0.002),
-             options: ImagingOptions = ONE_PAIR, t_mid: int | None = None):
+             options: ImagingOptions = ONE_PAIR, t_mid: int | None = None, autofocus=None):
+    """The image of an aperture centred on broadside to ``xy`` (autofocused with ``autofocus`` if given)."""
     t_mid = broadside_time_ns(rec, trajectory, xy) if t_mid is None else t_mid
     half_ns = int(aperture_m / (2 * speed_mps) * 1e9)
     grid = Grid.from_ranges((xy[0] - half[0], xy[0] + half[0], step[0]), (xy[1] - half[1], xy[1] + half[1], step[1]), 0.3)
+    if autofocus is not None:
+        return focus_image(rec, RADAR, grid, trajectory, options=options, autofocus=autofocus,
+                           time_window_ns=(t_mid - half_ns, t_mid + half_ns))
     return form_image(rec, RADAR, grid, trajectory, options=options, time_window_ns=(t_mid - half_ns, t_mid + half_ns))
 
 
@@ -437,7 +441,7 @@ def run_paper(out_dir: Path, quick: bool = False) -> dict:
         p = Paper(out_dir, Path(tmp), quick)
         bar = Progress("experiment")
         steps = ["simulating the passes", "range profiles", "cross-range width", "vibration", "integration gain",
-                 "on the RIO trajectory", "where methods fail"]
+                 "on the RIO trajectory", "where methods fail", "with autofocus"]
         report: dict = {"quick": quick}
 
         def step(k):
@@ -458,6 +462,10 @@ def run_paper(out_dir: Path, quick: bool = False) -> dict:
         report["rio"] = p.rio()
         step(6)
         report["failure"] = p.failure(passes)
+        step(7)
+        from .autofocus_study import AutofocusStudy
+
+        report["autofocus"] = AutofocusStudy(p).run()
         bar(len(steps), len(steps))
     report["elapsed_s"] = time.monotonic() - t0
     (out_dir / "report.json").write_text(json.dumps(report, indent=2, default=float))
@@ -502,6 +510,10 @@ def markdown(r: dict) -> str:
         L.append(f"| {1e3 * row['amplitude_m']:.2f} | {row['usable_aperture_m']:.2f} | {lvl} |")
     if f["live_map"]:
         L += ["", "Live map, from `benchmarks/stripmap.py`:", "", "![live](live_map_speed_accuracy.png)"]
+    if "autofocus" in r:
+        from .autofocus_study import markdown as autofocus_markdown
+
+        L += [""] + autofocus_markdown(r["autofocus"])
     return "\n".join(L) + "\n"
 
 
