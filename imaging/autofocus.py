@@ -39,8 +39,9 @@ sinusoid fit (with the unobservable offset and drift as nuisance terms), so the 
 be inferred from the level of its paired side lobes.
 
 Autofocus needs something to focus on: an image (noise, diffuse clutter) whose brightest pixel stands less
-than ``min_contrast_db`` above its median intensity is left as it is (noise alone reaches 13 dB at a
-million pixels; a point target tens of dB).
+than ``min_contrast_db`` above its background is left as it is. The background is the median intensity of
+noise estimated from the dimmest tenth of the pixels; noise alone reaches 13 dB above it at a million
+pixels, a point target tens of dB.
 """
 
 from __future__ import annotations
@@ -84,7 +85,7 @@ class AutofocusOptions:
     poly_order: int = 6
     sinusoids: int = 1
     entropy_iterations: int = 200
-    min_contrast_db: float = 20.0  # brightest pixel over the median intensity: below it, nothing to focus on
+    min_contrast_db: float = 20.0  # brightest pixel over the background (noise median): below it, nothing to focus on
 
     def __post_init__(self) -> None:
         require(self.method in METHODS, "method", f"must be one of {', '.join(METHODS)}, got {self.method!r}")
@@ -545,10 +546,13 @@ def estimate_track_error(blocks: Callable[[], Iterable[ProfileBlock]], image: np
     """
     options = options or AutofocusOptions()
     power = np.abs(image) ** 2
-    contrast_db = 10 * math.log10(power.max() / np.median(power)) if power.max() > 0 else 0.0
-    log.debug("autofocus: brightest pixel %.1f dB above the median", contrast_db)
+    # The noise's median from the dimmest tenth (exponential intensity: median = p10 ln 2 / -ln 0.9), so
+    # that a target filling much of a small image does not count as background.
+    floor = np.percentile(power, 10) * (math.log(2) / -math.log(0.9))
+    contrast_db = 10 * math.log10(power.max() / floor) if power.max() > 0 and floor > 0 else (math.inf if power.max() > 0 else 0.0)
+    log.debug("autofocus: brightest pixel %.1f dB above the background", contrast_db)
     if contrast_db < options.min_contrast_db:
-        note = (f"nothing to focus on: the brightest pixel stands {contrast_db:.1f} dB above the median intensity, "
+        note = (f"nothing to focus on: the brightest pixel stands {contrast_db:.1f} dB above the background, "
                 f"less than {options.min_contrast_db:g} dB")
         log.info("autofocus (%s): %s", options.method, note)
         e = image_entropy(image)
