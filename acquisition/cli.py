@@ -117,7 +117,7 @@ def cmd_image(args) -> int:
     autofocus = AutofocusOptions(method=args.autofocus, sinusoids=args.autofocus_sinusoids)
     with Recording(args.recording) as rec:
         img = image_recording(rec, args.radar, args.grid, args.trajectory, _parse_frames(args.frames), options,
-                              progress=Progress("backproject"), autofocus=autofocus)
+                              progress=Progress("backproject"), autofocus=autofocus, imu_aided=args.imu_aided)
     path = write_image(out, img)
     # A volume is shown as its maximum over height.
     save_image_png(png, img.image, img.x_m, img.y_m, title=image_title(img))
@@ -128,13 +128,15 @@ def cmd_image(args) -> int:
 
 
 def autofocus_summary(img) -> str:
-    """One line on what autofocus found and did."""
+    """One line on what autofocus (and the radar's IMU) found and did."""
     a = img.attrs
+    te = img.track_error
+    if "autofocus" not in a:  # the radar's IMU alone
+        return f"imu-aided: the radar's IMU moved it {1e3 * te.rms_m:.3f} mm rms along the boresight over {np.ptp(te.time_s):.2f} s"
     if not a.get("autofocus_applied"):
         return (f"autofocus ({a['autofocus']}): nothing to gain (image entropy {a['autofocus_entropy_before']:.3f}); "
                 "the image is formed on the trajectory as it is")
-    te = img.track_error
-    return (f"autofocus ({a['autofocus']}): track error {1e3 * te.rms_m:.3f} mm rms along the boresight over "
+    return (f"autofocus ({a['autofocus']}{' on the radar IMU' if a.get('imu_aided') else ''}): track error {1e3 * te.rms_m:.3f} mm rms along the boresight over "
             f"{np.ptp(te.time_s):.2f} s; entropy {a['autofocus_entropy_before']:.3f} -> {a['autofocus_entropy_after']:.3f}")
 
 
@@ -730,6 +732,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "image and form it again: pga (phase gradient) or entropy (minimum entropy over a bend plus "
                         "sinusoids; the default choice for vibration). The estimate goes into the file; analyze reports it")
     s.add_argument("--autofocus-sinusoids", type=int, default=1, help="sinusoids in the entropy model (0-4, default 1)")
+    s.add_argument("--imu-aided", action="store_true",
+                   help="correct the track by the IMU on the radar's own mount first (a rig's [radar.NAME.imu]); "
+                        "autofocus, if asked for, estimates what is left")
     s.add_argument("--overwrite", action="store_true", help="replace existing output files")
     s.set_defaults(func=cmd_image)
 

@@ -406,12 +406,17 @@ def _fit_sinusoids(t, v, poly_order: int, n_sin: int, weight=None):
         tu = np.linspace(t.min(), t.max(), t.size)
         spec = np.abs(np.fft.rfft(np.interp(tu, t, r) * np.hanning(t.size), n_fft))
         fgrid = np.fft.rfftfreq(n_fft, (tu[1] - tu[0]) if t.size > 1 else dt)
-        spec[fgrid < 0.5 / np.ptp(t)] = 0  # below half a cycle over the aperture the polynomial has it
+        # Below one cycle over the aperture a sinusoid is a bend: the polynomial has it.
+        spec[fgrid < 1.0 / np.ptp(t)] = 0
+        if not spec.any():
+            break
         freqs.append(float(fgrid[np.argmax(spec)]))
     if freqs:
         def resid(fs):
             return solve(fs)[1] * sw
-        sol = scipy.optimize.least_squares(resid, np.array(freqs), x_scale=np.maximum(np.array(freqs), 1e-9) * 0.05)
+        lo, hi = 1.0 / np.ptp(t), 0.5 / dt
+        sol = scipy.optimize.least_squares(resid, np.clip(freqs, lo * 1.0001, hi * 0.9999), bounds=(lo, hi),
+                                           x_scale=np.maximum(np.array(freqs), 1e-9) * 0.05)
         freqs = [float(f) for f in sol.x]
     coef, r = solve(freqs)
     return t0, half, coef, freqs, float(np.sqrt(np.mean(r ** 2)))
@@ -484,7 +489,14 @@ def minimum_entropy(g: GroupImages, model: dict, iterations: int) -> tuple[dict,
         grad_d = (grad_phase * 2.0 * g.k * g.c).sum(axis=1)
         return ent, jac.T @ grad_d
 
-    res = scipy.optimize.minimize(fun, x0, jac=True, method="L-BFGS-B", options={"maxiter": iterations})
+    # Frequencies stay within one cycle over the aperture and the groups' Nyquist rate; amplitudes are free.
+    span = float(np.ptp(g.time_s))
+    nyquist = 0.5 / float(np.median(np.diff(g.time_s)))
+    n_poly = x0.size - 3 * len(model["sinusoids"])
+    bounds = [(None, None)] * n_poly
+    for _ in model["sinusoids"]:
+        bounds += [(None, None), (None, None), (1.0 / span, nyquist)]
+    res = scipy.optimize.minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": iterations})
     return to_model(res.x), float(res.fun), int(res.nit)
 
 
@@ -571,10 +583,17 @@ def estimate_track_error(blocks: Callable[[], Iterable[ProfileBlock]], image: np
     weight = np.abs(g.b).sum(axis=(0, 2)).astype(float)
     model = None
     if options.method == "entropy":
-        model = fit_track_model(g.time_s, delta, options.poly_order, options.sinusoids, weight)
-        model, _, it2 = minimum_entropy(g, model, options.entropy_iterations)
+        # The model refines PGA's estimate; whichever of the two leaves the lower entropy is kept (a model
+        # too poor for the track, or a local minimum, never makes the result worse than its start).
+        start = model = fit_track_model(g.time_s, delta, options.poly_order, options.sinusoids, weight)
+        model, e_model, it2 = minimum_entropy(g, start, options.entropy_iterations)
         it += it2
-        delta = _remove_line(g.time_s, evaluate_model(model, g.time_s))
+        e_pga, _ = _entropy_and_gradient(g, g.phase(delta))
+        if e_model < e_pga:
+            delta = _remove_line(g.time_s, evaluate_model(model, g.time_s))
+        else:
+            model = None
+            log.info("autofocus (entropy): the model did not beat PGA's estimate (%.4f against %.4f); keeping PGA's", e_model, e_pga)
     e1, _ = _entropy_and_gradient(g, g.phase(delta))
     applied = e1 < e0
     note = "" if applied else "the estimate did not sharpen the image; left unapplied"

@@ -225,18 +225,39 @@ def focus_image(
     autofocus=None,
     time_window_ns: tuple[int, int] | None = None,
     progress=None,
+    imu_aided: bool = False,
 ) -> SarImage:
     """``form_image``, then autofocus: the radar's track error along its boresight estimated from the image
     (``imaging.autofocus``) and the image formed again on the corrected track.
 
-    ``autofocus`` is an ``AutofocusOptions`` (method "none" forms the plain image). The estimate goes into
-    the image: ``SarImage.track_error`` (written to ``/autofocus`` in the file) and attributes
-    ``autofocus``, ``autofocus_entropy_before``/``_after``, ``autofocus_applied``.
+    ``autofocus`` is an ``AutofocusOptions`` (method "none": no estimate). With ``imu_aided`` the
+    displacement measured by the IMU on the radar's own mount (``imaging.imu_aided``) corrects the track
+    first, and autofocus estimates what is left. The track error goes into the image:
+    ``SarImage.track_error`` (``/autofocus`` in the file) and attributes ``autofocus``,
+    ``autofocus_entropy_before``/``_after``, ``autofocus_applied``, ``imu_aided``.
     """
     from imaging.autofocus import AutofocusOptions, estimate_track_error, image_entropy
+    from imaging.imu_aided import boresight_track_from_imu, combined
 
     autofocus = autofocus or AutofocusOptions()
     options = options or ImagingOptions()
+    reader = _BlockReader(recording, radar_name, trajectory, frames, options, time_window_ns, None)
+    frame_times = recording.frame_time_ns(radar_name, reader.sel)
+    origin = int(frame_times[0])
+    wf = reader.radar.waveform
+    span = [origin, int(frame_times[-1]) + int(wf.chirps_per_frame * wf.chirp_interval_s * 1e9)]
+    if time_window_ns is not None:
+        span = [max(span[0], time_window_ns[0]), min(span[1], time_window_ns[1])]
+    imu_track = None
+    if imu_aided:
+        samples = recording.radar_imu(radar_name)
+        if samples is None:
+            raise SarbotError(f"{recording.path}: radar {radar_name} has no IMU of its own (a rig declares one as "
+                              f"[radar.{radar_name}.imu])")
+        try:
+            imu_track = boresight_track_from_imu(samples["time_ns"], samples["accel_mps2"], tuple(span), origin)
+        except ValueError as exc:
+            raise SarbotError(f"{recording.path}: radar {radar_name}: {exc}") from None
     stages = 1 if autofocus.method == "none" else 3
     frames_total = [1]
 
@@ -247,26 +268,24 @@ def focus_image(
             progress(k * total + done, stages * total)
         return None if progress is None else report
 
-    img = form_image(recording, radar_name, grid, trajectory, frames, options, time_window_ns, stage(0))
+    img = form_image(recording, radar_name, grid, trajectory, frames, options, time_window_ns, stage(0), imu_track)
+    img.attrs["imu_aided"] = int(imu_aided)
+    img.track_error = imu_track
     if autofocus.method == "none":
         return img
-    reader = _BlockReader(recording, radar_name, trajectory, frames, options, time_window_ns, None)
-    frame_times = recording.frame_time_ns(radar_name, reader.sel)
-    origin = int(frame_times[0])
-    wf = reader.radar.waveform
-    span = [origin, int(frame_times[-1]) + int(wf.chirps_per_frame * wf.chirp_interval_s * 1e9)]
-    if time_window_ns is not None:
-        span = [max(span[0], time_window_ns[0]), min(span[1], time_window_ns[1])]
+    reader.track_error = imu_track
     result = estimate_track_error(lambda: reader.profile_blocks(origin), img.image, grid.points(), autofocus,
                                   time_range_s=((span[0] - origin) * 1e-9, (span[1] - origin) * 1e-9))
     result.track_error.time_origin_ns = origin
     if progress is not None:
         progress(2 * frames_total[0], 3 * frames_total[0])
+    track = result.track_error if imu_track is None else combined(imu_track, result.track_error)
     if result.applied:
         focused = form_image(recording, radar_name, grid, trajectory, frames, options, time_window_ns, stage(2),
-                             track_error=result.track_error)
+                             track_error=track)
         # The estimate was judged on its pixels; the whole image must be sharper too, or it is not used.
         if image_entropy(focused.image) < image_entropy(img.image):
+            focused.attrs["imu_aided"] = int(imu_aided)
             img = focused
         else:
             result.applied = False
@@ -274,7 +293,7 @@ def focus_image(
     img.attrs.update({"autofocus": autofocus.method, "autofocus_applied": int(result.applied),
                       "autofocus_entropy_before": result.entropy_before, "autofocus_entropy_after": result.entropy_after,
                       "autofocus_groups": result.groups, "autofocus_pixels": result.pixels})
-    img.track_error = result.track_error
+    img.track_error = track if result.applied else (imu_track or result.track_error)
     return img
 
 
@@ -290,11 +309,12 @@ def choose_radar(recording: Recording, radar: str | None) -> str:
 
 def image_recording(recording: Recording, radar: str | None, grid_spec: str, trajectory: str = "truth",
                     frames: slice = slice(None), options: ImagingOptions | None = None, progress=None,
-                    autofocus=None) -> SarImage:
+                    autofocus=None, imu_aided: bool = False) -> SarImage:
     """What ``sarbot image`` (and every job of ``sarbot batch``) forms: ``radar`` (None: the only one),
     on ``trajectory`` ("truth" or a trajectory file), on the grid ``x0:x1:dx,y0:y1:dy[,z]`` whose height
     defaults to the radar's mean height over the recording; autofocused with ``autofocus``
-    (``AutofocusOptions``) unless it is None or its method "none"."""
+    (``AutofocusOptions``) unless it is None or its method "none", the track first corrected by the radar's
+    own IMU with ``imu_aided``."""
     from imaging.io.trajectory_file import read_trajectory
 
     radar = choose_radar(recording, radar)
@@ -304,8 +324,8 @@ def image_recording(recording: Recording, radar: str | None, grid_spec: str, tra
     mount_z = float(recording.radar(radar).mount.translation_m[2])
     z0 = float(np.mean(traj.position_m[:, 2])) + mount_z if hasattr(traj, "position_m") else 0.0
     grid = Grid.parse(grid_spec, default_z_m=z0)
-    if autofocus is not None and autofocus.method != "none":
-        return focus_image(recording, radar, grid, traj, frames, options, autofocus, progress=progress)
+    if imu_aided or autofocus is not None and autofocus.method != "none":
+        return focus_image(recording, radar, grid, traj, frames, options, autofocus, progress=progress, imu_aided=imu_aided)
     return form_image(recording, radar, grid, traj, frames, options, progress=progress)
 
 

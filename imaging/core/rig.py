@@ -10,6 +10,8 @@ A rig file::
     mount_yaw_deg = 90.0            # or mount_rotation_xyzw = [x, y, z, w]
     [radar.left_front.waveform]
     f0_hz = 76.0e9
+    [radar.left_front.imu]          # optional: an IMU on the radar's own mount (axes: the radar's)
+    rate_hz = 1000.0
 
 Every value is checked on load; an error names the field, e.g. ``radar.left_front.waveform.n_tx``.
 """
@@ -109,6 +111,9 @@ class RadarConfig:
     waveform: Waveform
     array: AntennaArray
     mount: Mount
+    #: An IMU fixed to the radar itself (its axes the radar's: x along the boresight), for the vibration
+    #: the robot's IMU cannot see; None where the rig declares none.
+    imu: "ImuConfig | None" = None
 
     def __post_init__(self) -> None:
         if self.array.n_tx != self.waveform.n_tx:
@@ -219,13 +224,21 @@ def rig_from_dict(table: dict[str, Any], source: str | None = None) -> Rig:
             default_array = AntennaArray.uniform_tdm(wf)
             tx = rt.pop("tx_positions_m", default_array.tx_positions_m)
             rx = rt.pop("rx_positions_m", default_array.rx_positions_m)
+            radar_imu = rt.pop("imu", None)
+            if radar_imu is not None:
+                if not isinstance(radar_imu, dict):
+                    raise ConfigError(f"{prefix}.imu", "expected a table")
+                for key in ("mount_translation_m", "mount_yaw_deg", "mount_rotation_xyzw", "mount"):
+                    if key in radar_imu:
+                        raise ConfigError(f"{prefix}.imu.{key}", "a radar's IMU sits on the radar's mount, with the radar's axes")
+                radar_imu = from_dict(ImuConfig, radar_imu, prefix=f"{prefix}.imu")
             if rt:
                 raise ConfigError(f"{prefix}.{sorted(rt)[0]}", "unknown setting")
             try:
                 array = AntennaArray(np.asarray(tx, float), np.asarray(rx, float))
             except (ConfigError, ValueError) as exc:
                 raise ConfigError(f"{prefix}.array", str(exc)) from None
-            radars.append(RadarConfig(name, wf, array, mount))
+            radars.append(RadarConfig(name, wf, array, mount, radar_imu))
         imu_mount = _mount_from_table(imu_table, "imu")
         imu = from_dict(ImuConfig, imu_table, prefix="imu")
         imu = dataclasses.replace(imu, mount=imu_mount)

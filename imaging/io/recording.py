@@ -43,6 +43,17 @@ def _str_dtype():
     return h5py.string_dtype(encoding="utf-8")
 
 
+def _create_imu_group(g: h5py.Group, imu: ImuConfig) -> None:
+    g.attrs["rate_hz"] = imu.rate_hz
+    for fld in dataclasses.fields(imu):
+        if fld.name.endswith("sqrt_hz"):
+            g.attrs[fld.name] = getattr(imu, fld.name)
+    for name, dtype, tail in (("time_ns", np.int64, ()), ("gyro_radps", np.float64, (3,)),
+                              ("accel_mps2", np.float64, (3,)), ("counter", np.uint32, ()),
+                              ("host_time_ns", np.int64, ())):
+        g.create_dataset(name, (0, *tail), dtype, maxshape=(None, *tail), chunks=(4096, *tail))
+
+
 class RecordingWriter:
     """Append-only writer for one run.
 
@@ -110,6 +121,8 @@ class RecordingWriter:
             for name, dtype in (("frame_time_ns", np.int64), ("frame_counter", np.uint32),
                                 ("host_time_ns", np.int64), ("valid", np.uint8)):
                 g.create_dataset(name, (0,), dtype, maxshape=(None,), chunks=(1024,))
+            if r.imu is not None:
+                _create_imu_group(g.create_group("imu"), r.imu)
             if r.name in set(detections):
                 d = g.create_group("detections")
                 for name, dtype, tail in (("time_ns", np.int64, ()), ("scan", np.uint32, ()), ("xyz_m", np.float32, (3,)),
@@ -117,17 +130,10 @@ class RecordingWriter:
                     d.create_dataset(name, (0, *tail), dtype, maxshape=(None, *tail), chunks=(4096, *tail))
         if imu is not None:
             g = f.create_group("imu")
-            g.attrs["rate_hz"] = imu.rate_hz
             g.attrs["mount_translation_m"] = imu.mount.translation_m
             g.attrs["mount_rotation_xyzw"] = imu.mount.rotation_xyzw
             g.attrs["clock_drift_ppm"] = np.nan  # the IMU clock against the host clock, once the driver knows it
-            for fld in dataclasses.fields(imu):
-                if fld.name.endswith("sqrt_hz"):
-                    g.attrs[fld.name] = getattr(imu, fld.name)
-            for name, dtype, tail in (("time_ns", np.int64, ()), ("gyro_radps", np.float64, (3,)),
-                                      ("accel_mps2", np.float64, (3,)), ("counter", np.uint32, ()),
-                                      ("host_time_ns", np.int64, ())):
-                g.create_dataset(name, (0, *tail), dtype, maxshape=(None, *tail), chunks=(4096, *tail))
+            _create_imu_group(g, imu)
         g = f.create_group("trigger")
         g.create_dataset("time_ns", (0,), np.int64, maxshape=(None,), chunks=(256,))
         g.create_dataset("source", (0,), _str_dtype(), maxshape=(None,), chunks=(256,))
@@ -195,8 +201,14 @@ class RecordingWriter:
         self._append(g["orientation_xyzw"], sample.orientation_xyzw)
         self._append(g["velocity_mps"], sample.velocity_mps)
 
+    def append_radar_imu(self, radar: str, time_ns, gyro_radps, accel_mps2, counter, host_time_ns) -> None:
+        """Samples of the IMU on a radar's own mount (the radar's axes), ``/radar/<name>/imu``."""
+        self._append_imu(self._f[f"radar/{radar}/imu"], time_ns, gyro_radps, accel_mps2, counter, host_time_ns)
+
     def append_imu(self, time_ns, gyro_radps, accel_mps2, counter, host_time_ns) -> None:
-        g = self._f["imu"]
+        self._append_imu(self._f["imu"], time_ns, gyro_radps, accel_mps2, counter, host_time_ns)
+
+    def _append_imu(self, g, time_ns, gyro_radps, accel_mps2, counter, host_time_ns) -> None:
         self._append(g["time_ns"], np.asarray(time_ns, np.int64))
         self._append(g["gyro_radps"], gyro_radps)
         self._append(g["accel_mps2"], accel_mps2)
@@ -295,9 +307,22 @@ class Recording:
                              for attr, field in _WAVEFORM_ATTRS.items()})
             array = AntennaArray(np.asarray(g.attrs["tx_positions_m"]), np.asarray(g.attrs["rx_positions_m"]))
             mount = Mount(np.asarray(g.attrs["mount_translation_m"]), np.asarray(g.attrs["mount_rotation_xyzw"]))
+            imu = None
+            if "imu" in g:
+                attrs = g["imu"].attrs
+                imu = ImuConfig(rate_hz=float(attrs["rate_hz"]), **{f.name: float(attrs[f.name]) for f in dataclasses.fields(ImuConfig)
+                                                                    if f.name.endswith("sqrt_hz") and f.name in attrs})
         except KeyError as exc:
             raise FileFormatError(f"{self.path}: /radar/{name} lacks attribute {exc.args[0]}") from None
-        return RadarConfig(name, wf, array, mount)
+        return RadarConfig(name, wf, array, mount, imu)
+
+    def radar_imu(self, name: str) -> dict[str, np.ndarray] | None:
+        """Samples of the IMU on the radar's own mount (time_ns, gyro_radps, accel_mps2 in the radar's
+        axes, counter, host_time_ns), or None where the radar has none."""
+        g = self._radar_group(name)
+        if "imu" not in g or g["imu/time_ns"].shape[0] == 0:
+            return None
+        return {k: g["imu"][k][()] for k in ("time_ns", "gyro_radps", "accel_mps2", "counter", "host_time_ns")}
 
     def tdm_tx_order(self, name: str) -> np.ndarray:
         g = self._radar_group(name)

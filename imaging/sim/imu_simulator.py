@@ -70,3 +70,19 @@ def simulate_imu(trajectory: Trajectory, imu: ImuConfig, start_ns: int, stop_ns:
         w_imu = w_imu + rng.standard_normal((n, 3)) * imu.gyro_noise_density_radps_per_sqrt_hz * math.sqrt(imu.rate_hz)
         f_imu = f_imu + rng.standard_normal((n, 3)) * imu.accel_noise_density_mps2_per_sqrt_hz * math.sqrt(imu.rate_hz)
     return ImuSamples(time_ns, w_imu + bg, f_imu + ba, np.arange(n, dtype=np.uint32), bg, ba)
+
+
+def simulate_radar_imu(trajectory: Trajectory, radar, start_ns: int, stop_ns: int, *, vibration=None,
+                       vibration_t0_ns: int = 0, rng: np.random.Generator | None = None) -> ImuSamples:
+    """The IMU fixed to a radar (``radar.imu``): the body's specific force and rate in the radar's axes,
+    plus the radar's vibration along its boresight (x), which the robot's IMU does not see.
+
+    The lever arm from the body origin to the radar is left out (its rotational terms vanish on a straight
+    drive; on turns they are slow beside a vibration)."""
+    imu = dataclasses.replace(radar.imu, mount=dataclasses.replace(radar.imu.mount, rotation_xyzw=radar.mount.rotation_xyzw))
+    out = simulate_imu(trajectory, imu, start_ns, stop_ns, rng=rng)
+    if vibration is not None and vibration.amplitude_m != 0.0:
+        t = (out.time_ns - np.int64(vibration_t0_ns)) * 1e-9
+        w = 2 * math.pi * vibration.frequency_hz
+        out.accel_mps2[:, 0] += -vibration.amplitude_m * w * w * np.sin(w * t + vibration.phase_rad)
+    return out

@@ -190,6 +190,14 @@ def simulate_recording(scene, path, *, frames_per_block: int = 16, progress=None
                 if progress is not None:
                     progress(done, total)
         end_ns = scene.start_time_ns + int(scene.duration_s * 1e9)
+        for r in radars:
+            if r.imu is not None:
+                from imaging.sim.imu_simulator import simulate_radar_imu
+
+                ri = simulate_radar_imu(scene.trajectory, r, scene.start_time_ns, end_ns, vibration=scene.vibration,
+                                        vibration_t0_ns=scene.start_time_ns, rng=rng)
+                writer.append_radar_imu(r.name, ri.time_ns, ri.gyro_radps, ri.accel_mps2, ri.counter,
+                                        ri.time_ns + 200_000 - TAI_MINUS_UTC_NS)
         if scene.imu:
             from imaging.sim.imu_simulator import simulate_imu
 
