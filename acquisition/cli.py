@@ -482,7 +482,7 @@ def run_workers(setup, args, out_dir: Path, stamp: str):
     else:
         raise SarbotError(f"--map-presum {args.map_presum!r}: expected 'auto' or a positive integer")
     config = StripMapConfig(pixel_m=args.map_pixel, aperture_m=args.map_aperture, range_min_m=args.map_range[0],
-                            range_max_m=args.map_range[1], z_m=args.map_height)
+                            range_max_m=args.map_range[1], z_m=args.map_height, refocus=args.map_refocus)
     view = None
     if args.view:
         from .workers.view import parse_view_address
@@ -827,6 +827,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--map-pixel", type=float, default=0.01, help="map pixel size, metres (default 0.01)")
     s.add_argument("--map-range", type=_range_pair, default=(1.0, 4.0), help="MIN:MAX look distance imaged, metres (default 1:4)")
     s.add_argument("--map-height", type=float, default=0.3, help="height of the map plane in the world frame, metres (default 0.3)")
+    s.add_argument("--map-refocus", default="none", choices=["none", "pga", "entropy"],
+                   help="refocus each map tile on its strongest scatterers once the robot has passed it (autofocus "
+                        "of the radar's track error over the tile's frames; default none)")
     s.add_argument("--map-presum", default="auto", help="chirps summed per virtual channel before imaging ('auto': the "
                    "most whose phase spread stays within pi/4 at --max-speed)")
     s.add_argument("--max-speed", type=float, default=0.5, help="fastest the robot drives, m/s (sets automatic pre-summing)")

@@ -242,6 +242,7 @@ class MapStatus(HeaderMessage):
     max_lag_s: float = 0.0
     busy_s: float = 0.0  # time spent imaging
     tiles: int = 0
+    tiles_refocused: int = 0  # finished tiles refocused on their strongest scatterers (--map-refocus)
     time_ns: int = 0
 
 

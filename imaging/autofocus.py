@@ -228,19 +228,25 @@ def group_images(blocks: Iterable[ProfileBlock], points_m: np.ndarray, n_groups:
     keep = count > 0
     if keep.sum() < 4 or k is None:
         raise ValueError(f"autofocus needs profiles spread over time; {int(keep.sum())} of {n_groups} groups hold any")
-    b, count = b[keep], count[keep]
-    t = t_sum[keep] / count
-    antenna = a_sum[keep] / count[:, None]
-    u = u_sum[keep] / np.linalg.norm(u_sum[keep], axis=1, keepdims=True)
-    centres = pts.reshape(n_t, TILE, 3).mean(axis=1)  # [T, 3]
-    los = centres[None, :, :] - antenna[:, None, :]
+    return assemble_group_images(b[keep], t_sum[keep] / count[keep], a_sum[keep] / count[keep, None], u_sum[keep], pts,
+                                 weight, k, SPEED_OF_LIGHT_MPS / (2.0 * abs(bandwidth)) if bandwidth else 0.0)
+
+
+def assemble_group_images(b: np.ndarray, time_s: np.ndarray, antenna_m: np.ndarray, direction: np.ndarray,
+                          points_m: np.ndarray, weight: np.ndarray, k: float, range_resolution_m: float) -> GroupImages:
+    """GroupImages from group images ``b`` [Q, G] on ``points_m`` [G, 3] (whole tiles in tile order, G a
+    multiple of TILE; ``weight`` 0 for padding), the groups' times [Q], antenna phase centres [Q, 3] and
+    track-error directions [Q, 3] (any length)."""
+    n_t = points_m.shape[0] // TILE
+    u = direction / np.linalg.norm(direction, axis=1, keepdims=True)
+    centres = points_m.reshape(n_t, TILE, 3).mean(axis=1)  # [T, 3]
+    los = centres[None, :, :] - antenna_m[:, None, :]
     c = np.einsum("qk,qtk->qt", u, los) / np.linalg.norm(los, axis=2)
     bt = np.ascontiguousarray(b.reshape(b.shape[0], n_t, TILE).transpose(1, 0, 2))
-    extent = antenna - antenna.mean(axis=0)
+    extent = antenna_m - antenna_m.mean(axis=0)
     _, _, vt = np.linalg.svd(extent, full_matrices=False)
-    along = extent @ vt[0]
-    return GroupImages(bt, c, t, pts, weight, k, float(np.ptp(along)), antenna.mean(axis=0), antenna,
-                       SPEED_OF_LIGHT_MPS / (2.0 * abs(bandwidth)) if bandwidth else 0.0)
+    return GroupImages(bt, c, np.asarray(time_s, float), points_m, weight, k, float(np.ptp(extent @ vt[0])),
+                       antenna_m.mean(axis=0), antenna_m, range_resolution_m)
 
 
 # -- image sharpness -------------------------------------------------------------------------------------
@@ -557,16 +563,8 @@ def estimate_track_error(blocks: Callable[[], Iterable[ProfileBlock]], image: np
         The profiles' time span, where the caller knows it (else one more pass over the blocks finds it).
     """
     options = options or AutofocusOptions()
-    power = np.abs(image) ** 2
-    # The noise's median from the dimmest tenth (exponential intensity: median = p10 ln 2 / -ln 0.9), so
-    # that a target filling much of a small image does not count as background.
-    floor = np.percentile(power, 10) * (math.log(2) / -math.log(0.9))
-    contrast_db = 10 * math.log10(power.max() / floor) if power.max() > 0 and floor > 0 else (math.inf if power.max() > 0 else 0.0)
-    log.debug("autofocus: brightest pixel %.1f dB above the background", contrast_db)
-    if contrast_db < options.min_contrast_db:
-        note = (f"nothing to focus on: the brightest pixel stands {contrast_db:.1f} dB above the background, "
-                f"less than {options.min_contrast_db:g} dB")
-        log.info("autofocus (%s): %s", options.method, note)
+    note = nothing_to_focus_on(image, options)
+    if note:
         e = image_entropy(image)
         return AutofocusResult(TrackError(np.zeros(2), np.zeros(2), options.method), e, e, False, 0, 0, 0, note)
     pixels = select_pixels(image, points_m, options)
@@ -576,7 +574,31 @@ def estimate_track_error(blocks: Callable[[], Iterable[ProfileBlock]], image: np
             t_lo, t_hi = min(t_lo, float(blk.time_s.min())), max(t_hi, float(blk.time_s.max()))
     if not np.isfinite(t_lo) or t_hi <= t_lo:
         raise ValueError("autofocus needs profiles spread over time")
-    g = group_images(blocks(), pixels, options.groups, (t_lo, t_hi))
+    return estimate_on_group_images(group_images(blocks(), pixels, options.groups, (t_lo, t_hi)), options)
+
+
+def nothing_to_focus_on(image: np.ndarray, options: AutofocusOptions) -> str:
+    """Why an image has nothing to focus on (its brightest pixel too little above the background), or ""."""
+    power = np.abs(image) ** 2
+    power = power[power > 0]  # pixels nothing was integrated into (a strip-map tile's edges) are no background
+    if power.size == 0:
+        return "nothing to focus on: the image is empty"
+    # The noise's median from the dimmest tenth (exponential intensity: median = p10 ln 2 / -ln 0.9), so
+    # that a target filling much of a small image does not count as background.
+    floor = np.percentile(power, 10) * (math.log(2) / -math.log(0.9))
+    contrast_db = 10 * math.log10(power.max() / floor) if power.max() > 0 and floor > 0 else (math.inf if power.max() > 0 else 0.0)
+    log.debug("autofocus: brightest pixel %.1f dB above the background", contrast_db)
+    if contrast_db >= options.min_contrast_db:
+        return ""
+    note = (f"nothing to focus on: the brightest pixel stands {contrast_db:.1f} dB above the background, "
+            f"less than {options.min_contrast_db:g} dB")
+    log.info("autofocus (%s): %s", options.method, note)
+    return note
+
+
+def estimate_on_group_images(g: GroupImages, options: AutofocusOptions) -> AutofocusResult:
+    """The track error from group images already formed (``estimate_track_error``'s second half; the live
+    strip map keeps its tiles' group images and calls this once a tile is complete)."""
     zero = np.zeros(g.b.shape[1])
     e0, _ = _entropy_and_gradient(g, np.zeros_like(g.c))
     delta, it = phase_gradient_autofocus(g, options)

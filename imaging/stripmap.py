@@ -17,6 +17,12 @@ backprojection kernel (``imaging.backprojection``) in one call. Optionally ``pre
 spreads the phase of a pixel seen at squint angle theta by 2 pi * 2 d sin(theta) / lambda over the group
 (d the distance travelled); :func:`presum_phase_spread_rad` gives that bound so a caller can keep it small.
 
+With ``refocus`` ("pga" or "entropy") a tile is refocused on its strongest scatterers once the radar has
+passed it: while it is being imaged each frame goes in as ``refocus_groups_per_frame`` slow-time group
+images (the same kernel calls, split by chirp time), which are exactly what ``imaging.autofocus`` estimates
+a track error from; the refocused tile is their phase-corrected sum, with no second pass over the data.
+The group images of a tile are kept until then (``refocus_groups_per_frame`` x pixels x 8 bytes a frame).
+
 Pure computation: arrays and dataclasses in, arrays out. ``acquisition.workers`` runs it on the bus.
 """
 
@@ -27,7 +33,7 @@ import math
 
 import numpy as np
 
-from imaging.backprojection import backproject
+from imaging.backprojection import backproject, patch_order
 from imaging.core.config import require
 from imaging.core.geometry import antenna_track
 from imaging.core.rig import RadarConfig
@@ -56,6 +62,9 @@ class StripMapConfig:
     #: Frames taken while the platform moves slower than this are left out: standing still they add no
     #: aperture, only the same unfocused footprint over and over.
     min_speed_mps: float = 0.05
+    #: Refocus a finished tile on its strongest scatterers: "none", "pga" or "entropy" (imaging.autofocus).
+    refocus: str = "none"
+    refocus_groups_per_frame: int = 4
 
     def __post_init__(self) -> None:
         require(self.pixel_m > 0, "pixel_m", "must be positive")
@@ -67,6 +76,10 @@ class StripMapConfig:
         require(self.mode in MODES, "mode", f"must be one of {MODES}")
         require(self.oversample >= 1, "oversample", "must be at least 1")
         require(self.min_speed_mps >= 0, "min_speed_mps", "must not be negative")
+        require(self.refocus in ("none", "pga", "entropy"), "refocus", f"must be none, pga or entropy, got {self.refocus!r}")
+        require(1 <= self.refocus_groups_per_frame <= 64, "refocus_groups_per_frame", "must be 1 to 64")
+        require(self.refocus == "none" or self.tile_px % 16 == 0, "tile_px",
+                f"must be a multiple of 16 to refocus tiles, got {self.tile_px}")
 
     @property
     def tile_m(self) -> float:
@@ -102,6 +115,7 @@ class FrameFootprint:
     tiles: list[tuple[int, int]]
     pixel_profile_pairs: int
     skipped: str = ""  # why the frame was left out, if it was
+    refocused: list[tuple[int, int]] = dataclasses.field(default_factory=list)  # tiles finished and refocused
 
 
 class StripMap:
@@ -115,6 +129,13 @@ class StripMap:
         self.frames_standing = 0
         self.profiles = 0
         self._axis = (np.arange(config.tile_px) + 0.5) * config.pixel_m  # pixel centres inside a tile
+        #: tile -> its group images while it is being imaged (refocus only): lists of time (s from the first
+        #: frame), antenna phase centre [3], look direction [3], group image [tile_px^2] complex64
+        self._groups: dict[tuple[int, int], list] = {}
+        self._t0_ns: int | None = None
+        self._k = 0.0
+        self._range_resolution_m = 0.0
+        self.refocus_results: dict[tuple[int, int], object] = {}  # tile -> AutofocusResult of the refocus
 
     def tile_points(self, key: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         """x and y of a tile's pixel centres, each [tile_px]."""
@@ -152,7 +173,7 @@ class StripMap:
         rx_m = track.rx_m.reshape(-1, 3)
         look = np.repeat(track.boresight[:, :2], n_rx, axis=0)
         look /= np.linalg.norm(look, axis=1, keepdims=True)
-        return profiles, tx_m, rx_m, look
+        return profiles, tx_m, rx_m, look, np.repeat(chirp_times, n_rx)
 
     def footprint_tiles(self, centre: np.ndarray, look: np.ndarray) -> list[tuple[int, int]]:
         """Tiles a frame can reach: the box around its phase centres' range-beam-aperture footprints."""
@@ -191,7 +212,7 @@ class StripMap:
         if np.linalg.norm(trajectory.sample(np.array([mid])).velocity_mps[0, :2]) < cfg.min_speed_mps:
             self.frames_standing += 1
             return FrameFootprint([], 0, skipped="standing still")
-        profiles, tx_m, rx_m, look = self.frame_profiles(radar, tx_order, adc, frame_time_ns, trajectory, presum)
+        profiles, tx_m, rx_m, look, times = self.frame_profiles(radar, tx_order, adc, frame_time_ns, trajectory, presum)
         centre = 0.5 * (tx_m + rx_m)
         c_mean = centre.mean(axis=0)[:2]
         l_mean = look.mean(axis=0)
@@ -209,19 +230,108 @@ class StripMap:
             points.append(np.stack([gx[mask], gy[mask], np.full(int(mask.sum()), cfg.z_m)], axis=1))
         self.frames += 1
         self.profiles += profiles.data.shape[0]
+        refocused = self._finish_tiles(set(touched)) if cfg.refocus != "none" else []
         if not touched:
-            return FrameFootprint([], 0)
+            return FrameFootprint([], 0, refocused=refocused)
         pts = np.concatenate(points)
-        values = backproject(profiles, tx_m, rx_m, pts, mode=cfg.mode)
+        if cfg.refocus == "none":
+            values = [backproject(profiles, tx_m, rx_m, pts, mode=cfg.mode)]
+        else:
+            values = self._group_values(profiles, tx_m, rx_m, look, times, frame_time_ns, wf, pts)
         start = 0
         for key, mask in zip(touched, masks):
             tile = self.tiles.get(key)
             if tile is None:
                 tile = self.tiles[key] = np.zeros((n, n), np.complex128)
             m = int(mask.sum())
-            tile[mask] += values[start:start + m]
+            for v in values:
+                tile[mask] += v[start:start + m]
+            if cfg.refocus != "none":
+                for (t_s, antenna, direction), v in zip(self._last_groups, values):
+                    image = np.zeros(n * n, np.complex64)
+                    image[mask.ravel()] = v[start:start + m]
+                    self._groups.setdefault(key, []).append((t_s, antenna, direction, image))
             start += m
-        return FrameFootprint(touched, pts.shape[0] * profiles.data.shape[0])
+        return FrameFootprint(touched, pts.shape[0] * profiles.data.shape[0], refocused=refocused)
+
+    def _group_values(self, profiles, tx_m, rx_m, look, times, frame_time_ns, wf, pts) -> list[np.ndarray]:
+        """The frame backprojected onto ``pts`` as ``refocus_groups_per_frame`` slow-time groups (their sum
+        is the frame's image); each group's time, phase centre and look direction go to ``_last_groups``."""
+        from imaging.core.constants import SPEED_OF_LIGHT_MPS
+
+        if self._t0_ns is None:
+            self._t0_ns = int(frame_time_ns)
+        self._k = 2 * math.pi * profiles.carrier_hz / SPEED_OF_LIGHT_MPS
+        self._range_resolution_m = SPEED_OF_LIGHT_MPS / (2 * profiles.bandwidth_hz) if profiles.bandwidth_hz else 0.0
+        n_groups = self.config.refocus_groups_per_frame
+        span = wf.chirps_per_frame * wf.chirp_interval_s * 1e9
+        group = np.minimum(((times - frame_time_ns) / span * n_groups).astype(int), n_groups - 1)
+        values, self._last_groups = [], []
+        for q in range(n_groups):
+            idx = np.flatnonzero(group == q)
+            if idx.size == 0:
+                continue
+            sub = dataclasses.replace(profiles, data=profiles.data[idx], rows=None,
+                                      samples=None if profiles.samples is None else profiles.samples[idx])
+            values.append(backproject(sub, tx_m[idx], rx_m[idx], pts, mode=self.config.mode))
+            centre = 0.5 * (tx_m[idx] + rx_m[idx])
+            direction = np.concatenate([look[idx].mean(axis=0), [0.0]])
+            self._last_groups.append(((times[idx].mean() - self._t0_ns) * 1e-9, centre.mean(axis=0), direction))
+        return values
+
+    def _finish_tiles(self, still_imaged: set) -> list[tuple[int, int]]:
+        """Refocus the tiles no longer reached by the frames; returns those whose image changed."""
+        done = [key for key in self._groups if key not in still_imaged]
+        return [key for key in done if self.refocus_tile(key)]
+
+    def refocus_pending(self) -> list[tuple[int, int]]:
+        """Refocus every tile still being imaged (at the end of a run); returns those whose image changed."""
+        return self._finish_tiles(set())
+
+    def refocus_tile(self, key: tuple[int, int]) -> bool:
+        """Refocus one tile from its group images (and drop them); True if the tile's image changed."""
+        from imaging.autofocus import AutofocusOptions, assemble_group_images, estimate_on_group_images, nothing_to_focus_on
+
+        groups = self._groups.pop(key, [])
+        options = AutofocusOptions(method=self.config.refocus)
+        tile = self.tiles.get(key)
+        if len(groups) < 8 or tile is None or nothing_to_focus_on(tile, options):
+            return False
+        # A tile whose brightest pixel is on its border holds the tail of a scatterer in a neighbour: that
+        # neighbour's refocus is the one that sees the scatterer whole.
+        iy, ix = np.unravel_index(int(np.argmax(np.abs(tile))), tile.shape)
+        if min(iy, ix) < 2 or max(iy, ix) > tile.shape[0] - 3:
+            return False
+        n = self.config.tile_px
+        order = patch_order((n, n))
+        order = np.arange(n * n) if order is None else order
+        x, y = self.tile_points(key)
+        gx, gy = np.meshgrid(x, y)
+        pts = np.stack([gx.ravel(), gy.ravel(), np.full(n * n, self.config.z_m)], axis=1)[order]
+        b = np.stack([g[3][order] for g in groups])
+        g = assemble_group_images(b, np.array([g[0] for g in groups]), np.array([g[1] for g in groups]),
+                                  np.array([g[2] for g in groups]), pts, np.ones(n * n, np.float32), self._k,
+                                  self._range_resolution_m)
+        result = estimate_on_group_images(g, options)
+        if not result.applied:
+            self.refocus_results[key] = result
+            return False
+        focused = g.image(g.phase(result.track_error.displacement_m)).ravel()
+        # What the estimate says of the track holds where the tile's brightest pixel was integrated (its own
+        # aperture); elsewhere in the tile's time span the groups carry little and the estimate is free.
+        brightest = int(np.argmax(np.abs(b).sum(axis=0)))
+        seen = np.abs(b[:, brightest]) > 0
+        te = result.track_error
+        if seen.sum() >= 4:
+            t = te.time_s[seen]
+            d = te.displacement_m[seen]
+            a = np.column_stack([np.ones_like(t), t - t.mean()])
+            te = dataclasses.replace(te, time_s=t, displacement_m=d - a @ np.linalg.lstsq(a, d, rcond=None)[0])
+        self.refocus_results[key] = dataclasses.replace(result, track_error=dataclasses.replace(te, time_origin_ns=self._t0_ns))
+        out = np.zeros(n * n, np.complex128)
+        out[order] = focused
+        self.tiles[key] = out.reshape(n, n)
+        return True
 
     def mosaic(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The whole map as one array [ny, nx] (zeros where no tile is) with its x and y axes, metres."""

@@ -163,6 +163,8 @@ class StripMapWorker(Worker):
             if factor > 1 and not footprint.skipped:
                 status.frames_presummed_more += 1
             self.changed.update(footprint.tiles)
+            self.changed.update(footprint.refocused)
+            status.tiles_refocused += len(footprint.refocused)
             status.busy_s += time.monotonic() - t0
             if footprint.skipped:
                 status.frames_standing_still += 1
@@ -201,6 +203,10 @@ class StripMapWorker(Worker):
 
     def finish(self) -> None:
         self._image_ready(final=True)
+        if self.config.map.refocus != "none":
+            refocused = self.map.refocus_pending()
+            self.changed.update(refocused)
+            self.status.tiles_refocused += len(refocused)
         self._publish_tiles()
 
     def write_products(self) -> None:
