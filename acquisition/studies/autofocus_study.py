@@ -261,7 +261,6 @@ class AutofocusStudy:
     def breakdown(self) -> dict:
         """Residual track error and width after autofocus against SNR, and against the number of strong
         scatterers in diffuse clutter; whether autofocus ever made an image less sharp."""
-        plt = _plt()
         base = dataclasses.replace(load_scene("paper_vibration"), vibration=PAPER_VIBRATION)
         speed = base.trajectory.speed_mps
         la = 0.34
@@ -308,34 +307,47 @@ class AutofocusStudy:
                 row["ratio"] = w["cross_range_m"] / theory
                 row["pslr_db"] = w["pslr_db"]
             count_rows.append({"strong_scatterers": k, **row})
-        fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
-        good = [r for r in snr_rows if r["applied"]]
-        a.semilogy([r["image_snr_db"] for r in good], [1e6 * r["residual_rms_m"] for r in good], "o-",
-                   label="residual track error, um rms")
-        a.axhline(1e6 * 0.00384 / (8 * 2 * math.pi) * math.pi, color="k", ls=":", lw=0.8, label="lambda / 16")
-        a2 = a.twinx()
-        a2.plot([r["image_snr_db"] for r in snr_rows], [r["ratio"] for r in snr_rows], "s--", color="C1", label="width / theory")
-        a2.set_ylabel("width / theory")
-        skipped = ", ".join(f"{r['image_snr_db']:.0f} dB" for r in snr_rows if not r["applied"]) or "none"
-        a.set(xlabel="image SNR before autofocus, dB", ylabel="residual track error, um",
-              title=f"against SNR (La {la} m); left unfocused: {skipped}")
-        a.legend(fontsize=8, loc="upper center")
-        a2.legend(fontsize=8, loc="upper right")
-        b.plot([r["strong_scatterers"] for r in count_rows],
-               [1e6 * r.get("residual_rms_m", np.nan) for r in count_rows], "o-", label="residual track error, um rms")
-        b.plot([r["strong_scatterers"] for r in count_rows],
-               [r["entropy_plain"] - r["entropy_focused"] for r in count_rows], "s--", label="entropy drop, nats (never < 0)")
-        b.set(xlabel="strong scatterers among 150 weak ones", title="against what there is to focus on")
-        b.legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(self.paper.out / "autofocus_breakdown.png", dpi=110)
-        plt.close(fig)
-        return {"snr": snr_rows, "scatterers": count_rows, "aperture_m": la}
+        result = {"snr": snr_rows, "scatterers": count_rows, "aperture_m": la}
+        breakdown_chart(result, self.paper.out / "autofocus_breakdown.png")
+        return result
 
     def run(self) -> dict:
         runs = self.vibrating_rio()
         return {"usable": self.usable(runs), "vibration": self.vibration(), "integration_gain": self.integration_gain(runs),
                 "breakdown": self.breakdown()}
+
+
+def breakdown_chart(result: dict, path) -> None:
+    """Residual track error and width against SNR; residual and entropy drop against strong scatterers."""
+    plt = _plt()
+    snr_rows, count_rows, la = result["snr"], result["scatterers"], result["aperture_m"]
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
+    good = [r for r in snr_rows if r["applied"]]
+    a.semilogy([r["image_snr_db"] for r in good], [1e6 * r["residual_rms_m"] for r in good], "o-",
+               label="residual track error, um rms")
+    a.axhline(1e6 * 0.00384 / 16, color="k", ls=":", lw=0.8, label="lambda / 16")
+    a2 = a.twinx()
+    a2.plot([r["image_snr_db"] for r in snr_rows], [r["ratio"] for r in snr_rows], "s--", color="C1", label="width / theory")
+    a2.set_ylabel("width / theory")
+    skipped = ", ".join(f"{r['image_snr_db']:.0f} dB" for r in snr_rows if not r["applied"]) or "none"
+    a.set(xlabel="image SNR before autofocus, dB", ylabel="residual track error, um",
+          title=f"against SNR (La {la} m); left unfocused: {skipped}")
+    a.legend(fontsize=8, loc="upper center")
+    a2.legend(fontsize=8, loc="upper right")
+    k = [r["strong_scatterers"] for r in count_rows]
+    b.semilogy(k, [1e6 * r.get("residual_rms_m", np.nan) for r in count_rows], "o-", label="residual track error, um rms")
+    b.axhline(1e6 * 0.00384 / 16, color="k", ls=":", lw=0.8, label="lambda / 16")
+    b.set(xlabel="strong scatterers among 150 weak ones", ylabel="residual track error, um",
+          title="against what there is to focus on")
+    b2 = b.twinx()
+    b2.plot(k, [r["entropy_plain"] - r["entropy_focused"] for r in count_rows], "s--", color="C1",
+            label="entropy drop, nats (never < 0)")
+    b2.set_ylabel("entropy drop, nats")
+    b.legend(fontsize=8, loc="upper left")
+    b2.legend(fontsize=8, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def markdown(r: dict) -> list[str]:
