@@ -190,7 +190,6 @@ def group_images(blocks: Iterable[ProfileBlock], points_m: np.ndarray, n_groups:
     """Backproject every slow-time group onto ``points_m`` [G, 3] (in tile order: 256 consecutive points
     close together), one kernel call per (block, group)."""
     pts, weight = _tiles(np.ascontiguousarray(points_m, np.float64))
-    n_t = pts.shape[0] // TILE
     edges = np.linspace(t_range_s[0], t_range_s[1], n_groups + 1)
     edges[-1] = np.nextafter(edges[-1], np.inf)
     b = np.zeros((n_groups, pts.shape[0]), np.complex64)
@@ -277,8 +276,9 @@ def _entropy_and_gradient(g: GroupImages, phase: np.ndarray) -> tuple[float, np.
 
 
 # -- PGA -------------------------------------------------------------------------------------------------
-def _remove_line(t: np.ndarray, v: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
-    """v less its (weighted) least-squares line over t."""
+def remove_line(t: np.ndarray, v: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
+    """v less its (weighted) least-squares line over t: a track error as an image can see it (an offset and
+    a drift only move the image)."""
     a = np.column_stack([np.ones_like(t), t - t.mean()])
     sw = np.ones_like(t) if w is None else np.sqrt(w)
     coef, *_ = np.linalg.lstsq(a * sw[:, None], v * sw, rcond=None)
@@ -356,12 +356,12 @@ def phase_gradient_autofocus(g: GroupImages, options: AutofocusOptions, start_m:
         grad = np.angle(np.sum(h[1:] * np.conj(h[:-1]), axis=1))
         eps = np.concatenate([[0.0], np.cumsum(grad)])
         weight = (np.abs(h) ** 2).sum(axis=1)
-        eps = _remove_line(g.time_s, eps, weight)
+        eps = remove_line(g.time_s, eps, weight)
         delta = delta - eps / (2.0 * g.k * c_mean)
         window = min(window, max(1.5 * spread, floor))
         if np.sqrt(np.average(eps ** 2, weights=weight)) < options.pga_tolerance_rad:
             break
-    return _remove_line(g.time_s, delta), it
+    return remove_line(g.time_s, delta), it
 
 
 # -- the low-order model ---------------------------------------------------------------------------------
@@ -612,7 +612,7 @@ def estimate_on_group_images(g: GroupImages, options: AutofocusOptions) -> Autof
         it += it2
         e_pga, _ = _entropy_and_gradient(g, g.phase(delta))
         if e_model < e_pga:
-            delta = _remove_line(g.time_s, evaluate_model(model, g.time_s))
+            delta = remove_line(g.time_s, evaluate_model(model, g.time_s))
         else:
             model = None
             log.info("autofocus (entropy): the model did not beat PGA's estimate (%.4f against %.4f); keeping PGA's", e_model, e_pga)

@@ -290,7 +290,8 @@ class StripMap:
 
     def refocus_tile(self, key: tuple[int, int]) -> bool:
         """Refocus one tile from its group images (and drop them); True if the tile's image changed."""
-        from imaging.autofocus import AutofocusOptions, assemble_group_images, estimate_on_group_images, nothing_to_focus_on
+        from imaging.autofocus import (AutofocusOptions, assemble_group_images, estimate_on_group_images,
+                                       nothing_to_focus_on, remove_line)
 
         groups = self._groups.pop(key, [])
         options = AutofocusOptions(method=self.config.refocus)
@@ -323,10 +324,7 @@ class StripMap:
         seen = np.abs(b[:, brightest]) > 0
         te = result.track_error
         if seen.sum() >= 4:
-            t = te.time_s[seen]
-            d = te.displacement_m[seen]
-            a = np.column_stack([np.ones_like(t), t - t.mean()])
-            te = dataclasses.replace(te, time_s=t, displacement_m=d - a @ np.linalg.lstsq(a, d, rcond=None)[0])
+            te = dataclasses.replace(te, time_s=te.time_s[seen], displacement_m=remove_line(te.time_s[seen], te.displacement_m[seen]))
         self.refocus_results[key] = dataclasses.replace(result, track_error=dataclasses.replace(te, time_origin_ns=self._t0_ns))
         out = np.zeros(n * n, np.complex128)
         out[order] = focused

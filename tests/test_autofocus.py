@@ -26,7 +26,6 @@ from imaging.autofocus import (
     image_entropy,
     select_pixels,
 )
-from imaging.backprojection import backproject
 from imaging.core.errors import ConfigError
 from imaging.core.geometry import Vibration
 from imaging.core.grid import Grid

@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from imaging import metrics
-from imaging.autofocus import AutofocusOptions, TrackError, fit_vibration, image_entropy
+from imaging.autofocus import AutofocusOptions, TrackError, fit_vibration, image_entropy, remove_line
 from imaging.core.geometry import Vibration
 from imaging.core.grid import Grid
 from imaging.core.trajectory import SampledTrajectory, StraightLine
@@ -38,6 +38,7 @@ from .paper import (
     broadside_time_ns,
     image_at,
     label_of,
+    odometry,
     target_xy,
     widths,
 )
@@ -62,10 +63,7 @@ def residual_rms_m(track_error, truth_fn) -> float:
     """RMS of estimate minus truth over the estimate's span, less their best line (offset and drift are not
     observable)."""
     t = track_error.time_s
-    d = track_error.displacement_m - truth_fn(t)
-    a = np.column_stack([np.ones_like(t), t - t.mean()])
-    coef, *_ = np.linalg.lstsq(a, d, rcond=None)
-    return float(np.sqrt(np.mean((d - a @ coef) ** 2)))
+    return float(np.sqrt(np.mean(remove_line(t, track_error.displacement_m - truth_fn(t)) ** 2)))
 
 
 def bent_by(truth, error_of, t_shift_ns: int) -> SampledTrajectory:
@@ -87,8 +85,6 @@ class AutofocusStudy:
     # a ---------------------------------------------------------------------------------------------------
     def vibrating_rio(self) -> dict:
         """The odometry scenes of study 5 with the paper's vibration, and the odometry's trajectories."""
-        from rio.odometry import RioOptions, imu_from_recording, run_rio, scans_from_recording
-
         base = load_scene("demo_room")
         runs = {}
         for speed in ("0.4", "1.0"):
@@ -97,13 +93,7 @@ class AutofocusStudy:
                                         radars=["left_front", "right_front"], vibration=PAPER_VIBRATION,
                                         duration_s=2.0 + v / 0.4 + 3.5 / v + 0.5)
             path = self.paper.simulate(scene, f"rio_vibrating_{speed}")
-            with Recording(path) as rec:
-                truth = rec.truth()
-                start = truth.sample(truth.time_ns[:1])
-                yaw = float(start.rotation.as_euler("ZYX")[0][0])
-                res = run_rio(imu_from_recording(rec), scans_from_recording(rec),
-                              RioOptions(initial_position_m=tuple(start.position_m[0]), initial_yaw_rad=yaw))
-            runs[speed] = {"path": path, "scene": scene, "trajectory": res.trajectory}
+            runs[speed] = {"path": path, "scene": scene, "trajectory": odometry(path)}
         return runs
 
     def usable(self, runs: dict) -> dict:
@@ -181,10 +171,7 @@ class AutofocusStudy:
                                "residual_rms_m": residual_rms_m(te, truth_fn)}
                 ax.plot(te.time_s, 1e3 * te.displacement_m, label=f"{method}: {fit.frequency_hz:.3f} Hz, {1e3 * fit.amplitude_m:.4f} mm")
             t = img.track_error.time_s
-            d = truth_fn(t)
-            a = np.column_stack([np.ones_like(t), t - t.mean()])
-            d = d - a @ np.linalg.lstsq(a, d, rcond=None)[0]
-            ax.plot(t, 1e3 * d, "k--", lw=0.8, label="truth (less offset and drift): 3.830 Hz, 0.3190 mm")
+            ax.plot(t, 1e3 * remove_line(t, truth_fn(t)), "k--", lw=0.8, label="truth (less offset and drift): 3.830 Hz, 0.3190 mm")
         ax.set(xlabel="time from the recording's first frame, s", ylabel="track error along the boresight, mm",
                title="the vibration read off autofocus at the paper's 0.14 m aperture")
         ax.legend(fontsize=8)

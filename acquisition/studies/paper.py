@@ -107,6 +107,18 @@ def perturbed(truth, look_unit, t_mid_ns: int, accel_mps2: float) -> SampledTraj
                              s.velocity_mps + (accel_mps2 * dt)[:, None] * look_unit, source=f"truth + {accel_mps2} m/s^2")
 
 
+def odometry(path: Path):
+    """The trajectory radar-inertial odometry makes of a simulated recording, started at its true first pose."""
+    from rio.odometry import RioOptions, imu_from_recording, run_rio, scans_from_recording
+
+    with Recording(path) as rec:
+        truth = rec.truth()
+        start = truth.sample(truth.time_ns[:1])
+        yaw = float(start.rotation.as_euler("ZYX")[0][0])
+        return run_rio(imu_from_recording(rec), scans_from_recording(rec),
+                       RioOptions(initial_position_m=tuple(start.position_m[0]), initial_yaw_rad=yaw)).trajectory
+
+
 def _plt():
     import matplotlib
 
@@ -292,13 +304,6 @@ class Paper:
     # 5 -------------------------------------------------------------------------------------------------
     def rio(self) -> dict:
         """The passes of study 2 driven by a robot with an IMU and clutter around, imaged on RIO."""
-        from rio.odometry import (
-            RioOptions,
-            imu_from_recording,
-            run_rio,
-            scans_from_recording,
-        )
-
         base = load_scene("demo_room")
         self.rio_scenes, paths, trajs, errors = {}, {}, {}, {}
         for speed in ("0.4", "1.0"):
@@ -307,15 +312,9 @@ class Paper:
             scene = dataclasses.replace(base, trajectory=traj, radars=["left_front", "right_front"],
                                         duration_s=2.0 + v / 0.4 + 3.5 / v + 0.5)
             path = self.simulate(scene, f"rio_{speed}")
-            with Recording(path) as rec:
-                truth = rec.truth()
-                start = truth.sample(truth.time_ns[:1])
-                yaw = float(start.rotation.as_euler("ZYX")[0][0])
-                res = run_rio(imu_from_recording(rec), scans_from_recording(rec),
-                              RioOptions(initial_position_m=tuple(start.position_m[0]), initial_yaw_rad=yaw))
             self.rio_scenes[speed] = scene
             paths[speed] = path
-            trajs[speed] = res.trajectory
+            trajs[speed] = odometry(path)
             # The error that defocuses: along the look direction (world +y here), after removing the best
             # line over each aperture (a constant offset and a linear drift only shift the image).
             rows = []
@@ -325,7 +324,7 @@ class Paper:
                 for t, t_mid in broadside:
                     half = int(la / (2 * v) * 1e9)
                     tt = np.linspace(t_mid - half, t_mid + half, 200).astype(np.int64)
-                    e = res.trajectory.sample(tt).position_m[:, 1] - scene.trajectory.sample(tt).position_m[:, 1]
+                    e = trajs[speed].sample(tt).position_m[:, 1] - scene.trajectory.sample(tt).position_m[:, 1]
                     x = (tt - t_mid) * 1e-9
                     resid = e - np.polyval(np.polyfit(x, e, 1), x)
                     rows.append({"aperture_m": la, "target": label_of(t), "bend_m": float(np.ptp(resid))})
