@@ -126,9 +126,9 @@ def test_bad_settings_name_the_field():
         StripMap().mosaic()
 
 
-def test_the_worker_publishes_tiles_and_its_lag_and_writes_the_map(drive, tmp_path):
-    """The strip-map worker as the daemon runs it (its own process, real ZeroMQ): radar frames and poses in,
-    ``map/tile`` and ``map/status`` out, the map file equal to the last tiles it published."""
+def run_worker(drive, config, tmp_path):
+    """Frames 20-39 of ``drive`` and their poses through a strip-map worker process; returns the tiles it
+    published last, its last status and the map file it wrote (checked equal to the tiles)."""
     import multiprocessing as mp
     import time
 
@@ -148,13 +148,14 @@ def test_the_worker_publishes_tiles_and_its_lag_and_writes_the_map(drive, tmp_pa
     from imaging.io.image_file import read_image
 
     rec, radar, truth, order = drive
+    pixel = config.pixel_m
     driver_ep, pose_ep, out_ep = free_tcp_endpoint(), free_tcp_endpoint(), free_tcp_endpoint()
     frames_pub, poses_pub = BusPublisher(driver_ep), BusPublisher(pose_ep)
     ctx = mp.get_context("spawn")
     stop = ctx.Event()
     map_path = tmp_path / "map.h5"
     spec = WorkerSpec("stripmap", StripMapWorker,
-                      StripMapWorkerConfig(Rig((radar,)), None, StripMapConfig(presum=4), pose_ep, str(map_path)), out_ep)
+                      StripMapWorkerConfig(Rig((radar,)), None, config, pose_ep, str(map_path)), out_ep)
     worker = ctx.Process(target=worker_process, args=(spec, [driver_ep], stop))
     worker.start()
     sub = BusSubscriber(out_ep, topics=["map/"])
@@ -191,12 +192,42 @@ def test_the_worker_publishes_tiles_and_its_lag_and_writes_the_map(drive, tmp_pa
     assert status is not None and status.frames_imaged == 20 and status.max_lag_s > 0 and status.tiles == len(tiles)
     img = read_image(map_path)
     n = img.attrs["tile_px"]
-    x0 = min(k[0] for k in tiles) * n * 0.01
-    y0 = min(k[1] for k in tiles) * n * 0.01
+    x0 = min(k[0] for k in tiles) * n * pixel
+    y0 = min(k[1] for k in tiles) * n * pixel
     for (ix, iy), tile in tiles.items():
-        c = int(round((ix * n * 0.01 - x0) / 0.01))
-        r = int(round((iy * n * 0.01 - y0) / 0.01))
+        c = int(round((ix * n * pixel - x0) / pixel))
+        r = int(round((iy * n * pixel - y0) / pixel))
         np.testing.assert_allclose(img.image[r:r + n, c:c + n], tile, rtol=1e-6, atol=1e-6 * np.abs(tile).max())
+    return tiles, status, img
+
+
+def test_the_worker_publishes_tiles_and_its_lag_and_writes_the_map(drive, tmp_path):
+    """The strip-map worker as the daemon runs it (its own process, real ZeroMQ): radar frames and poses in,
+    ``map/tile`` and ``map/status`` out, the map file equal to the last tiles it published."""
+    _, status, _ = run_worker(drive, StripMapConfig(presum=4), tmp_path)
+    assert status.tiles_refocused == 0
+
+
+def test_the_worker_refocuses_tiles_and_publishes_them(tmp_path):
+    """With --map-refocus the worker refocuses the tiles still open when the run ends, counts them in
+    map/status and publishes them: the last tiles it sent are the map it wrote, side lobes down."""
+    from imaging.core.geometry import Vibration
+
+    path = tmp_path / "vibrating.h5"
+    simulate_recording(point_pass(0.4, duration_s=3.0, origin=(0.32, 0.0), snr_db=10.0, vibration=Vibration(3.83, 0.319e-3, 0.7),
+                                  seed=4), path)
+    with Recording(path) as rec:
+        drive = (rec, rec.radar(RADAR), rec.truth(), rec.tdm_tx_order(RADAR))
+        results = {r: run_worker(drive, StripMapConfig(presum=4, refocus=r), tmp_path / r) for r in ("none", "entropy")}
+    assert results["none"][1].tiles_refocused == 0
+    assert results["entropy"][1].tiles_refocused >= 1
+    pslr = {}
+    for r, (_, _, img) in results.items():
+        a = metrics.analyze_target(img.image, img.x_m, img.y_m, (0.0, 1.0, 0.0), near_m=(0.32, R0), radius_m=0.05, half_length_m=0.15)
+        pslr[r] = a["cross_range"]["pslr_db"]
+    assert pslr["entropy"] < pslr["none"] - 3.0
+
+
 
 
 def test_a_worker_behind_sums_more_chirps_before_it_drops_a_frame(drive):
