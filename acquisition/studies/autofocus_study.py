@@ -10,7 +10,9 @@ a. usable aperture (width within 10 % of theory and peak side lobe below -10 dB)
 b. the vibration read off the estimated track error at the paper's 0.14 m, both estimators;
 c. integration gain over 1-32 frames with and without, on the truth bent by the odometry's own error;
 d. where it breaks: the residual track error and width against SNR, and against the number of strong
-   scatterers in a scene of diffuse clutter (autofocus needs something to focus on).
+   scatterers in a scene of diffuse clutter (autofocus needs something to focus on);
+e. section 6 again with autofocus: usable aperture against an uncompensated acceleration and against
+   vibration amplitude.
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ from .paper import (
     image_at,
     label_of,
     odometry,
+    perturbed,
     target_xy,
     widths,
 )
@@ -298,10 +301,70 @@ class AutofocusStudy:
         breakdown_chart(result, self.paper.out / "autofocus_breakdown.png")
         return result
 
-    def run(self) -> dict:
+    # e ---------------------------------------------------------------------------------------------------
+    def failure(self, plain: dict | None) -> dict:
+        """Study 6 again with autofocus: usable aperture against an uncompensated acceleration along the look
+        direction (a quadratic bend of the track) and against vibration amplitude (study 6's scenes)."""
+        plt = _plt()
+        apertures = self.apertures
+        accels = [0.0, 0.01, 0.05] if self.paper.quick else [0.0, 0.005, 0.01, 0.02, 0.05, 0.1]
+        scene = load_scene("paper_pass_0.4")
+        xy = target_xy(scene.targets[0])
+        acc_rows = []
+        with Recording(self.paper.simulate(scene, "pass_0.4")) as rec:
+            wl = rec.radar(RADAR).waveform.wavelength_m
+            truth = rec.truth()
+            t_mid = broadside_time_ns(rec, truth, xy)
+            for acc in accels:
+                traj = perturbed(truth, np.array([0.0, 1.0, 0.0]), t_mid, acc)
+                ratios, psls = [], []
+                for la in apertures:
+                    img = image_at(rec, traj, xy, la, scene.trajectory.speed_mps, t_mid=t_mid, autofocus=ENTROPY)
+                    w = widths(img, xy)
+                    ratios.append(w["cross_range_m"] / metrics.cross_range_resolution_theory_m(wl, 2.0, img.attrs["aperture_length_m"]))
+                    psls.append(w["pslr_db"])
+                acc_rows.append({"accel_mps2": acc, "ratios": ratios, "pslr_db": psls,
+                                 "usable_autofocus_m": usable_aperture(apertures, ratios, psls),
+                                 "limit_without_m": float(scene.trajectory.speed_mps * math.sqrt(wl / acc)) if acc else None})
+        amps = [0.1e-3, 0.32e-3, 0.5e-3] if self.paper.quick else [0.1e-3, 0.2e-3, 0.32e-3, 0.5e-3, 0.7e-3]
+        vib_scene = load_scene("paper_vibration")
+        vib_rows = []
+        for amp in amps:
+            sc = dataclasses.replace(vib_scene, snr_db=None, vibration=Vibration(vib_scene.vibration.frequency_hz, amp, 0.7))
+            with Recording(self.paper.simulate(sc, f"vib_amp_{amp * 1e6:.0f}um")) as rec:
+                ratios, psls = [], []
+                for la in [a for a in apertures if a <= 1.0]:
+                    img = image_at(rec, sc.trajectory, target_xy(sc.targets[0]), la, sc.trajectory.speed_mps, autofocus=ENTROPY)
+                    w = widths(img, target_xy(sc.targets[0]))
+                    ratios.append(w["cross_range_m"] / metrics.cross_range_resolution_theory_m(img.wavelength_m, 2.0, img.attrs["aperture_length_m"]))
+                    psls.append(w["pslr_db"])
+            vib_rows.append({"amplitude_m": amp, "ratios": ratios, "pslr_db": psls,
+                             "usable_autofocus_m": usable_aperture([a for a in apertures if a <= 1.0], ratios, psls)})
+        fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
+        acc_x = [1e3 * r["accel_mps2"] for r in acc_rows if r["accel_mps2"]]
+        a.semilogx(acc_x, [r["usable_autofocus_m"] for r in acc_rows if r["accel_mps2"]], "o-", label="autofocus (width and side lobes)")
+        a.semilogx(acc_x, [r["limit_without_m"] for r in acc_rows if r["accel_mps2"]], "k--", label="without: v sqrt(lambda / a)")
+        if plain:
+            pa = [r for r in plain["acceleration"] if r["accel_mps2"]]
+            a.semilogx([1e3 * r["accel_mps2"] for r in pa], [r["usable_aperture_m"] for r in pa], "s:", label="plain, measured (section 6, width only)")
+        a.set(xlabel="uncompensated acceleration along the look direction, mm/s^2", ylabel="usable aperture, m",
+              title=f"trajectory error (longest tried: {apertures[-1]} m)")
+        a.legend(fontsize=8)
+        b.plot([1e3 * r["amplitude_m"] for r in vib_rows], [r["usable_autofocus_m"] for r in vib_rows], "o-", label="autofocus")
+        if plain:
+            pv = [r for r in plain["vibration"] if r["amplitude_m"]]
+            b.plot([1e3 * r["amplitude_m"] for r in pv], [r["usable_aperture_m"] for r in pv], "s:", label="plain (section 6, width only)")
+        b.set(xlabel="vibration amplitude, mm (4.16 Hz)", ylabel="usable aperture, m", title="vibration")
+        b.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(self.paper.out / "autofocus_failure.png", dpi=110)
+        plt.close(fig)
+        return {"apertures_m": apertures, "acceleration": acc_rows, "vibration": vib_rows}
+
+    def run(self, plain_failure: dict | None = None) -> dict:
         runs = self.vibrating_rio()
         return {"usable": self.usable(runs), "vibration": self.vibration(), "integration_gain": self.integration_gain(runs),
-                "breakdown": self.breakdown()}
+                "breakdown": self.breakdown(), "failure": self.failure(plain_failure)}
 
 
 def breakdown_chart(result: dict, path) -> None:
@@ -370,6 +433,17 @@ def markdown(r: dict) -> list[str]:
           f"{g['known']['alpha']:.2f} on the truth with the vibration known exactly. That last is the ceiling of this "
           "measure here: beyond 16 frames (0.33 m) the outer frames see the target at angles where the antenna's beam "
           "gives less signal, so even a perfectly focused image gains less than N.", ""]
+    if "failure" in r:
+        f = r["failure"]
+        L += ["![failure](autofocus_failure.png)", "", "Section 6 again with autofocus (usable: width and side lobes):", "",
+              "| acceleration error (mm/s^2) | usable with autofocus (m) | without, v sqrt(lambda/a) (m) |", "| --- | --- | --- |"]
+        for row in f["acceleration"]:
+            lim = "-" if row["limit_without_m"] is None else f"{row['limit_without_m']:.2f}"
+            L.append(f"| {1e3 * row['accel_mps2']:g} | {row['usable_autofocus_m']:.2f} | {lim} |")
+        L += ["", "| vibration amplitude (mm) | usable with autofocus (m) |", "| --- | --- |"]
+        for row in f["vibration"]:
+            L.append(f"| {1e3 * row['amplitude_m']:.2f} | {row['usable_autofocus_m']:.2f} |")
+        L.append("")
     b = r["breakdown"]
     L += ["![breakdown](autofocus_breakdown.png)", "", f"Where it breaks (La {b['aperture_m']} m):", "",
           "| SNR per sample (dB) | image SNR (dB) | applied | residual (um rms) | width / theory | PSL (dB) |",

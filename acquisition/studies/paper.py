@@ -464,7 +464,7 @@ def run_paper(out_dir: Path, quick: bool = False) -> dict:
         step(7)
         from .autofocus_study import AutofocusStudy
 
-        report["autofocus"] = AutofocusStudy(p).run()
+        report["autofocus"] = AutofocusStudy(p).run(report["failure"])
         bar(len(steps), len(steps))
     report["elapsed_s"] = time.monotonic() - t0
     (out_dir / "report.json").write_text(json.dumps(report, indent=2, default=float))
