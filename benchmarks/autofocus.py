@@ -71,8 +71,7 @@ def vibration_case(work: Path, quick: bool, repeats: int) -> list[dict]:
     with Recording(path) as rec:
         times = rec.frame_time_ns(RADAR)
         origin = int(times[0])
-        t = np.arange(0.0, 4.5, 0.0005)
-        truth = TrackError(t, VIBRATION.displacement_m(t + (origin - scene.start_time_ns) * 1e-9), "truth", None, origin)
+        truth = TrackError.of_vibration(VIBRATION, np.arange(0.0, 4.5, 0.0005), scene.start_time_ns, origin)
         mid = scene.start_time_ns + int((0.75 - 0.15) / 0.4 * 1e9)  # the radar abreast the target
         for la in ([0.14, 1.0] if quick else [0.14, 0.34, 0.6, 1.0]):
             half = int(la / 0.8 * 1e9)

@@ -17,13 +17,12 @@ images, the image for a track error delta is
 where ``c`` is evaluated per 16 x 16 pixel tile (its angle varies by well under a degree across one). Two
 estimators:
 
-``pga``      phase gradient autofocus carried over to backprojection. The "phase history" of a scatterer is
-             the projection of each group image on the windowed, centred image around it,
-             ``h_s[q] = sum_{g in W_s} conj(I_g) exp(j phi_qg) B[q, g]`` (the adjoint of backprojection
-             applied to the windowed image, as the inverse FFT is in the polar-format original); the phase
-             gradient ``arg sum_s h_s[q] conj(h_s[q-1])`` is integrated, its linear part dropped, and the
-             window shrinks from iteration to iteration towards the main lobe. Non-parametric: one value per
-             group.
+``pga``      phase gradient autofocus carried over to backprojection. The brightest distinct peaks are the
+             centred scatterers; a scatterer's "phase history" is its windowed image taken back to slow time
+             by the adjoint of the exact near-field group response (as the inverse FFT is in the
+             polar-format original); the phase gradient ``arg sum_s h_s[q] conj(h_s[q-1])`` is integrated,
+             its linear part dropped, and the window follows the blur that is left (its -10 dB extent).
+             Non-parametric: one value per group.
 ``entropy``  minimum image entropy over a low-order model of the track error: Legendre polynomials of
              order 2 and up (orders 0 and 1 only move the image) plus sinusoids whose frequencies are free
              parameters, started from a PGA estimate. The gradient is exact and costs one product of the
@@ -136,6 +135,13 @@ class TrackError:
     @property
     def rms_m(self) -> float:
         return float(np.sqrt(np.mean(self.displacement_m ** 2)))
+
+    @classmethod
+    def of_vibration(cls, vibration, time_s: np.ndarray, vibration_t0_ns: int, time_origin_ns: int) -> "TrackError":
+        """A known vibration (``imaging.core.geometry.Vibration``, phase referred to ``vibration_t0_ns``) as a
+        track error at ``time_s`` from ``time_origin_ns``: what a perfect estimate would give."""
+        t = np.asarray(time_s, float)
+        return cls(t, vibration.displacement_m(t + (time_origin_ns - vibration_t0_ns) * 1e-9), "truth", None, int(time_origin_ns))
 
 
 @dataclasses.dataclass
@@ -302,19 +308,19 @@ def _distinct_peaks(img: np.ndarray, points_m: np.ndarray, n: int, separation_m:
     return chosen
 
 
-def phase_gradient_autofocus(g: GroupImages, options: AutofocusOptions, start_m: np.ndarray | None = None
-                             ) -> tuple[np.ndarray, int]:
+def phase_gradient_autofocus(g: GroupImages, options: AutofocusOptions) -> tuple[np.ndarray, int]:
     """Displacement per group [Q] by PGA over the group images, and the iterations it took.
 
     Up to ``options.scatterers`` bright, distinct peaks are the centred scatterers. A scatterer's phase
     history is its windowed image taken back to slow time by the adjoint of the ideal group response
     (the inverse FFT of polar-format PGA, here with exact near-field ranges):
     ``h[q] = sum_{g in W} I_g exp(+j 2 k (|g - a_q| - |g_peak - a_q|))`` with a_q group q's antenna phase
-    centre. The window spans half a range resolution cell either side of the peak's range and shrinks in
-    cross-range from iteration to iteration, down to three resolution cells. The phase gradient is the
+    centre. The window spans half a range resolution cell either side of the peak's range and, in
+    cross-range, 1.5 times the extent above -10 dB of the centred peak (the blur still to be undone),
+    never wider than the iteration before nor narrower than two resolution cells. The phase gradient is the
     energy-weighted sum over the scatterers of ``h[q] conj(h[q-1])``, integrated, its linear part dropped.
     """
-    delta = np.zeros(g.b.shape[1]) if start_m is None else start_m.copy()
+    delta = np.zeros(g.b.shape[1])
     c_mean = g.c.mean(axis=1)
     n_t = g.b.shape[0]
     pts = g.points_m.reshape(n_t, TILE, 3)
@@ -384,7 +390,9 @@ def evaluate_model(model: dict, time_s: np.ndarray) -> np.ndarray:
 
 def _fit_sinusoids(t, v, poly_order: int, n_sin: int, weight=None):
     """Least-squares fit v ~ line + P2..P_order + n_sin sinusoids (frequencies found one by one from the
-    residual's zero-padded periodogram, then refined together). Returns (params, residual rms)."""
+    residual's zero-padded periodogram, then refined together; none below one cycle over the span).
+    Returns (t_centre_s, t_half_s, coefficients [line, P2.., cos, sin per sinusoid], frequencies, residual
+    rms)."""
     t0 = 0.5 * (t.min() + t.max())
     half = max(0.5 * np.ptp(t), 1e-12)
     tau = (t - t0) / half
@@ -601,28 +609,27 @@ def nothing_to_focus_on(image: np.ndarray, options: AutofocusOptions) -> str:
 def estimate_on_group_images(g: GroupImages, options: AutofocusOptions) -> AutofocusResult:
     """The track error from group images already formed (``estimate_track_error``'s second half; the live
     strip map keeps its tiles' group images and calls this once a tile is complete)."""
-    zero = np.zeros(g.b.shape[1])
     e0, _ = _entropy_and_gradient(g, np.zeros_like(g.c))
     delta, it = phase_gradient_autofocus(g, options)
-    weight = np.abs(g.b).sum(axis=(0, 2)).astype(float)
+    e1, _ = _entropy_and_gradient(g, g.phase(delta))
     model = None
     if options.method == "entropy":
         # The model refines PGA's estimate; whichever of the two leaves the lower entropy is kept (a model
         # too poor for the track, or a local minimum, never makes the result worse than its start).
-        start = model = fit_track_model(g.time_s, delta, options.poly_order, options.sinusoids, weight)
+        weight = np.abs(g.b).sum(axis=(0, 2)).astype(float)
+        start = fit_track_model(g.time_s, delta, options.poly_order, options.sinusoids, weight)
         model, e_model, it2 = minimum_entropy(g, start, options.entropy_iterations)
         it += it2
-        e_pga, _ = _entropy_and_gradient(g, g.phase(delta))
-        if e_model < e_pga:
+        if e_model < e1:
             delta = remove_line(g.time_s, evaluate_model(model, g.time_s))
+            e1, _ = _entropy_and_gradient(g, g.phase(delta))
         else:
+            log.info("autofocus (entropy): the model did not beat PGA's estimate (%.4f against %.4f); keeping PGA's", e_model, e1)
             model = None
-            log.info("autofocus (entropy): the model did not beat PGA's estimate (%.4f against %.4f); keeping PGA's", e_model, e_pga)
-    e1, _ = _entropy_and_gradient(g, g.phase(delta))
     applied = e1 < e0
     note = "" if applied else "the estimate did not sharpen the image; left unapplied"
     if not applied:
-        delta, model = zero, None
+        delta, model = np.zeros(g.b.shape[1]), None
         e1 = e0
     log.info("autofocus (%s): %d groups, %d pixels, entropy %.4f -> %.4f%s", options.method, g.b.shape[1],
              int(g.weight.sum()), e0, e1, f" ({note})" if note else "")

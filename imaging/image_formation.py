@@ -245,7 +245,7 @@ def focus_image(
     frame_times = recording.frame_time_ns(radar_name, reader.sel)
     origin = int(frame_times[0])
     wf = reader.radar.waveform
-    span = [origin, int(frame_times[-1]) + int(wf.chirps_per_frame * wf.chirp_interval_s * 1e9)]
+    span = [origin, int(frame_times[-1]) + wf.frame_duration_ns]
     if time_window_ns is not None:
         span = [max(span[0], time_window_ns[0]), min(span[1], time_window_ns[1])]
     imu_track = None

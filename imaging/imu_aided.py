@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.signal
 
-from imaging.autofocus import TrackError
+from imaging.autofocus import TrackError, remove_line
 
 
 def boresight_track_from_imu(time_ns: np.ndarray, accel_mps2: np.ndarray, time_window_ns: tuple[int, int],
@@ -62,9 +62,7 @@ def boresight_track_from_imu(time_ns: np.ndarray, accel_mps2: np.ndarray, time_w
     dt = np.diff(ts)
     v = np.concatenate([[0.0], np.cumsum(0.5 * (a[1:] + a[:-1]) * dt)])
     d = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * dt)])
-    design = np.column_stack([np.ones_like(ts), ts - ts.mean()])
-    d = d - design @ np.linalg.lstsq(design, d, rcond=None)[0]
-    return TrackError(ts, d, "imu", None, int(time_origin_ns))
+    return TrackError(ts, remove_line(ts, d), "imu", None, int(time_origin_ns))
 
 
 def combined(first: TrackError, second: TrackError) -> TrackError:

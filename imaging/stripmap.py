@@ -235,9 +235,9 @@ class StripMap:
             return FrameFootprint([], 0, refocused=refocused)
         pts = np.concatenate(points)
         if cfg.refocus == "none":
-            values = [backproject(profiles, tx_m, rx_m, pts, mode=cfg.mode)]
+            values, groups = [backproject(profiles, tx_m, rx_m, pts, mode=cfg.mode)], []
         else:
-            values = self._group_values(profiles, tx_m, rx_m, look, times, frame_time_ns, wf, pts)
+            values, groups = self._group_values(profiles, tx_m, rx_m, look, times, frame_time_ns, wf, pts)
         start = 0
         for key, mask in zip(touched, masks):
             tile = self.tiles.get(key)
@@ -247,16 +247,17 @@ class StripMap:
             for v in values:
                 tile[mask] += v[start:start + m]
             if cfg.refocus != "none":
-                for (t_s, antenna, direction), v in zip(self._last_groups, values):
+                for (t_s, antenna, direction), v in zip(groups, values):
                     image = np.zeros(n * n, np.complex64)
                     image[mask.ravel()] = v[start:start + m]
                     self._groups.setdefault(key, []).append((t_s, antenna, direction, image))
             start += m
         return FrameFootprint(touched, pts.shape[0] * profiles.data.shape[0], refocused=refocused)
 
-    def _group_values(self, profiles, tx_m, rx_m, look, times, frame_time_ns, wf, pts) -> list[np.ndarray]:
+    def _group_values(self, profiles, tx_m, rx_m, look, times, frame_time_ns, wf, pts) -> tuple[list, list]:
         """The frame backprojected onto ``pts`` as ``refocus_groups_per_frame`` slow-time groups (their sum
-        is the frame's image); each group's time, phase centre and look direction go to ``_last_groups``."""
+        is the frame's image), and each group's time (s from the first frame), phase centre and look
+        direction."""
         from imaging.core.constants import SPEED_OF_LIGHT_MPS
 
         if self._t0_ns is None:
@@ -264,9 +265,8 @@ class StripMap:
         self._k = 2 * math.pi * profiles.carrier_hz / SPEED_OF_LIGHT_MPS
         self._range_resolution_m = SPEED_OF_LIGHT_MPS / (2 * profiles.bandwidth_hz) if profiles.bandwidth_hz else 0.0
         n_groups = self.config.refocus_groups_per_frame
-        span = wf.chirps_per_frame * wf.chirp_interval_s * 1e9
-        group = np.minimum(((times - frame_time_ns) / span * n_groups).astype(int), n_groups - 1)
-        values, self._last_groups = [], []
+        group = np.minimum(((times - frame_time_ns) / wf.frame_duration_ns * n_groups).astype(int), n_groups - 1)
+        values, groups = [], []
         for q in range(n_groups):
             idx = np.flatnonzero(group == q)
             if idx.size == 0:
@@ -276,8 +276,8 @@ class StripMap:
             values.append(backproject(sub, tx_m[idx], rx_m[idx], pts, mode=self.config.mode))
             centre = 0.5 * (tx_m[idx] + rx_m[idx])
             direction = np.concatenate([look[idx].mean(axis=0), [0.0]])
-            self._last_groups.append(((times[idx].mean() - self._t0_ns) * 1e-9, centre.mean(axis=0), direction))
-        return values
+            groups.append(((times[idx].mean() - self._t0_ns) * 1e-9, centre.mean(axis=0), direction))
+        return values, groups
 
     def _finish_tiles(self, still_imaged: set) -> list[tuple[int, int]]:
         """Refocus the tiles no longer reached by the frames; returns those whose image changed."""

@@ -62,9 +62,8 @@ def target_grid(half_x=0.15):
 
 def oracle(rec) -> TrackError:
     """The vibration the simulator applied, as a track error (what a perfect estimate would give)."""
-    origin = int(rec.frame_time_ns(RADAR)[0])
-    t = np.arange(0.0, 2.5, 0.0005)
-    return TrackError(t, PAPER_VIBRATION.displacement_m(t + (origin - DEFAULT_START_TIME_NS) * 1e-9), "truth", None, origin)
+    return TrackError.of_vibration(PAPER_VIBRATION, np.arange(0.0, 2.5, 0.0005), DEFAULT_START_TIME_NS,
+                                   int(rec.frame_time_ns(RADAR)[0]))
 
 
 def cross_range(img):

@@ -36,6 +36,7 @@ from .paper import (
     ONE_PAIR,
     RADAR,
     USABLE,
+    USABLE_PSL_DB,
     _plt,
     broadside_time_ns,
     image_at,
@@ -43,23 +44,12 @@ from .paper import (
     odometry,
     perturbed,
     target_xy,
+    usable_aperture,
     widths,
 )
 
 PAPER_VIBRATION = Vibration(3.83, 0.319e-3, 0.7)
-USABLE_PSL_DB = -10.0
 ENTROPY = AutofocusOptions(method="entropy")
-
-
-def usable_aperture(apertures, ratios, psls) -> float:
-    """The longest aperture up to which the width stays within USABLE x theory and the peak side lobe
-    below USABLE_PSL_DB (0 if none)."""
-    best = 0.0
-    for la, r, p in zip(apertures, ratios, psls):
-        if not (np.isfinite(r) and r <= USABLE and p <= USABLE_PSL_DB):
-            break
-        best = la
-    return best
 
 
 def residual_rms_m(track_error, truth_fn) -> float:
@@ -161,7 +151,7 @@ class AutofocusStudy:
             origin = int(rec.frame_time_ns(RADAR)[0])
 
             def truth_fn(t):
-                return PAPER_VIBRATION.displacement_m(t + (origin - scene.start_time_ns) * 1e-9)
+                return TrackError.of_vibration(PAPER_VIBRATION, t, scene.start_time_ns, origin).displacement_m
 
             for method in ("pga", "entropy"):
                 img = image_at(rec, scene.trajectory, xy, 0.14, scene.trajectory.speed_mps,
@@ -213,8 +203,8 @@ class AutofocusStudy:
                 mid = broadside_time_ns(rec, truth, xy)
                 traj = bent_by(truth, odometry_error, rio_mid - mid)
                 origin = int(rec.frame_time_ns(RADAR)[0])
-                t = np.arange(0.0, scene.duration_s + 0.5, 0.0005)
-                known = TrackError(t, scene.vibration.displacement_m(t + (origin - scene.start_time_ns) * 1e-9), "truth", None, origin)
+                known = TrackError.of_vibration(scene.vibration, np.arange(0.0, scene.duration_s + 0.5, 0.0005),
+                                                scene.start_time_ns, origin)
                 centre = rec.n_frames(RADAR) // 2
                 for j, n in enumerate(counts):
                     frames = slice(centre - n // 2, centre - n // 2 + n)
@@ -271,7 +261,7 @@ class AutofocusStudy:
                    "entropy_plain": image_entropy(plain.image), "entropy_focused": image_entropy(img.image)}
             if row["applied"]:
                 row["residual_rms_m"] = residual_rms_m(
-                    img.track_error, lambda t: PAPER_VIBRATION.displacement_m(t + (origin - scene.start_time_ns) * 1e-9))
+                    img.track_error, lambda t: TrackError.of_vibration(PAPER_VIBRATION, t, scene.start_time_ns, origin).displacement_m)
             return plain, img, row
 
         for snr in snrs:

@@ -46,6 +46,7 @@ log = logging.getLogger(f"sarbot.{__name__}")
 RADAR = "left_front"
 ONE_PAIR = ImagingOptions(tx=(0,), rx=(0,))  # one virtual channel: the aperture is the motion alone
 USABLE = 1.10  # width within 10 % of theory
+USABLE_PSL_DB = -10.0  # and, where side lobes are judged too, the peak side lobe at or below this
 
 
 # -- helpers --------------------------------------------------------------------------------------------
@@ -87,11 +88,12 @@ def widths(img, xy) -> dict:
             "peak_m": a["peak_m"], "peak_amplitude": a["peak_amplitude"], "pslr_db": a["cross_range"]["pslr_db"]}
 
 
-def usable_aperture(apertures, ratio) -> float:
-    """The longest aperture up to which every width stays within USABLE x theory (0 if none)."""
+def usable_aperture(apertures, ratio, pslr_db=None) -> float:
+    """The longest aperture up to which every width stays within USABLE x theory and, where ``pslr_db`` is
+    given, every peak side lobe at or below USABLE_PSL_DB (0 if none)."""
     best = 0.0
-    for la, r in zip(apertures, ratio):
-        if not np.isfinite(r) or r > USABLE:
+    for k, (la, r) in enumerate(zip(apertures, ratio)):
+        if not np.isfinite(r) or r > USABLE or pslr_db is not None and not pslr_db[k] <= USABLE_PSL_DB:
             break
         best = la
     return best

@@ -25,6 +25,10 @@ class Vibration:
         w = 2 * np.pi * self.frequency_hz
         return self.amplitude_m * w * np.cos(w * t_s + self.phase_rad)
 
+    def acceleration_mps2(self, t_s: np.ndarray) -> np.ndarray:
+        w = 2 * np.pi * self.frequency_hz
+        return -self.amplitude_m * w * w * np.sin(w * t_s + self.phase_rad)
+
 
 @dataclasses.dataclass
 class AntennaTrack:

@@ -82,7 +82,5 @@ def simulate_radar_imu(trajectory: Trajectory, radar, start_ns: int, stop_ns: in
     imu = dataclasses.replace(radar.imu, mount=dataclasses.replace(radar.imu.mount, rotation_xyzw=radar.mount.rotation_xyzw))
     out = simulate_imu(trajectory, imu, start_ns, stop_ns, rng=rng)
     if vibration is not None and vibration.amplitude_m != 0.0:
-        t = (out.time_ns - np.int64(vibration_t0_ns)) * 1e-9
-        w = 2 * math.pi * vibration.frequency_hz
-        out.accel_mps2[:, 0] += -vibration.amplitude_m * w * w * np.sin(w * t + vibration.phase_rad)
+        out.accel_mps2[:, 0] += vibration.acceleration_mps2((out.time_ns - np.int64(vibration_t0_ns)) * 1e-9)
     return out
