@@ -221,9 +221,13 @@ def track_error_report(img) -> dict:
            "rms_m": te.rms_m, "peak_to_peak_m": float(np.ptp(te.displacement_m)), "duration_s": float(np.ptp(te.time_s)),
            "model": te.model}
     if out["applied"] and te.time_s.size >= 8:
-        vib = fit_vibration(te)
-        out["vibration"] = {"frequency_hz": vib.frequency_hz, "amplitude_m": vib.amplitude_m, "phase_rad": vib.phase_rad,
-                            "phase_reference_time_ns": te.time_origin_ns}
+        try:
+            vib = fit_vibration(te)
+        except ValueError:  # nothing that oscillates: no vibration to report
+            out["vibration"] = None
+        else:
+            out["vibration"] = {"frequency_hz": vib.frequency_hz, "amplitude_m": vib.amplitude_m,
+                                "phase_rad": vib.phase_rad, "phase_reference_time_ns": te.time_origin_ns}
     return out
 
 

@@ -671,9 +671,12 @@ def fit_vibration(track_error: TrackError, poly_order: int = 1) -> VibrationFit:
     The offset and drift (and, with ``poly_order`` >= 2, a slow bend) are fitted beside it and set aside: the
     estimate does not know them. The fit is made on the estimated displacement, whichever estimator made it:
     over an aperture of one or two periods a sinusoid and a bend are far from orthogonal, so the entropy
-    model's own split between them is not a measurement of either, while their sum is.
+    model's own split between them is not a measurement of either, while their sum is. A track error with
+    no oscillation of a cycle or more over its span raises ValueError.
     """
     t0, _, coef, freqs, resid = _fit_sinusoids(track_error.time_s, track_error.displacement_m, poly_order, 1)
+    if not freqs:
+        raise ValueError("the track error holds no oscillation of a cycle or more over its span")
     n_poly = max(poly_order - 1, 0)
     f, a, b = freqs[0], coef[2 + n_poly], coef[3 + n_poly]
     # a cos(w (t - t0)) + b sin(w (t - t0)) = A sin(w t + phase)

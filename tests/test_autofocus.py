@@ -370,3 +370,23 @@ def test_strip_map_refocuses_a_finished_tile(sim_dir):
     assert vib.amplitude_m == pytest.approx(PAPER_VIBRATION.amplitude_m, rel=0.05)
     with pytest.raises(ConfigError, match="tile_px"):
         StripMapConfig(tile_px=40, refocus="pga")
+
+
+def test_a_track_error_without_oscillation_has_no_vibration(tmp_path, capsys):
+    """A track error with nothing in it but its (removed) line holds no vibration: fit_vibration says so,
+    and analyze reports none instead of failing."""
+    from acquisition import cli
+    from imaging.io.image_file import SarImage, write_image
+
+    bend = TrackError(np.linspace(0.0, 0.3, 64), np.zeros(64), "entropy", None, 0)
+    with pytest.raises(ValueError, match="no oscillation"):
+        fit_vibration(bend)
+    x, y = np.linspace(-0.1, 0.1, 41), np.linspace(1.9, 2.1, 41)
+    rng = np.random.default_rng(0)
+    img = (1e-3 * (rng.standard_normal((41, 41)) + 1j * rng.standard_normal((41, 41)))).astype(np.complex64)
+    img[20, 20] = 1.0  # one scatterer over a noise floor
+    path = write_image(tmp_path / "img.h5", SarImage(img, x, y, np.array([0.3]), {
+        "wavelength_m": 0.0039, "autofocus": "entropy", "autofocus_applied": 1, "look_direction": [0.0, 1.0, 0.0]}, bend))
+    assert cli.main(["analyze", str(path)]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["track_error"]["vibration"] is None
