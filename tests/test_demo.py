@@ -90,13 +90,19 @@ def test_demo_runs_the_whole_pipeline_and_finds_the_targets(tmp_path):
         np.testing.assert_array_equal(rec.file["radar/left_front/adc"][()], sim.file["radar/left_front/adc"][()])
     # The odometry from raw ADC and IMU, and the live map placed by it.
     assert report["odometry"]["distance_m"] > 2.5 and report["odometry"]["final_drift_m"] < 0.05
+    assert sorted(t["target"] for t in report["targets"]) == ["corner reflector, left", "corner reflector, right", "rod, left"]
     for t in report["targets"]:
         assert t["error_m"] < 0.03, t
         assert 0.8 < t["cross_range_width_m"] / t["cross_range_theory_m"] < 1.5, t
     with h5py.File(out / "stripmap_demo.h5") as f:
         assert f.attrs["schema"] == "sarbot.image" and f.attrs["trajectory_source"] == "rio"
-        # Every frame of the two left radars, imaged or (the first 2 s, standing) left out as adding no aperture.
-        assert f.attrs["frames_imaged"] + f.attrs["frames_standing_still"] >= 380 and f.attrs["frames_standing_still"] >= 70
+        # All four radars, both sides: every frame imaged, or left out as adding no aperture (the first 2 s,
+        # standing), or at the very end beyond the odometry's last pose; none dropped.
+        a = f.attrs
+        assert a["radars"] == "left_front,left_rear,right_front,right_rear"
+        assert a["frames_imaged"] + a["frames_standing_still"] + a["frames_beyond_odometry"] == 4 * 192, dict(a)
+        assert a["frames_dropped_behind"] == 0 and a["frames_skipped_invalid"] == 0
+        assert a["frames_standing_still"] >= 140 and a["frames_beyond_odometry"] <= 4 * 4
         # Follows the drive: about 5 s here, warm or cold (cold without the warm-up it was 26-32 s).
         assert 0 < f.attrs["max_lag_s"] < 15.0
     assert (out / "stripmap_demo.png").stat().st_size > 10_000

@@ -272,3 +272,29 @@ def test_a_worker_behind_sums_more_chirps_before_it_drops_a_frame(drive):
         mag = np.abs(img.image)
         iy, ix = np.unravel_index(np.argmax(mag), mag.shape)
         assert abs(img.x_m[ix] - 0.0) < 0.02 and abs(img.y_m[iy] - R0) < 0.02
+
+
+def test_the_worker_accounts_for_every_frame_when_the_odometry_stops_short(drive):
+    """The run ends with the odometry's last pose short of the last frames: those are counted as beyond the
+    odometry, so imaged + standing still + beyond + dropped + invalid is every frame received."""
+    from acquisition.messages import PoseBatch, RadarFrameMessage
+    from acquisition.workers.stripmap import StripMapWorker, StripMapWorkerConfig
+    from drivers.radar.stream import RadarFrame
+    from imaging.core.rig import Rig
+    from imaging.core.samples import complex_to_iq
+
+    rec, radar, truth, order = drive
+    adc, times = rec.adc(RADAR), rec.frame_time_ns(RADAR)
+    covered = truth.time_ns[truth.time_ns <= times[-6]]  # the poses end inside frame -6
+    s = truth.sample(covered)
+    config = StripMapConfig(pixel_m=0.02, aperture_m=0.3, range_min_m=1.5, range_max_m=2.5, z_m=0.3, presum=8)
+    worker = StripMapWorker(StripMapWorkerConfig(Rig((radar,)), None, config, "tcp://unused:1", "unused.h5"), None)
+    worker.handle(PoseBatch(covered, s.position_m, s.orientation_xyzw, s.velocity_mps), live=True)
+    for k in range(len(times)):
+        frame = RadarFrame(k, int(times[k]), int(times[k]), k != 3, 0, complex_to_iq(adc[k], 1000.0))
+        worker.handle(RadarFrameMessage(RADAR, frame), live=True)
+    worker._image_ready(final=True)
+    st = worker.status
+    assert st.frames_beyond_odometry == 6 and st.frames_skipped_invalid == 1 and st.frames_dropped_behind == 0
+    assert st.frames_imaged + st.frames_standing_still + st.frames_beyond_odometry + st.frames_skipped_invalid == len(times)
+    assert not worker.frames

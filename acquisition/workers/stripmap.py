@@ -150,6 +150,7 @@ class StripMapWorker(Worker):
                 if not final:
                     return
                 frames.popleft()  # never covered by the odometry: the drive ended
+                status.frames_beyond_odometry += 1
                 continue
             factor = 1 if final else self.catch_up_factor(name)
             frames.popleft()
@@ -203,6 +204,10 @@ class StripMapWorker(Worker):
 
     def finish(self) -> None:
         self._image_ready(final=True)
+        # Whatever is left had no poses at all (an odometry that never started): counted, so every frame
+        # received is accounted for in map/status.
+        self.status.frames_beyond_odometry += len(self.frames)
+        self.frames.clear()
         if self.config.map.refocus != "none":
             refocused = self.map.refocus_pending()
             self.changed.update(refocused)
