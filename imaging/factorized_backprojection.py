@@ -1,0 +1,510 @@
+"""Fast factorized backprojection (FFBP) onto a horizontal image plane, with its error bound.
+
+Direct backprojection costs P x N (profiles x pixels). FFBP (Ulander, Hellsten and Stenström, IEEE TAES
+39(3), 2003) instead splits the aperture into short subapertures of consecutive profiles and merges them
+pairwise up a balanced tree:
+
+* **Leaves.** A subaperture of ``leaf_profiles`` profiles is short, so its image varies slowly in angle:
+  the ordinary kernel (``imaging.backprojection``) images it onto a coarse polar grid around its centre c,
+  range r = |g - c| and alpha = cos(angle to the subaperture's axis u) = u . (g - c) / r. The grid holds
+  the image times exp(+j k 2r) ("demodulated"): baseband in range (the profile's bandwidth) and, in
+  alpha, within +-(2 / lambda) x the subaperture's half-length, so that it can be interpolated.
+* **Merges.** A parent (twice the aperture, a grid twice as fine in alpha, the same in range) takes each
+  grid point g, finds it in each child's polar coordinates, interpolates the child there and re-references
+  the phase from the child's centre to its own: ``D_parent(g) = sum D_child(g) exp(-j k 2 (|g - c_child| -
+  |g - c_parent|))``.
+* **Pixels.** The root is interpolated at every pixel and given back its phase ``exp(-j k 2 |g - c|)``.
+
+So the cost is P x (leaf grid) + levels x (grid samples) x 2 x taps^2 + N x taps^2, nearly independent of
+N x P: the longer the aperture and the larger the image, the larger the gain.
+
+Geometry. Positions are float64 world coordinates. Each subaperture's axis is the horizontal principal
+direction of its antennas' phase centres (so a curved drive is followed piecewise); the image must lie on
+one side of every axis (a side-looking radar). The alpha sampling comes from the subaperture's actual
+extent along and across its axis, so vibration or a bend widens the grid rather than aliasing it.
+
+Interpolation. Separable, ``taps`` x ``taps`` per sample, with coefficients that minimise the squared error
+over the band the grid is oversampled for (the optimum for band-limited signals, Knab's kind of
+interpolator), tabulated at 2048 fractional shifts. :func:`interpolation_error` gives the worst error of a
+tone anywhere in that band; :attr:`FactorizedPlan.error_bound_db` adds it up along the tree.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+import numba
+import numpy as np
+
+from imaging.backprojection import backproject
+from imaging.core.config import require
+from imaging.core.constants import SPEED_OF_LIGHT_MPS
+from imaging.range_compression import RangeProfiles
+
+#: Fractional shifts tabulated per interpolation kernel (the nearest is used: phase error <= pi / (2 os NF)).
+TABLE_SHIFTS = 2048
+#: The designed band exceeds the Nyquist band of the oversampled grid by this factor (margin for the
+#: bandwidth estimates: the bistatic offsets, the envelope's own variation).
+BAND_MARGIN = 1.05
+_GEOM = 11  # cx, cy, cz, ux, uy, nx, ny, r0, dr, a0, da
+
+
+@dataclasses.dataclass(frozen=True)
+class FactorizedOptions:
+    """FFBP settings.
+
+    ``leaf_profiles``: profiles per leaf subaperture (the reference radar's 16 channels x 32 chirps is 512).
+    ``oversample_range`` / ``oversample_angle``: grid oversampling over Nyquist. ``taps``: interpolation
+    taps per dimension (even). ``mode``: the direct kernel's interpolation for the leaves.
+    """
+
+    leaf_profiles: int = 512
+    oversample_range: float = 2.0
+    oversample_angle: float = 2.0
+    taps: int = 6
+    mode: str = "linear"
+
+    def __post_init__(self) -> None:
+        require(self.leaf_profiles >= 1, "leaf_profiles", f"must be at least 1, got {self.leaf_profiles}")
+        require(1.2 <= self.oversample_range <= 16, "oversample_range", f"must be in [1.2, 16], got {self.oversample_range}")
+        require(1.2 <= self.oversample_angle <= 16, "oversample_angle", f"must be in [1.2, 16], got {self.oversample_angle}")
+        require(self.taps in (2, 4, 6, 8, 10, 12), "taps", f"must be an even number from 2 to 12, got {self.taps}")
+        require(self.mode in ("nearest", "linear", "exact"), "mode", f"must be nearest, linear or exact, got {self.mode!r}")
+
+
+# -- interpolation kernels ---------------------------------------------------------------------------------
+def _tap_offsets(taps: int) -> np.ndarray:
+    return np.arange(-taps // 2 + 1, taps // 2 + 1)
+
+
+def _band(oversample: float) -> float:
+    return 0.5 / oversample * BAND_MARGIN
+
+
+@functools.lru_cache(maxsize=16)
+def interpolation_table(taps: int, oversample: float) -> np.ndarray:
+    """Least-squares interpolation coefficients, float32 [TABLE_SHIFTS + 1, taps].
+
+    Row i interpolates at fractional position d = i / TABLE_SHIFTS past sample ``floor``, from samples
+    ``floor + (-taps/2 + 1 ... taps/2)``; the coefficients minimise the mean squared error over all tones
+    within +-0.5 / oversample (x BAND_MARGIN) cycles per sample.
+    """
+    t = _tap_offsets(taps)
+    f = _band(oversample)
+    gram = 2 * f * np.sinc(2 * f * (t[:, None] - t[None, :]))
+    d = np.arange(TABLE_SHIFTS + 1) / TABLE_SHIFTS
+    rhs = 2 * f * np.sinc(2 * f * (d[None, :] - t[:, None]))  # [taps, shifts]
+    coeff = np.linalg.solve(gram + 1e-13 * np.eye(taps), rhs)
+    return np.ascontiguousarray(coeff.T, dtype=np.float32)
+
+
+@functools.lru_cache(maxsize=16)
+def _interpolation_errors(taps: int, oversample: float) -> tuple[float, float]:
+    table = interpolation_table(taps, oversample).astype(np.float64)
+    t = _tap_offsets(taps)
+    f = np.linspace(-0.5 / oversample, 0.5 / oversample, 129)
+    worst, power, count = 0.0, 0.0, 0
+    # The positions actually used: the table's entries, each standing for shifts up to half an entry away.
+    for i in range(0, TABLE_SHIFTS + 1, 8):
+        resp = np.exp(2j * np.pi * f[:, None] * t[None, :]) @ table[i]
+        for d in (i / TABLE_SHIFTS, (i - 0.5) / TABLE_SHIFTS, (i + 0.5) / TABLE_SHIFTS):
+            e = np.abs(resp - np.exp(2j * np.pi * f * d))
+            worst = max(worst, float(e.max()))
+            power += float((e ** 2).sum())
+            count += e.size
+    return worst, math.sqrt(power / count)
+
+
+def interpolation_error(taps: int, oversample: float) -> float:
+    """Worst relative error of the tabulated kernel for a unit tone anywhere in the band it is designed
+    for (the grid's +-0.5 / oversample cycles per sample), over all fractional positions, table rounding
+    included (amplitude, not dB)."""
+    return _interpolation_errors(taps, oversample)[0]
+
+
+def interpolation_rms_error(taps: int, oversample: float) -> float:
+    """The same error's root mean square over the band and the fractional positions (amplitude)."""
+    return _interpolation_errors(taps, oversample)[1]
+
+
+# -- numba kernels -------------------------------------------------------------------------------------
+@numba.njit(inline="always", fastmath=True)
+def _sample(d, geom, gx, gy, gz, tab_r, tab_a):
+    """Interpolate the demodulated polar image ``d`` [nr, na] of the subaperture ``geom`` at world point g;
+    returns (value, |g - c|). Outside the grid (or too near its edge for all taps): 0."""
+    taps = tab_r.shape[1]
+    nf = tab_r.shape[0] - 1
+    dx, dy, dz = gx - geom[0], gy - geom[1], gz - geom[2]
+    rc = math.sqrt(dx * dx + dy * dy + dz * dz)
+    fr = (rc - geom[7]) / geom[8]
+    fa = ((dx * geom[3] + dy * geom[4]) / rc - geom[9]) / geom[10]
+    ir = math.floor(fr)
+    ia = math.floor(fa)
+    i0 = int(ir) - taps // 2 + 1
+    j0 = int(ia) - taps // 2 + 1
+    if i0 < 0 or j0 < 0 or i0 + taps > d.shape[0] or j0 + taps > d.shape[1]:
+        return np.complex64(0.0), rc
+    wr = tab_r[int((fr - ir) * nf + 0.5)]
+    wa = tab_a[int((fa - ia) * nf + 0.5)]
+    acc = np.complex64(0.0)
+    for a in range(taps):
+        row = np.complex64(0.0)
+        for b in range(taps):
+            row += d[i0 + a, j0 + b] * wa[b]
+        acc += row * wr[a]
+    return acc, rc
+
+
+@numba.njit(parallel=True, fastmath=True, cache=True, nogil=True)
+def _merge_child(out, pg, child, cg, z, k, tab_r, tab_a):
+    """Add one child's contribution to the parent's demodulated polar image ``out`` [nr, na]."""
+    nr, na = out.shape
+    h = z - pg[2]
+    for i in numba.prange(nr):
+        r = pg[7] + i * pg[8]
+        for j in range(na):
+            along = (pg[9] + j * pg[10]) * r
+            b2 = r * r - along * along - h * h
+            if b2 <= 0.0:
+                continue
+            b = math.sqrt(b2)
+            v, rc = _sample(child, cg, pg[0] + along * pg[3] + b * pg[5], pg[1] + along * pg[4] + b * pg[6], z,
+                            tab_r, tab_a)
+            ph = -2.0 * k * (rc - r)
+            out[i, j] += v * np.complex64(complex(math.cos(ph), math.sin(ph)))
+
+
+@numba.njit(parallel=True, fastmath=True, cache=True, nogil=True)
+def _to_plane(out, x, y, z, d, g, k, tab_r, tab_a):
+    """Add the root's image at the pixels (x[j], y[i], z) to ``out`` [ny, nx], its phase restored."""
+    for i in numba.prange(y.size):
+        for j in range(x.size):
+            v, rc = _sample(d, g, x[j], y[i], z, tab_r, tab_a)
+            ph = -2.0 * k * rc
+            out[i, j] += v * complex(math.cos(ph), math.sin(ph))
+
+
+# -- the plan: the tree, each subaperture's polar grid -------------------------------------------------------
+@dataclasses.dataclass
+class Subaperture:
+    """One node of the tree: profiles [start, stop), its polar grid and where it sits."""
+
+    start: int
+    stop: int
+    level: int  # 0 for leaves
+    centre_m: np.ndarray  # [3]
+    axis: np.ndarray  # [2], horizontal unit vector along the subaperture
+    normal: np.ndarray  # [2], horizontal unit vector towards the image
+    children: tuple = ()
+    r0_m: float = 0.0
+    dr_m: float = 0.0
+    a0: float = 0.0
+    da: float = 0.0
+    nr: int = 0
+    na: int = 0
+    direct: bool = False  # a leaf backprojected straight onto the pixels
+
+    @property
+    def geometry(self) -> np.ndarray:
+        c, u, n = self.centre_m, self.axis, self.normal
+        return np.array([c[0], c[1], c[2], u[0], u[1], n[0], n[1], self.r0_m, self.dr_m, self.a0, self.da])
+
+    def polar_points(self, z_m: float) -> np.ndarray:
+        """World points of its grid, [nr, na, 3] (points not on the plane, never used, put on the axis)."""
+        r = self.r0_m + self.dr_m * np.arange(self.nr)[:, None]
+        along = (self.a0 + self.da * np.arange(self.na))[None, :] * r
+        b = np.sqrt(np.maximum(r * r - along * along - (z_m - self.centre_m[2]) ** 2, 0.0))
+        xy = self.centre_m[:2] + along[..., None] * self.axis + b[..., None] * self.normal
+        return np.concatenate([xy, np.full(xy.shape[:2] + (1,), z_m)], axis=-1)
+
+
+@dataclasses.dataclass
+class FactorizedPlan:
+    """The subaperture trees for one set of antenna positions and one image plane.
+
+    ``roots`` are interpolated onto the pixels and summed. Merging stops where a parent's grid would cost
+    more than interpolating its two children at the pixels: near the aperture, where the subaperture is as
+    long as the range, its image's range curvature needs a fine range grid. A root may be a leaf marked
+    ``direct`` (so small an image that the leaf's profiles go straight onto the pixels).
+    """
+
+    roots: list
+    x_m: np.ndarray
+    y_m: np.ndarray
+    z_m: float
+    options: FactorizedOptions
+    wavenumber: float  # k = 2 pi f_c / c (the phase is k x two-way range)
+
+    @property
+    def levels(self) -> int:
+        """Merges on the longest path from a leaf to a root."""
+        return max(r.level for r in self.roots)
+
+    def nodes(self):
+        stack = list(self.roots)
+        while stack:
+            node = stack.pop()
+            yield node
+            stack.extend(node.children)
+
+    @property
+    def grid_samples(self) -> int:
+        """Polar grid samples over all subapertures."""
+        return sum(n.nr * n.na for n in self.nodes() if not n.direct)
+
+    @property
+    def error_bound_db(self) -> float:
+        """Worst-case error of a pixel relative to the sum of the magnitudes behind it, dB: every merge
+        and the final step interpolate once in range and once in angle (each at most
+        :func:`interpolation_error` for data within the band its grid is sampled for), and the errors add
+        coherently along the ``levels + 1`` interpolations between a leaf and a pixel. The leaves' own
+        error is the direct kernel's."""
+        o = self.options
+        er, ea = interpolation_error(o.taps, o.oversample_range), interpolation_error(o.taps, o.oversample_angle)
+        per_step = er + ea + er * ea
+        return float(20 * np.log10((1 + per_step) ** (self.levels + 1) - 1))
+
+    @property
+    def error_estimate_db(self) -> float:
+        """Expected error energy relative to the image's, dB: the interpolations' RMS errors
+        (:func:`interpolation_rms_error`, data spread evenly over the band) adding in power over the
+        ``2 (levels + 1)`` one-dimensional interpolations between a leaf and a pixel. Measured errors sit
+        near it (tests and benchmarks/ffbp.py); the bound above is what no band-limited input exceeds."""
+        o = self.options
+        power = interpolation_rms_error(o.taps, o.oversample_range) ** 2 + interpolation_rms_error(o.taps, o.oversample_angle) ** 2
+        return float(10 * np.log10(power * (self.levels + 1)))
+
+    def cost(self) -> dict:
+        """Operation counts: backprojections (profile x point) at the leaves, interpolated samples in the
+        merges and at the pixels (taps^2 multiply-adds each), against the direct kernel's profile x pixel
+        count."""
+        n_pix = self.x_m.size * self.y_m.size
+        nodes = list(self.nodes())
+        leaves = [n for n in nodes if not n.children]
+        merged = sum(n.nr * n.na * len(n.children) for n in nodes if n.children)
+        return {"leaf_backprojections": int(sum((n.stop - n.start) * (n_pix if n.direct else n.nr * n.na) for n in leaves)),
+                "merge_interpolations": int(merged),
+                "pixel_interpolations": int(n_pix * sum(not r.direct for r in self.roots)),
+                "taps_squared": self.options.taps ** 2, "roots": len(self.roots), "levels": self.levels,
+                "direct_backprojections": int(self.roots[-1].stop - self.roots[0].start) * n_pix}
+
+
+def _horizontal_axis(m: np.ndarray, reference: np.ndarray | None) -> np.ndarray:
+    """Principal horizontal direction of points m [P, 3] (sign as ``reference``)."""
+    xy = m[:, :2] - m[:, :2].mean(axis=0)
+    cov = xy.T @ xy
+    if not np.any(cov):
+        u = np.array([1.0, 0.0]) if reference is None else reference.copy()
+    else:
+        u = np.linalg.eigh(cov)[1][:, -1]
+    if reference is not None and u @ reference < 0:
+        u = -u
+    return u / np.linalg.norm(u)
+
+
+def _outline(x_m, y_m, n: int = 128) -> np.ndarray:
+    """Points on the border of the image rectangle, [4n, 2]."""
+    x0, x1, y0, y1 = x_m[0], x_m[-1], y_m[0], y_m[-1]
+    s = np.linspace(0, 1, n)
+    return np.concatenate([np.stack([x0 + (x1 - x0) * s, np.full(n, y0)], 1), np.stack([x0 + (x1 - x0) * s, np.full(n, y1)], 1),
+                           np.stack([np.full(n, x0), y0 + (y1 - y0) * s], 1), np.stack([np.full(n, x1), y0 + (y1 - y0) * s], 1)])
+
+
+def _extreme_points(m: np.ndarray, u: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """The phase centres furthest along and across the axis (both ways, and diagonally), and every
+    ``len/37``-th (a prime stride, so that TDM's repeating channel order does not pick one channel)."""
+    s, p = m[:, :2] @ u, m[:, :2] @ n
+    picks = [f(v) for v in (s, p, s + p, s - p, m[:, 2]) for f in (np.argmin, np.argmax)]
+    stride = max(1, m.shape[0] // 37)
+    return m[np.unique(np.concatenate([picks, np.arange(0, m.shape[0], stride)]))]
+
+
+def _polar_derivatives(node: Subaperture, m: np.ndarray, r: np.ndarray, alpha: np.ndarray, h: float):
+    """|d/dr| and |d/dalpha| of |g - m| - |g - c| over points g(r, alpha) of the plane and phase centres m,
+    largest of each: with 2 / lambda they are the demodulated image's bandwidths."""
+    u = np.array([*node.axis, 0.0])
+    n = np.array([*node.normal, 0.0])
+    b = np.sqrt(np.maximum(r * r * (1 - alpha * alpha) - h * h, 1e-12))
+    g = node.centre_m + (alpha * r)[:, None] * u + b[:, None] * n + np.array([0.0, 0.0, h])
+    dg_dr = alpha[:, None] * u + (r * (1 - alpha ** 2) / b)[:, None] * n
+    dg_da = r[:, None] * u - (alpha * r * r / b)[:, None] * n
+    los = g[:, None, :] - m[None, :, :]
+    los /= np.linalg.norm(los, axis=-1, keepdims=True)  # [Q, M, 3] unit vectors from the phase centres
+    f_r = np.abs(np.einsum("qmk,qk->qm", los, dg_dr) - 1.0).max()
+    f_a = np.abs(np.einsum("qmk,qk->qm", los, dg_da)).max()
+    return float(f_r), float(f_a)
+
+
+def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, z_m: float,
+                    carrier_hz: float, bandwidth_hz: float, options: FactorizedOptions = FactorizedOptions()) -> FactorizedPlan:
+    """Build the subaperture trees and every node's polar grid.
+
+    Parameters
+    ----------
+    tx_m, rx_m : ndarray, shape (P, 3)
+        Antenna positions of the profiles, in time order (a subaperture is a run of consecutive profiles).
+    x_m, y_m : ndarray
+        The image's pixel centres along x and y (increasing), metres.
+    z_m : float
+        Height of the image plane.
+    carrier_hz, bandwidth_hz : float
+        The profiles' carrier (``RangeProfiles.carrier_hz``) and swept bandwidth, which with the geometry
+        set the range and angle sampling.
+    """
+    o = options
+    tx = np.asarray(tx_m, np.float64).reshape(-1, 3)
+    rx = np.asarray(rx_m, np.float64).reshape(-1, 3)
+    if tx.shape != rx.shape or tx.shape[0] == 0:
+        raise ValueError(f"need P > 0 TX and RX positions of shape (P, 3); got {tx.shape} and {rx.shape}")
+    x_m, y_m = np.asarray(x_m, np.float64).ravel(), np.asarray(y_m, np.float64).ravel()
+    if x_m.size < 1 or y_m.size < 1 or np.any(np.diff(x_m) <= 0) or np.any(np.diff(y_m) <= 0):
+        raise ValueError("x_m and y_m must be increasing pixel centres")
+    if not (bandwidth_hz > 0 and carrier_hz > bandwidth_hz / 2):
+        raise ValueError(f"bandwidth {bandwidth_hz} Hz and carrier {carrier_hz} Hz do not describe a radar")
+    m = 0.5 * (tx + rx)
+    image_xy = _outline(x_m, y_m)
+    centre_xy = image_xy.mean(axis=0)
+    overall = _horizontal_axis(m, None)
+    two_over_lambda = 2 * (carrier_hz + bandwidth_hz / 2) / SPEED_OF_LIGHT_MPS
+    envelope = bandwidth_hz / SPEED_OF_LIGHT_MPS  # the range profile's band, cycles per metre of range
+    half_taps = o.taps // 2
+    n_pix = x_m.size * y_m.size
+
+    def build(start: int, stop: int) -> Subaperture:
+        n_leaf = -(-(stop - start) // o.leaf_profiles)
+        children: tuple = ()
+        if n_leaf > 1:
+            mid = start + (n_leaf // 2) * o.leaf_profiles
+            children = (build(start, mid), build(mid, stop))
+        mm = m[start:stop]
+        c = mm.mean(axis=0)
+        u = _horizontal_axis(mm, overall)
+        n = np.array([-u[1], u[0]])
+        if n @ (centre_xy - c[:2]) < 0:
+            n = -n
+        return Subaperture(start, stop, 1 + max(ch.level for ch in children) if children else 0, c, u, n, children)
+
+    def place(node: Subaperture, needed_xy: np.ndarray) -> None:
+        """Size ``node``'s grid to cover the plane points ``needed_xy`` [M, 2] (the image's outline, or
+        the outline of its parent's grid) with the taps to interpolate anywhere inside."""
+        c, u, n = node.centre_m, node.axis, node.normal
+        h = z_m - c[2]
+        b_image = float(((image_xy - c[:2]) @ n).min())
+        if b_image <= 0:
+            raise ValueError("the image must lie to one side of the radar's track (FFBP images a side-looking pass); "
+                             f"the track of profiles {node.start}-{node.stop} passes {-b_image:.3f} m inside it")
+        rel = needed_xy - c[:2]
+        # A parent's grid reaches further out in angle than the image; near the track no pixel needs it.
+        rel = rel[rel @ n >= 0.5 * b_image]
+        along = rel @ u
+        r = np.sqrt(along ** 2 + (rel @ n) ** 2 + h ** 2)
+        alpha = along / r
+        # Bandwidths from the geometry itself (at the outline, and inside it on a coarse grid), so that a
+        # long subaperture's range curvature or a bent track widens the grid instead of aliasing it.
+        rq, aq = np.meshgrid(np.linspace(r.min(), r.max(), 8), np.linspace(alpha.min(), alpha.max(), 8))
+        rs, as_ = np.concatenate([r, rq.ravel()]), np.concatenate([alpha, aq.ravel()])
+        centres = _extreme_points(m[node.start:node.stop], u, n)
+        f_r, f_a = _polar_derivatives(node, centres, rs, as_, h)
+        dr = 1.0 / (2 * (envelope + two_over_lambda * f_r) * BAND_MARGIN * o.oversample_range)
+        da = min(1.0 / (2 * max(two_over_lambda * f_a, 1e-9) * BAND_MARGIN * o.oversample_angle), 0.1)
+        node.dr_m, node.da = dr, da
+        # _sample reads taps/2 - 1 samples below the floor of a position and taps/2 above it.
+        node.r0_m = float(r.min() - half_taps * dr)
+        node.nr = int(math.floor((r.max() - node.r0_m) / dr)) + half_taps + 1
+        node.a0 = float(max(alpha.min() - half_taps * da, -1.0))
+        node.na = int(math.floor((min(alpha.max(), 1.0) - node.a0) / da)) + half_taps + 1
+
+    def grid_edge(node: Subaperture) -> np.ndarray:
+        g = node.polar_points(z_m)
+        return np.concatenate([g[0], g[-1], g[:, 0], g[:, -1]])[:, :2]
+
+    def place_subtree(node: Subaperture) -> None:
+        edge = grid_edge(node)
+        for child in node.children:
+            place(child, edge)
+            place_subtree(child)
+
+    def choose_roots(node: Subaperture) -> list:
+        """Merge up to ``node`` only while its grid costs less than interpolating its children at the pixels."""
+        place(node, image_xy)
+        if node.children and 2 * node.nr * node.na > n_pix:
+            return [r for child in node.children for r in choose_roots(child)]
+        if not node.children and (node.stop - node.start) * node.nr * node.na + n_pix * o.taps ** 2 > (node.stop - node.start) * n_pix:
+            node.direct = True  # cheaper straight onto the pixels
+        return [node]
+
+    roots = choose_roots(build(0, tx.shape[0]))
+    for root in roots:
+        place_subtree(root)
+    k = 2 * math.pi * carrier_hz / SPEED_OF_LIGHT_MPS
+    return FactorizedPlan(roots, x_m, y_m, float(z_m), o, k)
+
+
+# -- running it ------------------------------------------------------------------------------------------
+def _slice(profiles: RangeProfiles, start: int, stop: int) -> RangeProfiles:
+    rows = None if profiles.rows is None else profiles.rows[start:stop]
+    samples = None if profiles.samples is None else profiles.samples.reshape(profiles.data.shape[0], -1)[start:stop]
+    return dataclasses.replace(profiles, data=profiles.data[start:stop], rows=rows, samples=samples)
+
+
+def run_factorized(plan: FactorizedPlan, profiles: RangeProfiles, tx_m: np.ndarray, rx_m: np.ndarray,
+                   reference_range_m: np.ndarray | None = None, out: np.ndarray | None = None) -> np.ndarray:
+    """Form the image of ``plan`` from ``profiles`` (those the plan was made for), complex128 [ny, nx]
+    (accumulated into ``out`` if given)."""
+    o = plan.options
+    tx = np.asarray(tx_m, np.float64).reshape(-1, 3)
+    rx = np.asarray(rx_m, np.float64).reshape(-1, 3)
+    if profiles.data.shape[0] != tx.shape[0] or plan.roots[-1].stop != tx.shape[0] or plan.roots[0].start != 0:
+        raise ValueError(f"{profiles.data.shape[0]} profiles and {tx.shape[0]} antenna positions; the plan is for {plan.roots[-1].stop}")
+    tab_r = interpolation_table(o.taps, o.oversample_range)
+    tab_a = interpolation_table(o.taps, o.oversample_angle)
+    k, z = plan.wavenumber, plan.z_m
+
+    def evaluate(node: Subaperture) -> np.ndarray:
+        if not node.children:
+            pts = node.polar_points(z)
+            ref = None if reference_range_m is None else reference_range_m[node.start:node.stop]
+            img = backproject(_slice(profiles, node.start, node.stop), tx[node.start:node.stop], rx[node.start:node.stop],
+                              pts, reference_range_m=ref, mode=o.mode)
+            r = node.r0_m + node.dr_m * np.arange(node.nr)
+            return (img * np.exp(2j * k * r)[:, None]).astype(np.complex64)
+        d = np.zeros((node.nr, node.na), np.complex64)
+        g = node.geometry
+        for child in node.children:
+            _merge_child(d, g, evaluate(child), child.geometry, z, k, tab_r, tab_a)
+        return d
+
+    shape = (plan.y_m.size, plan.x_m.size)
+    if out is None:
+        out = np.zeros(shape, np.complex128)
+    elif out.shape != shape or out.dtype != np.complex128:
+        raise ValueError(f"out must be complex128 of shape {shape}, got {out.dtype} {out.shape}")
+    for root in plan.roots:
+        if root.direct:
+            xx, yy = np.meshgrid(plan.x_m, plan.y_m)
+            pts = np.stack([xx, yy, np.full_like(xx, z)], axis=-1)
+            ref = None if reference_range_m is None else reference_range_m[root.start:root.stop]
+            backproject(_slice(profiles, root.start, root.stop), tx[root.start:root.stop], rx[root.start:root.stop], pts,
+                        reference_range_m=ref, mode=o.mode, out=out)
+        else:
+            _to_plane(out, plan.x_m, plan.y_m, z, evaluate(root), root.geometry, k, tab_r, tab_a)
+    return out
+
+
+def backproject_factorized(profiles: RangeProfiles, tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray,
+                           y_m: np.ndarray, z_m: float, *, reference_range_m: np.ndarray | None = None,
+                           options: FactorizedOptions = FactorizedOptions(),
+                           bandwidth_hz: float | None = None) -> np.ndarray:
+    """Backproject range profiles onto the horizontal plane grid (x_m, y_m, z_m) by FFBP.
+
+    The same inputs as :func:`imaging.backprojection.backproject`, with the grid given by its axes;
+    returns complex128 [ny, nx]. ``bandwidth_hz`` defaults to ``profiles.bandwidth_hz``. Error: see
+    :attr:`FactorizedPlan.error_bound_db` (``plan_factorized`` with the same arguments).
+    """
+    bw = bandwidth_hz or profiles.bandwidth_hz
+    if not bw:
+        raise ValueError("the profiles do not say their bandwidth: pass bandwidth_hz")
+    plan = plan_factorized(tx_m, rx_m, x_m, y_m, z_m, profiles.carrier_hz, bw, options)
+    return run_factorized(plan, profiles, tx_m, rx_m, reference_range_m)
