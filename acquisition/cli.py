@@ -113,7 +113,7 @@ def cmd_image(args) -> int:
             raise SarbotError(f"{path}: that is the recording being imaged; choose another output")
         _new_output(path, args.overwrite)
     options = ImagingOptions(mode=args.mode, window=args.window, oversample=args.oversample,
-                             tx=_parse_channels(args.tx, "tx"), rx=_parse_channels(args.rx, "rx"))
+                             tx=_parse_channels(args.tx, "tx"), rx=_parse_channels(args.rx, "rx"), algorithm=args.algorithm)
     autofocus = AutofocusOptions(method=args.autofocus, sinusoids=args.autofocus_sinusoids)
     with Recording(args.recording) as rec:
         img = image_recording(rec, args.radar, args.grid, args.trajectory, _parse_frames(args.frames), options,
@@ -728,6 +728,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--mode", default="linear", choices=["nearest", "linear", "exact"])
     s.add_argument("--window", default="hann", choices=["rectangular", "hann", "hamming", "taylor"])
     s.add_argument("--oversample", type=int, default=16, help="range FFT zero-padding factor (default 16: >= 60 dB signal-to-error with linear interpolation)")
+    s.add_argument("--algorithm", default="direct", choices=["direct", "ffbp"],
+                   help="direct: every profile onto every pixel (default); ffbp: fast factorized backprojection, "
+                        "a horizontal plane to one side of the track, 15-20x faster on a 2 m aperture at about "
+                        "-43 dB from the direct image (its bound and estimate go into the file)")
     s.add_argument("--tx", help="TX channels, e.g. 0,2 (default all)")
     s.add_argument("--rx", help="RX channels, e.g. 0 (default all)")
     s.add_argument("--png", help="where to write the PNG (default: beside the image)")

@@ -211,10 +211,13 @@ class Subaperture:
         c, u, n = self.centre_m, self.axis, self.normal
         return np.array([c[0], c[1], c[2], u[0], u[1], n[0], n[1], self.r0_m, self.dr_m, self.a0, self.da])
 
-    def polar_points(self, z_m: float) -> np.ndarray:
-        """World points of its grid, [nr, na, 3] (points not on the plane, never used, put on the axis)."""
-        r = self.r0_m + self.dr_m * np.arange(self.nr)[:, None]
-        along = (self.a0 + self.da * np.arange(self.na))[None, :] * r
+    def polar_points(self, z_m: float, ir: np.ndarray | None = None, ia: np.ndarray | None = None) -> np.ndarray:
+        """World points of its grid (rows ``ir``, columns ``ia``; all by default), [nr, na, 3]; points
+        not on the plane, never used, are put on the axis."""
+        ir = np.arange(self.nr) if ir is None else ir
+        ia = np.arange(self.na) if ia is None else ia
+        r = self.r0_m + self.dr_m * ir[:, None]
+        along = (self.a0 + self.da * ia)[None, :] * r
         b = np.sqrt(np.maximum(r * r - along * along - (z_m - self.centre_m[2]) ** 2, 0.0))
         xy = self.centre_m[:2] + along[..., None] * self.axis + b[..., None] * self.normal
         return np.concatenate([xy, np.full(xy.shape[:2] + (1,), z_m)], axis=-1)
@@ -304,7 +307,7 @@ def _horizontal_axis(m: np.ndarray, reference: np.ndarray | None) -> np.ndarray:
     return u / np.linalg.norm(u)
 
 
-def _outline(x_m, y_m, n: int = 128) -> np.ndarray:
+def _outline(x_m, y_m, n: int = 64) -> np.ndarray:
     """Points on the border of the image rectangle, [4n, 2]."""
     x0, x1, y0, y1 = x_m[0], x_m[-1], y_m[0], y_m[-1]
     s = np.linspace(0, 1, n)
@@ -314,10 +317,10 @@ def _outline(x_m, y_m, n: int = 128) -> np.ndarray:
 
 def _extreme_points(m: np.ndarray, u: np.ndarray, n: np.ndarray) -> np.ndarray:
     """The phase centres furthest along and across the axis (both ways, and diagonally), and every
-    ``len/37``-th (a prime stride, so that TDM's repeating channel order does not pick one channel)."""
+    ``len/23``-th (a prime stride, so that TDM's repeating channel order does not pick one channel)."""
     s, p = m[:, :2] @ u, m[:, :2] @ n
     picks = [f(v) for v in (s, p, s + p, s - p, m[:, 2]) for f in (np.argmin, np.argmax)]
-    stride = max(1, m.shape[0] // 37)
+    stride = max(1, m.shape[0] // 23)
     return m[np.unique(np.concatenate([picks, np.arange(0, m.shape[0], stride)]))]
 
 
@@ -403,8 +406,9 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
         alpha = along / r
         # Bandwidths from the geometry itself (at the outline, and inside it on a coarse grid), so that a
         # long subaperture's range curvature or a bent track widens the grid instead of aliasing it.
-        rq, aq = np.meshgrid(np.linspace(r.min(), r.max(), 8), np.linspace(alpha.min(), alpha.max(), 8))
-        rs, as_ = np.concatenate([r, rq.ravel()]), np.concatenate([alpha, aq.ravel()])
+        rq, aq = np.meshgrid(np.linspace(r.min(), r.max(), 5), np.linspace(alpha.min(), alpha.max(), 5))
+        edge = slice(None, None, max(1, r.size // 48))
+        rs, as_ = np.concatenate([r[edge], rq.ravel()]), np.concatenate([alpha[edge], aq.ravel()])
         centres = _extreme_points(m[node.start:node.stop], u, n)
         f_r, f_a = _polar_derivatives(node, centres, rs, as_, h)
         dr = 1.0 / (2 * (envelope + two_over_lambda * f_r) * BAND_MARGIN * o.oversample_range)
@@ -416,9 +420,12 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
         node.a0 = float(max(alpha.min() - half_taps * da, -1.0))
         node.na = int(math.floor((min(alpha.max(), 1.0) - node.a0) / da)) + half_taps + 1
 
-    def grid_edge(node: Subaperture) -> np.ndarray:
-        g = node.polar_points(z_m)
-        return np.concatenate([g[0], g[-1], g[:, 0], g[:, -1]])[:, :2]
+    def grid_edge(node: Subaperture, per_side: int = 64) -> np.ndarray:
+        ir = np.unique(np.linspace(0, node.nr - 1, per_side).astype(int))
+        ia = np.unique(np.linspace(0, node.na - 1, per_side).astype(int))
+        ends_r, ends_a = np.array([0, node.nr - 1]), np.array([0, node.na - 1])
+        return np.concatenate([node.polar_points(z_m, ends_r, ia).reshape(-1, 3),
+                               node.polar_points(z_m, ir, ends_a).reshape(-1, 3)])[:, :2]
 
     def place_subtree(node: Subaperture) -> None:
         edge = grid_edge(node)
@@ -443,21 +450,38 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
 
 
 # -- running it ------------------------------------------------------------------------------------------
-def _slice(profiles: RangeProfiles, start: int, stop: int) -> RangeProfiles:
-    rows = None if profiles.rows is None else profiles.rows[start:stop]
-    samples = None if profiles.samples is None else profiles.samples.reshape(profiles.data.shape[0], -1)[start:stop]
-    return dataclasses.replace(profiles, data=profiles.data[start:stop], rows=rows, samples=samples)
+def _slice(profiles: RangeProfiles | list, start: int, stop: int) -> RangeProfiles:
+    """Profiles [start, stop) of one RangeProfiles, or of a list of them in order (blocks as
+    ``imaging.image_formation`` makes them): a view within one block, a copy across blocks."""
+    if isinstance(profiles, RangeProfiles):
+        rows = None if profiles.rows is None else profiles.rows[start:stop]
+        samples = None if profiles.samples is None else profiles.samples.reshape(profiles.data.shape[0], -1)[start:stop]
+        return dataclasses.replace(profiles, data=profiles.data[start:stop], rows=rows, samples=samples)
+    pieces, offset = [], 0
+    for block in profiles:
+        n = block.data.shape[0]
+        if offset < stop and offset + n > start:
+            pieces.append(_slice(block, max(start - offset, 0), min(stop - offset, n)))
+        offset += n
+    if len(pieces) == 1:
+        return pieces[0]
+    samples = None if any(p.samples is None for p in pieces) else np.concatenate([p.samples for p in pieces])
+    return dataclasses.replace(pieces[0], data=np.concatenate([p.data for p in pieces]), rows=None, samples=samples)
+
+
+def _count(profiles: RangeProfiles | list) -> int:
+    return profiles.data.shape[0] if isinstance(profiles, RangeProfiles) else sum(p.data.shape[0] for p in profiles)
 
 
 def run_factorized(plan: FactorizedPlan, profiles: RangeProfiles, tx_m: np.ndarray, rx_m: np.ndarray,
                    reference_range_m: np.ndarray | None = None, out: np.ndarray | None = None) -> np.ndarray:
-    """Form the image of ``plan`` from ``profiles`` (those the plan was made for), complex128 [ny, nx]
-    (accumulated into ``out`` if given)."""
+    """Form the image of ``plan`` from ``profiles`` (those the plan was made for: one RangeProfiles, or a
+    list of them in time order), complex128 [ny, nx] (accumulated into ``out`` if given)."""
     o = plan.options
     tx = np.asarray(tx_m, np.float64).reshape(-1, 3)
     rx = np.asarray(rx_m, np.float64).reshape(-1, 3)
-    if profiles.data.shape[0] != tx.shape[0] or plan.roots[-1].stop != tx.shape[0] or plan.roots[0].start != 0:
-        raise ValueError(f"{profiles.data.shape[0]} profiles and {tx.shape[0]} antenna positions; the plan is for {plan.roots[-1].stop}")
+    if _count(profiles) != tx.shape[0] or plan.roots[-1].stop != tx.shape[0] or plan.roots[0].start != 0:
+        raise ValueError(f"{_count(profiles)} profiles and {tx.shape[0]} antenna positions; the plan is for {plan.roots[-1].stop}")
     tab_r = interpolation_table(o.taps, o.oversample_range)
     tab_a = interpolation_table(o.taps, o.oversample_angle)
     k, z = plan.wavenumber, plan.z_m

@@ -31,6 +31,9 @@ class ImagingOptions:
     tx: tuple[int, ...] | None = None
     rx: tuple[int, ...] | None = None
     frames_per_block: int = 8  # range compression of the next block overlaps the backprojection of this one
+    #: "direct" (every profile onto every pixel) or "ffbp" (fast factorized backprojection, a horizontal
+    #: plane only; holds all the profiles in memory; imaging.factorized_backprojection)
+    algorithm: str = "direct"
 
     def __post_init__(self) -> None:
         from imaging.core.config import require
@@ -40,6 +43,7 @@ class ImagingOptions:
         require(self.window in WINDOWS, "window", f"must be one of {', '.join(WINDOWS)}, got {self.window!r}")
         require(1 <= self.oversample <= 1024, "oversample", f"must be 1 to 1024, got {self.oversample}")
         require(self.frames_per_block >= 1, "frames_per_block", f"must be at least 1, got {self.frames_per_block}")
+        require(self.algorithm in ("direct", "ffbp"), "algorithm", f"must be direct or ffbp, got {self.algorithm!r}")
 
 
 def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajectory, tx_order, options: ImagingOptions,
@@ -176,13 +180,20 @@ def form_image(
     prepare = reader.block
 
     starts = list(range(0, frame_indices.size, step))
+    ffbp = options.algorithm == "ffbp"
+    if ffbp and grid.z_m.size > 1:
+        raise SarbotError("fast factorized backprojection images a horizontal plane; the grid is a volume (use the direct algorithm)")
+    held: list = []  # ffbp: every block's (profiles, tx, rx), imaged at the end
     with ThreadPoolExecutor(1, thread_name_prefix="range-compress") as pool:
         pending = pool.submit(prepare, starts[0]) if starts else None
         for n, b in enumerate(starts):
             profiles, tx_m, rx_m, times, track = pending.result()
             pending = pool.submit(prepare, starts[n + 1]) if n + 1 < len(starts) else None
             if profiles.data.shape[0] and profiles.data.size:
-                backproject(profiles, tx_m, rx_m, points, mode=options.mode, out=image)
+                if ffbp:
+                    held.append((profiles, tx_m, rx_m))
+                else:
+                    backproject(profiles, tx_m, rx_m, points, mode=options.mode, out=image)
                 n_profiles += profiles.data.shape[0]
                 mids.append(0.5 * (tx_m + rx_m))
                 tracks_times.append(times)
@@ -193,12 +204,14 @@ def form_image(
                 progress(min(b + step, frame_indices.size), frame_indices.size)
     if n_profiles == 0:
         raise SarbotError(f"{recording.path}: radar {radar_name}: no chirp falls in the selected frames and time window")
+    extra = _image_factorized(held, grid, options, image) if ffbp else {}
     mid = np.concatenate(mids)
     attrs = {
         "radar": radar_name,
         "frames": f"{sel.start}:{sel.stop}",
         "trajectory_source": getattr(trajectory, "source", "unknown"),
-        "method": f"tdbp-{options.mode}",
+        "method": f"{'ffbp' if ffbp else 'tdbp'}-{options.mode}",
+        **extra,
         "window": options.window,
         "oversample": options.oversample,
         "wavelength_m": wf.wavelength_m,
@@ -213,6 +226,23 @@ def form_image(
         "source_file": str(recording.path),
     }
     return SarImage(image, grid.x_m, grid.y_m, grid.z_m if grid.z_m.size > 1 else grid.z_m[:1], attrs)
+
+
+def _image_factorized(held: list, grid: Grid, options: ImagingOptions, image: np.ndarray) -> dict:
+    """FFBP of the held blocks onto the plane grid, into ``image``; the plan's error figures for the attrs."""
+    from imaging.factorized_backprojection import FactorizedOptions, plan_factorized, run_factorized
+
+    blocks = [p for p, _, _ in held]
+    tx = np.concatenate([t for _, t, _ in held])
+    rx = np.concatenate([r for _, _, r in held])
+    try:
+        plan = plan_factorized(tx, rx, grid.x_m, grid.y_m, float(grid.z_m[0]), blocks[0].carrier_hz,
+                               blocks[0].bandwidth_hz, FactorizedOptions(mode=options.mode))
+    except ValueError as e:
+        raise SarbotError(f"fast factorized backprojection: {e}") from None
+    run_factorized(plan, blocks, tx, rx, out=image)
+    return {"ffbp_levels": plan.levels, "ffbp_error_bound_db": plan.error_bound_db,
+            "ffbp_error_estimate_db": plan.error_estimate_db}
 
 
 def focus_image(

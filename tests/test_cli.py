@@ -47,6 +47,26 @@ def test_simulate_image_analyze(recording, tmp_path):
     assert report["cross_range"]["ratio_to_theory"] == pytest.approx(1.0, abs=0.05)
 
 
+def test_image_with_ffbp_equals_the_direct_image(recording, tmp_path):
+    """``--algorithm ffbp``: the same image as the direct kernel within -40 dB (all channels, the whole
+    pass), the plan's error figures in the file; a volume grid is a one-line error."""
+    grid = "-0.4:0.4:0.002,1.8:2.2:0.004"
+    images = {}
+    for algorithm in ("direct", "ffbp"):
+        out = tmp_path / f"{algorithm}.h5"
+        res = sarbot("image", recording, "-o", out, "--radar", "left_front", "--grid", grid, "--algorithm", algorithm)
+        assert res.returncode == 0, res.stderr
+        with h5py.File(out) as f:
+            images[algorithm] = f["image"][()].astype(complex)
+            attrs = dict(f.attrs)
+    assert attrs["method"] == "ffbp-linear" and attrs["ffbp_levels"] >= 3
+    err = 20 * np.log10(np.linalg.norm(images["ffbp"] - images["direct"]) / np.linalg.norm(images["direct"]))
+    assert err < -40.0 and err < attrs["ffbp_error_bound_db"]
+    assert abs(err - attrs["ffbp_error_estimate_db"]) < 8.0
+    res = sarbot("image", recording, "-o", tmp_path / "v.h5", "--grid", "-0.1:0.1:0.01,1.9:2.1:0.01,0:0.6:0.1", "--algorithm", "ffbp")
+    assert_user_error(res, "horizontal plane", "volume")
+
+
 def test_analyze_several_images_fits_integration_gain(tmp_path):
     scene = tmp_path / "noisy.toml"
     scene.write_text(
