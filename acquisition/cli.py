@@ -730,8 +730,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--oversample", type=int, default=16, help="range FFT zero-padding factor (default 16: >= 60 dB signal-to-error with linear interpolation)")
     s.add_argument("--algorithm", default="direct", choices=["direct", "ffbp"],
                    help="direct: every profile onto every pixel (default); ffbp: fast factorized backprojection, "
-                        "a horizontal plane to one side of the track, 15-20x faster on a 2 m aperture at about "
-                        "-43 dB from the direct image (its bound and estimate go into the file)")
+                        "a horizontal plane to one side of the track, about 25x faster on a 2 m aperture at about "
+                        "-44 dB from the direct image (its bound and estimate go into the file)")
     s.add_argument("--tx", help="TX channels, e.g. 0,2 (default all)")
     s.add_argument("--rx", help="RX channels, e.g. 0 (default all)")
     s.add_argument("--png", help="where to write the PNG (default: beside the image)")
