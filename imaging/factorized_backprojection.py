@@ -9,19 +9,21 @@ pairwise up a balanced tree:
   range r = |g - c| and alpha = cos(angle to the subaperture's axis u) = u . (g - c) / r. The grid holds
   the image times exp(+j k 2r) ("demodulated"): baseband in range (the profile's bandwidth) and, in
   alpha, within +-(2 / lambda) x the subaperture's half-length, so that it can be interpolated.
-* **Merges.** A parent (twice the aperture, a grid twice as fine in alpha, the same in range) takes each
-  grid point g, finds it in each child's polar coordinates, interpolates the child there and re-references
+* **Merges.** A parent (twice the aperture, so a finer grid in alpha) takes each grid point g, finds it in each child's polar coordinates, interpolates the child there and re-references
   the phase from the child's centre to its own: ``D_parent(g) = sum D_child(g) exp(-j k 2 (|g - c_child| -
   |g - c_parent|))``.
-* **Pixels.** The root is interpolated at every pixel and given back its phase ``exp(-j k 2 |g - c|)``.
+* **Pixels.** Each root is interpolated at every pixel and given back its phase ``exp(-j k 2 |g - c|)``.
+  Merging stops where a parent's grid would cost more than that: near the aperture a subaperture as long
+  as the range has range curvature, which needs a fine range grid.
 
 So the cost is P x (leaf grid) + levels x (grid samples) x 2 x taps^2 + N x taps^2, nearly independent of
 N x P: the longer the aperture and the larger the image, the larger the gain.
 
 Geometry. Positions are float64 world coordinates. Each subaperture's axis is the horizontal principal
 direction of its antennas' phase centres (so a curved drive is followed piecewise); the image must lie on
-one side of every axis (a side-looking radar). The alpha sampling comes from the subaperture's actual
-extent along and across its axis, so vibration or a bend widens the grid rather than aliasing it.
+one side of every axis (a side-looking radar). A grid's range and alpha spacing come from the largest
+derivatives of |g - m| - |g - c| over its phase centres m and the region it covers, so range curvature,
+vibration or a bend widen the grid rather than alias it.
 
 Interpolation. Separable, ``taps`` x ``taps`` per sample, with coefficients that minimise the squared error
 over the band the grid is oversampled for (the optimum for band-limited signals, Knab's kind of
@@ -41,6 +43,7 @@ import numpy as np
 from imaging.backprojection import backproject
 from imaging.core.config import require
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
+from imaging.core.grid import Grid
 from imaging.range_compression import RangeProfiles
 
 #: Fractional shifts tabulated per interpolation kernel (the nearest is used: phase error <= pi / (2 os NF)).
@@ -48,7 +51,6 @@ TABLE_SHIFTS = 2048
 #: The designed band exceeds the Nyquist band of the oversampled grid by this factor (margin for the
 #: bandwidth estimates: the bistatic offsets, the envelope's own variation).
 BAND_MARGIN = 1.05
-_GEOM = 11  # cx, cy, cz, ux, uy, nx, ny, r0, dr, a0, da
 
 
 @dataclasses.dataclass(frozen=True)
@@ -211,16 +213,19 @@ class Subaperture:
         c, u, n = self.centre_m, self.axis, self.normal
         return np.array([c[0], c[1], c[2], u[0], u[1], n[0], n[1], self.r0_m, self.dr_m, self.a0, self.da])
 
+    def plane_points(self, r: np.ndarray, alpha: np.ndarray, z_m: float, b_min_m: float = 0.0):
+        """The points of the plane z_m at range r and alpha (broadcast), [..., 3], and their distance b
+        from the axis (at least ``b_min_m``; points off the plane, never used, are put there)."""
+        h = z_m - self.centre_m[2]
+        b = np.sqrt(np.maximum(r * r * (1 - alpha * alpha) - h * h, b_min_m ** 2))
+        xy = self.centre_m[:2] + (alpha * r)[..., None] * self.axis + b[..., None] * self.normal
+        return np.concatenate([xy, np.full(xy.shape[:-1] + (1,), z_m)], axis=-1), b
+
     def polar_points(self, z_m: float, ir: np.ndarray | None = None, ia: np.ndarray | None = None) -> np.ndarray:
-        """World points of its grid (rows ``ir``, columns ``ia``; all by default), [nr, na, 3]; points
-        not on the plane, never used, are put on the axis."""
+        """World points of its grid (rows ``ir``, columns ``ia``; all by default), [nr, na, 3]."""
         ir = np.arange(self.nr) if ir is None else ir
         ia = np.arange(self.na) if ia is None else ia
-        r = self.r0_m + self.dr_m * ir[:, None]
-        along = (self.a0 + self.da * ia)[None, :] * r
-        b = np.sqrt(np.maximum(r * r - along * along - (z_m - self.centre_m[2]) ** 2, 0.0))
-        xy = self.centre_m[:2] + along[..., None] * self.axis + b[..., None] * self.normal
-        return np.concatenate([xy, np.full(xy.shape[:2] + (1,), z_m)], axis=-1)
+        return self.plane_points((self.r0_m + self.dr_m * ir)[:, None], (self.a0 + self.da * ia)[None, :], z_m)[0]
 
 
 @dataclasses.dataclass
@@ -324,13 +329,12 @@ def _extreme_points(m: np.ndarray, u: np.ndarray, n: np.ndarray) -> np.ndarray:
     return m[np.unique(np.concatenate([picks, np.arange(0, m.shape[0], stride)]))]
 
 
-def _polar_derivatives(node: Subaperture, m: np.ndarray, r: np.ndarray, alpha: np.ndarray, h: float):
+def _polar_derivatives(node: Subaperture, m: np.ndarray, r: np.ndarray, alpha: np.ndarray, z_m: float):
     """|d/dr| and |d/dalpha| of |g - m| - |g - c| over points g(r, alpha) of the plane and phase centres m,
     largest of each: with 2 / lambda they are the demodulated image's bandwidths."""
     u = np.array([*node.axis, 0.0])
     n = np.array([*node.normal, 0.0])
-    b = np.sqrt(np.maximum(r * r * (1 - alpha * alpha) - h * h, 1e-12))
-    g = node.centre_m + (alpha * r)[:, None] * u + b[:, None] * n + np.array([0.0, 0.0, h])
+    g, b = node.plane_points(r, alpha, z_m, b_min_m=1e-6)
     dg_dr = alpha[:, None] * u + (r * (1 - alpha ** 2) / b)[:, None] * n
     dg_da = r[:, None] * u - (alpha * r * r / b)[:, None] * n
     los = g[:, None, :] - m[None, :, :]
@@ -410,7 +414,7 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
         edge = slice(None, None, max(1, r.size // 48))
         rs, as_ = np.concatenate([r[edge], rq.ravel()]), np.concatenate([alpha[edge], aq.ravel()])
         centres = _extreme_points(m[node.start:node.stop], u, n)
-        f_r, f_a = _polar_derivatives(node, centres, rs, as_, h)
+        f_r, f_a = _polar_derivatives(node, centres, rs, as_, z_m)
         dr = 1.0 / (2 * (envelope + two_over_lambda * f_r) * BAND_MARGIN * o.oversample_range)
         da = min(1.0 / (2 * max(two_over_lambda * f_a, 1e-9) * BAND_MARGIN * o.oversample_angle), 0.1)
         node.dr_m, node.da = dr, da
@@ -486,12 +490,15 @@ def run_factorized(plan: FactorizedPlan, profiles: RangeProfiles, tx_m: np.ndarr
     tab_a = interpolation_table(o.taps, o.oversample_angle)
     k, z = plan.wavenumber, plan.z_m
 
+    def direct(node: Subaperture, points: np.ndarray, out=None) -> np.ndarray:
+        """The direct kernel: the node's profiles onto ``points``."""
+        a, b = node.start, node.stop
+        ref = None if reference_range_m is None else reference_range_m[a:b]
+        return backproject(_slice(profiles, a, b), tx[a:b], rx[a:b], points, reference_range_m=ref, mode=o.mode, out=out)
+
     def evaluate(node: Subaperture) -> np.ndarray:
         if not node.children:
-            pts = node.polar_points(z)
-            ref = None if reference_range_m is None else reference_range_m[node.start:node.stop]
-            img = backproject(_slice(profiles, node.start, node.stop), tx[node.start:node.stop], rx[node.start:node.stop],
-                              pts, reference_range_m=ref, mode=o.mode)
+            img = direct(node, node.polar_points(z))
             r = node.r0_m + node.dr_m * np.arange(node.nr)
             return (img * np.exp(2j * k * r)[:, None]).astype(np.complex64)
         d = np.zeros((node.nr, node.na), np.complex64)
@@ -505,13 +512,12 @@ def run_factorized(plan: FactorizedPlan, profiles: RangeProfiles, tx_m: np.ndarr
         out = np.zeros(shape, np.complex128)
     elif out.shape != shape or out.dtype != np.complex128:
         raise ValueError(f"out must be complex128 of shape {shape}, got {out.dtype} {out.shape}")
+    pixels = None
     for root in plan.roots:
         if root.direct:
-            xx, yy = np.meshgrid(plan.x_m, plan.y_m)
-            pts = np.stack([xx, yy, np.full_like(xx, z)], axis=-1)
-            ref = None if reference_range_m is None else reference_range_m[root.start:root.stop]
-            backproject(_slice(profiles, root.start, root.stop), tx[root.start:root.stop], rx[root.start:root.stop], pts,
-                        reference_range_m=ref, mode=o.mode, out=out)
+            if pixels is None:
+                pixels = Grid(plan.x_m, plan.y_m, np.array([z])).points()
+            direct(root, pixels, out=out)
         else:
             _to_plane(out, plan.x_m, plan.y_m, z, evaluate(root), root.geometry, k, tab_r, tab_a)
     return out

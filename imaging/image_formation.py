@@ -172,7 +172,6 @@ def form_image(
     reader = _BlockReader(recording, radar_name, trajectory, frames, options, time_window_ns, track_error)
     sel, frame_indices, trajectory, wf = reader.sel, reader.frame_indices, reader.trajectory, reader.radar.waveform
     image = np.zeros(grid.shape, np.complex128)
-    points = grid.points()
     mids, tracks_times, speeds = [], [], []
     boresights = []
     n_profiles = 0
@@ -183,6 +182,7 @@ def form_image(
     ffbp = options.algorithm == "ffbp"
     if ffbp and grid.z_m.size > 1:
         raise SarbotError("fast factorized backprojection images a horizontal plane; the grid is a volume (use the direct algorithm)")
+    points = None if ffbp else grid.points()
     held: list = []  # ffbp: every block's (profiles, tx, rx), imaged at the end
     with ThreadPoolExecutor(1, thread_name_prefix="range-compress") as pool:
         pending = pool.submit(prepare, starts[0]) if starts else None

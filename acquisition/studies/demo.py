@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import multiprocessing as mp
@@ -61,8 +62,6 @@ def _targets_in_start_frame(scene) -> list[tuple[str, np.ndarray]]:
 
 def demo_scene():
     """``demo_room`` with a reflector on the right as well (``RIGHT_REFLECTOR``)."""
-    import dataclasses
-
     scene = load_scene(SCENE)
     return dataclasses.replace(scene, targets=[*scene.targets, RIGHT_REFLECTOR])
 
