@@ -118,6 +118,10 @@ class BusSubscriber:
         """Messages lost on the bus so far, over all topics (sequence gaps)."""
         return sum(st.missed for st in self.stats.values())
 
+    def missed_by_topic(self) -> dict[str, int]:
+        """Messages lost on the bus so far, per topic with any lost."""
+        return {topic: st.missed for topic, st in self.stats.items() if st.missed}
+
     def _check(self, topic: str, publisher: str, seq: int) -> None:
         st = self.stats[topic]
         st.received += 1

@@ -13,6 +13,7 @@ from imaging import metrics
 from imaging.backprojection import backproject
 from imaging.core.errors import ConfigError
 from imaging.image_formation import ImagingOptions, frame_profiles
+from imaging.io.image_file import read_image
 from imaging.io.recording import Recording
 from imaging.sim.simulator import simulate_recording
 from imaging.stripmap import (
@@ -126,9 +127,10 @@ def test_bad_settings_name_the_field():
         StripMap().mosaic()
 
 
-def run_worker(drive, config, tmp_path):
+def run_worker(drive, config, tmp_path, lost=()):
     """Frames 20-39 of ``drive`` and their poses through a strip-map worker process; returns the tiles it
-    published last, its last status and the map file it wrote (checked equal to the tiles)."""
+    published last, its last status and the map file it wrote (checked equal to the tiles). Frames ``lost``
+    are numbered but never sent, as if dropped on the bus."""
     import multiprocessing as mp
     import time
 
@@ -163,6 +165,9 @@ def run_worker(drive, config, tmp_path):
     times = rec.frame_time_ns(RADAR)
     iq = rec.file[f"radar/{RADAR}/adc"]
     for k in range(20, 40):
+        if k in lost:
+            frames_pub._seq[RadarFrameMessage.topic_of(RADAR)] += 1
+            continue
         frame = iq[k]
         pub_iq = np.stack([frame.real, frame.imag], -1).round().astype(np.int16) if frame.dtype.kind == "c" else frame
         frames_pub.send(RadarFrameMessage(RADAR, RadarFrame(k, int(times[k]), time.time_ns(), True, 0, pub_iq)))
@@ -189,7 +194,8 @@ def run_worker(drive, config, tmp_path):
     worker.join(30)
     frames_pub.close(), poses_pub.close(), sub.close()
     assert worker.exitcode == 0
-    assert status is not None and status.frames_imaged == 20 and status.max_lag_s > 0 and status.tiles == len(tiles)
+    assert status is not None and status.frames_imaged == 20 - len(lost) and status.max_lag_s > 0
+    assert status.frames_lost_on_bus == len(lost) and status.tiles == len(tiles)
     img = read_image(map_path)
     n = img.attrs["tile_px"]
     x0 = min(k[0] for k in tiles) * n * pixel
@@ -204,8 +210,9 @@ def run_worker(drive, config, tmp_path):
 def test_the_worker_publishes_tiles_and_its_lag_and_writes_the_map(drive, tmp_path):
     """The strip-map worker as the daemon runs it (its own process, real ZeroMQ): radar frames and poses in,
     ``map/tile`` and ``map/status`` out, the map file equal to the last tiles it published."""
-    _, status, _ = run_worker(drive, StripMapConfig(presum=4), tmp_path)
+    _, status, _ = run_worker(drive, StripMapConfig(presum=4), tmp_path, lost=(25, 26, 31))
     assert status.tiles_refocused == 0
+    assert read_image(tmp_path / "map.h5").attrs["frames_lost_on_bus"] == 3  # the file says what it lacks
 
 
 def test_the_worker_refocuses_tiles_and_publishes_them(tmp_path):
@@ -298,3 +305,48 @@ def test_the_worker_accounts_for_every_frame_when_the_odometry_stops_short(drive
     assert st.frames_beyond_odometry == 6 and st.frames_skipped_invalid == 1 and st.frames_dropped_behind == 0
     assert st.frames_imaged + st.frames_standing_still + st.frames_beyond_odometry + st.frames_skipped_invalid == len(times)
     assert not worker.frames
+
+
+def test_a_frame_covered_by_a_single_pose_waits_for_the_next(drive):
+    """The odometry's first batch may hold one pose (a slow machine, the first scan): one pose is no
+    trajectory, so the frames it covers wait in the queue instead of being taken off it and lost uncounted
+    (what cost a CI run of the demo 5 frames)."""
+    from acquisition.bus import BusPublisher
+    from acquisition.messages import PoseBatch, RadarFrameMessage
+    from acquisition.workers.stripmap import StripMapWorker, StripMapWorkerConfig
+    from drivers.radar.stream import RadarFrame
+    from imaging.core.rig import Rig
+    from imaging.core.samples import complex_to_iq
+
+    rec, radar, truth, order = drive
+    adc, times = rec.adc(RADAR), rec.frame_time_ns(RADAR)
+    config = StripMapConfig(pixel_m=0.02, aperture_m=0.3, range_min_m=1.5, range_max_m=2.5, z_m=0.3, presum=8)
+    worker = StripMapWorker(StripMapWorkerConfig(Rig((radar,)), None, config, "tcp://unused:1", "unused.h5"), None)
+    for k in range(4):
+        frame = RadarFrame(k, int(times[k]), int(times[k]), True, 0, complex_to_iq(adc[k], 1000.0))
+        worker.handle(RadarFrameMessage(RADAR, frame), live=True)
+    first = truth.time_ns[truth.time_ns > times[3] + radar.waveform.frame_duration_ns][:1]  # covers all four
+    s = truth.sample(first)
+    worker.handle(PoseBatch(first, s.position_m, s.orientation_xyzw, s.velocity_mps), live=True)
+    for _ in range(10):  # ten live steps with that one pose
+        worker._image_ready(budget_s=None)
+    assert len(worker.frames) == 4 and worker.status.frames_imaged + worker.status.frames_standing_still == 0
+    rest = truth.time_ns[truth.time_ns > first[0]]
+    s = truth.sample(rest)
+    worker.handle(PoseBatch(rest, s.position_m, s.orientation_xyzw, s.velocity_mps), live=True)
+    worker._image_ready(budget_s=None)
+    st = worker.status
+    assert not worker.frames and st.frames_imaged + st.frames_standing_still == 4
+    # Ended with a single pose ever: the frames are counted as beyond the odometry, not lost.
+    pub = BusPublisher("tcp://127.0.0.1:*")
+    try:
+        lone = StripMapWorker(StripMapWorkerConfig(Rig((radar,)), None, config, "tcp://unused:1", "unused.h5"), pub)
+        frame = RadarFrame(0, int(times[0]), int(times[0]), True, 0, complex_to_iq(adc[0], 1000.0))
+        lone.handle(RadarFrameMessage(RADAR, frame), live=True)
+        s = truth.sample(first)
+        lone.handle(PoseBatch(first, s.position_m, s.orientation_xyzw, s.velocity_mps), live=True)
+        lone.finish()
+    finally:
+        pub.close()
+    assert lone.status.frames_beyond_odometry == 1 and not lone.frames
+

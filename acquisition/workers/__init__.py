@@ -55,6 +55,10 @@ class Worker:
         """True for the message after which nothing more is expected."""
         return False
 
+    def lost_on_bus(self, missed: dict[str, int]) -> None:
+        """Messages lost on the bus so far by topic (sequence gaps: a full queue), given before every step
+        and before ``finish``, for the worker to account for them in its results."""
+
     def finish(self) -> None:
         """After draining: the last results onto the bus."""
 
@@ -75,6 +79,7 @@ def run_worker(worker: Worker, sub: BusSubscriber, stop, state=None) -> None:
             worker.handle(decode(msg), live=True)
             received += 1
             msg = sub.receive(timeout_ms=0) if received < MAX_BATCH else None
+        worker.lost_on_bus(sub.missed_by_topic())
         worker.step()
         if state is not None and time.monotonic() - last_state >= 1.0:
             state()
@@ -88,8 +93,13 @@ def run_worker(worker: Worker, sub: BusSubscriber, stop, state=None) -> None:
         quiet_until = time.monotonic() + worker.drain_quiet_s
         message = decode(msg)
         if worker.drained(message):
+            # The end marker comes on an endpoint of its own: what the drivers sent before it may still be
+            # queued on theirs, and is handled rather than left in the socket.
+            while (msg := sub.receive(timeout_ms=0)) is not None:
+                worker.handle(decode(msg), live=False)
             break
         worker.handle(message, live=False)
+    worker.lost_on_bus(sub.missed_by_topic())
     worker.finish()
 
 

@@ -123,6 +123,9 @@ class StripMapWorker(Worker):
             frames.popleft()
             status.frames_dropped_behind += 1
 
+    def lost_on_bus(self, missed: dict[str, int]) -> None:
+        self.status.frames_lost_on_bus = sum(missed.get(RadarFrameMessage.topic_of(n), 0) for n in self.radars)
+
     def drained(self, message) -> bool:
         return isinstance(message, PoseEnd)
 
@@ -152,11 +155,11 @@ class StripMapWorker(Worker):
                 frames.popleft()  # never covered by the odometry: the drive ended
                 status.frames_beyond_odometry += 1
                 continue
+            traj = traj or self._trajectory()
+            if traj is None:  # a single pose so far: the frame waits for the next (at the end, finish counts it)
+                return
             factor = 1 if final else self.catch_up_factor(name)
             frames.popleft()
-            traj = traj or self._trajectory()
-            if traj is None:
-                return
             t0 = time.monotonic()
             footprint = self.map.add_frame(self.radars[name], self.orders[name], iq_to_complex(iq), t_frame, traj,
                                            presum=self.config.map.presum * factor)
