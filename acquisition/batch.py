@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 import logging
 import os
 import time
@@ -26,8 +27,10 @@ from imaging.core.errors import SarbotError
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
-#: Imaging options a sweep may vary (ImagingOptions fields), and how their values are read.
-SWEEPABLE = {"mode": str, "window": str, "oversample": int}
+#: What a sweep may vary, and how its values are read: ImagingOptions fields, the autofocus method and the
+#: synthetic aperture (metres of track, centred in the frames).
+IMAGING_OPTIONS = {"mode": str, "window": str, "oversample": int, "algorithm": str}
+SWEEPABLE = {**IMAGING_OPTIONS, "autofocus": str, "aperture_m": float}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,6 +46,8 @@ class ImageJob:
     options: tuple[tuple[str, object], ...] = ()  # ImagingOptions fields
     png: bool = False
     threads: int | None = None  # backprojection threads in the worker
+    autofocus: str = "none"  # AutofocusOptions.method
+    aperture_m: float | None = None  # only the central metres of the frames' track
 
     @property
     def label(self) -> str:
@@ -56,6 +61,7 @@ def run_job(job: ImageJob) -> dict:
     try:
         import numba
 
+        from imaging.autofocus import AutofocusOptions
         from imaging.image_formation import ImagingOptions, image_recording, image_title
         from imaging.io.image_file import write_image
         from imaging.io.recording import Recording
@@ -64,7 +70,8 @@ def run_job(job: ImageJob) -> dict:
             numba.set_num_threads(max(1, min(job.threads, numba.config.NUMBA_NUM_THREADS)))
         with Recording(job.recording) as rec:
             img = image_recording(rec, job.radar, job.grid, job.trajectory, slice(*job.frames),
-                                  ImagingOptions(**dict(job.options)))
+                                  ImagingOptions(**dict(job.options)), autofocus=AutofocusOptions(method=job.autofocus),
+                                  aperture_m=job.aperture_m)
         path = write_image(job.output, img)
         if job.png:
             from imaging.plot import save_image_png
@@ -73,7 +80,9 @@ def run_job(job: ImageJob) -> dict:
         mag = np.abs(img.image)
         k = np.unravel_index(int(np.argmax(mag)), mag.shape)
         return {"output": str(path), "label": job.label, "radar": img.attrs["radar"], "frames": img.attrs["frames"],
-                "options": dict(job.options), "peak": float(mag[k]), "peak_index": [int(i) for i in k],
+                "options": dict(job.options), "autofocus": job.autofocus, "aperture_m": job.aperture_m,
+                "aperture_length_m": float(img.attrs["aperture_length_m"]),
+                "peak": float(mag[k]), "peak_index": [int(i) for i in k],
                 "n_profiles": int(img.attrs["n_profiles"]), "seconds": time.perf_counter() - started,
                 "worker_pid": os.getpid(), "error": None}
     except (SarbotError, OSError, ValueError) as exc:
@@ -101,6 +110,7 @@ def plan_jobs(recordings, grid: str, out_dir, *, radar: str | None = None, frame
               tile_frames: int | None = None, sweep: list[dict] = ({},), base_options: dict | None = None,
               trajectory: str = "truth", png: bool = False, threads: int | None = None) -> list[ImageJob]:
     """Recordings x tiles (``tile_frames`` consecutive frames each, within ``frames``) x sweep points."""
+    from imaging.autofocus import AutofocusOptions
     from imaging.image_formation import ImagingOptions, choose_radar
     from imaging.io.recording import Recording
 
@@ -117,11 +127,16 @@ def plan_jobs(recordings, grid: str, out_dir, *, radar: str | None = None, frame
         else:
             tiles = [tuple(frames)]
         for (a, b), point in itertools.product(tiles, sweep):
-            options = {**(base_options or {}), **point}
+            chosen = {**(base_options or {}), **point}
+            options = {k: v for k, v in chosen.items() if k in IMAGING_OPTIONS}
             ImagingOptions(**options)  # bad values fail here, before any work is sent
+            autofocus = AutofocusOptions(method=chosen.get("autofocus", "none")).method
+            aperture_m = chosen.get("aperture_m")
+            if aperture_m is not None and not (math.isfinite(aperture_m) and aperture_m > 0):
+                raise SarbotError(f"aperture_m {aperture_m}: must be a positive length in metres")
             parts = [rec_path.stem] + ([f"f{a}-{b}"] if tile_frames else []) + [f"{k}{v}" for k, v in point.items()]
             jobs.append(ImageJob(str(rec_path), radar, grid, str(out_dir / ("_".join(parts) + ".h5")), (a, b), trajectory,
-                                 tuple(sorted(options.items())), png, threads))
+                                 tuple(sorted(options.items())), png, threads, autofocus, aperture_m))
     outputs = [j.output for j in jobs]
     if len(set(outputs)) != len(outputs):
         raise SarbotError("two jobs would write the same file (two recordings of the same name?); give them distinct names")

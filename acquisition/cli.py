@@ -117,7 +117,8 @@ def cmd_image(args) -> int:
     autofocus = AutofocusOptions(method=args.autofocus, sinusoids=args.autofocus_sinusoids)
     with Recording(args.recording) as rec:
         img = image_recording(rec, args.radar, args.grid, args.trajectory, _parse_frames(args.frames), options,
-                              progress=Progress("backproject"), autofocus=autofocus, imu_aided=args.imu_aided)
+                              progress=Progress("backproject"), autofocus=autofocus, imu_aided=args.imu_aided,
+                              aperture_m=args.aperture)
     path = write_image(out, img)
     # A volume is shown as its maximum over height.
     save_image_png(png, img.image, img.x_m, img.y_m, title=image_title(img))
@@ -153,7 +154,8 @@ def cmd_batch(args) -> int:
         raise SarbotError(f"--tile-frames {args.tile_frames}: must be at least 1")
     frames = _parse_frames(args.frames)
     threads = None if args.scheduler else max(1, (os.cpu_count() or 1) // args.workers)
-    base = {"mode": args.mode, "window": args.window, "oversample": args.oversample}
+    base = {"mode": args.mode, "window": args.window, "oversample": args.oversample, "algorithm": args.algorithm,
+            "autofocus": args.autofocus, "aperture_m": args.aperture}
     jobs = plan_jobs(args.recordings, args.grid, args.output, radar=args.radar, frames=(frames.start, frames.stop),
                      tile_frames=args.tile_frames, sweep=parse_sweep(args.sweep), base_options=base,
                      trajectory=args.trajectory, png=args.png, threads=threads)
@@ -723,6 +725,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-o", "--output", required=True, help="image file to write (.h5); a PNG goes beside it")
     s.add_argument("--radar", help="radar name (needed when the recording has several)")
     s.add_argument("--frames", help="frame range A:B (B excluded); all by default")
+    s.add_argument("--aperture", type=float, metavar="METRES",
+                   help="image only the central METRES of the frames' track (a synthetic aperture of that length)")
     s.add_argument("--grid", required=True, help="x0:x1:dx,y0:y1:dy[,z or z0:z1:dz] in metres, world frame")
     s.add_argument("--trajectory", default="truth", help="'truth' or a trajectory HDF5 file")
     s.add_argument("--mode", default="linear", choices=["nearest", "linear", "exact"])
@@ -749,7 +753,8 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("batch", help="many images on a Dask cluster: recordings, tiles of a long drive, parameter sweeps",
                        epilog="examples: sarbot batch a.h5 b.h5 c.h5 d.h5 --grid -0.5:0.5:0.004,1.5:2.5:0.004 -o images/; "
                               "sarbot batch drive.h5 --tile-frames 40 --grid ... -o tiles/; "
-                              "sarbot batch pass.h5 --sweep mode=nearest,linear --sweep oversample=8,16 --grid ... -o sweep/ "
+                              "sarbot batch pass.h5 --sweep aperture_m=0.14,0.34,1.0 --sweep autofocus=none,entropy "
+                              "--grid ... -o sweep/ "
                               "--scheduler tcp://cluster:8786")
     s.add_argument("recordings", nargs="+", help="recording files")
     s.add_argument("--grid", required=True, help="x0:x1:dx,y0:y1:dy[,z] in metres, world frame (as for image)")
@@ -758,11 +763,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--frames", help="frame range A:B (B excluded) of every recording; all by default")
     s.add_argument("--tile-frames", type=int, help="one image per this many consecutive frames (a long drive, tile by tile)")
     s.add_argument("--sweep", action="append", metavar="KEY=V1,V2,...",
-                   help="vary an option (mode, window, oversample); several --sweep make every combination")
+                   help="vary an option (mode, window, oversample, algorithm, autofocus, aperture_m); several --sweep "
+                        "make every combination")
     s.add_argument("--trajectory", default="truth", help="'truth' or a trajectory HDF5 file, for every recording")
     s.add_argument("--mode", default="linear", choices=["nearest", "linear", "exact"])
     s.add_argument("--window", default="hann", choices=["rectangular", "hann", "hamming", "taylor"])
     s.add_argument("--oversample", type=int, default=16)
+    s.add_argument("--algorithm", default="direct", choices=["direct", "ffbp"], help="as for image (default direct)")
+    s.add_argument("--autofocus", default="none", choices=["none", "pga", "entropy"], help="as for image (default none)")
+    s.add_argument("--aperture", type=float, metavar="METRES", help="as for image: only the central METRES of each track")
     s.add_argument("--png", action="store_true", help="a PNG beside every image")
     s.add_argument("--scheduler", metavar="ADDRESS", help="a running dask.distributed scheduler (tcp://host:8786); its "
                    "workers need sarbot and the files at the same paths. Default: a local cluster")

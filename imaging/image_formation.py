@@ -339,12 +339,13 @@ def choose_radar(recording: Recording, radar: str | None) -> str:
 
 def image_recording(recording: Recording, radar: str | None, grid_spec: str, trajectory: str = "truth",
                     frames: slice = slice(None), options: ImagingOptions | None = None, progress=None,
-                    autofocus=None, imu_aided: bool = False) -> SarImage:
+                    autofocus=None, imu_aided: bool = False, aperture_m: float | None = None) -> SarImage:
     """What ``sarbot image`` (and every job of ``sarbot batch``) forms: ``radar`` (None: the only one),
     on ``trajectory`` ("truth" or a trajectory file), on the grid ``x0:x1:dx,y0:y1:dy[,z]`` whose height
     defaults to the radar's mean height over the recording; autofocused with ``autofocus``
     (``AutofocusOptions``) unless it is None or its method "none", the track first corrected by the radar's
-    own IMU with ``imu_aided``."""
+    own IMU with ``imu_aided``; only the central ``aperture_m`` of the frames' track if given
+    (``central_aperture``)."""
     from imaging.io.trajectory_file import read_trajectory
 
     radar = choose_radar(recording, radar)
@@ -354,9 +355,51 @@ def image_recording(recording: Recording, radar: str | None, grid_spec: str, tra
     mount_z = float(recording.radar(radar).mount.translation_m[2])
     z0 = float(np.mean(traj.position_m[:, 2])) + mount_z if hasattr(traj, "position_m") else 0.0
     grid = Grid.parse(grid_spec, default_z_m=z0)
+    window = None
+    if aperture_m is not None:
+        frames, window = central_aperture(recording, radar, traj, frames, aperture_m)
     if imu_aided or autofocus is not None and autofocus.method != "none":
-        return focus_image(recording, radar, grid, traj, frames, options, autofocus, progress=progress, imu_aided=imu_aided)
-    return form_image(recording, radar, grid, traj, frames, options, progress=progress)
+        return focus_image(recording, radar, grid, traj, frames, options, autofocus, time_window_ns=window,
+                           progress=progress, imu_aided=imu_aided)
+    return form_image(recording, radar, grid, traj, frames, options, time_window_ns=window, progress=progress)
+
+
+def central_aperture(recording: Recording, radar_name: str, trajectory: Trajectory, frames: slice,
+                     aperture_m: float) -> tuple[slice, tuple[int, int]]:
+    """The chirps of ``frames`` whose bistatic phase centres (every RX of the chirp's TX) lie within
+    ``aperture_m`` / 2 of the middle of those the frames cover, along their main direction (the length
+    ``aperture_length_m`` gives the image): the frames holding them and their time window (``form_image``'s
+    ``time_window_ns``). An aperture longer than the frames cover is an error."""
+    if not (np.isfinite(aperture_m) and aperture_m > 0):
+        raise SarbotError(f"aperture {aperture_m} m: must be a positive length")
+    sel = _parse_frames(frames, recording.n_frames(radar_name), recording.path)
+    config = recording.radar(radar_name)
+    wf = config.waveform
+    times = chirp_times_ns(recording.frame_time_ns(radar_name, sel), wf.chirps_per_frame, wf.chirp_interval_s).ravel()
+    tx_index = np.tile(np.asarray(recording.tdm_tx_order(radar_name)), sel.stop - sel.start)
+    track = antenna_track(config, trajectory, times, tx_index)
+    centres = 0.5 * (track.tx_m[:, None, :] + track.rx_m)  # [chirps, rx, 3]
+    flat = centres.reshape(-1, 3)
+    _, _, vt = np.linalg.svd(flat[:: max(1, flat.shape[0] // 4096)] - flat.mean(axis=0), full_matrices=False)
+    along = centres @ vt[0]
+    lo, hi = along.min(axis=1), along.max(axis=1)
+    length = float(hi.max() - lo.min())
+    if length < aperture_m:
+        raise SarbotError(f"{recording.path}: radar {radar_name}, frames {sel.start}:{sel.stop}: the track is "
+                          f"{length:.3f} m long, shorter than the aperture of {aperture_m} m asked for")
+    middle = 0.5 * (hi.max() + lo.min())
+    inside = (lo >= middle - aperture_m / 2) & (hi <= middle + aperture_m / 2)
+    # The longest run of chirps all inside: the TX lead or trail one another along the track, so a window
+    # from the first chirp inside to the last would take in other TXs' chirps beyond the ends.
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], inside.view(np.int8), [0]])))
+    if edges.size == 0:
+        raise SarbotError(f"aperture {aperture_m} m: shorter than one chirp's phase centres span; nothing to image")
+    starts, stops = edges[0::2], edges[1::2]
+    k = int(np.argmax(stops - starts))
+    first, last = int(starts[k]), int(stops[k]) - 1
+    per_frame = wf.chirps_per_frame
+    window = (int(times[first]), int(times[last]) + 1)
+    return slice(sel.start + first // per_frame, sel.start + last // per_frame + 1), window
 
 
 def image_title(img: SarImage) -> str:

@@ -42,7 +42,7 @@ def test_jobs_are_recordings_times_tiles_times_sweeps(recordings, tmp_path):
     assert {j.frames for j in jobs if j.recording == str(recordings[0])} == {(0, 3), (3, 6), (6, 8)}
     assert len({j.output for j in jobs}) == len(jobs)
     assert jobs[0].output.endswith("pass0_f0-3_modenearest_oversample8.h5")
-    for bad, message in ((["size=1,2"], "KEY one of mode, window, oversample"), (["oversample=x"], "takes int values"),
+    for bad, message in ((["size=1,2"], "KEY one of mode, window, oversample, algorithm, autofocus, aperture_m"), (["oversample=x"], "takes int values"),
                          (["mode"], "expected KEY=V1,V2")):
         with pytest.raises(SarbotError, match=message):
             parse_sweep(bad)
@@ -95,3 +95,44 @@ def test_the_command_reports_a_broken_recording_and_keeps_the_others(recordings,
     again = subprocess.run([*CLI, "-q", "batch", str(recordings[0]), "--grid", GRID, "-o", str(out)],
                            capture_output=True, text=True, timeout=300)
     assert again.returncode == 2 and "exists already" in again.stderr  # never over an image unasked
+
+
+def test_a_sweep_over_aperture_algorithm_and_autofocus(recordings, tmp_path):
+    """The sweeps the studies need: the synthetic aperture (metres of track, centred in the frames), the
+    algorithm and the autofocus method, each job the image `sarbot image` makes with the same options."""
+    from imaging import metrics
+
+    sweep = parse_sweep(["aperture_m=0.1,0.2", "algorithm=direct,ffbp"])
+    jobs = plan_jobs(recordings[:1], GRID, tmp_path, sweep=sweep, threads=1)
+    assert [(j.aperture_m, dict(j.options)["algorithm"]) for j in jobs] == [(0.1, "direct"), (0.1, "ffbp"),
+                                                                           (0.2, "direct"), (0.2, "ffbp")]
+    results = {(r["aperture_m"], r["options"]["algorithm"]): r for r in map(run_job, jobs)}
+    assert all(r["error"] is None for r in results.values()), results
+    images = {k: read_image(r["output"]) for k, r in results.items()}
+    width = {}
+    for aperture in (0.1, 0.2):
+        direct, ffbp = images[(aperture, "direct")], images[(aperture, "ffbp")]
+        assert abs(direct.attrs["aperture_length_m"] / aperture - 1) < 0.03, direct.attrs["aperture_length_m"]
+        err = np.sum(np.abs(ffbp.image - direct.image) ** 2) / np.sum(np.abs(direct.image) ** 2)
+        assert 10 * np.log10(err) < -35
+        a = metrics.analyze_target(direct.image, direct.x_m, direct.y_m, direct.attrs["look_direction"], near_m=(0.0, 2.0),
+                                   radius_m=0.1, half_length_m=0.25)
+        width[aperture] = a["cross_range"]["half_power_width_m"]
+    assert 1.7 < width[0.1] / width[0.2] < 2.3  # twice the aperture, half the width
+    # The single command with the same options makes the same image, bit for bit.
+    single = tmp_path / "single.h5"
+    run = subprocess.run([*CLI, "-q", "image", str(recordings[0]), "-o", str(single), "--grid", GRID,
+                          "--aperture", "0.2", "--algorithm", "ffbp"], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    np.testing.assert_array_equal(read_image(single).image, images[(0.2, "ffbp")].image)
+    # Autofocus as a sweep axis: the method is in the image file and the summary.
+    focused = run_job(plan_jobs(recordings[:1], GRID, tmp_path / "af", sweep=parse_sweep(["autofocus=entropy"]))[0])
+    assert focused["error"] is None and focused["autofocus"] == "entropy"
+    assert read_image(focused["output"]).attrs["autofocus"] == "entropy"
+    # An aperture longer than the track is the job's error, naming the track's length; bad values fail at once.
+    long = run_job(plan_jobs(recordings[:1], GRID, tmp_path / "long", sweep=parse_sweep(["aperture_m=1.0"]))[0])
+    assert "shorter than the aperture of 1.0 m" in long["error"] and "the track is 0.4" in long["error"]
+    for bad, message in ((["aperture_m=x"], "takes float values"), (["algorithm=magic"], "algorithm"),
+                         (["autofocus=magic"], "method"), (["aperture_m=-1"], "positive length")):
+        with pytest.raises(SarbotError, match=message):
+            plan_jobs(recordings[:1], GRID, tmp_path, sweep=parse_sweep(bad))
