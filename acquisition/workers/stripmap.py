@@ -23,7 +23,8 @@ from . import Worker
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
-#: How far back the worker keeps poses (enough for frames waiting on the odometry's hold-back).
+#: How far back from the newest pose the worker keeps poses at least; further back as long as a queued frame
+#: needs them (a frame imaged on poses no longer held would be placed at the first pose held: smeared).
 POSE_WINDOW_NS = 5_000_000_000
 #: Longest a live imaging pass runs before the worker takes its messages again.
 STEP_BUDGET_S = 0.25
@@ -105,11 +106,11 @@ class StripMapWorker(Worker):
     def handle(self, message, live: bool) -> None:
         """A pose batch or a radar frame. Live, the pose window and the frame queue are kept bounded; when
         draining at the end, everything is kept for the last imaging pass."""
-        poses, frames, status = self.poses, self.frames, self.status
+        frames, status = self.frames, self.status
         if isinstance(message, PoseBatch):
             self._add_poses(message)
-            while live and len(poses) > 2 and poses[-1].time_ns[-1] - poses[1].time_ns[0] > POSE_WINDOW_NS:
-                poses.popleft()
+            if live:
+                self._forget_poses()
             return
         if not isinstance(message, RadarFrameMessage) or message.radar not in self.radars:
             return
@@ -125,6 +126,15 @@ class StripMapWorker(Worker):
 
     def lost_on_bus(self, missed: dict[str, int]) -> None:
         self.status.frames_lost_on_bus = sum(missed.get(RadarFrameMessage.topic_of(n), 0) for n in self.radars)
+
+    def _forget_poses(self) -> None:
+        """Drop the pose batches neither the last POSE_WINDOW_NS nor any queued frame needs."""
+        poses = self.poses
+        keep_from = int(poses[-1].time_ns[-1]) - POSE_WINDOW_NS
+        if self.frames:
+            keep_from = min(keep_from, int(self.frames[0][2]))
+        while len(poses) > 2 and poses[1].time_ns[0] <= keep_from:
+            poses.popleft()
 
     def drained(self, message) -> bool:
         return isinstance(message, PoseEnd)
