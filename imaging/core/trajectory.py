@@ -14,7 +14,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from imaging.core.errors import ConfigError
 
@@ -238,6 +238,25 @@ class PathWithTurns(Trajectory):
         return _planar_sample(time_ns, xy, heading, speed, curvature_all * speed, float(self.start_m[2]), accel)
 
 
+def _quat_from_rotvec(v: np.ndarray) -> np.ndarray:
+    """Unit quaternions (x, y, z, w) of rotation vectors [N, 3]."""
+    angle = np.linalg.norm(v, axis=1)
+    half = 0.5 * angle
+    # sin(a/2)/a, by its series where a is tiny (a^4/3840 is below double precision there)
+    scale = np.where(angle > 1e-4, np.sin(half) / np.where(angle > 1e-4, angle, 1.0), 0.5 - angle ** 2 / 48.0)
+    return np.concatenate([v * scale[:, None], np.cos(half)[:, None]], axis=1)
+
+
+def _quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton products p q of quaternions (x, y, z, w) [N, 4]: the rotation q, then p (scipy's p * q)."""
+    px, py, pz, pw = p.T
+    qx, qy, qz, qw = q.T
+    return np.stack([pw * qx + px * qw + py * qz - pz * qy,
+                     pw * qy - px * qz + py * qw + pz * qx,
+                     pw * qz + px * qy - py * qx + pz * qw,
+                     pw * qw - px * qx - py * qy - pz * qz], axis=1)
+
+
 class SampledTrajectory(Trajectory):
     """A trajectory known at discrete times, interpolated in between (and held constant outside)."""
 
@@ -259,21 +278,27 @@ class SampledTrajectory(Trajectory):
             velocity_mps = np.gradient(self.position_m, self._t, axis=0)
         self.velocity_mps = np.asarray(velocity_mps, dtype=np.float64)
         self._accel = np.gradient(self.velocity_mps, self._t, axis=0)
-        self._rotations = Rotation.from_quat(self.orientation_xyzw)
-        self._slerp = Slerp(self._t, self._rotations)
-        # Body angular rate per interval from consecutive attitudes: log(R_k^T R_{k+1}) / dt.
-        rel = self._rotations[:-1].inv() * self._rotations[1:]
-        self._omega_body = rel.as_rotvec() / np.diff(self._t)[:, None]
+        rotations = Rotation.from_quat(self.orientation_xyzw)
+        self._quat = rotations.as_quat()  # normalised
+        # Per interval: the rotation vector log(R_k^T R_{k+1}), and from it the body angular rate.
+        self._dt = np.diff(self._t)
+        self._step_rotvec = (rotations[:-1].inv() * rotations[1:]).as_rotvec()
+        self._omega_body = self._step_rotvec / self._dt[:, None]
         self.source = source
 
     def sample(self, time_ns: np.ndarray) -> TrajectorySample:
+        """Linear in position, velocity and acceleration; attitude by slerp, R_k exp(u log(R_k^T R_{k+1}))
+        (scipy's Slerp, in plain numpy: a live map samples a short trajectory thousands of times)."""
         t = np.clip(_seconds(time_ns, self.t0_ns), self._t[0], self._t[-1])
-        pos = np.column_stack([np.interp(t, self._t, self.position_m[:, k]) for k in range(3)])
-        vel = np.column_stack([np.interp(t, self._t, self.velocity_mps[:, k]) for k in range(3)])
-        quat = self._slerp(t).as_quat()
-        k = np.clip(np.searchsorted(self._t, t, side="right") - 1, 0, self._omega_body.shape[0] - 1)
-        acc = np.column_stack([np.interp(t, self._t, self._accel[:, j]) for j in range(3)])
-        return TrajectorySample(np.asarray(time_ns, np.int64).ravel(), pos, quat, vel, self._omega_body[k], acc)
+        k = np.clip(np.searchsorted(self._t, t, side="right") - 1, 0, self._dt.size - 1)
+        u = ((t - self._t[k]) / self._dt[k])[:, None]
+
+        def lerp(a: np.ndarray) -> np.ndarray:
+            return a[k] + u * (a[k + 1] - a[k])
+
+        quat = _quat_multiply(self._quat[k], _quat_from_rotvec(u * self._step_rotvec[k]))
+        return TrajectorySample(np.asarray(time_ns, np.int64).ravel(), lerp(self.position_m), quat,
+                                lerp(self.velocity_mps), self._omega_body[k], lerp(self._accel))
 
     @classmethod
     def from_trajectory(cls, trajectory: Trajectory, time_ns: np.ndarray, source: str | None = None):
