@@ -489,6 +489,8 @@ def run_workers(setup, args, out_dir: Path, stamp: str):
         raise SarbotError(f"--map-presum {args.map_presum!r}: expected 'auto' or a positive integer")
     config = StripMapConfig(pixel_m=args.map_pixel, aperture_m=args.map_aperture, range_min_m=args.map_range[0],
                             range_max_m=args.map_range[1], z_m=args.map_height, refocus=args.map_refocus)
+    if args.map_threads < 1:
+        raise SarbotError(f"--map-threads {args.map_threads}: must be at least 1")
     view = None
     if args.view:
         from .workers.view import parse_view_address
@@ -496,7 +498,7 @@ def run_workers(setup, args, out_dir: Path, stamp: str):
         view = parse_view_address(args.view)
     return add_pipeline_workers(setup, out_dir, stamp, config, args.max_speed,
                                 _names(args.map_radars, "--map-radars", names), _names(args.rio_radars, "--rio-radars", names),
-                                presum, view)
+                                presum, view, args.map_threads)
 
 
 def _names(text: str | None, option: str, known: set[str]) -> list[str]:
@@ -645,6 +647,8 @@ def cmd_demo(args) -> int:
 
     if not (math.isfinite(args.speed) and args.speed > 0):
         raise SarbotError(f"--speed {args.speed}: must be positive")
+    if args.map_threads < 1:
+        raise SarbotError(f"--map-threads {args.map_threads}: must be at least 1")
     view = None
     if args.view:
         from .workers.view import parse_view_address
@@ -851,6 +855,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "most whose phase spread stays within pi/4 at --max-speed)")
     s.add_argument("--max-speed", type=float, default=0.5, help="fastest the robot drives, m/s (sets automatic pre-summing)")
     s.add_argument("--map-radars", help="radars to image (comma-separated; default all)")
+    s.add_argument("--map-threads", type=int, default=1, help="threads of the map's backprojection (default 1: on a "
+                   "machine shared with the drivers a second one costs more CPU than it saves time)")
     s.add_argument("--rio-radars", help="radars the odometry uses (comma-separated; default all)")
     s.add_argument("--view", metavar="[HOST:]PORT",
                    help="serve the live map, pose, health and events on the Foxglove WebSocket protocol (loopback "

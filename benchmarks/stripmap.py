@@ -6,7 +6,9 @@ backprojection of the same data, for the settings that trade one for the other.
 Data: the demo scene (four reference radars, 0.4 m/s past a rod, a reflector and clutter), simulated once.
 Speed: every setting images the same frames of all four radars, interleaved as they arrive live, on this
 machine's two cores (the worker alone; the daemon's other processes are measured by acquisition.py).
-The sensor rate is 4 x 19.2 = 77 frames/s. Error: the left-front radar's map over the rod and reflector
+The sensor rate is 4 x 19.2 = 77 frames/s. The live worker runs its kernel on one thread
+(``StripMapWorkerConfig.threads``): the CPU time per frame of the default setting on one and on two
+threads says what a second thread costs a machine the map shares with the drivers. Error: the left-front radar's map over the rod and reflector
 against the exact matched filter (mode "exact", no pre-summing, same aperture limit), as error energy
 relative to the reference image, dB. The baseline is the default setting, run in the same process.
 
@@ -45,16 +47,34 @@ def frames_of(rec: Recording, names, first: int, count: int):
     return out
 
 
-def run(config: StripMapConfig, rec: Recording, frames, truth) -> tuple[StripMap, float]:
+def run(config: StripMapConfig, rec: Recording, frames, truth, cpu: list | None = None) -> tuple[StripMap, float]:
+    """The map of ``frames`` and the wall time it took; its process CPU time appended to ``cpu`` if given."""
     sm = StripMap(config)
     radars = {n: rec.radar(n) for n in rec.radar_names}
     orders = {n: rec.tdm_tx_order(n) for n in rec.radar_names}
     name, adc, t = frames[0]
     StripMap(config).add_frame(radars[name], orders[name], adc, t, truth)  # compile / warm caches
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     for name, adc, t in frames:
         sm.add_frame(radars[name], orders[name], adc, t, truth)
+    if cpu is not None:
+        cpu.append(time.process_time() - c0)
     return sm, time.perf_counter() - t0
+
+
+def cpu_by_threads(config: StripMapConfig, rec: Recording, frames, truth, repeats: int = 3) -> dict:
+    """CPU and wall time per frame of ``config`` with the kernel on 1 and on 2 threads (best of ``repeats``)."""
+    import numba
+
+    out = {}
+    for threads in (1, 2):
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+        cpu, wall = [], []
+        for _ in range(repeats):
+            wall.append(run(config, rec, frames, truth, cpu)[1])
+        out[str(threads)] = {"cpu_ms_per_frame": 1e3 * min(cpu) / len(frames), "wall_ms_per_frame": 1e3 * min(wall) / len(frames)}
+    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    return out
 
 
 def map_error_db(sm: StripMap, ref: StripMap) -> float:
@@ -93,6 +113,9 @@ def main(argv: list[str]) -> int:
                 settings.append((f"{mode} x{over}, presum {p}", cfg))
     print("reference: exact matched filter, no pre-summing ...", flush=True)
     ref, ref_s = run(dataclasses.replace(DEFAULT, mode="exact", presum=1), rec, error_frames, truth)
+    threads = cpu_by_threads(settings[0][1], rec, speed_frames, truth)
+    print("default setting, CPU per frame: " + ", ".join(f"{n} thread(s) {v['cpu_ms_per_frame']:.1f} ms"
+                                                         for n, v in threads.items()), flush=True)
     rows = []
     base_fps = None
     for label, cfg in settings:
@@ -114,7 +137,7 @@ def main(argv: list[str]) -> int:
         "scene": "demo_room", "radars": 4, "sensor_frames_per_s": sensor_fps, "frames_timed": len(speed_frames),
         "error_reference": "mode exact, presum 1, same aperture limit (0.3 m), left_front radar, "
                            f"{len(error_frames)} frames; reference took {ref_s:.1f} s",
-        "default": dataclasses.asdict(settings[0][1]), "rows": rows,
+        "default": dataclasses.asdict(settings[0][1]), "rows": rows, "default_by_kernel_threads": threads,
         "baseline": "the default setting in the same process",
     }
     RESULTS.mkdir(parents=True, exist_ok=True)

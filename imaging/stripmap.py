@@ -221,13 +221,13 @@ class StripMap:
         touched, masks, points = [], [], []
         for key in self.footprint_tiles(c_mean[None], l_mean[None]):
             x, y = self.tile_points(key)
-            gx, gy = np.meshgrid(x, y)
-            mask = self.footprint_mask(gx, gy, c_mean, l_mean)
+            mask = self.footprint_mask(x[None, :], y[:, None], c_mean, l_mean)  # [tile_px, tile_px], rows along y
             if not mask.any():
                 continue
+            iy, ix = np.nonzero(mask)
             touched.append(key)
             masks.append(mask)
-            points.append(np.stack([gx[mask], gy[mask], np.full(int(mask.sum()), cfg.z_m)], axis=1))
+            points.append(np.stack([x[ix], y[iy], np.full(iy.size, cfg.z_m)], axis=1))
         self.frames += 1
         self.profiles += profiles.data.shape[0]
         refocused = self._finish_tiles(set(touched)) if cfg.refocus != "none" else []

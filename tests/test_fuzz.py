@@ -90,7 +90,7 @@ def small_recording(tmp_path_factory):
 OPTIONS_RECORD = ["--radar", "--dca1000", "--imu-port", "--can", "--can-arg", "--can-trigger-id", "--duration",
                   "--split-size", "--split-time", "--min-free", "--health-endpoint"]
 OPTIONS_RUN = ["--view", "--map-aperture", "--map-pixel", "--map-range", "--map-height", "--map-presum", "--max-speed",
-               "--map-radars", "--rio-radars"]
+               "--map-radars", "--rio-radars", "--map-threads"]
 OPTIONS_REPLAY = ["--radar", "--speed", "--start-delay", "--laps", "--can-trigger-id"]
 
 
@@ -124,7 +124,7 @@ IMAGE_GRID = "-0.3:0.3:0.05,1.7:2.3:0.05"
 
 @FUZZ
 @given(option=st.sampled_from(["--grid", "--frames", "--tx", "--rx", "--mode", "--window", "--oversample", "--radar",
-                               "--trajectory"]), value=VALUES)
+                               "--trajectory", "--aperture", "--algorithm"]), value=VALUES)
 def test_image_options(tmp_path, small_recording, option, value):
     out = tmp_path / f"image_{abs(hash((option, value)))}.h5"
     argv = ["image", str(small_recording), "-o", str(out), "--grid", IMAGE_GRID, option, value]
