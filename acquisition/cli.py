@@ -647,8 +647,6 @@ def cmd_demo(args) -> int:
 
     if not (math.isfinite(args.speed) and args.speed > 0):
         raise SarbotError(f"--speed {args.speed}: must be positive")
-    if args.map_threads < 1:
-        raise SarbotError(f"--map-threads {args.map_threads}: must be at least 1")
     view = None
     if args.view:
         from .workers.view import parse_view_address
