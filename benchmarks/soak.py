@@ -20,7 +20,8 @@ invalid frames, restarts) and the workers' lag: the odometry's (last radar scan 
 the map's (last frame imaged). At the end: frames sent against frames recorded, memory per process after
 warm-up (its drift, goal within 20 MB, and its largest excursion), and the lag over the run (goal: flat).
 
-Writes docs/results/soak.json and docs/results/soak.png (docs/results/soak_quick.* with --quick).
+Writes docs/results/soak.json and docs/results/soak.png (docs/results/soak_quick.* with --quick); with other
+radars than the left pair, soak_<N>radars.* (all four: ``--radars left_front,left_rear,right_front,right_rear``).
 """
 
 from __future__ import annotations
@@ -361,7 +362,9 @@ def main() -> int:
     result["radars"] = radars
     result["commit"] = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
                                       text=True).stdout.strip()
-    stem = "soak_quick" if args.quick else "soak"
+    # The left pair (the default) writes soak.*; another set of radars a file of its own (soak_4radars.*).
+    stem = "soak" if radars == ["left_front", "left_rear"] else f"soak_{len(radars)}radars"
+    stem += "_quick" if args.quick else ""
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / f"{stem}.json").write_text(json.dumps(result, indent=1) + "\n")
     chart(result, RESULTS / f"{stem}.png")

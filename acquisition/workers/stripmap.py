@@ -43,8 +43,9 @@ class StripMapWorkerConfig:
     for poses at most ``max_queue_s`` (of sensor time) before the oldest are dropped, counted; before that,
     a backlog is imaged with more pre-summing (``catch_up_start_s``, ``catch_up_step_s``), counted too.
     ``threads``: the backprojection kernel's threads. One by default: beside the drivers, the recorder and
-    the odometry a second thread mostly waits for a core, and the same frames cost 45 % more CPU with two
-    (16 against 11 ms per frame on this two-core machine); more only where the map has cores to itself."""
+    the odometry a second thread mostly waits for a core, and the same frames cost more CPU with two (17.7
+    against 10.2 ms per frame on this two-core machine, benchmarks/stripmap.py); more only where the map has
+    cores to itself."""
 
     rig: Rig
     radars: list[str] | None
