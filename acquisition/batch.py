@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import math
 import logging
 import os
 import time
@@ -111,7 +110,7 @@ def plan_jobs(recordings, grid: str, out_dir, *, radar: str | None = None, frame
               trajectory: str = "truth", png: bool = False, threads: int | None = None) -> list[ImageJob]:
     """Recordings x tiles (``tile_frames`` consecutive frames each, within ``frames``) x sweep points."""
     from imaging.autofocus import AutofocusOptions
-    from imaging.image_formation import ImagingOptions, choose_radar
+    from imaging.image_formation import ImagingOptions, check_aperture_m, choose_radar
     from imaging.io.recording import Recording
 
     out_dir = Path(out_dir)
@@ -132,8 +131,8 @@ def plan_jobs(recordings, grid: str, out_dir, *, radar: str | None = None, frame
             ImagingOptions(**options)  # bad values fail here, before any work is sent
             autofocus = AutofocusOptions(method=chosen.get("autofocus", "none")).method
             aperture_m = chosen.get("aperture_m")
-            if aperture_m is not None and not (math.isfinite(aperture_m) and aperture_m > 0):
-                raise SarbotError(f"aperture_m {aperture_m}: must be a positive length in metres")
+            if aperture_m is not None:
+                check_aperture_m(aperture_m)  # before any work is sent
             parts = [rec_path.stem] + ([f"f{a}-{b}"] if tile_frames else []) + [f"{k}{v}" for k, v in point.items()]
             jobs.append(ImageJob(str(rec_path), radar, grid, str(out_dir / ("_".join(parts) + ".h5")), (a, b), trajectory,
                                  tuple(sorted(options.items())), png, threads, autofocus, aperture_m))

@@ -56,6 +56,7 @@ import scipy.optimize
 from imaging.backprojection import backproject, patch_order
 from imaging.core.config import require
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
+from imaging.core.geometry import principal_axis
 from imaging.range_compression import RangeProfiles  # noqa: F401 (ProfileBlock's type)
 
 log = logging.getLogger(f"sarbot.{__name__}")
@@ -249,8 +250,8 @@ def assemble_group_images(b: np.ndarray, time_s: np.ndarray, antenna_m: np.ndarr
     c = np.einsum("qk,qtk->qt", u, los) / np.linalg.norm(los, axis=2)
     bt = np.ascontiguousarray(b.reshape(b.shape[0], n_t, TILE).transpose(1, 0, 2))
     extent = antenna_m - antenna_m.mean(axis=0)
-    _, _, vt = np.linalg.svd(extent, full_matrices=False)
-    return GroupImages(bt, c, np.asarray(time_s, float), points_m, weight, k, float(np.ptp(extent @ vt[0])),
+    length_m = float(np.ptp(extent @ principal_axis(extent)))
+    return GroupImages(bt, c, np.asarray(time_s, float), points_m, weight, k, length_m,
                        antenna_m.mean(axis=0), antenna_m, range_resolution_m)
 
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from imaging.backprojection import backproject
 from imaging.core.errors import SarbotError
-from imaging.core.geometry import antenna_track, chirp_times_ns
+from imaging.core.geometry import antenna_track, chirp_times_ns, principal_axis
 from imaging.core.grid import Grid
 from imaging.core.rig import RadarConfig
 from imaging.core.trajectory import Trajectory
@@ -364,14 +364,19 @@ def image_recording(recording: Recording, radar: str | None, grid_spec: str, tra
     return form_image(recording, radar, grid, traj, frames, options, time_window_ns=window, progress=progress)
 
 
+def check_aperture_m(aperture_m: float) -> None:
+    """A synthetic aperture asked for must be a positive, finite length (SarbotError otherwise)."""
+    if not (np.isfinite(aperture_m) and aperture_m > 0):
+        raise SarbotError(f"aperture {aperture_m} m: must be a positive length")
+
+
 def central_aperture(recording: Recording, radar_name: str, trajectory: Trajectory, frames: slice,
                      aperture_m: float) -> tuple[slice, tuple[int, int]]:
     """The chirps of ``frames`` whose bistatic phase centres (every RX of the chirp's TX) lie within
     ``aperture_m`` / 2 of the middle of those the frames cover, along their main direction (the length
     ``aperture_length_m`` gives the image): the frames holding them and their time window (``form_image``'s
     ``time_window_ns``). An aperture longer than the frames cover is an error."""
-    if not (np.isfinite(aperture_m) and aperture_m > 0):
-        raise SarbotError(f"aperture {aperture_m} m: must be a positive length")
+    check_aperture_m(aperture_m)
     sel = _parse_frames(frames, recording.n_frames(radar_name), recording.path)
     config = recording.radar(radar_name)
     wf = config.waveform
@@ -380,8 +385,7 @@ def central_aperture(recording: Recording, radar_name: str, trajectory: Trajecto
     track = antenna_track(config, trajectory, times, tx_index)
     centres = 0.5 * (track.tx_m[:, None, :] + track.rx_m)  # [chirps, rx, 3]
     flat = centres.reshape(-1, 3)
-    _, _, vt = np.linalg.svd(flat[:: max(1, flat.shape[0] // 4096)] - flat.mean(axis=0), full_matrices=False)
-    along = centres @ vt[0]
+    along = centres @ principal_axis(flat[:: max(1, flat.shape[0] // 4096)])
     lo, hi = along.min(axis=1), along.max(axis=1)
     length = float(hi.max() - lo.min())
     if length < aperture_m:
@@ -415,11 +419,10 @@ def _horizontal_unit(v: np.ndarray) -> np.ndarray:
 def aperture_length_m(phase_centres_m: np.ndarray) -> float:
     """Length of a synthetic aperture: extent of the phase centres along their main direction, plus the
     mean spacing of distinct positions (N samples spaced d make an aperture N*d long)."""
-    c = phase_centres_m - phase_centres_m.mean(axis=0)
-    if c.shape[0] < 2:
+    if phase_centres_m.shape[0] < 2:
         return 0.0
-    _, _, vt = np.linalg.svd(c, full_matrices=False)
-    along = np.sort(c @ vt[0])
+    c = phase_centres_m - phase_centres_m.mean(axis=0)
+    along = np.sort(c @ principal_axis(c))
     extent = along[-1] - along[0]
     distinct = np.unique(np.round(along, 9))
     return float(extent + (extent / (distinct.size - 1) if distinct.size > 1 else 0.0))

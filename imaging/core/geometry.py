@@ -30,6 +30,13 @@ class Vibration:
         return -self.amplitude_m * w * w * np.sin(w * t_s + self.phase_rad)
 
 
+def principal_axis(points_m: np.ndarray) -> np.ndarray:
+    """The unit direction [3] along which points [N, 3] (an aperture's phase centres) spread most: the first
+    right singular vector of the points about their mean (its sign is arbitrary)."""
+    _, _, vt = np.linalg.svd(points_m - points_m.mean(axis=0), full_matrices=False)
+    return vt[0]
+
+
 @dataclasses.dataclass
 class AntennaTrack:
     """World positions (and velocities) of the TX that sent each chirp and of every RX.
