@@ -230,3 +230,25 @@ def test_damaged_recording(tmp_path, small_recording, data):
             rec.imu(), rec.events(), rec.triggers(), rec.can(), rec.truth()
     except SarbotError as exc:
         assert str(path) in str(exc) and "\n" not in str(exc).strip()
+
+
+def test_a_damaged_chunk_index_is_a_clear_error_at_open(tmp_path, small_recording):
+    """Each chunked dataset's index (an HDF5 extensible array, 'EAIB' blocks with their own checksums) damaged
+    in turn: the recording is refused at open, naming the file, instead of a raw OSError from the first read of
+    the data behind it (what hypothesis found with one flipped bit)."""
+    from imaging.io.recording import Recording
+
+    raw = small_recording.read_bytes()
+    blocks = [m.start() for m in re.finditer(b"EAIB", raw)]
+    assert len(blocks) >= 5  # one per appendable dataset: adc, time, counter, valid, imu ...
+    for offset in blocks:
+        damaged = bytearray(raw)
+        damaged[offset] ^= 1
+        path = tmp_path / f"index_{offset}.h5"
+        path.write_bytes(bytes(damaged))
+        with pytest.raises(SarbotError) as info:
+            with Recording(path) as rec:
+                for name in rec.radar_names:
+                    rec.adc_iq(name, slice(0, 2)), rec.frame_time_ns(name), rec.valid(name)
+                rec.imu(), rec.events(), rec.triggers(), rec.can(), rec.truth()
+        assert str(path) in str(info.value) and "damaged" in str(info.value) and "\n" not in str(info.value)

@@ -53,6 +53,10 @@ def _touch(name: str, obj) -> None:
     list(obj.attrs.keys())
     if isinstance(obj, h5py.Dataset):
         obj.shape, obj.dtype  # noqa: B018 - reading the header is the point
+        if obj.chunks is not None:
+            # Walks the chunk index (a B-tree or array with its own checksums): a damaged index is then
+            # caught here, not as a raw OSError from the first read of the data it points to.
+            obj.id.get_num_chunks()
 
 
 def _held_for_writing(exc: OSError) -> bool:
