@@ -28,7 +28,7 @@ log = logging.getLogger(f"sarbot.{__name__}")
 
 #: What a sweep may vary, and how its values are read: ImagingOptions fields, the autofocus method and the
 #: synthetic aperture (metres of track, centred in the frames).
-IMAGING_OPTIONS = {"mode": str, "window": str, "oversample": int, "algorithm": str}
+IMAGING_OPTIONS = {"mode": str, "window": str, "oversample": int, "algorithm": str, "aperture_window": str}
 SWEEPABLE = {**IMAGING_OPTIONS, "autofocus": str, "aperture_m": float}
 
 

@@ -24,7 +24,8 @@ def range_resolution_theory_m(bandwidth_hz: float, window: str = "hann") -> floa
 
 
 def cross_range_resolution_theory_m(wavelength_m: float, range_m: float, aperture_m: float, window: str = "rectangular") -> float:
-    """Half-power cross-range width: factor * lambda * r0 / (2 La) (uniformly weighted aperture)."""
+    """Half-power cross-range width: factor * lambda * r0 / (2 La), the factor that of the aperture's
+    slow-time ``window`` (rectangular: a uniformly weighted aperture, 0.88)."""
     return window_width_factor(window) * wavelength_m * range_m / (2.0 * aperture_m)
 
 
@@ -213,7 +214,8 @@ def compare_with_theory(result: dict, image: np.ndarray, x_m: np.ndarray, y_m: n
     aperture = float(attrs["aperture_length_m"])
     theory = {
         "range_half_power_width_m": range_resolution_theory_m(float(attrs["bandwidth_hz"]), str(attrs.get("window", "hann"))),
-        "cross_range_half_power_width_m": cross_range_resolution_theory_m(wavelength_m, r0, aperture),
+        "cross_range_half_power_width_m": cross_range_resolution_theory_m(
+            wavelength_m, r0, aperture, str(attrs.get("aperture_window", "rectangular"))),
         "aperture_length_m": aperture,
     }
     result["range_to_target_m"] = r0

@@ -129,10 +129,15 @@ def test_a_sweep_over_aperture_algorithm_and_autofocus(recordings, tmp_path):
     focused = run_job(plan_jobs(recordings[:1], GRID, tmp_path / "af", sweep=parse_sweep(["autofocus=entropy"]))[0])
     assert focused["error"] is None and focused["autofocus"] == "entropy"
     assert read_image(focused["output"]).attrs["autofocus"] == "entropy"
+    # So is the taper over the aperture.
+    tapered = run_job(plan_jobs(recordings[:1], GRID, tmp_path / "taper", sweep=parse_sweep(["aperture_window=taylor"]))[0])
+    assert tapered["error"] is None and tapered["options"]["aperture_window"] == "taylor"
+    assert read_image(tapered["output"]).attrs["aperture_window"] == "taylor"
     # An aperture longer than the track is the job's error, naming the track's length; bad values fail at once.
     long = run_job(plan_jobs(recordings[:1], GRID, tmp_path / "long", sweep=parse_sweep(["aperture_m=1.0"]))[0])
     assert "shorter than the aperture of 1.0 m" in long["error"] and "the track is 0.4" in long["error"]
     for bad, message in ((["aperture_m=x"], "takes float values"), (["algorithm=magic"], "algorithm"),
-                         (["autofocus=magic"], "method"), (["aperture_m=-1"], "positive length")):
+                         (["autofocus=magic"], "method"), (["aperture_m=-1"], "positive length"),
+                         (["aperture_window=magic"], "aperture_window")):
         with pytest.raises(SarbotError, match=message):
             plan_jobs(recordings[:1], GRID, tmp_path, sweep=parse_sweep(bad))

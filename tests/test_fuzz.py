@@ -124,7 +124,7 @@ IMAGE_GRID = "-0.3:0.3:0.05,1.7:2.3:0.05"
 
 @FUZZ
 @given(option=st.sampled_from(["--grid", "--frames", "--tx", "--rx", "--mode", "--window", "--oversample", "--radar",
-                               "--trajectory", "--aperture", "--algorithm"]), value=VALUES)
+                               "--trajectory", "--aperture", "--algorithm", "--aperture-window"]), value=VALUES)
 def test_image_options(tmp_path, small_recording, option, value):
     out = tmp_path / f"image_{abs(hash((option, value)))}.h5"
     argv = ["image", str(small_recording), "-o", str(out), "--grid", IMAGE_GRID, option, value]

@@ -72,6 +72,25 @@ def _crossing(power: np.ndarray, k: int, level: float, step: int) -> float:
     return i + step * frac
 
 
+def window_at(name: str, u: np.ndarray) -> np.ndarray:
+    """The window as a function of position across the span it tapers: ``u`` from 0 (one end) to 1 (the
+    other), float64 of ``u``'s shape; 0 outside [0, 1].
+
+    For a slow-time (aperture) taper, whose samples are the phase centres along the track, not a regular
+    grid. It is the same window as ``get_window`` (its half-power width factor holds for a span of length
+    L in units of 1/L), interpolated from 4097 samples.
+    """
+    u = np.asarray(u, float)
+    table = _symmetric_table(name)
+    return np.interp(u, np.linspace(0.0, 1.0, table.size), table, left=0.0, right=0.0)
+
+
+@functools.cache
+def _symmetric_table(name: str) -> np.ndarray:
+    w = get_window(name, 4096)
+    return np.append(w, w[0])  # the periodic window closed at its far end: symmetric over [0, 1]
+
+
 @functools.cache
 def window_width_factor(name: str) -> float:
     """Half-power width of the window's spectrum in units of 1/(n * step), computed numerically.
