@@ -86,32 +86,62 @@ class BusSubscriber:
     def __init__(self, endpoints: str | list[str] = DEFAULT_ENDPOINT, topics: list[str] = ("",),
                  context: zmq.Context | None = None, high_water_mark: int = 10_000,
                  high_water_marks: dict[str, int] | None = None):
-        """``high_water_marks``: a queue length of its own for some endpoints (ZeroMQ applies the option to
-        the connections made after it is set)."""
+        """``high_water_marks``: a queue length of its own for some endpoints (messages; beyond it ZeroMQ
+        drops, and the sequence gap is counted).
+
+        Endpoints with different queue lengths get sockets of their own: ZeroMQ (since 4.2) applies a
+        socket's ZMQ_RCVHWM to every connection it has, so a length set for one endpoint and another set
+        for the next would leave the first with the second's (a worker's 50-frame queue grew without
+        bound, 0.7 MB a frame, once the IMU's 10,000 was set after it). Messages are taken from ready
+        sockets in turn."""
         self.context = context or zmq.Context.instance()
-        self.socket = self.context.socket(zmq.SUB)
-        self.socket.setsockopt(zmq.LINGER, 0)
-        for t in topics:
-            self.socket.setsockopt(zmq.SUBSCRIBE, t.encode())
+        by_hwm: dict[int, list[str]] = defaultdict(list)
         for e in [endpoints] if isinstance(endpoints, str) else endpoints:
-            self.socket.setsockopt(zmq.RCVHWM, (high_water_marks or {}).get(e, high_water_mark))
-            self.socket.connect(e)
+            by_hwm[(high_water_marks or {}).get(e, high_water_mark)].append(e)
+        self.sockets: list[zmq.Socket] = []
+        self.poller = zmq.Poller()
+        for hwm, group in by_hwm.items():
+            sock = self.context.socket(zmq.SUB)
+            sock.setsockopt(zmq.LINGER, 0)
+            sock.setsockopt(zmq.RCVHWM, hwm)  # before any connect: the one length of all its connections
+            for t in topics:
+                sock.setsockopt(zmq.SUBSCRIBE, t.encode())
+            for e in group:
+                sock.connect(e)
+            self.sockets.append(sock)
+            self.poller.register(sock, zmq.POLLIN)
+        self._next = 0  # the socket to look at first, in turn: none starves the others
         self.stats: dict[str, TopicStats] = defaultdict(TopicStats)
         self._expected: dict[tuple[str, str], int] = {}  # (publisher, topic) -> next sequence number
-        self.poller = zmq.Poller()
-        self.poller.register(self.socket, zmq.POLLIN)
 
     def receive(self, timeout_ms: int | None = None) -> Message | None:
         """The next message, or None after ``timeout_ms``; arrays are views on the received frames."""
-        if timeout_ms is not None and not self.poller.poll(timeout_ms):
-            return None
-        parts = self.socket.recv_multipart(copy=False)
+        parts = self._recv_ready()
+        if parts is None:
+            if not self.poller.poll(timeout_ms if timeout_ms is not None else -1):
+                return None
+            parts = self._recv_ready()
+            if parts is None:
+                return None
         topic = bytes(parts[0].buffer).decode()
         header = msgpack.unpackb(parts[1].buffer, raw=False)
         arrays = [np.frombuffer(p.buffer, dtype=np.dtype(dt)).reshape(shape)
                   for p, (dt, shape) in zip(parts[2:], header.get("arrays", []))]
         self._check(topic, header.get("pub", ""), int(header["seq"]))
         return Message(topic, header["seq"], header["sensor_time_ns"], header["host_time_ns"], header, arrays)
+
+    def _recv_ready(self):
+        """One whole message from the first socket with one waiting, starting after the last one served."""
+        n = len(self.sockets)
+        for k in range(n):
+            i = (self._next + k) % n
+            try:
+                parts = self.sockets[i].recv_multipart(flags=zmq.NOBLOCK, copy=False)
+            except zmq.Again:
+                continue
+            self._next = (i + 1) % n
+            return parts
+        return None
 
     @property
     def missed(self) -> int:
@@ -135,4 +165,5 @@ class BusSubscriber:
         self._expected[key] = seq + 1
 
     def close(self) -> None:
-        self.socket.close()
+        for sock in self.sockets:
+            sock.close()

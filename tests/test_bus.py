@@ -79,6 +79,40 @@ def test_a_slow_subscriber_loses_messages_but_counts_every_one():
     ctx.term()
 
 
+def test_a_short_queue_for_one_endpoint_stays_short_beside_a_long_one():
+    """A worker's radar frames get a 50-frame queue, its IMU the default 10,000, in one subscriber. ZeroMQ
+    applies a socket's last ZMQ_RCVHWM to all its connections: on one socket the frames' queue became
+    10,000 long (7 GB of frames) and a slow worker's memory grew without bound, nothing dropped. Flooded
+    while it reads nothing, the subscriber now holds about the two 50-frame queues (plus what the kernel's
+    socket buffers hold), and counts the rest as lost."""
+    ctx = zmq.Context()
+    frames = BusPublisher("tcp://127.0.0.1:0", context=ctx, high_water_mark=50)
+    imu = BusPublisher("tcp://127.0.0.1:0", context=ctx)
+    sub = BusSubscriber([frames.endpoint, imu.endpoint], context=ctx, high_water_marks={frames.endpoint: 50})
+    time.sleep(0.3)
+    big = np.zeros(200_000, np.uint8)
+    n = 1000
+    for k in range(n):
+        frames.publish("radar/flood", k, [big])
+        imu.publish("imu", k, [np.zeros(3)])
+        time.sleep(0.0002)  # the flood over 0.2 s or more: ZeroMQ's I/O threads keep up with it
+    time.sleep(0.5)
+    received = 0
+    while (m := sub.receive(timeout_ms=500)) is not None:
+        received += m.topic == "radar/flood"
+    frames.publish("radar/flood", n, [big])  # one more, after the gap: the loss shows in its sequence number
+    while (m := sub.receive(timeout_ms=500)) is not None:
+        received += m.topic == "radar/flood"
+    st = sub.stats["radar/flood"]
+    assert received < 300, received  # 50 + 50 + the kernel's buffers; it was all 1000
+    assert st.received == received and st.received + st.missed == n + 1
+    assert sub.stats["imu"].received == n and sub.stats["imu"].missed == 0  # the long queue is still long
+    for p in (frames, imu):
+        p.close()
+    sub.close()
+    ctx.term()
+
+
 def test_several_publishers_of_one_topic_are_not_gaps():
     """Every driver publishes "event": their sequence numbers are each their own, not one topic's."""
     ctx = zmq.Context()
