@@ -63,7 +63,13 @@ def process_tree(pid: int) -> dict[int, str]:
         tasks = list(Path(f"/proc/{pid}/task").iterdir())
     except FileNotFoundError:
         return {}
-    children = sorted(int(c) for t in tasks for c in (t / "children").read_text().split())
+    children = set()
+    for t in tasks:
+        try:
+            children.update(int(c) for c in (t / "children").read_text().split())
+        except FileNotFoundError:
+            continue  # a thread that ended since the listing
+    children = sorted(children)
     for child in children:
         try:
             name = Path(f"/proc/{child}/comm").read_text().strip()
@@ -191,49 +197,55 @@ def soak(minutes: float, work: Path, radars: list[str]) -> dict:
     replay = subprocess.Popen([*SARBOT, "replay", str(sim_path), "--imu-link", str(imu_link), "--laps", str(laps),
                                "--start-delay", "1", *[a for n, p in ports.items() for a in ("--radar", f"{n}=127.0.0.1:{p}")]],
                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    t0 = time.monotonic()
-    cpu_before: dict[int, float] = {}
-    next_sample = t0 + SAMPLE_EVERY_S
-    while replay.poll() is None or time.monotonic() < next_sample - SAMPLE_EVERY_S + 5:
-        m = sub.receive(timeout_ms=200)
-        if m is not None:
-            last_health = Health.from_message(m)
-            if map_sub is None and "stripmap" in last_health.endpoints:
-                map_sub = BusSubscriber(last_health.endpoints["stripmap"], topics=[MapStatus.TOPIC])
-        while map_sub is not None and (mm := map_sub.receive(timeout_ms=0)) is not None:
-            last_map = decode(mm)
-        if time.monotonic() < next_sample:
-            continue
-        next_sample += SAMPLE_EVERY_S
-        tree = process_tree(daemon.pid)
-        sample = {"t_s": round(time.monotonic() - t0, 1), "rss_mb": {}, "cpu_pct": {}}
-        for pid, name in tree.items():
-            rss, cpu = rss_mb(pid), cpu_s(pid)
-            if rss is None or cpu is None:
+    try:
+        t0 = time.monotonic()
+        cpu_before: dict[int, float] = {}
+        next_sample = t0 + SAMPLE_EVERY_S
+        while replay.poll() is None or time.monotonic() < next_sample - SAMPLE_EVERY_S + 5:
+            m = sub.receive(timeout_ms=200)
+            if m is not None:
+                last_health = Health.from_message(m)
+                if map_sub is None and "stripmap" in last_health.endpoints:
+                    map_sub = BusSubscriber(last_health.endpoints["stripmap"], topics=[MapStatus.TOPIC])
+            while map_sub is not None and (mm := map_sub.receive(timeout_ms=0)) is not None:
+                last_map = decode(mm)
+            if time.monotonic() < next_sample:
                 continue
-            sample["rss_mb"][name] = round(rss, 1)
-            if pid in cpu_before:
-                sample["cpu_pct"][name] = round(100 * (cpu - cpu_before[pid]) / SAMPLE_EVERY_S, 1)
-            cpu_before[pid] = cpu
-        if last_health is not None:
-            odometry = last_health.workers.get("rio")
-            sample.update(bus_lost=last_health.bus_lost, restarts=last_health.restarts,
-                          invalid=sum(last_health.invalid_frames.values()), frames_per_s=last_health.frames_per_s,
-                          imu_hz=last_health.imu_hz,
-                          odometry_lag_s=None if odometry is None else odometry.counters.get("lag_ms", 0) / 1e3,
-                          odometry_counters=None if odometry is None else odometry.counters)
-        if last_map is not None:
-            sample.update(map_lag_s=round(last_map.lag_s, 3), map_dropped=last_map.frames_dropped_behind,
-                          map_presummed_more=last_map.frames_presummed_more,
-                          map_imaged=last_map.frames_imaged)
-        sample["imu_in_file_lag_s"] = checker.imu_lag_s()
-        checker.check_finished()
-        samples.append(sample)
-        print(f"soak: {sample['t_s']:6.0f} s  RSS {sum(sample['rss_mb'].values()):6.0f} MB  "
-              f"odometry lag {sample.get('odometry_lag_s')}  map lag {sample.get('map_lag_s')}  "
-              f"map dropped {sample.get('map_dropped')}  bus lost {sample.get('bus_lost')}", flush=True)
-        if daemon.poll() is not None:
-            break
+            next_sample += SAMPLE_EVERY_S
+            tree = process_tree(daemon.pid)
+            sample = {"t_s": round(time.monotonic() - t0, 1), "rss_mb": {}, "cpu_pct": {}}
+            for pid, name in tree.items():
+                rss, cpu = rss_mb(pid), cpu_s(pid)
+                if rss is None or cpu is None:
+                    continue
+                sample["rss_mb"][name] = round(rss, 1)
+                if pid in cpu_before:
+                    sample["cpu_pct"][name] = round(100 * (cpu - cpu_before[pid]) / SAMPLE_EVERY_S, 1)
+                cpu_before[pid] = cpu
+            if last_health is not None:
+                odometry = last_health.workers.get("rio")
+                sample.update(bus_lost=last_health.bus_lost, restarts=last_health.restarts,
+                              invalid=sum(last_health.invalid_frames.values()), frames_per_s=last_health.frames_per_s,
+                              imu_hz=last_health.imu_hz,
+                              odometry_lag_s=None if odometry is None else odometry.counters.get("lag_ms", 0) / 1e3,
+                              odometry_counters=None if odometry is None else odometry.counters)
+            if last_map is not None:
+                sample.update(map_lag_s=round(last_map.lag_s, 3), map_dropped=last_map.frames_dropped_behind,
+                              map_presummed_more=last_map.frames_presummed_more,
+                              map_imaged=last_map.frames_imaged)
+            sample["imu_in_file_lag_s"] = checker.imu_lag_s()
+            checker.check_finished()
+            samples.append(sample)
+            print(f"soak: {sample['t_s']:6.0f} s  RSS {sum(sample['rss_mb'].values()):6.0f} MB  "
+                  f"odometry lag {sample.get('odometry_lag_s')}  map lag {sample.get('map_lag_s')}  "
+                  f"map dropped {sample.get('map_dropped')}  bus lost {sample.get('bus_lost')}", flush=True)
+            if daemon.poll() is not None:
+                break
+    except BaseException:
+        # The soak's own failure (or ^C) leaves no replay or daemon running on behind it.
+        for proc in (replay, daemon):
+            proc.kill()
+        raise
     replay_out, replay_err = replay.communicate(timeout=120)
     time.sleep(3.0)
     daemon.send_signal(signal.SIGINT)
