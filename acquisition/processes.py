@@ -83,6 +83,27 @@ def ensure_jit_cache_dir() -> str | None:
     return None
 
 
+def die_with_parent(name: str | None = None) -> None:
+    """This process ends (SIGTERM, at once) when the one that started it does, however that ends (SIGTERM,
+    SIGKILL, OOM): a child left behind would keep a port or a device busy, or keep sending. ``name``: what
+    top and ps call it (15 characters kept)."""
+    import multiprocessing
+
+    parent = multiprocessing.parent_process()  # None outside a multiprocessing child
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+        if name:
+            libc.prctl(15, ctypes.c_char_p(name[:15].encode()), 0, 0, 0)  # PR_SET_NAME
+    except (OSError, AttributeError):
+        pass
+    signal.signal(signal.SIGTERM, lambda *_: os._exit(0))
+    if parent is not None and os.getppid() != parent.pid:
+        os._exit(0)  # the parent died before the signal was asked for
+
+
 def become_child(role: str, realtime: bool = False, background: bool = False) -> None:
     """Set up a child process: die with the supervisor, carry the role's name, log like the parent.
 
@@ -91,16 +112,8 @@ def become_child(role: str, realtime: bool = False, background: bool = False) ->
     it sets the stop event); SIGTERM ends the process at once. ``realtime``: a driver (SCHED_FIFO when
     the unit asks for it); ``background``: a worker, niced below the drivers and the recorder.
     """
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-        libc.prctl(15, ctypes.c_char_p(f"sarbot-{role}"[:15].encode()), 0, 0, 0)  # PR_SET_NAME
-    except (OSError, AttributeError):
-        pass
+    die_with_parent(f"sarbot-{role}")
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, lambda *_: os._exit(0))
     configure_logging(role=role)
     if background:
         os.nice(int(os.environ.get(WORKER_NICE_ENV, WORKER_NICE) or 0))

@@ -119,6 +119,9 @@ def imu_emulator(recording: Recording, speed: float | None = 1.0, laps: int = 1,
 
 
 def _radar_sender_process(path: str, name: str, address, speed, go, start, results, laps: int, lap_ns: int) -> None:
+    from .processes import die_with_parent
+
+    die_with_parent(f"replay-{name}")  # a replay stopped by SIGTERM took none of its senders with it
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         with Recording(path) as rec:

@@ -232,3 +232,46 @@ def test_a_driver_that_fails_at_start_backs_off_and_says_why_in_one_line(tmp_pat
         restarts = [e for e in rec.events() if e[1] == "radar.left" and "restarting" in e[3]]
     assert 2 <= len(restarts) <= 5, restarts  # 8 s at 1.4 restarts/s would be 11
     assert "in 0.5 s" in restarts[0][3] and "in 1.0 s" in restarts[1][3]
+
+
+def test_a_replay_stopped_by_sigterm_leaves_no_sender_behind(tmp_path):
+    """The radars' senders are processes of their own: a replay ended by SIGTERM (kill, systemd, a test
+    harness) must take them with it, not leave them sending datagrams at a port for the rest of the laps."""
+    import os
+    import signal
+    import socket
+    from pathlib import Path
+
+    src = tmp_path / "source.h5"
+    make_source(src)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:
+        rx.bind(("127.0.0.1", 0))
+        rx.settimeout(10)
+        port = rx.getsockname()[1]
+        replay = subprocess.Popen([sys.executable, "-m", "acquisition.cli", "replay", str(src), "--radar",
+                                   f"left=127.0.0.1:{port}", "--laps", "100"],
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        rx.recv(65536)  # the sender is sending
+        tasks = Path(f"/proc/{replay.pid}/task").iterdir()
+        senders = {int(c) for t in tasks for c in (t / "children").read_text().split()}
+        assert senders
+        replay.send_signal(signal.SIGTERM)
+        replay.wait(timeout=10)
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and any(os.path.exists(f"/proc/{p}") and _alive(p) for p in senders):
+            time.sleep(0.05)
+        assert not any(os.path.exists(f"/proc/{p}") and _alive(p) for p in senders), senders
+        rx.settimeout(0.5)
+        while True:  # what was sent before is in the socket's buffer; nothing more comes
+            try:
+                rx.recv(65536)
+            except TimeoutError:
+                break
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
