@@ -238,6 +238,7 @@ class MapStatus(HeaderMessage):
     frames_dropped_behind: int = 0
     frames_lost_on_bus: int = 0  # never received: the worker's queue on the bus was full (sequence gaps)
     frames_beyond_odometry: int = 0  # at the end, frames the odometry's last pose did not reach
+    frames_off_map: int = 0  # needed tiles beyond the map's max_tiles (a long drive, an odometry gone astray)
     frames_presummed_more: int = 0  # imaged with more pre-summing than configured, to catch up
     presum_factor: int = 1  # the extra pre-summing of the latest frame (1: as configured)
     lag_s: float = 0.0  # frame reception to imaged, the latest frame

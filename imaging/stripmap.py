@@ -65,6 +65,10 @@ class StripMapConfig:
     #: Refocus a finished tile on its strongest scatterers: "none", "pga" or "entropy" (imaging.autofocus).
     refocus: str = "none"
     refocus_groups_per_frame: int = 4
+    #: The most tiles the map holds (64 KB each at 64 px: 1 GB for the default). A frame that needs a tile
+    #: beyond it goes into the tiles it has, or is left out (counted): a long drive, or an odometry gone
+    #: astray on a starved machine (tiles kilometres apart), must not take the machine's memory.
+    max_tiles: int = 16384
 
     def __post_init__(self) -> None:
         require(self.pixel_m > 0, "pixel_m", "must be positive")
@@ -78,6 +82,7 @@ class StripMapConfig:
         require(self.min_speed_mps >= 0, "min_speed_mps", "must not be negative")
         require(self.refocus in ("none", "pga", "entropy"), "refocus", f"must be none, pga or entropy, got {self.refocus!r}")
         require(1 <= self.refocus_groups_per_frame <= 64, "refocus_groups_per_frame", "must be 1 to 64")
+        require(self.max_tiles >= 1, "max_tiles", f"must be at least 1, got {self.max_tiles}")
         require(self.refocus == "none" or self.tile_px % 16 == 0, "tile_px",
                 f"must be a multiple of 16 to refocus tiles, got {self.tile_px}")
 
@@ -118,6 +123,10 @@ class FrameFootprint:
     refocused: list[tuple[int, int]] = dataclasses.field(default_factory=list)  # tiles finished and refocused
 
 
+#: The most pixels a map's mosaic (and its file) holds: 2 GB of complex64.
+MOSAIC_MAX_PIXELS = 1 << 28
+
+
 class StripMap:
     """The growing map: tiles of complex pixels keyed by (ix, iy), tile (ix, iy) covering
     x in [ix, ix + 1) * tile_m and y likewise."""
@@ -127,6 +136,9 @@ class StripMap:
         self.tiles: dict[tuple[int, int], np.ndarray] = {}
         self.frames = 0
         self.frames_standing = 0
+        self.frames_off_map = 0  # every tile they needed was beyond max_tiles
+        self.tiles_refused = 0  # new tiles not made for max_tiles (a frame may have imaged into others)
+        self.mosaic_tiles_left_out = 0  # by the last mosaic: tiles outside its window
         self.profiles = 0
         self._axis = (np.arange(config.tile_px) + 0.5) * config.pixel_m  # pixel centres inside a tile
         #: tile -> its group images while it is being imaged (refocus only): lists of time (s from the first
@@ -219,15 +231,26 @@ class StripMap:
         l_mean /= np.linalg.norm(l_mean)
         n = cfg.tile_px
         touched, masks, points = [], [], []
+        room = cfg.max_tiles - len(self.tiles)
+        refused = 0
         for key in self.footprint_tiles(c_mean[None], l_mean[None]):
             x, y = self.tile_points(key)
             mask = self.footprint_mask(x[None, :], y[:, None], c_mean, l_mean)  # [tile_px, tile_px], rows along y
             if not mask.any():
                 continue
+            if key not in self.tiles:
+                if room <= 0:
+                    refused += 1
+                    continue
+                room -= 1
             iy, ix = np.nonzero(mask)
             touched.append(key)
             masks.append(mask)
             points.append(np.stack([x[ix], y[iy], np.full(iy.size, cfg.z_m)], axis=1))
+        self.tiles_refused += refused
+        if refused and not touched:
+            self.frames_off_map += 1
+            return FrameFootprint([], 0, skipped="map full")
         self.frames += 1
         self.profiles += profiles.data.shape[0]
         refocused = self._finish_tiles(set(touched)) if cfg.refocus != "none" else []
@@ -331,16 +354,40 @@ class StripMap:
         self.tiles[key] = out.reshape(n, n)
         return True
 
-    def mosaic(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The whole map as one array [ny, nx] (zeros where no tile is) with its x and y axes, metres."""
+    def mosaic(self, max_pixels: int = MOSAIC_MAX_PIXELS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The whole map as one array [ny, nx] (zeros where no tile is) with its x and y axes, metres.
+
+        The array spans the tiles' bounding box. Where that would exceed ``max_pixels`` (tiles far apart: an
+        odometry gone astray), it is the window of at most that many pixels, as square as the tiles allow,
+        around the tiles less the 1 % farthest out, or their median; ``mosaic_tiles_left_out`` then says how
+        many tiles it left out.
+        """
         if not self.tiles:
             raise ValueError("the strip map is empty: no frame has been added")
         keys = np.array(list(self.tiles))
         lo = keys.min(axis=0)
         hi = keys.max(axis=0)
         n = self.config.tile_px
+        budget = max(1, max_pixels // (n * n))  # tiles in the window
+        span = hi - lo + 1
+        if int(span[0]) * int(span[1]) > budget:
+            # The tiles' own extent without the 1 % farthest out on either side; if that is still too big, the
+            # largest window the limit allows around their median.
+            lo = np.percentile(keys, 1, axis=0, method="higher").astype(int)
+            hi = np.percentile(keys, 99, axis=0, method="lower").astype(int)
+            span = hi - lo + 1
+        if int(span[0]) * int(span[1]) > budget:
+            wx = min(int(span[0]), max(1, math.isqrt(budget)))
+            wy = min(int(span[1]), budget // wx)
+            wx = min(int(span[0]), budget // wy)  # a narrow map gives the other axis what it does not need
+            side = np.array([wx, wy])
+            centre = np.median(keys, axis=0).astype(int)
+            lo = np.clip(centre - side // 2, lo, hi - side + 1)
+            hi = lo + side - 1
+        inside = [(k, t) for k, t in self.tiles.items() if lo[0] <= k[0] <= hi[0] and lo[1] <= k[1] <= hi[1]]
+        self.mosaic_tiles_left_out = len(self.tiles) - len(inside)
         image = np.zeros(((hi[1] - lo[1] + 1) * n, (hi[0] - lo[0] + 1) * n), np.complex64)
-        for (ix, iy), tile in self.tiles.items():
+        for (ix, iy), tile in inside:
             r = (iy - lo[1]) * n
             c = (ix - lo[0]) * n
             image[r:r + n, c:c + n] = tile
@@ -354,6 +401,7 @@ class StripMap:
         cfg = self.config
         meta = {"method": f"stripmap-tdbp-{cfg.mode}", "aperture_limit_m": cfg.aperture_m,
                 "beam_half_angle_deg": cfg.beam_half_angle_deg, "presum": cfg.presum, "n_frames": self.frames,
-                "frames_standing_still": self.frames_standing,
+                "frames_standing_still": self.frames_standing, "frames_off_map": self.frames_off_map,
+                "tiles_refused": self.tiles_refused, "tiles_left_out": self.mosaic_tiles_left_out,
                 "n_profiles": self.profiles, "tiles": len(self.tiles), "tile_px": cfg.tile_px, **(attrs or {})}
         return SarImage(image, x, y, np.array([cfg.z_m]), meta)

@@ -93,6 +93,44 @@ def test_memory_follows_the_area_driven(drive):
     assert image.size <= len(full.tiles) * config.tile_px ** 2 * 1.5  # no big empty canvas around the tiles
 
 
+def test_the_map_holds_at_most_max_tiles_and_counts_what_it_leaves_out(drive):
+    """A long drive, or an odometry gone astray on a starved machine (the four-radar soak's map reached 4.5 GB,
+    tiles kilometres apart), must not take the machine's memory: beyond max_tiles no tile is made, frames
+    image into the tiles there are, and a frame with none is counted off the map."""
+    rec, radar, truth, order = drive
+    full = build(rec, radar, truth, order, StripMapConfig())
+    limit = len(full.tiles) // 3
+    capped = build(rec, radar, truth, order, StripMapConfig(max_tiles=limit))
+    assert len(capped.tiles) == limit
+    assert capped.tiles_refused > 0 and 0 < capped.frames_off_map < rec.n_frames(RADAR)
+    assert capped.frames + capped.frames_off_map + capped.frames_standing == full.frames + full.frames_standing
+    assert set(capped.tiles) < set(full.tiles)
+    img = capped.to_image()
+    assert img.attrs["frames_off_map"] == capped.frames_off_map and img.attrs["tiles_refused"] == capped.tiles_refused
+    with pytest.raises(ConfigError, match="max_tiles"):
+        StripMapConfig(max_tiles=0)
+
+
+def test_a_mosaic_of_tiles_far_apart_stays_within_its_pixel_limit():
+    """Tiles far apart (the soak's diverged odometry spread them over 17 x 387 km: a 487 TiB mosaic, and the
+    map file was lost to MemoryError) give the window around their median, the others counted as left out."""
+    config = StripMapConfig(tile_px=8)
+    sm = StripMap(config)
+    tile = np.ones((8, 8), np.complex128)
+    for ix in range(10):  # a cluster of 10 x 3 tiles near the origin ...
+        for iy in range(3):
+            sm.tiles[(ix, iy)] = tile
+    sm.tiles[(10**6, 5 * 10**5)] = tile  # ... and one astray
+    image, x, y = sm.mosaic(max_pixels=64 * 64)  # 64 tiles of 8 x 8
+    assert image.size <= 64 * 64
+    assert sm.mosaic_tiles_left_out == 1
+    assert np.count_nonzero(image) == 30 * 64  # every tile of the cluster is in the window
+    assert x.size == image.shape[1] and y.size == image.shape[0] and x[0] < 0.08 * 10 and y[0] < 0.08 * 3
+    del sm.tiles[(10**6, 5 * 10**5)]
+    image, _, _ = sm.mosaic(max_pixels=64 * 64)  # the cluster alone fits: its bounding box, nothing left out
+    assert sm.mosaic_tiles_left_out == 0 and image.shape == (3 * 8, 10 * 8)
+
+
 def test_presum_within_its_bound_keeps_the_image_and_beyond_it_does_not(drive):
     rec, radar, truth, order = drive
     base = StripMapConfig(range_min_m=1.0, pixel_m=0.005)

@@ -194,7 +194,12 @@ class StripMapWorker(Worker):
             self.changed.update(footprint.refocused)
             status.tiles_refocused += len(footprint.refocused)
             status.busy_s += time.monotonic() - t0
-            if footprint.skipped:
+            if footprint.skipped == "map full":
+                if status.frames_off_map == 0:
+                    log.warning("strip map: %d tiles, its limit (max_tiles); frames needing new tiles are left out "
+                                "(counted as frames_off_map)", len(self.map.tiles))
+                status.frames_off_map += 1
+            elif footprint.skipped:
                 status.frames_standing_still += 1
             else:
                 status.frames_imaged += 1
@@ -251,6 +256,10 @@ class StripMapWorker(Worker):
         img = self.map.to_image({"radars": ",".join(sorted(self.radars)), "trajectory_source": "rio",
                                  "wavelength_m": float(np.mean([r.waveform.wavelength_m for r in self.radars.values()])),
                                  **status})
+        if self.map.mosaic_tiles_left_out:
+            log.warning("strip map: its tiles span %s; the file holds the %d x %d m around their median, %d tile(s) "
+                        "left out (an odometry gone astray?)", "more than the mosaic's limit",
+                        round(float(np.ptp(img.x_m))), round(float(np.ptp(img.y_m))), self.map.mosaic_tiles_left_out)
         path = self.config.map_path
         write_image(path, img)
         save_image_png(Path(path).with_suffix(".png"), img.image, img.x_m, img.y_m,
