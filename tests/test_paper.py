@@ -83,7 +83,10 @@ def test_vibration_read_off_autofocus_within_two_percent(report):
 def test_autofocus_restores_integration_gain_and_never_blurs(report):
     g = report["autofocus"]["integration_gain"]
     assert g["autofocus"]["alpha"] > g["plain"]["alpha"] + 0.1
-    assert g["autofocus"]["alpha"] > 0.85
+    assert g["autofocus"]["alpha"] >= 0.95  # the goal (the full run: 0.98 over 1-32 frames)
+    # The exactly known track is coherent: with the peak measured finer than the image's pixels, N^1 (it read
+    # 0.92 on the 4 mm pixels, which miss a 6 mm peak by up to 1.7 dB).
+    assert 0.95 < g["known"]["alpha"] < 1.15
     b = report["autofocus"]["breakdown"]
     for row in b["snr"] + b["scatterers"]:
         assert row["entropy_focused"] <= row["entropy_plain"], row

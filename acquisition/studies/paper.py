@@ -88,6 +88,21 @@ def widths(img, xy) -> dict:
             "peak_m": a["peak_m"], "peak_amplitude": a["peak_amplitude"], "pslr_db": a["cross_range"]["pslr_db"]}
 
 
+def integrated_snr_db(img, rec: Recording, trajectory, frames: slice, xy, options: ImagingOptions = ONE_PAIR,
+                      track_error=None, step_m: float = 0.0005) -> float:
+    """The image SNR of the target near ``xy`` for an integration-gain curve: the background from ``img``
+    (outside a box around the peak, ``metrics.image_snr_db``), the peak from the same frames imaged again at
+    ``step_m`` over the pixels next to the coarse peak. A grid coarser than the resolution misses the peak
+    by up to 1.7 dB at 32 frames (4 mm pixels, a 6 mm wide peak), which bent the fitted alpha down."""
+    (iy, ix), _ = metrics.find_peak(img.image, img.x_m, img.y_m, near_m=xy, radius_m=0.05)
+    coarse_db = metrics.image_snr_db(img.image, (iy, ix), (25, 40))
+    dx, dy = abs(img.x_m[1] - img.x_m[0]), abs(img.y_m[1] - img.y_m[0])
+    fine = Grid.from_ranges((img.x_m[ix] - dx, img.x_m[ix] + dx, step_m), (img.y_m[iy] - dy, img.y_m[iy] + dy, step_m),
+                            float(img.z_m[0]))
+    peak = form_image(rec, RADAR, fine, trajectory, frames=frames, options=options, track_error=track_error)
+    return coarse_db + 10 * math.log10(np.max(np.abs(peak.image)) ** 2 / np.abs(img.image[iy, ix]) ** 2)
+
+
 def usable_aperture(apertures, ratio, pslr_db=None) -> float:
     """The longest aperture up to which every width stays within USABLE x theory and, where ``pslr_db`` is
     given, every peak side lobe at or below USABLE_PSL_DB (0 if none)."""
@@ -283,10 +298,9 @@ class Paper:
             with Recording(path) as rec:
                 centre = rec.n_frames(RADAR) // 2
                 for j, n in enumerate(counts):
-                    img = form_image(rec, RADAR, grid, scene.trajectory, frames=slice(centre - n // 2, centre - n // 2 + n),
-                                     options=ONE_PAIR)
-                    (iy, ix), _ = metrics.find_peak(img.image, img.x_m, img.y_m, near_m=xy, radius_m=0.05)
-                    snr[p, j] = metrics.image_snr_db(img.image, (iy, ix), (25, 40))
+                    frames = slice(centre - n // 2, centre - n // 2 + n)
+                    img = form_image(rec, RADAR, grid, scene.trajectory, frames=frames, options=ONE_PAIR)
+                    snr[p, j] = integrated_snr_db(img, rec, scene.trajectory, frames, xy)
         mean = snr.mean(axis=0)
         alpha, g0 = metrics.fit_integration_gain(counts, mean)
         fig, ax = plt.subplots(figsize=(6.5, 4))
