@@ -42,7 +42,7 @@ def test_jobs_are_recordings_times_tiles_times_sweeps(recordings, tmp_path):
     assert {j.frames for j in jobs if j.recording == str(recordings[0])} == {(0, 3), (3, 6), (6, 8)}
     assert len({j.output for j in jobs}) == len(jobs)
     assert jobs[0].output.endswith("pass0_f0-3_modenearest_oversample8.h5")
-    for bad, message in ((["size=1,2"], "KEY one of mode, window, oversample, algorithm, autofocus, aperture_m"), (["oversample=x"], "takes int values"),
+    for bad, message in ((["size=1,2"], "KEY one of mode, window, oversample, algorithm, aperture_window, autofocus, aperture_m"), (["oversample=x"], "takes int values"),
                          (["mode"], "expected KEY=V1,V2")):
         with pytest.raises(SarbotError, match=message):
             parse_sweep(bad)
