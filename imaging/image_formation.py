@@ -73,14 +73,7 @@ def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajector
     """
     wf = radar.waveform
     n_f = adc.shape[0]
-    times = chirp_times_ns(frame_time_ns, wf.chirps_per_frame, wf.chirp_interval_s).ravel()
-    tx_index = np.tile(np.asarray(tx_order), n_f)
-    keep = np.ones(times.size, bool)
-    if options.tx is not None:
-        keep &= np.isin(tx_index, options.tx)
-    if time_window_ns is not None:
-        keep &= (times >= time_window_ns[0]) & (times < time_window_ns[1])
-    rx_sel = np.arange(wf.n_rx) if options.rx is None else np.asarray(options.rx)
+    times, tx_index, keep, rx_sel = _selected_chirps(frame_time_ns, wf, tx_order, options, time_window_ns)
     track = antenna_track(radar, trajectory, times[keep], tx_index[keep])
     if track_error is not None:
         d = track_error.at((track.time_ns - np.int64(track_error.time_origin_ns)) * 1e-9)[:, None] * track.boresight
@@ -96,6 +89,26 @@ def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajector
     tx_m = np.repeat(track.tx_m, rx_sel.size, axis=0)
     rx_m = track.rx_m[:, rx_sel, :].reshape(-1, 3)
     return profiles, tx_m, rx_m, np.repeat(times[keep], rx_sel.size), track
+
+
+def _selected_chirps(frame_time_ns, wf, tx_order, options: ImagingOptions, time_window_ns):
+    """The chirps of frames the options and the time window select: every chirp's start time [C] and TX
+    index [C], which of them to keep [C] (bool), and the RX channels to use."""
+    times = chirp_times_ns(frame_time_ns, wf.chirps_per_frame, wf.chirp_interval_s).ravel()
+    tx_index = np.tile(np.asarray(tx_order), len(frame_time_ns))
+    keep = np.ones(times.size, bool)
+    if options.tx is not None:
+        keep &= np.isin(tx_index, options.tx)
+    if time_window_ns is not None:
+        keep &= (times >= time_window_ns[0]) & (times < time_window_ns[1])
+    rx_sel = np.arange(wf.n_rx) if options.rx is None else np.asarray(options.rx)
+    return times, tx_index, keep, rx_sel
+
+
+def _main_direction(phase_centres_m: np.ndarray) -> np.ndarray:
+    """``principal_axis`` of phase centres [N, 3], from at most about 8192 of them (the track's direction
+    needs no more)."""
+    return principal_axis(phase_centres_m[:: max(1, phase_centres_m.shape[0] // 4096)])
 
 
 def _parse_frames(frames, n_frames: int, path) -> slice:
@@ -174,19 +187,12 @@ class _BlockReader:
         if self.frame_indices.size == 0:
             return ApertureTaper(np.array([1.0, 0.0, 0.0]), 0.0, 0.0, options.aperture_window)
         frame_times = self.recording.frame_time_ns(self.radar_name, self.sel)[self.frame_indices - self.sel.start]
-        times = chirp_times_ns(frame_times, wf.chirps_per_frame, wf.chirp_interval_s).ravel()
-        tx_index = np.tile(np.asarray(self.tx_order), frame_times.size)
-        keep = np.ones(times.size, bool)
-        if options.tx is not None:
-            keep &= np.isin(tx_index, options.tx)
-        if self.time_window_ns is not None:
-            keep &= (times >= self.time_window_ns[0]) & (times < self.time_window_ns[1])
+        times, tx_index, keep, rx_sel = _selected_chirps(frame_times, wf, self.tx_order, options, self.time_window_ns)
         if not keep.any():
             return ApertureTaper(np.array([1.0, 0.0, 0.0]), 0.0, 0.0, options.aperture_window)
-        rx_sel = np.arange(wf.n_rx) if options.rx is None else np.asarray(options.rx)
         track = antenna_track(self.radar, self.trajectory, times[keep], tx_index[keep])
         centres = (0.5 * (track.tx_m[:, None, :] + track.rx_m[:, rx_sel, :])).reshape(-1, 3)
-        axis = principal_axis(centres[:: max(1, centres.shape[0] // 4096)] - centres.mean(axis=0))
+        axis = _main_direction(centres)
         along = centres @ axis
         return ApertureTaper(axis, float(along.min()), float(along.max()), options.aperture_window)
 
@@ -452,7 +458,7 @@ def central_aperture(recording: Recording, radar_name: str, trajectory: Trajecto
     track = antenna_track(config, trajectory, times, tx_index)
     centres = 0.5 * (track.tx_m[:, None, :] + track.rx_m)  # [chirps, rx, 3]
     flat = centres.reshape(-1, 3)
-    along = centres @ principal_axis(flat[:: max(1, flat.shape[0] // 4096)])
+    along = centres @ _main_direction(flat)
     lo, hi = along.min(axis=1), along.max(axis=1)
     length = float(hi.max() - lo.min())
     if length < aperture_m:

@@ -257,8 +257,8 @@ class StripMapWorker(Worker):
                                  "wavelength_m": float(np.mean([r.waveform.wavelength_m for r in self.radars.values()])),
                                  **status})
         if self.map.mosaic_tiles_left_out:
-            log.warning("strip map: its tiles span %s; the file holds the %d x %d m around their median, %d tile(s) "
-                        "left out (an odometry gone astray?)", "more than the mosaic's limit",
+            log.warning("strip map: its tiles span more than the mosaic's limit; the file holds the %d x %d m around "
+                        "them, %d tile(s) left out (an odometry gone astray?)",
                         round(float(np.ptp(img.x_m))), round(float(np.ptp(img.y_m))), self.map.mosaic_tiles_left_out)
         path = self.config.map_path
         write_image(path, img)
