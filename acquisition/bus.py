@@ -59,7 +59,9 @@ class BusPublisher:
         arrays = [np.ascontiguousarray(a) for a in arrays]
         header = {"seq": seq, "pub": self.publisher_id, "sensor_time_ns": int(sensor_time_ns), "host_time_ns": time.time_ns(),
                   "arrays": [[a.dtype.str, list(a.shape)] for a in arrays], **fields}
-        parts = [topic.encode(), msgpack.packb(header, use_bin_type=True), *[memoryview(a).cast("B") for a in arrays]]
+        # An empty array (a scan with no detection) is an empty frame: a memoryview of one cannot be cast.
+        parts = [topic.encode(), msgpack.packb(header, use_bin_type=True),
+                 *[memoryview(a).cast("B") if a.size else b"" for a in arrays]]
         self.socket.send_multipart(parts, copy=False)
         return seq
 

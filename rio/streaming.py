@@ -3,8 +3,14 @@
 IMU batches and radar scans come in whatever order the bus delivers them. A radar scan reaches the bus a
 frame or more after its measurement time (it is formed from a whole frame), so the filter holds back: it
 runs up to ``max_scan_delay_s`` before the newest IMU sample and takes each scan in time order on the way.
-A scan later than that is counted and left out. Poses come out at ``options.output_rate_hz``, delayed by
-the hold-back; ``finish`` runs the filter to the end of the data.
+
+A busy consumer falls behind on the radar (a frame is 0.7 MB, an IMU batch 1 kB): the IMU then runs
+seconds ahead of the radar, and every scan would come too late, leaving the filter to the IMU alone. So
+the radar's progress is a watermark too (``radar_seen``, also for frames not made into scans): the filter
+runs no further than ``max_scan_delay_s`` before the newest radar time seen, however far ahead the IMU is,
+up to ``max_radar_wait_s`` (beyond that, or with ``radar_seen(None)`` for a radar gone silent, it goes on
+with the IMU alone). Before the first radar data it waits as well, since a backlog starts at once. A scan later than the filter is counted and left out. Poses come out at
+``options.output_rate_hz``, delayed by the hold-back; ``finish`` runs the filter to the end of the data.
 """
 
 from __future__ import annotations
@@ -20,6 +26,8 @@ from .ekf import RadarInertialEkf
 from .odometry import RadarScan, RioOptions, radar_update
 
 log = logging.getLogger(f"sarbot.{__name__}")
+
+_NO_RADAR_YET = -(1 << 62)
 
 
 @dataclasses.dataclass
@@ -38,9 +46,13 @@ class PoseBatch:
 class StreamingRio:
     """Feed ``add_imu`` and ``add_scan``; each returns the poses the filter passed meanwhile."""
 
-    def __init__(self, options: RioOptions = RioOptions(), imu_rate_hz: float = 400.0, max_scan_delay_s: float = 0.2):
+    def __init__(self, options: RioOptions = RioOptions(), imu_rate_hz: float = 400.0, max_scan_delay_s: float = 0.2,
+                 max_radar_wait_s: float = 60.0):
         self.options = options
         self.max_scan_delay_ns = int(max_scan_delay_s * 1e9)
+        self.max_radar_wait_ns = int(max_radar_wait_s * 1e9)
+        # The newest radar time seen; None: do not wait for the radar. Until the first, wait the longest.
+        self.radar_time_ns: int | None = _NO_RADAR_YET
         self.ekf: RadarInertialEkf | None = None
         self.stats: Counter = Counter()
         self._rng = np.random.default_rng(options.seed)
@@ -51,14 +63,26 @@ class StreamingRio:
         self._scans: list[RadarScan] = []
         self._out_every = max(1, int(round(imu_rate_hz / options.output_rate_hz)))
         self._n_imu = 0
+        self._start_ns = 0
 
     @property
     def initialised(self) -> bool:
         return self.ekf is not None
 
+    def radar_seen(self, time_ns: int | None) -> None:
+        """The radar data has come up to ``time_ns`` (a frame's time, whether or not it is made into a
+        scan); None: no radar is delivering, so the filter no longer waits for one. Runs nothing: the next
+        ``add_imu`` or ``add_scan`` does."""
+        if time_ns is None:
+            self.radar_time_ns = None
+        else:
+            self.radar_time_ns = max(int(time_ns), int(time_ns) if self.radar_time_ns is None else self.radar_time_ns)
+
     def add_scan(self, scan: RadarScan) -> PoseBatch:
+        self.radar_seen(scan.time_ns)
         if self.ekf is not None and scan.time_ns < self.ekf.state.time_ns:
-            self.stats["scans_late"] += 1
+            # Scans of the standstill the filter started from are not late: the batch filter leaves them out too.
+            self.stats["scans_before_start" if scan.time_ns < self._start_ns else "scans_late"] += 1
             return self._empty()
         self._scans.append(scan)
         self._scans.sort(key=lambda s: s.time_ns)
@@ -81,6 +105,7 @@ class StreamingRio:
             self.ekf = RadarInertialEkf(self.options.ekf, keep_bias_log=False)  # runs for hours: stays flat
             self.ekf.initialise_static(t[k0], a[still], g[still], self.options.initial_position_m, self.options.initial_yaw_rad)
             self.ekf.propagate(t[k0], a[k0], g[k0])
+            self._start_ns = int(t[k0])
             self._scans = [s for s in self._scans if s.time_ns >= t[k0]]
             self._n_imu = 1  # sample k0 is the first; poses are kept every n-th sample after it, as run_rio does
             time_ns, acc, gyr = t[k0 + 1:], a[k0 + 1:], g[k0 + 1:]
@@ -111,7 +136,13 @@ class StreamingRio:
         if self.ekf is None or self._imu_t.size == 0:
             return self._empty()
         chunks: list = []
-        horizon = self._imu_t[-1] - (0 if final else self.max_scan_delay_ns)
+        horizon = int(self._imu_t[-1])
+        if not final:
+            if self.radar_time_ns is not None:
+                # Never further ahead of the radar than the wait allows, so a radar stalled for good (a
+                # consumer starved for minutes) cannot hold the IMU without bound.
+                horizon = min(horizon, max(self.radar_time_ns, horizon - self.max_radar_wait_ns))
+            horizon -= self.max_scan_delay_ns
         while self._scans and self._scans[0].time_ns <= horizon:
             scan = self._scans.pop(0)
             if scan.time_ns < self.ekf.state.time_ns:

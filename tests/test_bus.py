@@ -44,6 +44,16 @@ def test_messages_arrive_in_order_with_their_arrays(pair):
     assert not radar[0].arrays[0].flags.owndata
 
 
+def test_an_empty_array_crosses_the_bus(pair):
+    """A scan with no detection is a message with [0, 3] and [0] arrays (it crashed the odometry worker's
+    publish: a memoryview of an empty array cannot be cast)."""
+    pub, sub = pair
+    pub.publish("radar/left_front", 7, [np.zeros((0, 3), np.float32), np.zeros(0, np.float32), np.ones(2)])
+    m = sub.receive(timeout_ms=1000)
+    assert m is not None and [a.shape for a in m.arrays] == [(0, 3), (0,), (2,)]
+    assert m.arrays[0].dtype == np.float32 and m.arrays[2].tolist() == [1.0, 1.0]
+
+
 def test_a_gap_in_the_sequence_is_counted(pair):
     pub, sub = pair
     for k in range(10):

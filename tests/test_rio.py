@@ -275,5 +275,55 @@ def test_streaming_rio_matches_the_batch_filter(nominal):
     err = np.linalg.norm(pos - res.trajectory.position_m[:times.size], axis=1)
     assert upto.sum() > 4000 and err[upto].max() < 1e-9 and err.max() < 1e-3
     assert rio.stats["radar_updates"] >= res.stats["radar_updates"] - 8  # all but the final frame's scans
-    late = rio.stats["scans_late"]
-    assert rio.add_scan(pending[0]).time_ns.size == 0 and rio.stats["scans_late"] == late + 1
+    late, before = rio.stats["scans_late"], rio.stats["scans_before_start"]
+    assert rio.add_scan(pending[len(pending) // 2]).time_ns.size == 0 and rio.stats["scans_late"] == late + 1
+    # One from the standstill the filter started from is not late: the batch filter leaves it out too.
+    assert rio.add_scan(pending[0]).time_ns.size == 0 and rio.stats["scans_before_start"] == before + 1
+
+
+def _feed(rio, imu, scans, imu_ahead_s, silent_after_s=None):
+    """Feed the drive as a backlogged bus delivers it: each radar scan ``imu_ahead_s`` after the IMU samples
+    of its time (a frame is 0.7 MB, an IMU batch 1 kB). ``silent_after_s``: no scan after then, and the
+    consumer says the radar went silent."""
+    out = []
+    pending = sorted(scans, key=lambda s: s.time_ns)
+    if silent_after_s is not None:
+        pending = [s for s in pending if s.time_ns < imu.time_ns[0] + silent_after_s * 1e9]
+    j = 0
+    for k in range(0, imu.time_ns.size, 20):
+        t_end = imu.time_ns[min(k + 20, imu.time_ns.size) - 1]
+        out.append(rio.add_imu(imu.time_ns[k:k + 20], imu.accel_mps2[k:k + 20], imu.gyro_radps[k:k + 20]))
+        while j < len(pending) and pending[j].time_ns + int(imu_ahead_s * 1e9) <= t_end:
+            out.append(rio.add_scan(pending[j]))
+            j += 1
+        if silent_after_s is not None and j == len(pending):
+            rio.radar_seen(None)
+    out += [rio.add_scan(scan) for scan in pending[j:]]  # the backlog, drained at the end
+    out.append(rio.finish())
+    return (np.concatenate([b.time_ns for b in out]), np.concatenate([b.position_m for b in out]))
+
+
+def test_streaming_rio_waits_for_a_radar_delivered_seconds_behind_the_imu(nominal):
+    """A consumer that falls behind gets the IMU seconds before the radar. The filter waits for the radar
+    (its watermark) and gives the batch trajectory; before, every scan came too late and the IMU alone
+    drifted off. A radar gone silent does not hold the filter: it goes on with the IMU."""
+    from rio.streaming import StreamingRio
+
+    traj, imu, scans, res, _ = nominal
+    rio = StreamingRio(RioOptions(), imu_rate_hz=400.0)
+    times, pos = _feed(rio, imu, scans, imu_ahead_s=3.0)
+    assert rio.stats["scans_late"] == 0
+    assert rio.stats["radar_updates"] >= res.stats["radar_updates"] - 8
+    np.testing.assert_array_equal(times, res.trajectory.time_ns[:times.size])
+    err = np.linalg.norm(pos - res.trajectory.position_m[:times.size], axis=1)
+    assert err.max() < 1e-3
+
+    # Beyond the wait the filter goes on without the radar; what comes after is late, and counted.
+    short = StreamingRio(RioOptions(), imu_rate_hz=400.0, max_radar_wait_s=1.0)
+    _feed(short, imu, scans, imu_ahead_s=3.0)
+    assert short.stats["scans_late"] > 0.9 * len(scans)
+
+    # A radar gone silent: poses still come for the whole IMU record, not only up to the last scan.
+    silent = StreamingRio(RioOptions(), imu_rate_hz=400.0)
+    times, _ = _feed(silent, imu, scans, imu_ahead_s=0.1, silent_after_s=20.0)
+    assert times[-1] >= imu.time_ns[-1] - 10_000_000

@@ -32,15 +32,18 @@ class OdometryWorkerConfig:
     """``radars`` None: all of the rig's. Point clouds are made from at most ``scan_rate_hz`` frames per radar
     (ego velocity needs no more, and each costs about 10 ms). A worker that falls behind (a busy machine,
     the backlog of its warm-up) catches up in time order: more than ``max_lag_s`` late it takes only every
-    k-th scan (k grows with the lag, at most 8), more than ``max_catch_up_s`` late it leaves scans out. Both
-    are counted, in health and as events. The IMU is never left out."""
+    k-th scan of each radar (k grows with the lag, at most ``max_thinning``), counted in health and as
+    events. It never leaves out every scan: the filter would drift on the IMU alone. The IMU is never left
+    out. The filter waits for the radar (``StreamingRio.radar_seen``) unless no frame has come for
+    ``radar_silence_s``."""
 
     rig: Rig
     radars: list[str] | None
     trajectory_path: str
     scan_rate_hz: float = 10.0
     max_lag_s: float = 0.3
-    max_catch_up_s: float = 30.0
+    max_thinning: int = 8
+    radar_silence_s: float = 2.0
     publish_points: bool = False  # each scan's detections on points/<radar> (for the live view)
 
 
@@ -69,7 +72,8 @@ class OdometryWorker(Worker):
         self.poses_written = 0
         self.last_flush = time.monotonic()
         self.seen: collections.Counter = collections.Counter()
-        self.behind = 0  # scans in a row that came more than max_lag_s late
+        self.behind: collections.Counter = collections.Counter()  # per radar: scans in a row more than max_lag_s late
+        self.last_frame_monotonic: float | None = None  # when the last radar frame came (the first message, before it)
         self.lag_ms = 0  # of the last scan turned into a point cloud: its last datagram to now
         self.last_lag_event = 0.0
 
@@ -121,47 +125,56 @@ class OdometryWorker(Worker):
         from rio.odometry import RadarScan
         from rio.pointcloud import detect
 
+        now = time.monotonic()
+        if self.last_frame_monotonic is None:
+            self.last_frame_monotonic = now
         if isinstance(message, ImuBatch):
+            if self.rio.radar_time_ns is not None and now - self.last_frame_monotonic > self.config.radar_silence_s:
+                self.rio.radar_seen(None)  # no radar: the poses go on from the IMU, not held back for minutes
+                self.pub.send(Event(time.time_ns(), "rio", "warning",
+                                    f"no radar frame for {now - self.last_frame_monotonic:.1f} s: odometry goes on "
+                                    "with the IMU alone"))
             self._publish(self.rio.add_imu(message.time_ns, message.accel_mps2, message.gyro_radps))
             return
         if not isinstance(message, RadarFrameMessage) or message.radar not in self.radars or not message.frame.valid:
             return
         name, frame = message.radar, message.frame
+        self.last_frame_monotonic = now
+        t_scan = frame.frame_time_ns + self.half_frame_ns[name]
+        self.rio.radar_seen(t_scan)  # also for the frames not made into scans: the filter need not wait for them
         self.seen[name] += 1
         if self.seen[name] % self.every[name]:
             return
         lag_s = (time.time_ns() - frame.receive_ns) * 1e-9
-        if lag_s > self.config.max_lag_s:
-            self.behind += 1
-            if lag_s > self.config.max_catch_up_s:
-                self._left_out("scans_skipped_behind", lag_s)
-                return
-            if self.behind % min(8, math.ceil(lag_s / self.config.max_lag_s)):
-                self._left_out("scans_thinned_behind", lag_s)
-                return
-        else:
-            self.behind = 0
+        if not self._take_scan(name, lag_s):
+            return
         self.lag_ms = int(lag_s * 1e3)
         radar = self.radars[name]
         pc = detect(iq_to_complex(frame.iq), radar, self.orders[name], self.pc_config)
-        t_scan = frame.frame_time_ns + self.half_frame_ns[name]
         if self.config.publish_points:
             self.pub.send(PointCloudMessage(name, t_scan, pc.xyz_m, pc.doppler_mps))
         self._publish(self.rio.add_scan(RadarScan(t_scan, name, radar.mount, pc.xyz_m, pc.doppler_mps)))
 
-    def _left_out(self, counter: str, lag_s: float) -> None:
-        """Count a scan left out for lag; say so on the bus at most once a second (into /events)."""
-        self.rio.stats[counter] += 1
+    def _take_scan(self, radar: str, lag_s: float) -> bool:
+        """Whether this radar's scan, ``lag_s`` late, is made into a point cloud. Late, every k-th of each
+        radar is (k = lag / max_lag_s, at most max_thinning), so every radar keeps some; a thinned one is
+        counted and said on the bus at most once a second (into /events)."""
+        if lag_s <= self.config.max_lag_s:
+            self.behind[radar] = 0
+            return True
+        self.behind[radar] += 1
+        if (self.behind[radar] - 1) % min(self.config.max_thinning, math.ceil(lag_s / self.config.max_lag_s)) == 0:
+            return True
+        self.rio.stats["scans_thinned_behind"] += 1
         now = time.monotonic()
         if now - self.last_lag_event >= 1.0:
-            left = {k: self.rio.stats[k] for k in ("scans_thinned_behind", "scans_skipped_behind")}
-            self.pub.send(Event(time.time_ns(), "rio", "warning",
-                                f"odometry {lag_s:.1f} s behind: radar scans left out so far {left}"))
+            self.pub.send(Event(time.time_ns(), "rio", "warning", f"odometry {lag_s:.1f} s behind: "
+                                f"{self.rio.stats['scans_thinned_behind']} radar scans thinned out so far"))
             self.last_lag_event = now
+        return False
 
     def counters(self) -> dict[str, int]:
-        counted = {k: int(self.rio.stats[k]) for k in ("scans_thinned_behind", "scans_skipped_behind", "scans_late")
-                   if k in self.rio.stats}
+        counted = {k: int(self.rio.stats[k]) for k in ("scans_thinned_behind", "scans_late") if k in self.rio.stats}
         return {**counted, "lag_ms": self.lag_ms}
 
     def finish(self) -> None:
