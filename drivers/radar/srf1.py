@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import struct
+import typing
 
 import crc32c
 import numpy as np
@@ -51,8 +52,9 @@ class Srf1CrcError(Srf1Error):
     """A version 2 datagram whose CRC32C does not match: bits changed on the way."""
 
 
-@dataclasses.dataclass(frozen=True)
-class Srf1Header:
+class Srf1Header(typing.NamedTuple):
+    """One datagram's header (a named tuple: one is made per datagram, 10,000 a second per radar)."""
+
     version: int
     flags: int
     radar_id: int
@@ -139,10 +141,14 @@ class Frame:
 
 
 class _Partial:
+    """A frame being assembled. While its chunks come in order (almost always), what is here is just
+    ``data[:prefix]`` and no map of received bytes is kept; the first chunk out of order builds ``have``."""
+
     def __init__(self, header: Srf1Header, recv_ns: int):
         self.header = header
         self.data = bytearray(header.frame_bytes)
-        self.have = np.zeros(header.frame_bytes, bool)
+        self.have: np.ndarray | None = None
+        self.prefix = 0
         self.received = 0
         self.last_offset = -1
         self.last_recv = recv_ns
@@ -220,6 +226,18 @@ class FrameAssembler:
         if part is None:
             part = self._partial[n] = _Partial(header, recv_ns)
         lo, hi = header.offset, header.offset + len(payload)
+        if part.have is None:
+            if lo == part.prefix and header.frame_time_ns == part.header.frame_time_ns:
+                # The next chunk in order: nothing here to overlap or contradict; a slice copy is all.
+                part.data[lo:hi] = payload
+                part.received += hi - lo
+                part.prefix = hi
+                part.last_offset = lo
+                part.last_recv = recv_ns
+                out += self._emit_ready(newest=n)
+                return out
+            part.have = np.zeros(self.frame_bytes, bool)
+            part.have[:part.prefix] = True
         had = part.have[lo:hi]
         overlap = had.any()
         if header.frame_time_ns != part.header.frame_time_ns or (
