@@ -29,9 +29,8 @@ log = logging.getLogger(f"sarbot.{__name__}")
 
 @dataclasses.dataclass
 class OdometryWorkerConfig:
-    """``radars`` None: all of the rig's. Point clouds are made from at most ``scans_per_s`` frames a second,
-    shared evenly by the radars (each costs about 10 ms of detection; benchmarks/rio.py measured four
-    radars at 4.8 scans/s each as accurate as at 9.6: 0.050 against 0.056 % drift over 234 m). A worker that falls behind (a busy machine,
+    """``radars`` None: all of the rig's. Point clouds are made from at most ``scan_rate_hz`` frames per radar
+    (ego velocity needs no more, and each costs about 10 ms). A worker that falls behind (a busy machine,
     the backlog of its warm-up) catches up in time order: more than ``max_lag_s`` late it takes only every
     k-th scan of each radar (k grows with the lag, at most ``max_thinning``), counted in health and as
     events. It never leaves out every scan: the filter would drift on the IMU alone. The IMU is never left
@@ -41,7 +40,7 @@ class OdometryWorkerConfig:
     rig: Rig
     radars: list[str] | None
     trajectory_path: str
-    scans_per_s: float = 20.0
+    scan_rate_hz: float = 10.0
     max_lag_s: float = 0.3
     max_thinning: int = 8
     radar_silence_s: float = 2.0
@@ -65,8 +64,7 @@ class OdometryWorker(Worker):
         self.radars = {r.name: r for r in rig.radars if r.name in use}
         self.orders = {name: np.asarray(r.waveform.tdm_tx_order()) for name, r in self.radars.items()}
         self.half_frame_ns = {name: r.waveform.frame_duration_ns // 2 for name, r in self.radars.items()}
-        per_radar_hz = config.scans_per_s / max(1, len(self.radars))
-        self.every = {name: max(1, int(round(1.0 / (r.waveform.frame_interval_s * per_radar_hz))))
+        self.every = {name: max(1, int(round(1.0 / (r.waveform.frame_interval_s * config.scan_rate_hz))))
                       for name, r in self.radars.items()}
         self.rio = StreamingRio(RioOptions(), imu_rate_hz=rig.imu.rate_hz)
         self.pc_config = PointCloudConfig()
