@@ -405,7 +405,9 @@ def test_frames_queued_behind_keep_the_poses_they_need(drive, monkeypatch):
     rec, radar, truth, order = drive
     adc, times = rec.adc(RADAR), rec.frame_time_ns(RADAR)
     config = StripMapConfig(pixel_m=0.02, aperture_m=0.3, range_min_m=1.5, range_max_m=2.5, z_m=0.3, presum=8)
-    worker = StripMapWorker(StripMapWorkerConfig(Rig((radar,)), None, config, "tcp://unused:1", "unused.h5"), None)
+    # No catch-up for the 3 s backlog: the map must equal the reference imaged at the same pre-summing.
+    worker = StripMapWorker(StripMapWorkerConfig(Rig((radar,)), None, config, "tcp://unused:1", "unused.h5",
+                                                 catch_up_start_s=10.0), None)
     for k in range(len(times)):  # every frame queued: the map is the whole drive behind
         iq = complex_to_iq(adc[k], 1000.0)
         worker.handle(RadarFrameMessage(RADAR, RadarFrame(k, int(times[k]), int(times[k]), True, 0, iq)), live=True)

@@ -30,11 +30,12 @@ POSE_WINDOW_NS = 5_000_000_000
 STEP_BUDGET_S = 0.25
 #: Behind by more than CATCH_UP_START_S of sensor time, the worker sums twice the chirps per profile, four
 #: times CATCH_UP_STEP_S later, and so on (up to all of a TX's chirps in a frame): fewer profiles, a coarser
-#: map, before it drops a frame (at ``max_queue_s``). A few seconds behind is normal on a busy machine (the
-#: odometry holds poses back, a split closes a file) and costs nothing but lag, so the map keeps its quality
-#: until then.
-CATCH_UP_START_S = 4.0
-CATCH_UP_STEP_S = 2.0
+#: map, before it drops a frame (at ``max_queue_s``). The odometry holds its poses back about 0.3 s, so a
+#: longer backlog means the map is short of CPU (four radars on two cores with their emulation: 0.5 of a
+#: core for 77 frames/s); coarsening from 1 s keeps a live map live (the four-radar soak lagged 4-5 s when
+#: it began at 4 s).
+CATCH_UP_START_S = 1.0
+CATCH_UP_STEP_S = 0.5
 
 
 @dataclasses.dataclass
