@@ -9,8 +9,9 @@ seconds ahead of the radar, and every scan would come too late, leaving the filt
 the radar's progress is a watermark too (``radar_seen``, also for frames not made into scans): the filter
 runs no further than ``max_scan_delay_s`` before the newest radar time seen, however far ahead the IMU is,
 up to ``max_radar_wait_s`` (beyond that, or with ``radar_seen(None)`` for a radar gone silent, it goes on
-with the IMU alone). Before the first radar data it waits as well, since a backlog starts at once. A scan later than the filter is counted and left out. Poses come out at
-``options.output_rate_hz``, delayed by the hold-back; ``finish`` runs the filter to the end of the data.
+with the IMU alone). Before the first radar data it waits as well, since a backlog starts at once. A scan
+later than the filter is counted and left out. Poses come out at ``options.output_rate_hz``, delayed by
+the hold-back; ``finish`` runs the filter to the end of the data.
 """
 
 from __future__ import annotations
