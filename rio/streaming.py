@@ -6,11 +6,11 @@ runs up to ``max_scan_delay_s`` before the newest IMU sample and takes each scan
 
 A busy consumer falls behind on the radar (a frame is 0.7 MB, an IMU batch 1 kB): the IMU then runs
 seconds ahead of the radar, and every scan would come too late, leaving the filter to the IMU alone. So
-the radar's progress is a watermark too (``radar_seen``, also for frames not made into scans): the filter
-runs no further than ``max_scan_delay_s`` before the newest radar time seen, however far ahead the IMU is,
-up to ``max_radar_wait_s`` (beyond that, or with ``radar_seen(None)`` for a radar gone silent, it goes on
-with the IMU alone). Before the first radar data it waits as well, since a backlog starts at once. A scan
-later than the filter is counted and left out. Poses come out at ``options.output_rate_hz``, delayed by
+each radar's progress is a watermark too (``radar_seen``, also for frames not made into scans): the filter
+runs no further than ``max_scan_delay_s`` before the radar furthest behind, however far ahead the IMU is,
+up to ``max_radar_wait_s``. A radar gone silent (``radar_silent``) is not waited for until it sends again;
+with none left, the filter goes on with the IMU alone. Before the first radar data it waits as well, since
+a backlog starts at once. A scan later than the filter is counted and left out. Poses come out at ``options.output_rate_hz``, delayed by
 the hold-back; ``finish`` runs the filter to the end of the data.
 """
 
@@ -28,7 +28,7 @@ from .odometry import RadarScan, RioOptions, radar_update
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
-_NO_RADAR_YET = -(1 << 62)
+_NO_RADAR_YET = -(1 << 62)  # the watermark before any radar data: wait the longest
 
 
 @dataclasses.dataclass
@@ -52,8 +52,8 @@ class StreamingRio:
         self.options = options
         self.max_scan_delay_ns = int(max_scan_delay_s * 1e9)
         self.max_radar_wait_ns = int(max_radar_wait_s * 1e9)
-        # The newest radar time seen; None: do not wait for the radar. Until the first, wait the longest.
-        self.radar_time_ns: int | None = _NO_RADAR_YET
+        self._radar_ns: dict[str, int] = {}  # each radar's newest time, of those not silent
+        self._wait_for_first_radar = True
         self.ekf: RadarInertialEkf | None = None
         self.stats: Counter = Counter()
         self._rng = np.random.default_rng(options.seed)
@@ -70,17 +70,30 @@ class StreamingRio:
     def initialised(self) -> bool:
         return self.ekf is not None
 
-    def radar_seen(self, time_ns: int | None) -> None:
-        """The radar data has come up to ``time_ns`` (a frame's time, whether or not it is made into a
-        scan); None: no radar is delivering, so the filter no longer waits for one. Runs nothing: the next
-        ``add_imu`` or ``add_scan`` does."""
-        if time_ns is None:
-            self.radar_time_ns = None
+    def radar_seen(self, radar: str, time_ns: int) -> None:
+        """``radar``'s data has come up to ``time_ns`` (a frame's time, whether or not it is made into a
+        scan). Runs nothing: the next ``add_imu`` or ``add_scan`` does."""
+        self._radar_ns[radar] = max(int(time_ns), self._radar_ns.get(radar, int(time_ns)))
+
+    def radar_silent(self, radar: str | None = None) -> None:
+        """``radar`` (None: every radar) stopped sending: the filter no longer waits for it, until
+        ``radar_seen`` says it is back."""
+        if radar is None:
+            self._radar_ns.clear()
         else:
-            self.radar_time_ns = max(int(time_ns), int(time_ns) if self.radar_time_ns is None else self.radar_time_ns)
+            self._radar_ns.pop(radar, None)
+        self._wait_for_first_radar = False
+
+    @property
+    def radar_watermark_ns(self) -> int | None:
+        """How far the radar data has come: the radar furthest behind of those sending; None when the filter
+        waits for no radar."""
+        if self._radar_ns:
+            return min(self._radar_ns.values())
+        return _NO_RADAR_YET if self._wait_for_first_radar else None
 
     def add_scan(self, scan: RadarScan) -> PoseBatch:
-        self.radar_seen(scan.time_ns)
+        self.radar_seen(scan.radar, scan.time_ns)
         if self.ekf is not None and scan.time_ns < self.ekf.state.time_ns:
             # Scans of the standstill the filter started from are not late: the batch filter leaves them out too.
             self.stats["scans_before_start" if scan.time_ns < self._start_ns else "scans_late"] += 1
@@ -139,10 +152,11 @@ class StreamingRio:
         chunks: list = []
         horizon = int(self._imu_t[-1])
         if not final:
-            if self.radar_time_ns is not None:
+            watermark = self.radar_watermark_ns
+            if watermark is not None:
                 # Never further ahead of the radar than the wait allows, so a radar stalled for good (a
                 # consumer starved for minutes) cannot hold the IMU without bound.
-                horizon = min(horizon, max(self.radar_time_ns, horizon - self.max_radar_wait_ns))
+                horizon = min(horizon, max(watermark, horizon - self.max_radar_wait_ns))
             horizon -= self.max_scan_delay_ns
         while self._scans and self._scans[0].time_ns <= horizon:
             scan = self._scans.pop(0)

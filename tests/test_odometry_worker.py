@@ -14,7 +14,7 @@ from acquisition.bus import BusPublisher, BusSubscriber
 from acquisition.messages import Event, ImuBatch, RadarFrameMessage, decode
 from acquisition.workers.odometry import OdometryWorker, OdometryWorkerConfig
 from drivers.radar.stream import RadarFrame
-from imaging.core.rig import default_rig
+from imaging.core.rig import Rig, default_rig
 
 T0 = 1_700_000_000_000_000_000
 
@@ -64,7 +64,7 @@ def test_a_worker_behind_thins_every_radar_evenly_and_never_leaves_all_out(worke
         assert worker.rio.stats["scans_thinned_behind"] - thinned == 4 * (48 - 48 // thinning)
     # Each frame moved the radar's watermark, taken or not: the filter need not wait for the ones left out.
     last = T0 + (n - 1) * int(round(rig.radars[0].waveform.frame_interval_s * 1e9))
-    assert worker.rio.radar_time_ns == last + rig.radars[0].waveform.frame_duration_ns // 2
+    assert worker.rio.radar_watermark_ns == last + rig.radars[0].waveform.frame_duration_ns // 2
 
 
 def test_a_radar_gone_silent_does_not_hold_the_odometry(worker_and_bus):
@@ -74,12 +74,34 @@ def test_a_radar_gone_silent_does_not_hold_the_odometry(worker_and_bus):
     imu = ImuBatch(np.array([T0], np.int64), np.zeros((1, 3)), np.array([[0.0, 0.0, 9.81]]), np.zeros(1, np.uint32),
                    np.array([T0], np.int64))
     worker.handle(imu, live=True)
-    assert worker.rio.radar_time_ns is not None  # frames came just now: the filter waits for the radar
+    assert worker.rio.radar_watermark_ns is not None  # frames came just now: the filter waits for the radars
+    first, *others = rig.radars
     time.sleep(0.3)  # longer than radar_silence_s
-    worker.handle(imu, live=True)
-    assert worker.rio.radar_time_ns is None
-    events = [m for m in _received(sub) if isinstance(m, Event)]
-    assert len(events) == 1 and "IMU alone" in events[0].message
-    for message in _frames(rig, 1, 0.0):  # the radar back: the filter waits for it again
+    for message in _frames(Rig(tuple(others)), 3, 0.0):  # all but one radar still send
         worker.handle(message, live=True)
-    assert worker.rio.radar_time_ns is not None
+    worker.handle(imu, live=True)
+    events = [m.message for m in _received(sub) if isinstance(m, Event)]
+    assert len(events) == 1 and events[0].startswith(f"no frame of radar {first.name} for ")
+    assert events[0].endswith("odometry no longer waits for it")
+    newest = T0 + 2 * int(round(first.waveform.frame_interval_s * 1e9)) + first.waveform.frame_duration_ns // 2
+    assert worker.rio.radar_watermark_ns == newest  # the silent radar no longer holds the filter back
+    time.sleep(0.3)
+    worker.handle(imu, live=True)  # now none sends: the filter waits for none
+    assert worker.rio.radar_watermark_ns is None
+    assert len([m for m in _received(sub) if isinstance(m, Event)]) == len(others)
+    for message in _frames(rig, 1, 0.0):  # the radars back: the filter waits for them again
+        worker.handle(message, live=True)
+    assert worker.rio.radar_watermark_ns == T0 + first.waveform.frame_duration_ns // 2
+
+
+def test_no_radar_at_all_releases_the_odometry_after_the_silence(worker_and_bus):
+    worker, sub, rig = worker_and_bus
+    imu = ImuBatch(np.array([T0], np.int64), np.zeros((1, 3)), np.array([[0.0, 0.0, 9.81]]), np.zeros(1, np.uint32),
+                   np.array([T0], np.int64))
+    worker.handle(imu, live=True)
+    assert worker.rio.radar_watermark_ns is not None  # waits for the first radar data
+    time.sleep(0.3)
+    worker.handle(imu, live=True)
+    assert worker.rio.radar_watermark_ns is None
+    events = [m.message for m in _received(sub) if isinstance(m, Event)]
+    assert len(events) == 1 and "IMU alone" in events[0]

@@ -282,22 +282,24 @@ def test_streaming_rio_matches_the_batch_filter(nominal):
 
 
 def _feed(rio, imu, scans, imu_ahead_s, silent_after_s=None):
-    """Feed the drive as a backlogged bus delivers it: each radar scan ``imu_ahead_s`` after the IMU samples
-    of its time (a frame is 0.7 MB, an IMU batch 1 kB). ``silent_after_s``: no scan after then, and the
-    consumer says the radar went silent."""
+    """Feed the drive as a backlogged bus delivers it: each radar scan ``imu_ahead_s`` (per radar, if a
+    dict) after the IMU samples of its time (a frame is 0.7 MB, an IMU batch 1 kB). ``silent_after_s``: no
+    scan after then, and the consumer says the radars went silent."""
     out = []
-    pending = sorted(scans, key=lambda s: s.time_ns)
+    ahead_ns = {s.radar: int((imu_ahead_s.get(s.radar, 0.0) if isinstance(imu_ahead_s, dict) else imu_ahead_s) * 1e9)
+                for s in scans}
+    pending = sorted(scans, key=lambda s: s.time_ns + ahead_ns[s.radar])
     if silent_after_s is not None:
         pending = [s for s in pending if s.time_ns < imu.time_ns[0] + silent_after_s * 1e9]
     j = 0
     for k in range(0, imu.time_ns.size, 20):
         t_end = imu.time_ns[min(k + 20, imu.time_ns.size) - 1]
         out.append(rio.add_imu(imu.time_ns[k:k + 20], imu.accel_mps2[k:k + 20], imu.gyro_radps[k:k + 20]))
-        while j < len(pending) and pending[j].time_ns + int(imu_ahead_s * 1e9) <= t_end:
+        while j < len(pending) and pending[j].time_ns + ahead_ns[pending[j].radar] <= t_end:
             out.append(rio.add_scan(pending[j]))
             j += 1
         if silent_after_s is not None and j == len(pending):
-            rio.radar_seen(None)
+            rio.radar_silent()
     out += [rio.add_scan(scan) for scan in pending[j:]]  # the backlog, drained at the end
     out.append(rio.finish())
     return (np.concatenate([b.time_ns for b in out]), np.concatenate([b.position_m for b in out]))
@@ -315,6 +317,15 @@ def test_streaming_rio_waits_for_a_radar_delivered_seconds_behind_the_imu(nomina
     assert rio.stats["scans_late"] == 0
     assert rio.stats["radar_updates"] >= res.stats["radar_updates"] - 8
     np.testing.assert_array_equal(times, res.trajectory.time_ns[:times.size])
+    err = np.linalg.norm(pos - res.trajectory.position_m[:times.size], axis=1)
+    assert err.max() < 1e-3
+
+    # One radar's frames a second behind the others' (its queue longer): the filter waits for the one
+    # furthest behind, so none of its scans is late either.
+    names = sorted({s.radar for s in scans})
+    uneven = StreamingRio(RioOptions(), imu_rate_hz=400.0)
+    times, pos = _feed(uneven, imu, scans, imu_ahead_s={**dict.fromkeys(names, 0.5), names[0]: 1.5})
+    assert uneven.stats["scans_late"] == 0
     err = np.linalg.norm(pos - res.trajectory.position_m[:times.size], axis=1)
     assert err.max() < 1e-3
 

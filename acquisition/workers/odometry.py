@@ -34,7 +34,7 @@ class OdometryWorkerConfig:
     the backlog of its warm-up) catches up in time order: more than ``max_lag_s`` late it takes only every
     k-th scan of each radar (k grows with the lag, at most ``max_thinning``), counted in health and as
     events. It never leaves out every scan: the filter would drift on the IMU alone. The IMU is never left
-    out. The filter waits for the radar (``StreamingRio.radar_seen``) unless no frame has come for
+    out. The filter waits for each radar (``StreamingRio.radar_seen``) unless no frame of it has come for
     ``radar_silence_s``."""
 
     rig: Rig
@@ -73,7 +73,9 @@ class OdometryWorker(Worker):
         self.last_flush = time.monotonic()
         self.seen: collections.Counter = collections.Counter()
         self.behind: collections.Counter = collections.Counter()  # per radar: scans in a row more than max_lag_s late
-        self.last_frame_monotonic: float | None = None  # when the last radar frame came (the first message, before it)
+        self.started_monotonic: float | None = None  # the first message
+        self.last_frame_monotonic: dict[str, float] = {}  # per radar sending, when its last frame came
+        self.silent: set[str] = set()  # radars said to be silent (the filter does not wait for them)
         self.lag_ms = 0  # of the last scan turned into a point cloud: its last datagram to now
         self.last_lag_event = 0.0
 
@@ -126,22 +128,19 @@ class OdometryWorker(Worker):
         from rio.pointcloud import detect
 
         now = time.monotonic()
-        if self.last_frame_monotonic is None:
-            self.last_frame_monotonic = now
+        if self.started_monotonic is None:
+            self.started_monotonic = now
         if isinstance(message, ImuBatch):
-            if self.rio.radar_time_ns is not None and now - self.last_frame_monotonic > self.config.radar_silence_s:
-                self.rio.radar_seen(None)  # no radar: the poses go on from the IMU, not held back for minutes
-                self.pub.send(Event(time.time_ns(), "rio", "warning",
-                                    f"no radar frame for {now - self.last_frame_monotonic:.1f} s: odometry goes on "
-                                    "with the IMU alone"))
+            self._note_silence(now)
             self._publish(self.rio.add_imu(message.time_ns, message.accel_mps2, message.gyro_radps))
             return
         if not isinstance(message, RadarFrameMessage) or message.radar not in self.radars or not message.frame.valid:
             return
         name, frame = message.radar, message.frame
-        self.last_frame_monotonic = now
+        self.last_frame_monotonic[name] = now
+        self.silent.discard(name)
         t_scan = frame.frame_time_ns + self.half_frame_ns[name]
-        self.rio.radar_seen(t_scan)  # also for the frames not made into scans: the filter need not wait for them
+        self.rio.radar_seen(name, t_scan)  # also for the frames not made into scans: the filter need not wait for them
         self.seen[name] += 1
         if self.seen[name] % self.every[name]:
             return
@@ -154,6 +153,22 @@ class OdometryWorker(Worker):
         if self.config.publish_points:
             self.pub.send(PointCloudMessage(name, t_scan, pc.xyz_m, pc.doppler_mps))
         self._publish(self.rio.add_scan(RadarScan(t_scan, name, radar.mount, pc.xyz_m, pc.doppler_mps)))
+
+    def _note_silence(self, now: float) -> None:
+        """Radars with no frame for ``radar_silence_s`` are not waited for (said once on the bus); with none
+        sending since the start, the odometry goes on from the IMU alone rather than hold its poses back."""
+        limit = self.config.radar_silence_s
+        for name, last in self.last_frame_monotonic.items():
+            if name not in self.silent and now - last > limit:
+                self.silent.add(name)
+                self.rio.radar_silent(name)
+                self.pub.send(Event(time.time_ns(), "rio", "warning", f"no frame of radar {name} for {now - last:.1f} s: "
+                                    "odometry no longer waits for it"))
+        if not self.last_frame_monotonic and "*" not in self.silent and now - self.started_monotonic > limit:
+            self.silent.add("*")
+            self.rio.radar_silent()
+            self.pub.send(Event(time.time_ns(), "rio", "warning",
+                                f"no radar frame for {now - self.started_monotonic:.1f} s: odometry goes on with the IMU alone"))
 
     def _take_scan(self, radar: str, lag_s: float) -> bool:
         """Whether this radar's scan, ``lag_s`` late, is made into a point cloud. Late, every k-th of each
