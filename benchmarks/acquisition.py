@@ -19,7 +19,6 @@ import json
 import os
 import signal
 import socket
-import struct
 import subprocess
 import sys
 import tempfile
@@ -27,7 +26,6 @@ import threading
 import time
 from pathlib import Path
 
-import crc32c
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,7 +34,7 @@ sys.path.insert(0, str(ROOT))
 from acquisition.bus import BusSubscriber  # noqa: E402
 from acquisition.messages import Health, RadarFrameMessage  # noqa: E402
 from acquisition.processes import free_ports, free_tcp_endpoint  # noqa: E402
-from drivers.radar.srf1 import CRC, HEADER, encode_frame, header_size  # noqa: E402
+from drivers.radar.srf1 import encode_frame, restamp  # noqa: E402
 from imaging.core.rig import default_rig  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
 
@@ -69,17 +67,12 @@ class RadarPlayer:
         self.frames = [[bytearray(d) for d in encode_frame(0, 0, 0, rng.integers(-2000, 2000, shape, dtype=np.int16))]
                        for _ in range(n_distinct)]
         self.datagrams_per_frame = len(self.frames[0])
-        self.header_bytes = header_size(self.frames[0][0][4])
         self.counter = 0
 
     def send_frame(self, t_ns: int) -> None:
         datagrams = self.frames[self.counter % len(self.frames)]
         for d in datagrams:
-            struct.pack_into("<IQ", d, 8, self.counter, t_ns)
-            # SRF1 v2: the header's CRC32C covers the counter and time just changed (without it every
-            # datagram is a CRC error and the driver rightly drops it).
-            CRC.pack_into(d, HEADER.size, crc32c.crc32c(memoryview(d)[self.header_bytes:],
-                                                         crc32c.crc32c(memoryview(d)[:HEADER.size])))
+            restamp(d, self.counter, t_ns)  # with SRF1 v2's CRC made again: else every datagram is dropped
         for address in self.targets.values():
             for d in datagrams:
                 self.sock.sendto(d, address)

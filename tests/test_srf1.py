@@ -34,6 +34,19 @@ def test_datagrams_fit_the_mtu_and_parse_back():
     assert h.ptp_locked
 
 
+def test_a_restamped_datagram_parses_with_its_new_counter_and_time():
+    """A player re-sending encoded frames changes counter and time in place; version 2's CRC is made again
+    (a player that patched only the fields had every datagram dropped as a CRC error)."""
+    from drivers.radar.srf1 import restamp
+
+    for version in (1, 2):
+        d = bytearray(encode_frame(3, 42, 123, frames(1)[0], version=version)[1])
+        restamp(d, 2**32 + 7, 999)
+        h, payload = parse(bytes(d))
+        assert (h.version, h.radar_id, h.frame_counter, h.frame_time_ns, h.offset) == (version, 3, 7, 999, MAX_PAYLOAD)
+        assert bytes(payload) == frames(1)[0].tobytes()[MAX_PAYLOAD:2 * MAX_PAYLOAD]
+
+
 def test_in_order_and_reordered_frames_are_identical():
     iqs = frames(5)
     for shuffle in (False, True):

@@ -44,6 +44,11 @@ def header_size(version: int) -> int:
     return HEADER.size + (CRC.size if version >= 2 else 0)
 
 
+def _crc(fields, payload) -> int:
+    """Version 2's CRC32C: over the header's fields (the bytes before the CRC), then the payload."""
+    return crc32c.crc32c(payload, crc32c.crc32c(fields))
+
+
 class Srf1Error(ValueError):
     """A datagram that is not SRF1 or contradicts itself."""
 
@@ -78,9 +83,20 @@ def encode_frame(radar_id: int, frame_counter: int, frame_time_ns: int, iq: np.n
         head = HEADER.pack(MAGIC, version, flags, radar_id, frame_counter & 0xFFFFFFFF, frame_time_ns, len(data), off)
         chunk = data[off:off + payload_bytes]
         if version >= 2:
-            head += CRC.pack(crc32c.crc32c(chunk, crc32c.crc32c(head)))
+            head += CRC.pack(_crc(head, chunk))
         out.append(head + chunk)
     return out
+
+
+def restamp(datagram: bytearray, frame_counter: int, frame_time_ns: int) -> None:
+    """Give an encoded datagram another frame counter and time, in place, and (version 2) its CRC anew: for
+    a player that sends the same frames again and again."""
+    magic, version, flags, radar_id, _, _, frame_bytes, offset = HEADER.unpack_from(datagram)
+    HEADER.pack_into(datagram, 0, magic, version, flags, radar_id, frame_counter & 0xFFFFFFFF, frame_time_ns,
+                     frame_bytes, offset)
+    if version >= 2:
+        view = memoryview(datagram)
+        CRC.pack_into(datagram, HEADER.size, _crc(view[:HEADER.size], view[header_size(version):]))
 
 
 def parse(datagram: bytes) -> tuple[Srf1Header, memoryview]:
@@ -98,7 +114,7 @@ def parse(datagram: bytes) -> tuple[Srf1Header, memoryview]:
     payload = memoryview(datagram)[size:]
     if version >= 2:
         (want,) = CRC.unpack_from(datagram, HEADER.size)
-        got = crc32c.crc32c(payload, crc32c.crc32c(memoryview(datagram)[:HEADER.size]))
+        got = _crc(memoryview(datagram)[:HEADER.size], payload)
         if got != want:
             raise Srf1CrcError(f"CRC32C 0x{got:08x} is not the datagram's 0x{want:08x}")
     if offset + len(payload) > frame_bytes:
