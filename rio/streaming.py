@@ -10,8 +10,8 @@ each radar's progress is a watermark too (``radar_seen``, also for frames not ma
 runs no further than ``max_scan_delay_s`` before the radar furthest behind, however far ahead the IMU is,
 up to ``max_radar_wait_s``. A radar gone silent (``radar_silent``) is not waited for until it sends again;
 with none left, the filter goes on with the IMU alone. Before the first radar data it waits as well, since
-a backlog starts at once. A scan later than the filter is counted and left out. Poses come out at ``options.output_rate_hz``, delayed by
-the hold-back; ``finish`` runs the filter to the end of the data.
+a backlog starts at once. A scan later than the filter is counted and left out. Poses come out at
+``options.output_rate_hz``, delayed by the hold-back; ``finish`` runs the filter to the end of the data.
 """
 
 from __future__ import annotations

@@ -162,13 +162,13 @@ class OdometryWorker(Worker):
             if name not in self.silent and now - last > limit:
                 self.silent.add(name)
                 self.rio.radar_silent(name)
-                self.pub.send(Event(time.time_ns(), "rio", "warning", f"no frame of radar {name} for {now - last:.1f} s: "
-                                    "odometry no longer waits for it"))
-        if not self.last_frame_monotonic and "*" not in self.silent and now - self.started_monotonic > limit:
-            self.silent.add("*")
+                self.pub.send(Event(time.time_ns(), "rio", "warning",
+                                    f"no frame of radar {name} for {now - last:.1f} s: odometry no longer waits for it"))
+        waiting = self.rio.radar_watermark_ns is not None  # None from radar_silent() until a radar sends
+        if not self.last_frame_monotonic and waiting and now - self.started_monotonic > limit:
             self.rio.radar_silent()
-            self.pub.send(Event(time.time_ns(), "rio", "warning",
-                                f"no radar frame for {now - self.started_monotonic:.1f} s: odometry goes on with the IMU alone"))
+            self.pub.send(Event(time.time_ns(), "rio", "warning", f"no radar frame for "
+                                f"{now - self.started_monotonic:.1f} s: odometry goes on with the IMU alone"))
 
     def _take_scan(self, radar: str, lag_s: float) -> bool:
         """Whether this radar's scan, ``lag_s`` late, is made into a point cloud. Late, every k-th of each
