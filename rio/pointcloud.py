@@ -51,27 +51,55 @@ class PointCloud:
 def range_doppler_cube(frame: np.ndarray, radar: RadarConfig, tx_order: np.ndarray, config: PointCloudConfig):
     """Complex cube [Doppler, virtual channel, range] and the virtual channels' positions along sensor y.
 
-    ``frame``: complex [chirps, n_rx, samples]. Channels are ordered by their virtual position.
+    ``frame``: complex [chirps, n_rx, samples]. Channels are ordered by their virtual position; Doppler bin
+    ``n_dop // 2`` is zero range rate (the spectrum is fft-shifted).
+
+    Returns ``(cube, positions_m, tx_of_channel, n_range)``: complex64 [n_dop, n_tx * n_rx, n_range], float
+    [n_tx * n_rx], int [n_tx * n_rx] and the range FFT length.
     """
     wf = radar.waveform
     n_c, n_r, n_s = frame.shape
     n_range = 1 << int(np.ceil(np.log2(n_s)))
-    # Single precision throughout: ADC samples carry 16 bits, and numpy's FFT would work in double.
-    win = get_window(config.range_window, n_s).astype(np.float32)
-    rng = scipy.fft.fft(np.asarray(frame, np.complex64) * win, n_range, axis=-1)  # [C, R, Nr]
+    # Single precision throughout: ADC samples carry 16 bits, and numpy's FFT would work in double. One
+    # zero-padded buffer, windowed in place and transformed in place, for both FFTs: this runs on every scan
+    # of every radar, and copies cost as much as the FFTs.
+    cube = np.zeros((n_c, n_r, n_range), np.complex64)
+    np.multiply(frame, get_window(config.range_window, n_s).astype(np.float32), out=cube[..., :n_s])
+    cube = scipy.fft.fft(cube, axis=-1, overwrite_x=True)  # [C, R, Nr]
+    fired = _chirps_of_each_tx(tx_order, wf.n_tx, n_c)  # [M, Nt]
+    if np.array_equal(fired.ravel(), np.arange(n_c)):
+        slow = cube.reshape(fired.shape[0], wf.n_tx, n_r, n_range)  # chirps fire the TXs in turn: a view
+    else:
+        slow = cube[fired]  # [M, Nt, R, Nr]
+    n_dop = slow.shape[0]
+    w = get_window(config.doppler_window, n_dop)
+    if n_dop % 2 == 0:
+        # (-1)^m in slow time moves the spectrum by half its length: the fftshift, for free.
+        w = w * np.where(np.arange(n_dop) % 2, -1.0, 1.0)
+    slow *= w.astype(np.float32)[:, None, None, None]
+    slow = scipy.fft.fft(slow, axis=0, overwrite_x=True)
+    if n_dop % 2:
+        slow = scipy.fft.fftshift(slow, axes=0)
+    cube = slow.reshape(n_dop, wf.n_tx * n_r, n_range)  # channel = tx * n_rx + rx
+    positions = (radar.array.tx_positions_m[: wf.n_tx, 1, None] + radar.array.rx_positions_m[None, :, 1]).ravel()
+    tx_of_channel = np.repeat(np.arange(wf.n_tx), n_r)
+    order = np.argsort(positions, kind="stable")
+    if np.any(order != np.arange(order.size)):
+        cube, positions, tx_of_channel = cube[:, order, :], positions[order], tx_of_channel[order]
+    return cube, positions, tx_of_channel, n_range
+
+
+def _chirps_of_each_tx(tx_order, n_tx: int, n_chirps: int) -> np.ndarray:
+    """Chirp indices [M, n_tx]: row m holds the m-th chirp of every TX (the TXs' common slow time)."""
     tx_order = np.asarray(tx_order)
-    per_tx = []
-    positions = []
-    for i in range(wf.n_tx):
-        chirps = np.flatnonzero(tx_order == i)
-        slow = rng[chirps]  # [M, R, Nr]
-        w = get_window(config.doppler_window, chirps.size).astype(np.float32)[:, None, None]
-        per_tx.append(scipy.fft.fftshift(scipy.fft.fft(slow * w, axis=0), axes=0))  # [M, R, Nr]
-        positions.append(radar.array.tx_positions_m[i, 1] + radar.array.rx_positions_m[:, 1])
-    cube = np.concatenate(per_tx, axis=1)  # [M, Nt*R, Nr]
-    positions = np.concatenate(positions)
-    order = np.argsort(positions)
-    return cube[:, order, :], positions[order], np.repeat(np.arange(wf.n_tx), n_r)[order], n_range
+    if tx_order.shape != (n_chirps,):
+        raise ValueError(f"tx_order has {tx_order.size} entries for a frame of {n_chirps} chirps")
+    per_tx = [np.flatnonzero(tx_order == i) for i in range(n_tx)]
+    counts = {c.size for c in per_tx}
+    if len(counts) != 1 or 0 in counts:
+        raise ValueError(f"tx_order fires the {n_tx} TXs {[c.size for c in per_tx]} times per frame; "
+                         "TDM-MIMO needs every TX equally often")
+    return np.stack(per_tx, axis=1)
 
 
 def cfar_2d(power: np.ndarray, config: PointCloudConfig) -> tuple[np.ndarray, np.ndarray]:

@@ -9,6 +9,7 @@ from imaging.sim.simulator import simulate_frames
 from imaging.sim.targets import PointTarget
 from rio.ego_velocity import EgoStatus, sensor_velocity
 from rio.pointcloud import PointCloudConfig, cfar_2d, detect
+from reference_pointcloud import reference_cube
 
 RADAR = default_rig().radar("left_front")  # looks along +y of the body; the robot drives along +x
 TARGETS = [(-1.0, 2.0, 0.3), (0.5, 3.0, 0.3), (1.5, 1.5, 0.3), (-2.0, 4.0, 0.3), (0.0, 5.0, 0.3), (2.5, 3.5, 0.3)]
@@ -163,3 +164,54 @@ def test_sar_image_on_the_odometry_trajectory(tmp_path):
     # limit issue 5 charts. Measured here on a 0.3 m aperture at 0.4 m/s: 17 % wider, peak at 0.54.
     assert ours["cross_range"]["half_power_width_m"] < 1.3 * truth["cross_range"]["half_power_width_m"]
     assert ours["peak_amplitude"] > 0.4 * truth["peak_amplitude"]
+
+
+@pytest.mark.parametrize("case", ["in turn", "shuffled", "odd slow time"])
+def test_range_doppler_cube_matches_a_plain_per_tx_reference(case):
+    """The in-place cube (one padded buffer, the fftshift folded into the Doppler window) is the textbook one."""
+    import dataclasses
+
+    from rio.pointcloud import range_doppler_cube
+
+    radar = RADAR
+    if case == "odd slow time":  # 15 chirps per TX: the fftshift cannot ride on the window's sign
+        radar = dataclasses.replace(RADAR, waveform=dataclasses.replace(RADAR.waveform, chirps_per_frame=60))
+    rng = np.random.default_rng(7)
+    wf = radar.waveform
+    frame = (rng.standard_normal((wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp))
+             + 1j * rng.standard_normal((wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp))).astype(np.complex64)
+    order = np.asarray(wf.tdm_tx_order())
+    if case == "shuffled":
+        order = rng.permutation(order)
+    cube, positions, tx_of_channel, n_range = range_doppler_cube(frame, radar, order, PointCloudConfig())
+    want, want_positions = reference_cube(frame, radar, order, PointCloudConfig())
+    assert cube.shape == want.shape == (wf.chirps_per_frame // wf.n_tx, wf.n_tx * wf.n_rx, n_range)
+    assert np.abs(cube - want).max() < 1e-5 * np.abs(want).max()  # single precision
+    np.testing.assert_array_equal(positions, want_positions)
+    assert np.all(np.diff(positions) >= 0)
+    np.testing.assert_array_equal(np.bincount(tx_of_channel), [wf.n_rx] * wf.n_tx)
+
+
+def test_a_tx_order_that_fires_the_txs_unequally_is_refused():
+    from rio.pointcloud import range_doppler_cube
+
+    wf = RADAR.waveform
+    frame = np.zeros((wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp), np.complex64)
+    order = np.asarray(wf.tdm_tx_order())
+    order[0] = 1
+    with pytest.raises(ValueError, match="equally often"):
+        range_doppler_cube(frame, RADAR, order, PointCloudConfig())
+    with pytest.raises(ValueError, match="entries for a frame of"):
+        range_doppler_cube(frame, RADAR, order[:-1], PointCloudConfig())
+
+
+def test_iq_to_complex_is_i_plus_j_q():
+    from imaging.core.samples import iq_to_complex
+
+    iq = np.random.default_rng(2).integers(-32768, 32767, (8, 3, 5, 2), endpoint=True).astype(np.int16)
+    for pairs in (iq, iq[:, :, ::2]):  # also from a strided view
+        got = iq_to_complex(pairs)
+        assert got.dtype == np.complex64 and got.shape == pairs.shape[:-1]
+        np.testing.assert_array_equal(got, pairs[..., 0].astype(np.float64) + 1j * pairs[..., 1].astype(np.float64))
+    with pytest.raises(ValueError, match="last axis of 2"):
+        iq_to_complex(iq[..., :1])
