@@ -333,6 +333,19 @@ def _radar_targets(items: list[str] | None) -> dict[str, tuple[str, int]]:
     return out
 
 
+def _named_paths(items: list[str] | None, option: str) -> dict[str, str]:
+    """``OPTION NAME=PATH`` given once per radar: radar -> path."""
+    out: dict[str, str] = {}
+    for item in items or []:
+        name, sep, path = item.partition("=")
+        if not (sep and name and path):
+            raise SarbotError(f"{option} {item!r}: expected NAME=PATH")
+        if name in out:
+            raise SarbotError(f"{option} {item!r}: radar {name} given twice")
+        out[name] = path
+    return out
+
+
 def _can_config(args):
     if not args.can:
         return None
@@ -374,6 +387,7 @@ def check_duration(value: float | None, option: str = "--duration") -> None:
 def check_replay(args) -> dict[str, tuple[str, int]]:
     """The replay options, checked before anything is opened or sent; returns the radars' targets."""
     targets = _radar_targets(args.radar)
+    _named_paths(args.radar_imu_link, "--radar-imu-link")
     if not math.isfinite(args.speed) or args.speed < 0:
         raise SarbotError(f"--speed {args.speed}: must be a multiple of real time >= 0 (0: as fast as possible)")
     if not math.isfinite(args.start_delay) or args.start_delay < 0:
@@ -410,11 +424,20 @@ def record_setup(args):
         if wf != radars[link.name].waveform:  # the link's configuration says what the radar sends; the rig where it sits
             radars[link.name] = dataclasses.replace(radars[link.name], waveform=wf, array=AntennaArray.uniform_tdm(wf))
     rig = Rig(tuple(radars.values()), rig.imu)
+    radar_imu_ports = _named_paths(args.radar_imu, "--radar-imu")
+    for name, port in radar_imu_ports.items():
+        if name not in radars:
+            raise SarbotError(f"--radar-imu {name}={port}: no such radar in {args.config} (radars: {', '.join(rig.radar_names)})")
+        if radars[name].imu is None:
+            raise SarbotError(f"--radar-imu {name}={port}: {args.config} declares no IMU on radar {name}; add a "
+                              f"[radar.{name}.imu] table with its rate_hz (its axes are the radar's)")
     can = _can_config(args)
-    if not links and not args.imu_port and can is None:
-        raise SarbotError("nothing to record: give --radar NAME=[HOST:]PORT, --dca1000 NAME=PORT:CFG, --imu-port DEVICE and/or --can")
+    if not links and not args.imu_port and not radar_imu_ports and can is None:
+        raise SarbotError("nothing to record: give --radar NAME=[HOST:]PORT, --dca1000 NAME=PORT:CFG, --imu-port DEVICE, "
+                          "--radar-imu NAME=DEVICE and/or --can")
     check_duration(args.split_time, "--split-time")
-    return Setup(rig, links, args.imu_port, can, split_bytes=_size_bytes(args.split_size), split_s=args.split_time,
+    return Setup(rig, links, args.imu_port, can, radar_imu_ports=radar_imu_ports,
+                 split_bytes=_size_bytes(args.split_size), split_s=args.split_time,
                  min_free_bytes=_size_bytes(args.min_free, "--min-free"), health_endpoint=args.health_endpoint,
                  controls=_ti_controls(args, links))
 
@@ -488,6 +511,7 @@ def run_workers(setup, args, out_dir: Path, stamp: str):
         presum = int(args.map_presum)
     else:
         raise SarbotError(f"--map-presum {args.map_presum!r}: expected 'auto' or a positive integer")
+    map_radars = _names(args.map_radars, "--map-radars", names)
     config = StripMapConfig(pixel_m=args.map_pixel, aperture_m=args.map_aperture, range_min_m=args.map_range[0],
                             range_max_m=args.map_range[1], z_m=args.map_height, refocus=args.map_refocus)
     if args.map_threads < 1:
@@ -498,7 +522,7 @@ def run_workers(setup, args, out_dir: Path, stamp: str):
 
         view = parse_view_address(args.view)
     return add_pipeline_workers(setup, out_dir, stamp, config, args.max_speed,
-                                _names(args.map_radars, "--map-radars", names), _names(args.rio_radars, "--rio-radars", names),
+                                map_radars, _names(args.rio_radars, "--rio-radars", names),
                                 presum, view, args.map_threads)
 
 
@@ -530,10 +554,12 @@ def cmd_replay(args) -> int:
     from .replay import replay
 
     targets = check_replay(args)
+    radar_imus = _named_paths(args.radar_imu_link, "--radar-imu-link")
     sent = replay(Path(args.recording), targets, args.imu_link, None if args.speed <= 0 else args.speed, args.start_delay,
-                  can=_can_config(args), laps=args.laps)
+                  can=_can_config(args), laps=args.laps, radar_imu_links=radar_imus)
+    imus = (["the IMU"] if args.imu_link else []) + [f"the IMU on {name}" for name in radar_imus]
     print("replayed " + ", ".join(f"{n}: {k} {'frames' if n == 'can' else 'datagrams'}" for n, k in sent.items())
-          + (" and the IMU" if args.imu_link else ""))
+          + (" and " + ", ".join(imus) if imus else ""))
     return EXIT_OK
 
 
@@ -690,6 +716,9 @@ def _acquisition_options(s) -> None:
                    help="send that --dca1000 radar's .cfg to its CLI serial port (each line must be answered Done), "
                         "sensorStart once the DCA1000 records, sensorStop at the end")
     s.add_argument("--imu-port", help="serial device of the Xsens IMU (or the pty replay links)")
+    s.add_argument("--radar-imu", action="append", metavar="NAME=DEVICE",
+                   help="serial device of the Xsens IMU on that radar's own mount (repeat per radar; the rig declares it "
+                        "as [radar.NAME.imu]); recorded in /radar/NAME/imu for `sarbot image --imu-aided`")
     _can_options(s)
     s.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C / SIGTERM)")
     s.add_argument("--split-size", help="start a new file at this size (e.g. 2G)")
@@ -872,6 +901,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("recording")
     s.add_argument("--radar", action="append", help="NAME=HOST:PORT to send the radar's datagrams to (SRF1 or DCA1000, as recorded)")
     s.add_argument("--imu-link", help="create this symlink to the pty the emulated IMU writes to")
+    s.add_argument("--radar-imu-link", action="append", metavar="NAME=PATH",
+                   help="create this symlink to the pty an emulated IMU on that radar's mount writes to (repeat per radar)")
     _can_options(s)
     s.add_argument("--speed", type=float, default=1.0, help="multiple of real time; 0 for as fast as possible")
     s.add_argument("--start-delay", type=float, default=0.0, help="seconds to wait before sending (lets drivers start)")

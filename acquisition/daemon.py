@@ -40,13 +40,14 @@ MIN_UPTIME_S = 10.0
 
 @dataclasses.dataclass
 class Setup:
-    """What the daemon runs: the rig, one link per radar, the IMU port, the CAN bus, recorder settings,
-    and the workers."""
+    """What the daemon runs: the rig, one link per radar, the IMU port (and those of IMUs on radar mounts,
+    by radar), the CAN bus, recorder settings, and the workers."""
 
     rig: Rig
     radars: list[RadarLink]
     imu_port: str | None = None
     can: CanConfig | None = None
+    radar_imu_ports: dict[str, str] = dataclasses.field(default_factory=dict)
     flush_interval_s: float = 0.5
     split_bytes: int | None = None
     split_s: float | None = None
@@ -76,6 +77,12 @@ def process_specs(setup: Setup, stop) -> list[ProcessSpec]:
         clock_reference = mp.get_context("spawn").Array("q", 3)
         specs.append(ProcessSpec("imu", imu_process, (setup.imu_port, endpoint, radar_endpoints, stop, clock_reference,
                                                         frame_duration_ns),
+                                 endpoint))
+    for radar, port in setup.radar_imu_ports.items():
+        endpoint = free_tcp_endpoint()
+        clock_reference = mp.get_context("spawn").Array("q", 3)
+        specs.append(ProcessSpec(f"imu.{radar}", imu_process, (port, endpoint, radar_endpoints, stop, clock_reference,
+                                                               frame_duration_ns, radar),
                                  endpoint))
     if setup.can is not None:
         endpoint = free_tcp_endpoint()
@@ -184,7 +191,8 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
                 if devices.failed.is_set():
                     break
                 now = time.monotonic()
-                count = sum(recorder.frames.values()) + recorder.imu_samples + recorder.can_frames
+                count = (sum(recorder.frames.values()) + recorder.imu_samples + sum(recorder.radar_imu_samples.values())
+                         + recorder.can_frames)
                 if count != sensor_count:
                     last_data, sensor_count = now, count
                 if not ready and (monitor.warm or now - started > setup.warm_up_timeout_s):
@@ -260,8 +268,10 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
         health_pub.close()
         for s, h in old.items():
             signal.signal(s, h)
-    log.info("recorded %s (%s frames, %d IMU samples, %d CAN frames, %d restarts)", ", ".join(map(str, recorder.paths)),
-             recorder.frames, recorder.imu_samples, recorder.can_frames, restarts)
+    log.info("recorded %s (%s frames, %d IMU samples%s, %d CAN frames, %d restarts)", ", ".join(map(str, recorder.paths)),
+             recorder.frames, recorder.imu_samples,
+             "".join(f", {n} from the IMU on {radar}" for radar, n in recorder.radar_imu_samples.items()),
+             recorder.can_frames, restarts)
     if disk_full is not None:
         raise disk_full
     if devices.error is not None:

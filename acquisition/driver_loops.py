@@ -21,7 +21,7 @@ from drivers.radar.udp import UdpReceiver
 from imaging.core.waveform import Waveform
 
 from .bus import FRAME_QUEUE, BusPublisher, BusSubscriber
-from .messages import CanBatch, Event, ImuBatch, RadarFrameMessage, Trigger
+from .messages import CanBatch, Event, ImuBatch, RadarFrameMessage, RadarImuBatch, Trigger
 from .processes import become_child
 
 log = logging.getLogger(f"sarbot.{__name__}")
@@ -79,7 +79,7 @@ def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pu
 def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger_time_ns: int | None = None,
                     radar_endpoints: list[str] = (), clock_reference=None, report_every_s: float = 1.0,
                     frame_duration_ns: dict[str, int] | None = None, trigger_host_ns: int | None = None,
-                    batch_s: float = 0.05) -> None:
+                    batch_s: float = 0.05, radar: str | None = None) -> None:
     """Read the Xsens IMU on ``port`` and publish batches of samples on the PTP time base, and the trigger.
 
     The samples are put on PTP time by the hardware trigger (SyncIn), whose PTP time is ``trigger_time_ns``
@@ -94,13 +94,17 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
     times and the trigger's host time (``trigger_host_ns``, or the first radar frame's receive time less its
     ``frame_duration_ns``), and an event says so. Samples go out in batches of ``batch_s`` (a message per
     packet would cost the recorder an HDF5 append per sample).
+
+    With ``radar``, the IMU is the one on that radar's own mount: its batches go out as ``RadarImuBatch``,
+    and it does not publish the trigger (its SyncIn marks the same trigger as the robot's IMU).
     """
     import serial
 
+    source, label = ("imu", "IMU") if radar is None else (f"imu.{radar}", f"IMU of radar {radar}")
     trigger_ticks = None
     if clock_reference is not None and clock_reference[0]:
         trigger_time_ns, trigger_ticks = int(clock_reference[1]), int(clock_reference[2])
-        log.info("IMU: clock reference from before the restart: trigger at tick %d", trigger_ticks)
+        log.info("%s: clock reference from before the restart: trigger at tick %d", label, trigger_ticks)
     sub = BusSubscriber(list(radar_endpoints), topics=[RadarFrameMessage.TOPIC]) \
         if radar_endpoints and trigger_time_ns is None else None
     trigger_sent = trigger_ticks is not None
@@ -110,8 +114,12 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
     batch, batch_started = [], time.monotonic()
 
     def warn(message: str) -> None:
-        log.warning("IMU: %s", message)
-        pub.send(Event(time.time_ns(), "imu", "warning", message))
+        log.warning("%s: %s", label, message)
+        pub.send(Event(time.time_ns(), source, "warning", message))
+
+    def send_batch(samples, drift_ppm) -> None:
+        imu_batch = ImuBatch.from_samples(samples, drift_ppm)
+        pub.send(imu_batch if radar is None else RadarImuBatch(radar, imu_batch))
 
     try:
         while not stop.is_set():
@@ -154,7 +162,8 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
                 if driver.trigger_estimated:
                     warn(f"no SyncIn mark {driver.syncin_grace_s:g} s after the trigger (its packet lost?): the trigger's "
                          "IMU tick is estimated from the receive times; IMU times are good to a few ms, not to a tick")
-                pub.send(Trigger(clock.trigger_time_ns, "imu_receive_time" if driver.trigger_estimated else "imu_syncin"))
+                if radar is None:
+                    pub.send(Trigger(clock.trigger_time_ns, "imu_receive_time" if driver.trigger_estimated else "imu_syncin"))
                 trigger_sent = True
                 trigger_ticks = clock.trigger_ticks
                 if clock_reference is not None:
@@ -164,16 +173,16 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
                     batch_started = time.monotonic()
                 batch += samples
             if batch and time.monotonic() - batch_started >= batch_s:
-                pub.send(ImuBatch.from_samples(batch, clock.drift_ppm()))
+                send_batch(batch, clock.drift_ppm())
                 batch = []
             if time.monotonic() - last_report > report_every_s:
                 trouble_now = {k: v for k, v in vars(driver.parser.counters).items() if k != "messages"}
                 if text := parser_changes.since_last(trouble_now):
-                    pub.send(Event(time.time_ns(), "imu", "warning", text))
+                    pub.send(Event(time.time_ns(), source, "warning", text))
                 last_report = time.monotonic()
     finally:
         if batch:
-            pub.send(ImuBatch.from_samples(batch, driver.clock.drift_ppm() if driver is not None else None))
+            send_batch(batch, driver.clock.drift_ppm() if driver is not None else None)
         if driver is not None:
             driver.close()
         if sub is not None:
@@ -210,13 +219,14 @@ def radar_process(link: RadarLink, waveform: Waveform, endpoint: str, stop) -> N
 
 
 def imu_process(port: str, endpoint: str, radar_endpoints: list[str], stop, clock_reference=None,
-                frame_duration_ns: dict[str, int] | None = None) -> None:
-    become_child("imu", realtime=True)
+                frame_duration_ns: dict[str, int] | None = None, radar: str | None = None) -> None:
+    """An IMU's driver process: the robot's, or with ``radar`` the one on that radar's mount."""
+    become_child("imu" if radar is None else f"imu.{radar}", realtime=True)
     pub = BusPublisher(endpoint)
-    log.info("IMU on %s", port)
+    log.info("IMU%s on %s", "" if radar is None else f" of radar {radar}", port)
     try:
         imu_driver_loop(port, pub, stop, radar_endpoints=radar_endpoints, clock_reference=clock_reference,
-                        frame_duration_ns=frame_duration_ns)
+                        frame_duration_ns=frame_duration_ns, radar=radar)
     finally:
         pub.close()
 

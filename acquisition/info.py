@@ -53,8 +53,17 @@ def _counter_gaps(counter: np.ndarray, modulo: int) -> int:
     return int(np.sum(np.where(steps > 0, steps - 1, 0)))
 
 
-def recording_info(path: str | Path) -> dict[str, Any]:
+def _imu_info(samples: dict, nominal_rate_hz: float, clock_drift_ppm) -> dict[str, Any]:
+    """Samples, rate, counter gaps and clock drift of an IMU's recorded samples."""
     from drivers.imu import NO_COUNTER
+
+    counter = samples["counter"].astype(np.int64)
+    return {"samples": int(samples["time_ns"].size), "rate_hz": _rate_hz(samples["time_ns"]),
+            "nominal_rate_hz": float(nominal_rate_hz), "counter_gaps": _counter_gaps(counter[counter != NO_COUNTER], 2**16),
+            "clock_drift_ppm": None if clock_drift_ppm is None else float(clock_drift_ppm)}
+
+
+def recording_info(path: str | Path) -> dict[str, Any]:
     from imaging.io.recording import Recording
 
     with Recording(path) as rec:
@@ -74,15 +83,14 @@ def recording_info(path: str | Path) -> dict[str, Any]:
                 info["duration_s"] = float((t[-1] - t[0]) * 1e-9)
                 starts.append(int(t[0]))
                 ends.append(int(t[-1]))
+            radar_imu = rec.radar_imu(name)
+            if radar_imu is not None:  # the IMU on the radar's own mount
+                attrs = rec.file[f"radar/{name}/imu"].attrs
+                info["imu"] = _imu_info(radar_imu, attrs["rate_hz"], attrs.get("clock_drift_ppm"))
             out["radars"][name] = info
         imu = rec.imu()
         if imu is not None:
-            counter = imu["counter"].astype(np.int64)
-            counted = counter[counter != NO_COUNTER]
-            out["imu"] = {"samples": int(imu["time_ns"].size), "rate_hz": _rate_hz(imu["time_ns"]),
-                          "nominal_rate_hz": float(imu.get("rate_hz", np.nan)),
-                          "counter_gaps": _counter_gaps(counted, 2**16),
-                          "clock_drift_ppm": float(imu["clock_drift_ppm"]) if "clock_drift_ppm" in imu else None}
+            out["imu"] = _imu_info(imu, imu.get("rate_hz", np.nan), imu.get("clock_drift_ppm"))
             starts.append(int(imu["time_ns"][0]))
             ends.append(int(imu["time_ns"][-1]))
         out["can_frames"] = int(rec.can()["time_ns"].size)
@@ -128,6 +136,11 @@ def info(path: str | Path) -> dict[str, Any]:
     return {"recording": recording_info, "trajectory": trajectory_info, "image": image_info}[kind](path)
 
 
+def _imu_line(i: dict[str, Any]) -> str:
+    drift = f"{i['clock_drift_ppm']:+.1f} ppm" if i["clock_drift_ppm"] is not None else "unknown"
+    return f"{i['samples']} samples at {i['rate_hz'] or 0:.1f} Hz, {i['counter_gaps']} missing by counter, clock drift {drift}"
+
+
 def format_info(d: dict[str, Any]) -> str:
     """The info as lines a person reads."""
     lines = [f"{d['file']}: sarbot {d['kind']}"]
@@ -142,11 +155,10 @@ def format_info(d: dict[str, Any]) -> str:
                          f"{r['counter_gaps']} missing by counter; {r['wire_format'] or 'simulated'}; "
                          f"{wf['f0_ghz']:.2f} GHz, {wf['bandwidth_mhz']:.0f} MHz, {wf['chirps_per_frame']} chirps x "
                          f"{wf['samples_per_chirp']} samples, {wf['n_tx']} TX x {wf['n_rx']} RX")
+            if "imu" in r:
+                lines.append(f"    its own IMU: {_imu_line(r['imu'])}")
         if "imu" in d:
-            i = d["imu"]
-            drift = f"{i['clock_drift_ppm']:+.1f} ppm" if i["clock_drift_ppm"] is not None else "unknown"
-            lines.append(f"  IMU: {i['samples']} samples at {i['rate_hz'] or 0:.1f} Hz, {i['counter_gaps']} missing by "
-                         f"counter, clock drift {drift}")
+            lines.append(f"  IMU: {_imu_line(d['imu'])}")
         else:
             lines.append("  IMU: none")
         ev = d["events"]

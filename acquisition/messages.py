@@ -4,7 +4,9 @@ Every message turns into ``to_parts()`` = (topic, sensor time, arrays, header fi
 ``BusPublisher.send`` and comes back with ``from_message`` (or ``decode``, which picks the class by topic).
 The header keys live here and nowhere else, so a producer and its consumers cannot drift apart.
 
-Topics: ``radar/<name>`` (RadarFrameMessage), ``imu`` (ImuBatch), ``can`` (CanBatch), ``trigger``
+Topics: ``radar/<name>`` (RadarFrameMessage), ``imu`` (ImuBatch), ``radar_imu/<name>`` (RadarImuBatch: an
+IMU on that radar's own mount; not ``imu/<name>``, which a subscription to ``imu`` would take for the
+robot's IMU, ZeroMQ topics being prefixes), ``can`` (CanBatch), ``trigger``
 (Trigger), ``event`` (Event), ``pose`` (PoseBatch), ``pose/end`` (PoseEnd), ``map/tile`` (MapTile),
 ``map/status`` (MapStatus), ``worker/state`` (WorkerState), ``health`` (Health).
 """
@@ -127,6 +129,30 @@ class ImuBatch(BusMessage):
     @classmethod
     def from_message(cls, msg: Message) -> "ImuBatch":
         return cls(*msg.arrays, clock_drift_ppm=msg.header.get("clock_drift_ppm"))
+
+
+@dataclasses.dataclass
+class RadarImuBatch(BusMessage):
+    """Samples of the IMU on a radar's own mount (axes: the radar's), as an ImuBatch; recorded in
+    ``/radar/<name>/imu``."""
+
+    TOPIC: ClassVar[str] = "radar_imu/"
+    radar: str
+    batch: ImuBatch
+
+    def __len__(self) -> int:
+        return len(self.batch)
+
+    @classmethod
+    def topic_of(cls, radar: str) -> str:
+        return f"{cls.TOPIC}{radar}"
+
+    def to_parts(self) -> Parts:
+        return dataclasses.replace(self.batch.to_parts(), topic=self.topic_of(self.radar))
+
+    @classmethod
+    def from_message(cls, msg: Message) -> "RadarImuBatch":
+        return cls(msg.topic[len(cls.TOPIC):], ImuBatch.from_message(msg))
 
 
 class ArrayBatch(BusMessage):
@@ -349,4 +375,6 @@ def decode(msg: Message) -> BusMessage:
         return RadarFrameMessage.from_message(msg)
     if msg.topic.startswith(PointCloudMessage.TOPIC):
         return PointCloudMessage.from_message(msg)
+    if msg.topic.startswith(RadarImuBatch.TOPIC):
+        return RadarImuBatch.from_message(msg)
     return _BY_TOPIC[msg.topic].from_message(msg)

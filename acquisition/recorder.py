@@ -26,6 +26,7 @@ from .messages import (
     Event,
     ImuBatch,
     RadarFrameMessage,
+    RadarImuBatch,
     Trigger,
     WorkerState,
     decode,
@@ -87,7 +88,8 @@ class Recorder:
         self._triggers: list[tuple[int, str]] = []
         self.writer = self._open_part()
         self._handlers = {RadarFrameMessage: self._store_frame, ImuBatch: self._store_imu, CanBatch: self._store_can,
-                          Trigger: self._store_trigger, Event: self._store_event, WorkerState: self._note_worker}
+                          Trigger: self._store_trigger, Event: self._store_event, WorkerState: self._note_worker,
+                          RadarImuBatch: self._store_radar_imu}
         self.sub = BusSubscriber(endpoints, topics=[cls.TOPIC for cls in self._handlers], context=context,
                                  high_water_marks=dict.fromkeys(frame_endpoints, RECORDER_FRAME_QUEUE))
         self.flush_interval_s = flush_interval_s
@@ -95,6 +97,9 @@ class Recorder:
         self._reported_missed: dict[str, int] = {}
         self.frames = {r.name: 0 for r in rig.radars}
         self.imu_samples = 0
+        self.radar_imu_samples: dict[str, int] = {}  # by radar: samples of the IMUs on radar mounts
+        self.radar_imu_unrecorded: dict[str, int] = {}  # by radar: samples of an IMU the rig does not declare
+        self.radar_imu_drift_ppm: dict[str, float] = {}
         self.can_frames = 0
         # For health reports: what went wrong, and the clocks' state.
         self.invalid_frames = {r.name: 0 for r in rig.radars}
@@ -170,6 +175,23 @@ class Recorder:
         if m.clock_drift_ppm is not None:
             self.imu_drift_ppm = float(m.clock_drift_ppm)
 
+    def _store_radar_imu(self, m: RadarImuBatch) -> None:
+        if not self.writer.has_radar_imu(m.radar):
+            # Only a rig's [radar.NAME.imu] says how that IMU sits (its rate, noise): without it the samples
+            # could not be read back as the radar's. Said once in /events, counted after.
+            if m.radar not in self.radar_imu_unrecorded:
+                text = (f"samples of an IMU on radar {m.radar!r}, which the rig does not declare ([radar.{m.radar}.imu]): "
+                        "not recorded")
+                log.error(text)
+                self.writer.append_event(int(m.batch.time_ns[0]) if len(m) else 0, "recorder", "error", text)
+            self.radar_imu_unrecorded[m.radar] = self.radar_imu_unrecorded.get(m.radar, 0) + len(m)
+            return
+        b = m.batch
+        self.writer.append_radar_imu(m.radar, b.time_ns, b.gyro_radps, b.accel_mps2, b.counter, b.host_time_ns)
+        self.radar_imu_samples[m.radar] = self.radar_imu_samples.get(m.radar, 0) + len(m)
+        if b.clock_drift_ppm is not None:
+            self.radar_imu_drift_ppm[m.radar] = float(b.clock_drift_ppm)
+
     def _store_can(self, m: CanBatch) -> None:
         self.writer.append_can(m.time_ns, m.arbitration_id, m.dlc, m.data)
         self.can_frames += len(m)
@@ -211,6 +233,8 @@ class Recorder:
         try:
             if self.imu_drift_ppm is not None:
                 self.writer.set_imu_clock_drift_ppm(self.imu_drift_ppm)
+            for radar, drift in self.radar_imu_drift_ppm.items():
+                self.writer.set_imu_clock_drift_ppm(drift, radar)
             self.writer.flush()
             self._fsync_in_background(self.writer.fileno())
         except OSError as exc:

@@ -104,13 +104,19 @@ def replay_pcap(path, address, dst_port: int, speed: float | None = 1.0) -> int:
     return len(datagrams)
 
 
-def imu_emulator(recording: Recording, speed: float | None = 1.0, laps: int = 1, lap_ns: int = 0) -> XbusPty:
-    """An Xsens IMU on a pty replaying the recording's /imu; the first sample carries the trigger. With
-    ``laps`` > 1 each lap lasts ``lap_ns``: the samples of one lap, cut or padded with the last sample
-    (the drive ends at rest) to the lap's length, so the IMU's clock keeps in step with the radars'."""
-    imu = recording.imu()
+def imu_emulator(recording: Recording, speed: float | None = 1.0, laps: int = 1, lap_ns: int = 0,
+                 radar: str | None = None) -> XbusPty:
+    """An Xsens IMU on a pty replaying the recording's /imu (or with ``radar`` the IMU on that radar's mount,
+    /radar/<radar>/imu); the first sample carries the trigger. With ``laps`` > 1 each lap lasts ``lap_ns``:
+    the samples of one lap, cut or padded with the last sample (the drive ends at rest) to the lap's length,
+    so the IMU's clock keeps in step with the radars'."""
+    if radar is None:
+        imu = recording.imu()
+        rate = float(imu["rate_hz"])
+    else:
+        imu = recording.radar_imu(radar)
+        rate = recording.radar(radar).imu.rate_hz
     gyro, accel = imu["gyro_radps"], imu["accel_mps2"]
-    rate = float(imu["rate_hz"])
     if laps > 1:
         n = int(round(lap_ns * 1e-9 * rate))
         take = np.minimum(np.arange(n), len(gyro) - 1)
@@ -133,10 +139,21 @@ def _radar_sender_process(path: str, name: str, address, speed, go, start, resul
         results.put((name, f"{type(exc).__name__}: {exc}"))
 
 
+def _link_to_pty(link: Path, option: str) -> None:
+    """Make way for a link to an emulator's pty at ``link``: only a link an earlier replay left (to a
+    pseudo-terminal) is replaced; never a real file."""
+    if link.exists() or link.is_symlink():
+        if not (link.is_symlink() and os.readlink(link).startswith("/dev/pts/")):
+            raise SarbotError(f"{option} {link}: exists and is not a link to a pseudo-terminal; give a path that does not exist")
+        link.unlink()
+
+
 def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str | None, speed: float | None,
-           start_delay_s: float = 0.0, can: CanConfig | None = None, laps: int = 1) -> dict:
+           start_delay_s: float = 0.0, can: CanConfig | None = None, laps: int = 1,
+           radar_imu_links: dict[str, str] | None = None) -> dict:
     """Send a recording through emulated hardware: each radar's datagrams (in the wire format it was
-    recorded in) to its UDP address, the IMU as Xbus bytes on a pty that ``imu_link`` points to, and /can on
+    recorded in) to its UDP address, the IMU as Xbus bytes on a pty that ``imu_link`` points to (and each
+    IMU on a radar's mount on a pty of its own, ``radar_imu_links``: radar -> link), and /can on
     a python-can bus. ``laps`` > 1: the drive again and again, back to back, times and counters
     continuing (a soak test; the drive should end where and as it started, at rest). Returns what was sent
     ({radar: datagrams, "can": frames})."""
@@ -149,18 +166,22 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
         if laps > 1 and can is not None:
             raise SarbotError("--laps: CAN cannot be replayed in laps (its frames carry no time to move on)")
         lap_ns = lap_duration_ns(rec, radar_targets) if laps > 1 else 0
-        emu = None
+        emulators: dict[str, tuple[XbusPty, Path]] = {}  # "IMU" or "IMU of radar NAME" -> emulator, its link
         if imu_link:
             if rec.imu() is None:
                 raise SarbotError(f"--imu-link: {path} has no IMU samples to replay")
-            link = Path(imu_link)
-            if link.exists() or link.is_symlink():
-                # Only a link an earlier replay left (to a pseudo-terminal) is replaced; never a real file.
-                if not (link.is_symlink() and os.readlink(link).startswith("/dev/pts/")):
-                    raise SarbotError(f"--imu-link {link}: exists and is not a link to a pseudo-terminal; "
-                                      "give a path that does not exist")
-                link.unlink()
-            emu = imu_emulator(rec, speed=speed, laps=laps, lap_ns=lap_ns)
+            _link_to_pty(Path(imu_link), "--imu-link")
+        for name, link in (radar_imu_links or {}).items():
+            if name not in rec.radar_names:
+                raise SarbotError(f"--radar-imu-link {name}: {path} has no such radar (radars: {', '.join(rec.radar_names)})")
+            if rec.radar_imu(name) is None:
+                raise SarbotError(f"--radar-imu-link {name}: {path} has no samples of an IMU on radar {name} to replay")
+            _link_to_pty(Path(link), "--radar-imu-link")
+        if imu_link:
+            emulators["IMU"] = (imu_emulator(rec, speed=speed, laps=laps, lap_ns=lap_ns), Path(imu_link))
+        for name, link in (radar_imu_links or {}).items():
+            emulators[f"IMU of radar {name}"] = (imu_emulator(rec, speed=speed, laps=laps, lap_ns=lap_ns, radar=name), Path(link))
+        for emu, link in emulators.values():
             link.symlink_to(emu.port)
         can_bus = can.open() if can is not None else None
         time.sleep(start_delay_s)
@@ -196,9 +217,10 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
             # clock's (PTP, or a simulation's). The radars' recorded receive times tie the two together.
             firsts = [int(rec.host_time_ns(n)[0]) + TAI_MINUS_UTC_NS for n in radar_targets if rec.n_frames(n)]
             can_thread = threading.Thread(target=send_can, args=(min(firsts) if firsts else None,))
-        if emu is not None:
+        if emulators:
             time.sleep(max(start.value - time.monotonic(), 0.0))
-            emu.start()
+            for emu, _ in emulators.values():
+                emu.start()
         if can_thread is not None:
             can_thread.start()
         for name, proc in procs.items():
@@ -218,13 +240,14 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
             can_thread.join()
             time.sleep(0.2)  # frames still in flight on the emulated bus
             can_bus.shutdown()
-        if emu is not None:
+        for emu, _ in emulators.values():
             emu.done.wait()
-            time.sleep(0.5)  # let the reader drain the pty
+        if emulators:
+            time.sleep(0.5)  # let the readers drain the ptys
+        for label, (emu, link) in emulators.items():
             emu.close()
             if emu.failure:
-                failures.append(f"IMU: {emu.failure}")
-            link = Path(imu_link)
+                failures.append(f"{label}: {emu.failure}")
             if link.is_symlink() and os.readlink(link) == emu.port:  # ours still: take it away
                 link.unlink()
     if failures:

@@ -87,11 +87,11 @@ def small_recording(tmp_path_factory):
     return path
 
 
-OPTIONS_RECORD = ["--radar", "--dca1000", "--imu-port", "--can", "--can-arg", "--can-trigger-id", "--duration",
+OPTIONS_RECORD = ["--radar", "--dca1000", "--imu-port", "--radar-imu", "--can", "--can-arg", "--can-trigger-id", "--duration",
                   "--split-size", "--split-time", "--min-free", "--health-endpoint"]
 OPTIONS_RUN = ["--view", "--map-aperture", "--map-pixel", "--map-range", "--map-height", "--map-presum", "--max-speed",
                "--map-radars", "--rio-radars", "--map-threads"]
-OPTIONS_REPLAY = ["--radar", "--speed", "--start-delay", "--laps", "--can-trigger-id"]
+OPTIONS_REPLAY = ["--radar", "--radar-imu-link", "--speed", "--start-delay", "--laps", "--can-trigger-id"]
 
 
 @FUZZ

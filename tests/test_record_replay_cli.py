@@ -62,6 +62,75 @@ def test_replay_into_record(tmp_path):
         assert all(m.startswith("serial port lost") for m in messages), messages
 
 
+def test_an_imu_on_a_radar_mount_is_replayed_and_recorded_sample_for_sample(tmp_path):
+    """`replay --radar-imu-link` and `record --radar-imu`: the radar's own IMU on a pty of its own, its samples
+    in /radar/left/imu on the same time base as the robot's IMU, and no second trigger."""
+    import socket
+
+    from imaging.core.rig import load_rig
+
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG_TOML + "[radar.left.imu]\nrate_hz = 1000.0\n")
+    src = tmp_path / "source.h5"
+    iq, imu = make_source(src, rig=load_rig(rig))
+    with Recording(src) as source:
+        want = source.radar_imu("left")
+    assert want is not None and want["time_ns"][0] == imu.time_ns[0]
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    link, radar_link = tmp_path / "imu_tty", tmp_path / "left_imu_tty"
+    cmd = [sys.executable, "-m", "acquisition.cli"]
+    replay = subprocess.Popen([*cmd, "replay", str(src), "--radar", f"left=127.0.0.1:{port}", "--imu-link", str(link),
+                               "--radar-imu-link", f"left={radar_link}", "--speed", "2", "--start-delay", "4"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 10
+    while not (link.exists() and radar_link.exists()) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    record = subprocess.run([*cmd, "record", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar", f"left={port}",
+                             "--imu-port", str(link), "--radar-imu", f"left={radar_link}", "--duration", "9"],
+                            capture_output=True, text=True, timeout=60)
+    out, err = replay.communicate(timeout=30)
+    assert replay.returncode == 0, err
+    assert "and the IMU, the IMU on left" in out
+    assert record.returncode == 0, record.stderr
+    path = record.stdout.split("wrote ")[-1].strip()
+    with Recording(path) as again:
+        np.testing.assert_array_equal(again.file["radar/left/adc"][()], iq)
+        np.testing.assert_array_equal(again.imu()["time_ns"], imu.time_ns)
+        got = again.radar_imu("left")
+        assert got is not None
+        for key in ("time_ns", "gyro_radps", "accel_mps2"):
+            np.testing.assert_array_equal(got[key], want[key], err_msg=key)
+        assert again.radar("left").imu.rate_hz == 1000.0
+        assert again.file["radar/left/imu"].attrs["clock_drift_ppm"] == pytest.approx(-5e5, rel=0.05)  # replayed at 2x
+        assert again.triggers().tolist() == [int(imu.time_ns[0])]  # the radar's IMU marks the same trigger: no second
+        messages = [m.decode() for m in again.file["events/message"][()]]
+        assert all(m.startswith("serial port lost") for m in messages), messages
+    import json
+
+    info = json.loads(run_cli("info", path, "--json").stdout)["radars"]["left"]["imu"]
+    assert info["samples"] == want["time_ns"].size and info["nominal_rate_hz"] == 1000.0 and info["counter_gaps"] == 0
+    assert "its own IMU: " in run_cli("info", path).stdout
+
+
+def test_a_radar_imu_the_rig_or_the_recording_lacks_is_one_line(tmp_path):
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG_TOML)  # no [radar.left.imu]
+    res = run_cli("record", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar-imu", f"left={tmp_path / 'tty'}",
+                  "--duration", "1")
+    assert res.returncode != 0 and "Traceback" not in res.stderr
+    assert "declares no IMU on radar left" in res.stderr and "[radar.left.imu]" in res.stderr
+    res = run_cli("record", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar-imu", "left")
+    assert res.returncode != 0 and "--radar-imu 'left': expected NAME=PATH" in res.stderr
+    src = tmp_path / "source.h5"
+    make_source(src)
+    res = run_cli("replay", str(src), "--radar-imu-link", f"left={tmp_path / 'left_imu'}", "--speed", "0")
+    assert res.returncode != 0 and "Traceback" not in res.stderr
+    assert "no samples of an IMU on radar left" in res.stderr
+    assert not (tmp_path / "left_imu").exists()
+
+
 def test_record_bad_config_is_one_line(tmp_path):
     bad = tmp_path / "rig.toml"
     bad.write_text("[radar.left]\nwaveform = { n_tx = 0 }\n")

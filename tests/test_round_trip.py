@@ -20,7 +20,7 @@ from drivers.radar.udp import UdpReceiver
 from imaging.core.rig import rig_from_dict
 from imaging.core.trajectory import PathWithTurns
 from imaging.io.recording import Recording, RecordingWriter
-from imaging.sim.imu_simulator import simulate_imu
+from imaging.sim.imu_simulator import simulate_imu, simulate_radar_imu
 from imaging.sim.robot_base_can import TRIGGER_ID, simulate_base_can
 from imaging.sim.scene import DEFAULT_START_TIME_NS
 from imaging.sim.simulator import simulate_frames
@@ -31,17 +31,23 @@ RIG = rig_from_dict({"imu": {"rate_hz": 400.0},
                                         "waveform": {"chirps_per_frame": 32}}}})
 
 
-def make_source(path, n_frames=30):
-    radar = RIG.radar("left")
+def make_source(path, n_frames=30, rig=RIG):
+    """A recording of radar "left" of ``rig``, the IMU and CAN; with the IMU on the radar's mount too where
+    the rig declares one."""
+    radar = rig.radar("left")
     wf = radar.waveform
     traj = PathWithTurns(segments=[("straight", 1.0)], speed_mps=0.4, t0_ns=DEFAULT_START_TIME_NS)
     ft = DEFAULT_START_TIME_NS + np.arange(n_frames, dtype=np.int64) * int(wf.frame_interval_s * 1e9)
     adc = simulate_frames(radar, traj, [PointTarget((0.0, 2.0, 0.3))], ft, snr_db=20, rng=np.random.default_rng(0))
     iq = np.round(np.stack([adc.real, adc.imag], -1) * 400).astype(np.int16)  # an ADC with some headroom
-    imu = simulate_imu(traj, RIG.imu, ft[0], ft[-1], rng=np.random.default_rng(1))
-    with RecordingWriter(path, [radar], imu=RIG.imu, adc_dtype="int16", truth=False) as w:
+    imu = simulate_imu(traj, rig.imu, ft[0], ft[-1], rng=np.random.default_rng(1))
+    with RecordingWriter(path, [radar], imu=rig.imu, adc_dtype="int16", truth=False) as w:
         w.append_frames("left", iq, ft, np.arange(n_frames), ft)
         w.append_imu(imu.time_ns, imu.gyro_radps.astype(np.float32), imu.accel_mps2.astype(np.float32), imu.counter, imu.time_ns)
+        if radar.imu is not None:
+            ri = simulate_radar_imu(traj, radar, ft[0], ft[-1], rng=np.random.default_rng(2))
+            w.append_radar_imu("left", ri.time_ns, ri.gyro_radps.astype(np.float32), ri.accel_mps2.astype(np.float32),
+                               ri.counter, ri.time_ns)
         w.append_trigger(ft[0], "sync_box")
         base = simulate_base_can(traj, ft[0], ft[-1], trigger_time_ns=int(ft[0]))
         w.append_can(base["time_ns"], base["arbitration_id"], base["dlc"], base["data"])

@@ -240,10 +240,16 @@ class RecordingWriter:
         self._append(g["level"], [level])
         self._append(g["message"], [message])
 
-    def set_imu_clock_drift_ppm(self, drift_ppm: float) -> None:
-        """Record the IMU clock's drift against the host clock (``/imu`` attribute ``clock_drift_ppm``)."""
-        if "imu" in self._f:
-            self._f["imu"].attrs["clock_drift_ppm"] = drift_ppm
+    def has_radar_imu(self, radar: str) -> bool:
+        """Whether the file has ``/radar/<radar>/imu`` (the rig declared an IMU on that radar's mount)."""
+        return f"radar/{radar}/imu" in self._f
+
+    def set_imu_clock_drift_ppm(self, drift_ppm: float, radar: str | None = None) -> None:
+        """Record the IMU clock's drift against the host clock (attribute ``clock_drift_ppm`` of ``/imu``, or
+        with ``radar`` of ``/radar/<radar>/imu``)."""
+        key = "imu" if radar is None else f"radar/{radar}/imu"
+        if key in self._f:
+            self._f[key].attrs["clock_drift_ppm"] = drift_ppm
 
     def flush(self) -> None:
         """Write everything appended so far to the file (the page cache): a killed process loses none of it."""
