@@ -512,8 +512,12 @@ def run_workers(setup, args, out_dir: Path, stamp: str):
     else:
         raise SarbotError(f"--map-presum {args.map_presum!r}: expected 'auto' or a positive integer")
     map_radars = _names(args.map_radars, "--map-radars", names)
+    if args.map_imu_aided and not set(setup.radar_imu_ports) & set(map_radars):
+        raise SarbotError("--map-imu-aided: no mapped radar has an IMU of its own; give --radar-imu NAME=DEVICE "
+                          f"for one of {', '.join(map_radars)}")
     config = StripMapConfig(pixel_m=args.map_pixel, aperture_m=args.map_aperture, range_min_m=args.map_range[0],
-                            range_max_m=args.map_range[1], z_m=args.map_height, refocus=args.map_refocus)
+                            range_max_m=args.map_range[1], z_m=args.map_height, refocus=args.map_refocus,
+                            refocus_imu_aided=args.map_imu_aided)
     if args.map_threads < 1:
         raise SarbotError(f"--map-threads {args.map_threads}: must be at least 1")
     view = None
@@ -884,6 +888,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--map-refocus", default="none", choices=["none", "pga", "entropy"],
                    help="refocus each map tile on its strongest scatterers once the robot has passed it (autofocus "
                         "of the radar's track error over the tile's frames; default none)")
+    s.add_argument("--map-imu-aided", action="store_true",
+                   help="correct each map tile once passed by the IMUs on the radars' own mounts (--radar-imu) first, "
+                        "then --map-refocus if given")
     s.add_argument("--map-presum", default="auto", help="chirps summed per virtual channel before imaging ('auto': the "
                    "most whose phase spread stays within pi/4 at --max-speed)")
     s.add_argument("--max-speed", type=float, default=0.5, help="fastest the robot drives, m/s (sets automatic pre-summing)")

@@ -272,6 +272,7 @@ class MapStatus(HeaderMessage):
     busy_s: float = 0.0  # time spent imaging
     tiles: int = 0
     tiles_refocused: int = 0  # finished tiles refocused on their strongest scatterers (--map-refocus)
+    tiles_without_radar_imu: int = 0  # --map-imu-aided: finished tiles whose frames no radar's own IMU covered
     time_ns: int = 0
 
 

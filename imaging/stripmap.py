@@ -22,6 +22,10 @@ passed it: while it is being imaged each frame goes in as ``refocus_groups_per_f
 images (the same kernel calls, split by chirp time), which are exactly what ``imaging.autofocus`` estimates
 a track error from; the refocused tile is their phase-corrected sum, with no second pass over the data.
 The group images of a tile are kept until then (``refocus_groups_per_frame`` x pixels x 8 bytes a frame).
+With ``refocus_imu_aided`` the samples of an IMU on a radar's own mount (``add_radar_imu``) correct the
+tile first, as ``sarbot image --imu-aided`` does: its high-passed boresight acceleration, integrated twice
+over the groups' times, is the track error of that radar's groups, and autofocus (if any) estimates what
+is left.
 
 Pure computation: arrays and dataclasses in, arrays out. ``acquisition.workers`` runs it on the bus.
 """
@@ -65,6 +69,11 @@ class StripMapConfig:
     #: Refocus a finished tile on its strongest scatterers: "none", "pga" or "entropy" (imaging.autofocus).
     refocus: str = "none"
     refocus_groups_per_frame: int = 4
+    #: Correct a finished tile by the IMU on each radar's own mount first (``StripMap.add_radar_imu``); also
+    #: with ``refocus`` "none", then the IMU's correction alone.
+    refocus_imu_aided: bool = False
+    #: Sensor time of a radar IMU's samples kept for that (a tile's groups must lie within it).
+    radar_imu_keep_s: float = 60.0
     #: The most tiles the map holds (64 KB each at 64 px: 1 GB for the default). A frame that needs a tile
     #: beyond it goes into the tiles it has, or is left out (counted): a long drive, or an odometry gone
     #: astray on a starved machine (tiles kilometres apart), must not take the machine's memory.
@@ -83,8 +92,14 @@ class StripMapConfig:
         require(self.refocus in ("none", "pga", "entropy"), "refocus", f"must be none, pga or entropy, got {self.refocus!r}")
         require(1 <= self.refocus_groups_per_frame <= 64, "refocus_groups_per_frame", "must be 1 to 64")
         require(self.max_tiles >= 1, "max_tiles", f"must be at least 1, got {self.max_tiles}")
-        require(self.refocus == "none" or self.tile_px % 16 == 0, "tile_px",
+        require(not self.refocuses or self.tile_px % 16 == 0, "tile_px",
                 f"must be a multiple of 16 to refocus tiles, got {self.tile_px}")
+        require(self.radar_imu_keep_s > 0, "radar_imu_keep_s", "must be positive")
+
+    @property
+    def refocuses(self) -> bool:
+        """Whether finished tiles are refocused (by autofocus, the radars' IMUs or both)."""
+        return self.refocus != "none" or self.refocus_imu_aided
 
     @property
     def tile_m(self) -> float:
@@ -142,8 +157,11 @@ class StripMap:
         self.profiles = 0
         self._axis = (np.arange(config.tile_px) + 0.5) * config.pixel_m  # pixel centres inside a tile
         #: tile -> its group images while it is being imaged (refocus only): lists of time (s from the first
-        #: frame), antenna phase centre [3], look direction [3], group image [tile_px^2] complex64
+        #: frame), antenna phase centre [3], look direction [3], group image [tile_px^2] complex64, radar name
         self._groups: dict[tuple[int, int], list] = {}
+        #: radar -> chunks of (time_ns [N], boresight specific force [N]) of the IMU on its mount (IMU-aided)
+        self._radar_imu: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
+        self.tiles_without_radar_imu = 0  # IMU-aided refocus: tiles whose groups no radar IMU covered
         self._t0_ns: int | None = None
         self._k = 0.0
         self._range_resolution_m = 0.0
@@ -253,11 +271,11 @@ class StripMap:
             return FrameFootprint([], 0, skipped="map full")
         self.frames += 1
         self.profiles += profiles.data.shape[0]
-        refocused = self._finish_tiles(set(touched)) if cfg.refocus != "none" else []
+        refocused = self._finish_tiles(set(touched)) if cfg.refocuses else []
         if not touched:
             return FrameFootprint([], 0, refocused=refocused)
         pts = np.concatenate(points)
-        if cfg.refocus == "none":
+        if not cfg.refocuses:
             values, groups = [backproject(profiles, tx_m, rx_m, pts, mode=cfg.mode)], []
         else:
             values, groups = self._group_values(profiles, tx_m, rx_m, look, times, frame_time_ns, wf, pts)
@@ -269,11 +287,11 @@ class StripMap:
             m = int(mask.sum())
             for v in values:
                 tile[mask] += v[start:start + m]
-            if cfg.refocus != "none":
+            if cfg.refocuses:
                 for (t_s, antenna, direction), v in zip(groups, values):
                     image = np.zeros(n * n, np.complex64)
                     image[mask.ravel()] = v[start:start + m]
-                    self._groups.setdefault(key, []).append((t_s, antenna, direction, image))
+                    self._groups.setdefault(key, []).append((t_s, antenna, direction, image, radar.name))
             start += m
         return FrameFootprint(touched, pts.shape[0] * profiles.data.shape[0], refocused=refocused)
 
@@ -311,36 +329,98 @@ class StripMap:
         """Refocus every tile still being imaged (at the end of a run); returns those whose image changed."""
         return self._finish_tiles(set())
 
-    def refocus_tile(self, key: tuple[int, int]) -> bool:
-        """Refocus one tile from its group images (and drop them); True if the tile's image changed."""
-        from imaging.autofocus import (AutofocusOptions, assemble_group_images, estimate_on_group_images,
-                                       nothing_to_focus_on, remove_line)
+    def add_radar_imu(self, radar: str, time_ns: np.ndarray, accel_mps2: np.ndarray) -> None:
+        """Samples of the IMU on ``radar``'s own mount: times [N] int64 ns, specific force [N, 3] in the radar's
+        axes (x the boresight). Kept for ``radar_imu_keep_s``, for ``refocus_imu_aided``."""
+        t = np.asarray(time_ns, np.int64)
+        if t.size == 0:
+            return
+        chunks = self._radar_imu.setdefault(radar, [])
+        chunks.append((t.copy(), np.asarray(accel_mps2, np.float64)[:, 0].copy()))
+        oldest = int(t[-1]) - int(self.config.radar_imu_keep_s * 1e9)
+        while len(chunks) > 1 and chunks[0][0][-1] < oldest:
+            chunks.pop(0)
 
+    def _radar_imu_track(self, radars: np.ndarray, time_s: np.ndarray) -> np.ndarray | None:
+        """Track error [Q] of groups of ``radars`` [Q] at ``time_s`` [Q] (s from the first frame) by each radar's
+        own IMU; zero for groups of a radar whose IMU does not cover them. None where no group is covered."""
+        from imaging.imu_aided import boresight_track_from_imu
+
+        out = np.zeros(time_s.size)
+        covered = False
+        for name in np.unique(radars):
+            chunks = self._radar_imu.get(str(name))
+            if not chunks:
+                continue
+            mine = radars == name
+            t_ns = self._t0_ns + np.round(time_s[mine] * 1e9).astype(np.int64)
+            t = np.concatenate([c[0] for c in chunks])
+            a = np.concatenate([c[1] for c in chunks])
+            if t[0] > t_ns.min() or t[-1] < t_ns.max():
+                continue  # the IMU's samples do not span the groups (kept too short, or not yet arrived)
+            try:
+                te = boresight_track_from_imu(t, np.column_stack([a, np.zeros_like(a), np.zeros_like(a)]),
+                                              (int(t_ns.min()), int(t_ns.max())), self._t0_ns)
+            except ValueError:
+                continue
+            out[mine] = te.at(time_s[mine])
+            covered = True
+        return out if covered else None
+
+    def refocus_tile(self, key: tuple[int, int]) -> bool:
+        """Refocus one tile from its group images (and drop them); True if the tile's image changed.
+
+        With ``refocus_imu_aided`` the radars' own IMUs correct the groups first; autofocus (``refocus``)
+        then estimates the rest where the tile has a scatterer to focus on, whole within it."""
+        from imaging.autofocus import (AutofocusOptions, AutofocusResult, TrackError, assemble_group_images,
+                                       estimate_on_group_images, nothing_to_focus_on, remove_line)
+
+        cfg = self.config
         groups = self._groups.pop(key, [])
-        options = AutofocusOptions(method=self.config.refocus)
+        options = AutofocusOptions(method=cfg.refocus)
         tile = self.tiles.get(key)
-        if len(groups) < 8 or tile is None or nothing_to_focus_on(tile, options):
+        if len(groups) < 8 or tile is None:
             return False
+        autofocus = cfg.refocus != "none" and not nothing_to_focus_on(tile, options)
         # A tile whose brightest pixel is on its border holds the tail of a scatterer in a neighbour: that
         # neighbour's refocus is the one that sees the scatterer whole.
         iy, ix = np.unravel_index(int(np.argmax(np.abs(tile))), tile.shape)
         if min(iy, ix) < 2 or max(iy, ix) > tile.shape[0] - 3:
+            autofocus = False
+        time_s = np.array([g[0] for g in groups])
+        imu = self._radar_imu_track(np.array([g[4] for g in groups]), time_s) if cfg.refocus_imu_aided else None
+        if cfg.refocus_imu_aided and imu is None:
+            self.tiles_without_radar_imu += 1
+        if not autofocus and imu is None:
             return False
-        n = self.config.tile_px
+        n = cfg.tile_px
         order = patch_order((n, n))
         order = np.arange(n * n) if order is None else order
         x, y = self.tile_points(key)
         gx, gy = np.meshgrid(x, y)
         pts = np.stack([gx.ravel(), gy.ravel(), np.full(n * n, self.config.z_m)], axis=1)[order]
         b = np.stack([g[3][order] for g in groups])
-        g = assemble_group_images(b, np.array([g[0] for g in groups]), np.array([g[1] for g in groups]),
+        g = assemble_group_images(b, time_s, np.array([g[1] for g in groups]),
                                   np.array([g[2] for g in groups]), pts, np.ones(n * n, np.float32), self._k,
                                   self._range_resolution_m)
-        result = estimate_on_group_images(g, options)
-        if not result.applied:
+        if imu is not None:
+            # The IMU's correction, applied to the group images as autofocus's own would be: what autofocus
+            # then sees is the residual.
+            g.b *= np.exp(1j * g.phase(imu)).T[:, :, None].astype(np.complex64)
+        if autofocus:
+            result = estimate_on_group_images(g, options)
+        else:
+            zero = TrackError(time_s, np.zeros(time_s.size), "none")
+            result = AutofocusResult(zero, 0.0, 0.0, False, int(n * n), time_s.size, 0, "no scatterer to focus on")
+        if imu is None and not result.applied:
             self.refocus_results[key] = result
             return False
-        focused = g.image(g.phase(result.track_error.displacement_m)).ravel()
+        residual = result.track_error.displacement_m if result.applied else np.zeros(time_s.size)
+        focused = g.image(g.phase(residual)).ravel()
+        if imu is not None:
+            method = "imu" + (f"+{cfg.refocus}" if result.applied else "")
+            result = dataclasses.replace(result, applied=True, track_error=TrackError(
+                time_s, remove_line(time_s, imu + residual), method, result.track_error.model if result.applied else None))
         # What the estimate says of the track holds where the tile's brightest pixel was integrated (its own
         # aperture); elsewhere in the tile's time span the groups carry little and the estimate is free.
         brightest = int(np.argmax(np.abs(b).sum(axis=0)))

@@ -4,6 +4,7 @@ phase error added."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -370,6 +371,50 @@ def test_strip_map_refocuses_a_finished_tile(sim_dir):
     assert vib.amplitude_m == pytest.approx(PAPER_VIBRATION.amplitude_m, rel=0.05)
     with pytest.raises(ConfigError, match="tile_px"):
         StripMapConfig(tile_px=40, refocus="pga")
+
+
+def test_strip_map_corrects_finished_tiles_by_the_radar_imu(vibrating_with_radar_imu):
+    """The live map with refocus_imu_aided and no autofocus: each finished tile is corrected by the radar's
+    own IMU alone (fed as the worker feeds it, in 50 ms batches), which takes the side lobes the vibration
+    raised; without IMU samples nothing changes and the tiles are counted as uncovered."""
+    from imaging.stripmap import StripMap, StripMapConfig
+
+    config = StripMapConfig(pixel_m=0.004, tile_px=64, aperture_m=0.3, range_min_m=1.5, range_max_m=2.5, z_m=0.3)
+    maps = {}
+    with Recording(vibrating_with_radar_imu) as rec:
+        radar, order, truth = rec.radar(RADAR), rec.tdm_tx_order(RADAR), rec.truth()
+        times, adc = rec.frame_time_ns(RADAR), rec.adc(RADAR)
+        imu = rec.radar_imu(RADAR)
+        for name, aided, feed in (("plain", False, False), ("imu", True, True), ("imu missing", True, False)):
+            sm = StripMap(dataclasses.replace(config, refocus_imu_aided=aided))
+            fed = 0
+            refocused = []
+            for k in range(times.size):
+                # IMU batches up to the frame's end (the worker gets them as they come, ahead of the frames).
+                upto = int(np.searchsorted(imu["time_ns"], times[k] + radar.waveform.frame_duration_ns))
+                while feed and fed < upto:
+                    sm.add_radar_imu(RADAR, imu["time_ns"][fed:fed + 50], imu["accel_mps2"][fed:fed + 50])
+                    fed += 50
+                refocused += sm.add_frame(radar, order, adc[k], int(times[k]), truth).refocused
+            refocused += sm.refocus_pending()
+            maps[name] = (sm, refocused)
+    results = {}
+    for name, (sm, _) in maps.items():
+        img, x, y = sm.mosaic()
+        a = metrics.analyze_target(img, x, y, (0.0, 1.0, 0.0), near_m=TARGET, radius_m=0.05, half_length_m=0.1)
+        results[name] = (20 * np.log10(a["peak_amplitude"]), a["cross_range"]["pslr_db"])
+    assert results["plain"][1] > -6.0  # the vibration's paired echoes
+    assert results["imu"][1] < -11.0
+    assert results["imu"][0] > results["plain"][0] + 1.0
+    assert maps["imu"][1] and maps["imu"][0].tiles_without_radar_imu == 0
+    key = max(maps["imu"][0].refocus_results, key=lambda k: np.abs(maps["imu"][0].tiles[k]).max())
+    assert maps["imu"][0].refocus_results[key].track_error.method == "imu"
+    vib = fit_vibration(maps["imu"][0].refocus_results[key].track_error)
+    assert vib.frequency_hz == pytest.approx(PAPER_VIBRATION.frequency_hz, rel=0.05)
+    assert vib.amplitude_m == pytest.approx(PAPER_VIBRATION.amplitude_m, rel=0.15)
+    missing = maps["imu missing"][0]
+    assert maps["imu missing"][1] == [] and 0 < missing.tiles_without_radar_imu <= len(maps["plain"][0].tiles)
+    assert results["imu missing"] == pytest.approx(results["plain"])
 
 
 def test_a_track_error_without_oscillation_has_no_vibration(tmp_path, capsys):

@@ -123,6 +123,9 @@ def test_a_radar_imu_the_rig_or_the_recording_lacks_is_one_line(tmp_path):
     assert "declares no IMU on radar left" in res.stderr and "[radar.left.imu]" in res.stderr
     res = run_cli("record", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar-imu", "left")
     assert res.returncode != 0 and "--radar-imu 'left': expected NAME=PATH" in res.stderr
+    res = run_cli("run", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar", "left=50001", "--imu-port",
+                  str(tmp_path / "imu"), "--map-imu-aided", "--duration", "1")
+    assert res.returncode == 2 and "--map-imu-aided: no mapped radar has an IMU of its own" in res.stderr
     src = tmp_path / "source.h5"
     make_source(src)
     res = run_cli("replay", str(src), "--radar-imu-link", f"left={tmp_path / 'left_imu'}", "--speed", "0")

@@ -168,17 +168,20 @@ def test_bad_settings_name_the_field():
 def run_worker(drive, config, tmp_path, lost=()):
     """Frames 20-39 of ``drive`` and their poses through a strip-map worker process; returns the tiles it
     published last, its last status and the map file it wrote (checked equal to the tiles). Frames ``lost``
-    are numbered but never sent, as if dropped on the bus."""
+    are numbered but never sent, as if dropped on the bus. The IMU on the radar's mount, where the recording
+    has one, goes out too, in 50 ms batches ahead of each frame, as its driver sends them."""
     import multiprocessing as mp
     import time
 
     from acquisition.bus import BusPublisher, BusSubscriber
     from acquisition.messages import (
         MapStatus,
+        ImuBatch,
         MapTile,
         PoseBatch,
         PoseEnd,
         RadarFrameMessage,
+        RadarImuBatch,
     )
     from acquisition.processes import free_tcp_endpoint
     from acquisition.workers import WorkerSpec, worker_process
@@ -202,7 +205,13 @@ def run_worker(drive, config, tmp_path, lost=()):
     time.sleep(3.0)  # the worker imports and connects
     times = rec.frame_time_ns(RADAR)
     iq = rec.file[f"radar/{RADAR}/adc"]
+    imu, imu_sent = rec.radar_imu(RADAR), 0
     for k in range(20, 40):
+        while imu is not None and imu_sent < imu["time_ns"].size and imu["time_ns"][imu_sent] < times[k] + 100_000_000:
+            part = slice(imu_sent, imu_sent + 50)
+            frames_pub.send(RadarImuBatch(RADAR, ImuBatch(imu["time_ns"][part], imu["gyro_radps"][part], imu["accel_mps2"][part],
+                                                          imu["counter"][part], imu["host_time_ns"][part])))
+            imu_sent += 50
         if k in lost:
             frames_pub._seq[RadarFrameMessage.topic_of(RADAR)] += 1
             continue
@@ -255,22 +264,32 @@ def test_the_worker_publishes_tiles_and_its_lag_and_writes_the_map(drive, tmp_pa
 
 def test_the_worker_refocuses_tiles_and_publishes_them(tmp_path):
     """With --map-refocus the worker refocuses the tiles still open when the run ends, counts them in
-    map/status and publishes them: the last tiles it sent are the map it wrote, side lobes down."""
+    map/status and publishes them: the last tiles it sent are the map it wrote, side lobes down.
+    With --map-imu-aided instead, the IMU on the radar's mount (its samples on the bus) does the same.
+    """
+    import dataclasses
+
     from imaging.core.geometry import Vibration
+    from imaging.core.rig import ImuConfig, Rig
 
     path = tmp_path / "vibrating.h5"
-    simulate_recording(point_pass(0.4, duration_s=3.0, origin=(0.32, 0.0), snr_db=10.0, vibration=Vibration(3.83, 0.319e-3, 0.7),
-                                  seed=4), path)
+    scene = point_pass(0.4, duration_s=3.0, origin=(0.32, 0.0), snr_db=10.0, vibration=Vibration(3.83, 0.319e-3, 0.7), seed=4)
+    radars = tuple(dataclasses.replace(r, imu=ImuConfig(rate_hz=1000.0)) if r.name == RADAR else r for r in scene.rig.radars)
+    simulate_recording(dataclasses.replace(scene, rig=Rig(radars, scene.rig.imu)), path)
+    configs = {"none": StripMapConfig(presum=4), "entropy": StripMapConfig(presum=4, refocus="entropy"),
+               "imu": StripMapConfig(presum=4, refocus_imu_aided=True)}
     with Recording(path) as rec:
         drive = (rec, rec.radar(RADAR), rec.truth(), rec.tdm_tx_order(RADAR))
-        results = {r: run_worker(drive, StripMapConfig(presum=4, refocus=r), tmp_path / r) for r in ("none", "entropy")}
+        results = {r: run_worker(drive, config, tmp_path / r) for r, config in configs.items()}
     assert results["none"][1].tiles_refocused == 0
     assert results["entropy"][1].tiles_refocused >= 1
+    assert results["imu"][1].tiles_refocused >= 1 and results["imu"][1].tiles_without_radar_imu == 0
     pslr = {}
     for r, (_, _, img) in results.items():
         a = metrics.analyze_target(img.image, img.x_m, img.y_m, (0.0, 1.0, 0.0), near_m=(0.32, R0), radius_m=0.05, half_length_m=0.15)
         pslr[r] = a["cross_range"]["pslr_db"]
     assert pslr["entropy"] < pslr["none"] - 3.0
+    assert pslr["imu"] < pslr["none"] - 3.0
 
 
 

@@ -18,7 +18,7 @@ import numpy as np
 from imaging.core.rig import Rig
 from imaging.core.samples import iq_to_complex
 
-from ..messages import MapStatus, MapTile, PoseBatch, PoseEnd, RadarFrameMessage
+from ..messages import MapStatus, MapTile, PoseBatch, PoseEnd, RadarFrameMessage, RadarImuBatch
 from . import Worker
 
 log = logging.getLogger(f"sarbot.{__name__}")
@@ -80,6 +80,8 @@ class StripMapWorker(Worker):
         self.topics = [PoseBatch.TOPIC, *[RadarFrameMessage.topic_of(n) for n in sorted(use)]]
         self.endpoints = [config.pose_endpoint]
         self.radars = {r.name: r for r in rig.radars if r.name in use}
+        if config.map.refocus_imu_aided:  # the IMUs on the mapped radars' own mounts
+            self.topics += [RadarImuBatch.topic_of(n) for n, r in sorted(self.radars.items()) if r.imu is not None]
         self.orders = {name: np.asarray(r.waveform.tdm_tx_order()) for name, r in self.radars.items()}
         self.frame_ns = {name: r.waveform.frame_duration_ns for name, r in self.radars.items()}
         self.map = StripMap(config.map)
@@ -122,6 +124,10 @@ class StripMapWorker(Worker):
         """A pose batch or a radar frame. Live, the pose window and the frame queue are kept bounded; when
         draining at the end, everything is kept for the last imaging pass."""
         frames, status = self.frames, self.status
+        if isinstance(message, RadarImuBatch):
+            if message.radar in self.radars:
+                self.map.add_radar_imu(message.radar, message.batch.time_ns, message.batch.accel_mps2)
+            return
         if isinstance(message, PoseBatch):
             self._add_poses(message)
             if live:
@@ -226,6 +232,7 @@ class StripMapWorker(Worker):
             self.pub.send(MapTile(key, cfg.pixel_m, cfg.tile_px, self.map.tiles[key]))
         self.changed.clear()
         self.status.tiles = len(self.map.tiles)
+        self.status.tiles_without_radar_imu = self.map.tiles_without_radar_imu
         self.status.time_ns = time.time_ns()
         self.pub.send(self.status)
         self.last_publish = time.monotonic()
@@ -241,7 +248,7 @@ class StripMapWorker(Worker):
         # received is accounted for in map/status.
         self.status.frames_beyond_odometry += len(self.frames)
         self.frames.clear()
-        if self.config.map.refocus != "none":
+        if self.config.map.refocuses:
             refocused = self.map.refocus_pending()
             self.changed.update(refocused)
             self.status.tiles_refocused += len(refocused)
