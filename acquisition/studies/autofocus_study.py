@@ -422,10 +422,13 @@ def markdown(r: dict) -> list[str]:
           "2 m) the same scene with no vibration at all, on the truth, gives -12.8 dB, and autofocus lands there. "
           "The taper takes the focused side lobes below that (to the taper's -35 dB for the corner reflector); "
           "where the residual track error were large, they would stay high, taper or not, as the plain images' do."]
-    tapered = [x["autofocus_taylor"] for res in u.values() for x in res["rows"] if x["aperture_m"] >= 0.08]
     nan_cases = [key for key, res in u.items() if not np.isfinite(res["rows"][0]["autofocus_taylor"]["ratio"])]
+    shortest = min(x["aperture_m"] for res in u.values() for x in res["rows"]) if u else 0.0
+    start = min((x["aperture_m"] for res in u.values() for x in res["rows"] if x["aperture_m"] > shortest), default=shortest) \
+        if nan_cases else shortest
+    tapered = [x["autofocus_taylor"] for res in u.values() for x in res["rows"] if x["aperture_m"] >= start]
     if tapered:
-        L += [f"From 0.08 m up, every tapered image's width is within {100 * max(abs(x['ratio'] - 1) for x in tapered):.1f} % "
+        L += [f"From {start:g} m up, every tapered image's width is within {100 * max(abs(x['ratio'] - 1) for x in tapered):.1f} % "
               f"of its theory and its peak side lobe at {max(x['pslr_db'] for x in tapered):.1f} dB or below."
               + (f" At {res['rows'][0]['aperture_m']:g} m (under three frames) the tapered width of "
                  f"{', '.join(nan_cases)} could not be measured (no -3 dB crossing within the cut), so its usable "
