@@ -31,6 +31,16 @@ def test_range_and_cross_range_widths_follow_theory(report):
             assert row["ratio"] == pytest.approx(1.0, abs=0.06), (case, row)
 
 
+def test_sections_1_and_2_again_with_autofocus_change_nothing_on_an_error_free_track(report):
+    """Every study again with autofocus (issue 13): where the track has no error the range and cross-range
+    images keep their widths and peaks."""
+    rows = report["range"]["rows"] + [row for res in report["cross_range"].values() for row in res["rows"]]
+    for row in rows:
+        af = row["autofocus"]
+        assert af["peak_change_db"] > -0.1, row
+        assert abs(af["range_width_change"]) < 0.02 and abs(af["cross_range_width_change"]) < 0.03, row
+
+
 def test_vibration_is_inferred_from_its_side_lobes(report):
     v = report["vibration"]
     assert v["sidelobe_offset_m"] == pytest.approx(0.04, rel=0.03)
