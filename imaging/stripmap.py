@@ -411,7 +411,8 @@ class StripMap:
             result = estimate_on_group_images(g, options)
         else:
             zero = TrackError(time_s, np.zeros(time_s.size), "none")
-            result = AutofocusResult(zero, 0.0, 0.0, False, int(n * n), time_s.size, 0, "no scatterer to focus on")
+            why = "autofocus off" if cfg.refocus == "none" else "no scatterer whole within the tile to focus on"
+            result = AutofocusResult(zero, 0.0, 0.0, False, int(n * n), time_s.size, 0, why)
         if imu is None and not result.applied:
             self.refocus_results[key] = result
             return False
