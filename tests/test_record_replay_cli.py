@@ -24,29 +24,42 @@ def run_cli(*args, timeout=60):
     return subprocess.run([sys.executable, "-m", "acquisition.cli", *args], capture_output=True, text=True, timeout=timeout)
 
 
-def test_replay_into_record(tmp_path):
-    src = tmp_path / "source.h5"
-    iq, imu = make_source(src)
-    rig = tmp_path / "rig.toml"
-    rig.write_text(RIG_TOML)
+def replay_into_record(tmp_path, src, rig, radar_imu: bool = False) -> tuple[str, str]:
+    """`sarbot replay` of ``src`` at 2x into `sarbot record` with the rig file ``rig``, as separate processes:
+    radar "left" over UDP, the IMU on a pty and, with ``radar_imu``, the left radar's own IMU on another.
+    Both must exit 0; returns the replay's output and the recording's path."""
     import socket
 
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    link = tmp_path / "imu_tty"
+    links = [tmp_path / "imu_tty"]
+    replay_args = ["replay", str(src), "--radar", f"left=127.0.0.1:{port}", "--imu-link", str(links[0])]
+    record_args = ["record", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar", f"left={port}",
+                   "--imu-port", str(links[0])]
+    if radar_imu:
+        links.append(tmp_path / "left_imu_tty")
+        replay_args += ["--radar-imu-link", f"left={links[1]}"]
+        record_args += ["--radar-imu", f"left={links[1]}"]
     cmd = [sys.executable, "-m", "acquisition.cli"]
-    replay = subprocess.Popen([*cmd, "replay", str(src), "--radar", f"left=127.0.0.1:{port}", "--imu-link", str(link),
-                               "--speed", "2", "--start-delay", "4"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    replay = subprocess.Popen([*cmd, *replay_args, "--speed", "2", "--start-delay", "4"], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 10
-    while not link.exists() and time.monotonic() < deadline:
+    while not all(link.exists() for link in links) and time.monotonic() < deadline:
         time.sleep(0.05)
-    record = subprocess.run([*cmd, "record", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar", f"left={port}",
-                             "--imu-port", str(link), "--duration", "9"], capture_output=True, text=True, timeout=60)
+    record = subprocess.run([*cmd, *record_args, "--duration", "9"], capture_output=True, text=True, timeout=60)
     out, err = replay.communicate(timeout=30)
     assert replay.returncode == 0, err
     assert record.returncode == 0, record.stderr
-    path = record.stdout.split("wrote ")[-1].strip()
+    return out, record.stdout.split("wrote ")[-1].strip()
+
+
+def test_replay_into_record(tmp_path):
+    src = tmp_path / "source.h5"
+    iq, imu = make_source(src)
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG_TOML)
+    _, path = replay_into_record(tmp_path, src, rig)
     with Recording(path) as again:
         np.testing.assert_array_equal(again.file["radar/left/adc"][()], iq)
         assert again.valid("left").all()
@@ -65,8 +78,6 @@ def test_replay_into_record(tmp_path):
 def test_an_imu_on_a_radar_mount_is_replayed_and_recorded_sample_for_sample(tmp_path):
     """`replay --radar-imu-link` and `record --radar-imu`: the radar's own IMU on a pty of its own, its samples
     in /radar/left/imu on the same time base as the robot's IMU, and no second trigger."""
-    import socket
-
     from imaging.core.rig import load_rig
 
     rig = tmp_path / "rig.toml"
@@ -76,25 +87,8 @@ def test_an_imu_on_a_radar_mount_is_replayed_and_recorded_sample_for_sample(tmp_
     with Recording(src) as source:
         want = source.radar_imu("left")
     assert want is not None and want["time_ns"][0] == imu.time_ns[0]
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    link, radar_link = tmp_path / "imu_tty", tmp_path / "left_imu_tty"
-    cmd = [sys.executable, "-m", "acquisition.cli"]
-    replay = subprocess.Popen([*cmd, "replay", str(src), "--radar", f"left=127.0.0.1:{port}", "--imu-link", str(link),
-                               "--radar-imu-link", f"left={radar_link}", "--speed", "2", "--start-delay", "4"],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 10
-    while not (link.exists() and radar_link.exists()) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    record = subprocess.run([*cmd, "record", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar", f"left={port}",
-                             "--imu-port", str(link), "--radar-imu", f"left={radar_link}", "--duration", "9"],
-                            capture_output=True, text=True, timeout=60)
-    out, err = replay.communicate(timeout=30)
-    assert replay.returncode == 0, err
+    out, path = replay_into_record(tmp_path, src, rig, radar_imu=True)
     assert "and the IMU, the IMU on left" in out
-    assert record.returncode == 0, record.stderr
-    path = record.stdout.split("wrote ")[-1].strip()
     with Recording(path) as again:
         np.testing.assert_array_equal(again.file["radar/left/adc"][()], iq)
         np.testing.assert_array_equal(again.imu()["time_ns"], imu.time_ns)
