@@ -71,18 +71,14 @@ def process_specs(setup: Setup, stop) -> list[ProcessSpec]:
         frame_duration_ns[link.name] = waveform.frame_duration_ns
         specs.append(ProcessSpec(f"radar.{link.name}", radar_process, (link, waveform, endpoint, stop), endpoint))
     radar_endpoints = [s.endpoint for s in specs]
-    if setup.imu_port:
+    # The robot's IMU, then those on radar mounts (radar None: the robot's).
+    imus = ([(None, setup.imu_port)] if setup.imu_port else []) + list(setup.radar_imu_ports.items())
+    for radar, port in imus:
         endpoint = free_tcp_endpoint()
         # Outlives the IMU process: a restarted driver takes the trigger's PTP time and tick from it.
         clock_reference = mp.get_context("spawn").Array("q", 3)
-        specs.append(ProcessSpec("imu", imu_process, (setup.imu_port, endpoint, radar_endpoints, stop, clock_reference,
-                                                        frame_duration_ns),
-                                 endpoint))
-    for radar, port in setup.radar_imu_ports.items():
-        endpoint = free_tcp_endpoint()
-        clock_reference = mp.get_context("spawn").Array("q", 3)
-        specs.append(ProcessSpec(f"imu.{radar}", imu_process, (port, endpoint, radar_endpoints, stop, clock_reference,
-                                                               frame_duration_ns, radar),
+        specs.append(ProcessSpec("imu" if radar is None else f"imu.{radar}", imu_process,
+                                 (port, endpoint, radar_endpoints, stop, clock_reference, frame_duration_ns, radar),
                                  endpoint))
     if setup.can is not None:
         endpoint = free_tcp_endpoint()
