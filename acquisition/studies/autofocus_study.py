@@ -33,6 +33,7 @@ from imaging.sim.scene import load_scene
 from imaging.sim.targets import CornerReflector, PointTarget, Rod
 
 from .paper import (
+    ENTROPY,
     ONE_PAIR,
     RADAR,
     USABLE,
@@ -50,7 +51,6 @@ from .paper import (
 )
 
 PAPER_VIBRATION = Vibration(3.83, 0.319e-3, 0.7)
-ENTROPY = AutofocusOptions(method="entropy")
 #: Study 7a's images of every aperture: plain, autofocused, and autofocused with a Taylor taper over the
 #: aperture (-35 dB design side lobes, a 1.34x wider main lobe, which its theory allows for): a uniformly
 #: weighted aperture cannot go below the sinc's -13.3 dB however well it is focused.
@@ -423,14 +423,14 @@ def markdown(r: dict) -> list[str]:
           "The taper takes the focused side lobes below that (to the taper's -35 dB for the corner reflector); "
           "where the residual track error were large, they would stay high, taper or not, as the plain images' do."]
     nan_cases = [key for key, res in u.items() if not np.isfinite(res["rows"][0]["autofocus_taylor"]["ratio"])]
-    shortest = min(x["aperture_m"] for res in u.values() for x in res["rows"]) if u else 0.0
-    start = min((x["aperture_m"] for res in u.values() for x in res["rows"] if x["aperture_m"] > shortest), default=shortest) \
-        if nan_cases else shortest
+    apertures = sorted({x["aperture_m"] for res in u.values() for x in res["rows"]})
+    # From the shortest aperture, or the next where a width could not be measured at the shortest.
+    start = apertures[1 if nan_cases and len(apertures) > 1 else 0] if apertures else 0.0
     tapered = [x["autofocus_taylor"] for res in u.values() for x in res["rows"] if x["aperture_m"] >= start]
     if tapered:
         L += [f"From {start:g} m up, every tapered image's width is within {100 * max(abs(x['ratio'] - 1) for x in tapered):.1f} % "
               f"of its theory and its peak side lobe at {max(x['pslr_db'] for x in tapered):.1f} dB or below."
-              + (f" At {res['rows'][0]['aperture_m']:g} m (under three frames) the tapered width of "
+              + (f" At {apertures[0]:g} m (under three frames) the tapered width of "
                  f"{', '.join(nan_cases)} could not be measured (no -3 dB crossing within the cut), so its usable "
                  "aperture, which counts from the shortest, is 0 there." if nan_cases else "")]
     L.append("")

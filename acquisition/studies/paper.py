@@ -48,6 +48,7 @@ RADAR = "left_front"
 ONE_PAIR = ImagingOptions(tx=(0,), rx=(0,))  # one virtual channel: the aperture is the motion alone
 USABLE = 1.10  # width within 10 % of theory
 USABLE_PSL_DB = -10.0  # and, where side lobes are judged too, the peak side lobe at or below this
+ENTROPY = AutofocusOptions(method="entropy")  # autofocus as the studies run it again (`--autofocus entropy`)
 
 
 # -- helpers --------------------------------------------------------------------------------------------
@@ -183,7 +184,7 @@ class Paper:
                     theory = metrics.range_resolution_theory_m(img.attrs["bandwidth_hz"], "hann")
                     # Again with autofocus (issue 13: every study): on a track without error it must change nothing.
                     af = image_at(rec, scene.trajectory, xy, 0.1, scene.trajectory.speed_mps, options=ImagingOptions(),
-                                  autofocus=AutofocusOptions(method="entropy"))
+                                  autofocus=ENTROPY)
                     rows.append({"target": label_of(t), "range_width_m": w["range_m"], "theory_m": theory,
                                  "ratio": w["range_m"] / theory, "autofocus": _with_autofocus(af, xy, w)})
                     ax.plot(s * 100, 20 * np.log10(np.abs(v) / np.abs(v).max() + 1e-12), label=f"{label_of(t)}: "
@@ -225,7 +226,7 @@ class Paper:
                                      "peak_amplitude": w["peak_amplitude"]})
                         if autofocus:
                             af = image_at(rec, traj, xy, la, float(speed), t_mid=t_mid,
-                                          autofocus=AutofocusOptions(method="entropy"))
+                                          autofocus=ENTROPY)
                             rows[-1]["autofocus"] = _with_autofocus(af, xy, w)
                         if la in (0.08, 0.34) and speed == "0.4" or (la == 0.17 and speed == "1.0"):
                             s, v = metrics.cut(img.image, img.x_m, img.y_m, w["peak_m"], (1.0, 0.0), 0.1, 801)
