@@ -25,7 +25,7 @@ from imaging.core.rig import Rig
 
 from .bus import BusPublisher
 from .devices import DeviceBringUp
-from .driver_loops import can_process, imu_process, radar_process
+from .driver_loops import can_process, imu_process, imu_role, radar_process
 from .messages import ClockState, Health, Latency, WorkerState
 from .processes import ProcessSpec, free_tcp_endpoint
 from .recorder import DiskFullError, Recorder
@@ -77,7 +77,7 @@ def process_specs(setup: Setup, stop) -> list[ProcessSpec]:
         endpoint = free_tcp_endpoint()
         # Outlives the IMU process: a restarted driver takes the trigger's PTP time and tick from it.
         clock_reference = mp.get_context("spawn").Array("q", 3)
-        specs.append(ProcessSpec("imu" if radar is None else f"imu.{radar}", imu_process,
+        specs.append(ProcessSpec(imu_role(radar), imu_process,
                                  (port, endpoint, radar_endpoints, stop, clock_reference, frame_duration_ns, radar),
                                  endpoint))
     if setup.can is not None:

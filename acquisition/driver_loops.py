@@ -76,6 +76,12 @@ def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pu
     return stream
 
 
+def imu_role(radar: str | None) -> str:
+    """The name of an IMU's driver process and of its events: ``imu`` for the robot's, ``imu.NAME`` for the
+    one on radar NAME's mount."""
+    return "imu" if radar is None else f"imu.{radar}"
+
+
 def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger_time_ns: int | None = None,
                     radar_endpoints: list[str] = (), clock_reference=None, report_every_s: float = 1.0,
                     frame_duration_ns: dict[str, int] | None = None, trigger_host_ns: int | None = None,
@@ -100,7 +106,7 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
     """
     import serial
 
-    source, label = ("imu", "IMU") if radar is None else (f"imu.{radar}", f"IMU of radar {radar}")
+    source, label = imu_role(radar), "IMU" if radar is None else f"IMU of radar {radar}"
     trigger_ticks = None
     if clock_reference is not None and clock_reference[0]:
         trigger_time_ns, trigger_ticks = int(clock_reference[1]), int(clock_reference[2])
@@ -221,7 +227,7 @@ def radar_process(link: RadarLink, waveform: Waveform, endpoint: str, stop) -> N
 def imu_process(port: str, endpoint: str, radar_endpoints: list[str], stop, clock_reference=None,
                 frame_duration_ns: dict[str, int] | None = None, radar: str | None = None) -> None:
     """An IMU's driver process: the robot's, or with ``radar`` the one on that radar's mount."""
-    become_child("imu" if radar is None else f"imu.{radar}", realtime=True)
+    become_child(imu_role(radar), realtime=True)
     pub = BusPublisher(endpoint)
     log.info("IMU%s on %s", "" if radar is None else f" of radar {radar}", port)
     try:
