@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imaging.core.errors import HardwareError, SarbotError
+from imaging.core.errors import ConfigError, HardwareError, SarbotError
 
 from .processes import configure_logging, ensure_jit_cache_dir
 
@@ -496,6 +496,12 @@ def cmd_record(args) -> int:
     return _record(setup, Path(args.output), args.duration)
 
 
+#: The strip map's settings (``StripMapConfig``) as ``sarbot run`` options.
+MAP_OPTIONS = {"pixel_m": "--map-pixel", "aperture_m": "--map-aperture", "range_min_m": "--map-range",
+               "range_max_m": "--map-range", "z_m": "--map-height", "refocus": "--map-refocus",
+               "algorithm": "--map-algorithm", "ffbp_block_frames": "--map-ffbp-block"}
+
+
 def run_workers(setup, args, out_dir: Path, stamp: str):
     """Add the RIO and strip-map workers to ``setup`` from the run options."""
     from imaging.stripmap import StripMapConfig
@@ -515,9 +521,14 @@ def run_workers(setup, args, out_dir: Path, stamp: str):
     if args.map_imu_aided and not set(setup.radar_imu_ports) & set(map_radars):
         raise SarbotError("--map-imu-aided: no mapped radar has an IMU of its own; give --radar-imu NAME=DEVICE "
                           f"for one of {', '.join(map_radars)}")
-    config = StripMapConfig(pixel_m=args.map_pixel, aperture_m=args.map_aperture, range_min_m=args.map_range[0],
-                            range_max_m=args.map_range[1], z_m=args.map_height, refocus=args.map_refocus,
-                            refocus_imu_aided=args.map_imu_aided)
+    try:
+        config = StripMapConfig(pixel_m=args.map_pixel, aperture_m=args.map_aperture, range_min_m=args.map_range[0],
+                                range_max_m=args.map_range[1], z_m=args.map_height, refocus=args.map_refocus,
+                                refocus_imu_aided=args.map_imu_aided, algorithm=args.map_algorithm,
+                                ffbp_block_frames=args.map_ffbp_block)
+    except ConfigError as e:  # say it in the options the user typed
+        option = MAP_OPTIONS.get(e.field)
+        raise SarbotError(str(e).replace(f"{e.field}:", f"{option} ({e.field}):", 1) if option else str(e)) from None
     if args.map_threads < 1:
         raise SarbotError(f"--map-threads {args.map_threads}: must be at least 1")
     view = None
@@ -891,6 +902,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--map-imu-aided", action="store_true",
                    help="correct each map tile once passed by the IMUs on the radars' own mounts (--radar-imu) first, "
                         "then --map-refocus if given")
+    s.add_argument("--map-algorithm", default="direct", choices=["direct", "ffbp"],
+                   help="direct: every profile onto every pixel (default); ffbp: each radar's frames in blocks by fast "
+                        "factorized backprojection, for long apertures (--map-aperture of a metre or more)")
+    s.add_argument("--map-ffbp-block", type=int, default=8, help="frames per block with --map-algorithm ffbp (default 8)")
     s.add_argument("--map-presum", default="auto", help="chirps summed per virtual channel before imaging ('auto': the "
                    "most whose phase spread stays within pi/4 at --max-speed)")
     s.add_argument("--max-speed", type=float, default=0.5, help="fastest the robot drives, m/s (sets automatic pre-summing)")

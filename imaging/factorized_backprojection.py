@@ -345,7 +345,8 @@ def _polar_derivatives(node: Subaperture, m: np.ndarray, r: np.ndarray, alpha: n
 
 
 def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, z_m: float,
-                    carrier_hz: float, bandwidth_hz: float, options: FactorizedOptions = FactorizedOptions()) -> FactorizedPlan:
+                    carrier_hz: float, bandwidth_hz: float, options: FactorizedOptions = FactorizedOptions(),
+                    outline_xy: np.ndarray | None = None) -> FactorizedPlan:
     """Build the subaperture trees and every node's polar grid.
 
     Parameters
@@ -359,6 +360,11 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
     carrier_hz, bandwidth_hz : float
         The profiles' carrier (``RangeProfiles.carrier_hz``) and swept bandwidth, which with the geometry
         set the range and angle sampling.
+    outline_xy : ndarray, shape (M, 2), optional
+        Points of the plane around the pixels whose values matter, when that is less than the whole grid
+        (the strip map's footprint, a rotated rectangle inside its tiles' bounding box). The polar grids
+        cover it and it alone must lie to one side of the track; the other pixels get values of no use.
+        By default the grid's outline.
     """
     o = options
     tx = np.asarray(tx_m, np.float64).reshape(-1, 3)
@@ -371,7 +377,7 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
     if not (bandwidth_hz > 0 and carrier_hz > bandwidth_hz / 2):
         raise ValueError(f"bandwidth {bandwidth_hz} Hz and carrier {carrier_hz} Hz do not describe a radar")
     m = 0.5 * (tx + rx)
-    image_xy = _outline(x_m, y_m)
+    image_xy = _outline(x_m, y_m) if outline_xy is None else np.asarray(outline_xy, np.float64).reshape(-1, 2)
     centre_xy = image_xy.mean(axis=0)
     overall = _horizontal_axis(m, None)
     two_over_lambda = 2 * (carrier_hz + bandwidth_hz / 2) / SPEED_OF_LIGHT_MPS

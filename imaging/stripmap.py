@@ -27,6 +27,18 @@ tile first, as ``sarbot image --imu-aided`` does: its high-passed boresight acce
 over the groups' times, is the track error of that radar's groups, and autofocus (if any) estimates what
 is left.
 
+With ``algorithm`` "ffbp" (for long apertures) the frames of each radar are imaged in blocks of
+``ffbp_block_frames``: a block is one short subaperture, imaged by fast factorized backprojection
+(``imaging.factorized_backprojection``: each frame onto a coarse polar grid, merged pairwise, interpolated
+once onto the pixels) instead of every profile onto every pixel. The cost per block is about that of the
+polar grids plus taps^2 per pixel, against profiles x pixels, so the gain grows with the footprint's pixels
+and the block's profiles (about 9x at a 2 m aperture and 4 mm pixels, ``benchmarks/stripmap_ffbp.py``).
+What it costs: the aperture window is decided per block (its mean phase centre) instead of per frame, so a
+pixel's aperture is ``aperture_m`` to within a block's travel rather than a frame's; a block's tiles change
+when the block is complete (a block's duration later); the block's profiles are held until then; and each
+block adds the plan's interpolation error (``ffbp_error_bound_db``, the worst over the blocks, in the map's
+attrs). Refocusing needs each frame's slow-time group images, which a block does not have: it is refused.
+
 Pure computation: arrays and dataclasses in, arrays out. ``acquisition.workers`` runs it on the bus.
 """
 
@@ -46,6 +58,7 @@ from imaging.io.image_file import SarImage
 from imaging.range_compression import range_compress
 
 MODES = ("nearest", "linear", "exact")
+ALGORITHMS = ("direct", "ffbp")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,6 +91,11 @@ class StripMapConfig:
     #: beyond it goes into the tiles it has, or is left out (counted): a long drive, or an odometry gone
     #: astray on a starved machine (tiles kilometres apart), must not take the machine's memory.
     max_tiles: int = 16384
+    #: "direct" (every profile onto every pixel of its footprint) or "ffbp" (blocks of frames by fast
+    #: factorized backprojection: for long apertures; see the module's docstring).
+    algorithm: str = "direct"
+    #: Frames of one radar imaged together with "ffbp" (a block's travel is the aperture window's step).
+    ffbp_block_frames: int = 8
 
     def __post_init__(self) -> None:
         require(self.pixel_m > 0, "pixel_m", "must be positive")
@@ -95,6 +113,13 @@ class StripMapConfig:
         require(not self.refocuses or self.tile_px % 16 == 0, "tile_px",
                 f"must be a multiple of 16 to refocus tiles, got {self.tile_px}")
         require(self.radar_imu_keep_s > 0, "radar_imu_keep_s", "must be positive")
+        require(self.algorithm in ALGORITHMS, "algorithm", f"must be direct or ffbp, got {self.algorithm!r}")
+        require(1 <= self.ffbp_block_frames <= 256, "ffbp_block_frames", f"must be 1 to 256, got {self.ffbp_block_frames}")
+        require(self.algorithm != "ffbp" or not self.refocuses, "algorithm",
+                "ffbp images blocks of frames and cannot refocus (refocus needs each frame's group images); "
+                "use direct to refocus")
+        require(self.algorithm != "ffbp" or self.range_min_m > 0, "range_min_m",
+                "must be positive with ffbp (the polar grids need the footprint off the track)")
 
     @property
     def refocuses(self) -> bool:
@@ -136,6 +161,9 @@ class FrameFootprint:
     pixel_profile_pairs: int
     skipped: str = ""  # why the frame was left out, if it was
     refocused: list[tuple[int, int]] = dataclasses.field(default_factory=list)  # tiles finished and refocused
+    #: Frames whose data went into the map by this call: 1 for an imaged frame, with "ffbp" 0 while its block
+    #: fills and the block's frames when it is imaged (also when a frame standing still closes a block).
+    frames_imaged: int = 0
 
 
 #: The most pixels a map's mosaic (and its file) holds: 2 GB of complex64.
@@ -166,6 +194,13 @@ class StripMap:
         self._k = 0.0
         self._range_resolution_m = 0.0
         self.refocus_results: dict[tuple[int, int], object] = {}  # tile -> AutofocusResult of the refocus
+        #: "ffbp": radar -> the frames of its block so far, (profiles, tx_m, rx_m, look)
+        self._blocks: dict[str, list] = {}
+        self.ffbp_blocks = 0
+        self.ffbp_blocks_direct = 0  # blocks the plan could not take (a sharp turn): imaged directly
+        self.ffbp_levels = 0  # the most merges in a block's tree
+        self.ffbp_error_bound_db = -math.inf  # the worst block's
+        self.ffbp_error_estimate_db = -math.inf
 
     def tile_points(self, key: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         """x and y of a tile's pixel centres, each [tile_px]."""
@@ -231,29 +266,17 @@ class StripMap:
         return ((ahead >= cfg.range_min_m) & (ahead <= cfg.range_max_m) & (along <= cfg.aperture_m / 2)
                 & (along <= ahead * math.tan(math.radians(cfg.beam_half_angle_deg))))
 
-    def add_frame(self, radar: RadarConfig, tx_order: np.ndarray, adc: np.ndarray, frame_time_ns: int,
-                  trajectory: Trajectory, presum: int | None = None) -> FrameFootprint:
-        """Backproject one frame (complex [chirps, rx, samples]) into the map; returns the tiles it changed.
-        ``presum`` overrides the configuration's (a live map catching up sums more chirps per profile: the
-        same image scale, fewer profiles, more phase spread across each sum)."""
+    def _footprint(self, c_mean: np.ndarray, l_mean: np.ndarray) -> tuple[list, list, int]:
+        """The tiles a frame (or block) with mean phase centre ``c_mean`` [2] and look ``l_mean`` [2] images
+        into, each with its pixel mask [tile_px, tile_px] (rows along y), within ``max_tiles``; and how many
+        new tiles that limit refused."""
         cfg = self.config
-        wf = radar.waveform
-        mid = frame_time_ns + wf.frame_duration_ns // 2
-        if np.linalg.norm(trajectory.sample(np.array([mid])).velocity_mps[0, :2]) < cfg.min_speed_mps:
-            self.frames_standing += 1
-            return FrameFootprint([], 0, skipped="standing still")
-        profiles, tx_m, rx_m, look, times = self.frame_profiles(radar, tx_order, adc, frame_time_ns, trajectory, presum)
-        centre = 0.5 * (tx_m + rx_m)
-        c_mean = centre.mean(axis=0)[:2]
-        l_mean = look.mean(axis=0)
-        l_mean /= np.linalg.norm(l_mean)
-        n = cfg.tile_px
-        touched, masks, points = [], [], []
+        touched, masks = [], []
         room = cfg.max_tiles - len(self.tiles)
         refused = 0
         for key in self.footprint_tiles(c_mean[None], l_mean[None]):
             x, y = self.tile_points(key)
-            mask = self.footprint_mask(x[None, :], y[:, None], c_mean, l_mean)  # [tile_px, tile_px], rows along y
+            mask = self.footprint_mask(x[None, :], y[:, None], c_mean, l_mean)
             if not mask.any():
                 continue
             if key not in self.tiles:
@@ -261,11 +284,44 @@ class StripMap:
                     refused += 1
                     continue
                 room -= 1
-            iy, ix = np.nonzero(mask)
             touched.append(key)
             masks.append(mask)
-            points.append(np.stack([x[ix], y[iy], np.full(iy.size, cfg.z_m)], axis=1))
         self.tiles_refused += refused
+        return touched, masks, refused
+
+    def _tile(self, key: tuple[int, int]) -> np.ndarray:
+        tile = self.tiles.get(key)
+        if tile is None:
+            n = self.config.tile_px
+            tile = self.tiles[key] = np.zeros((n, n), np.complex128)
+        return tile
+
+    def add_frame(self, radar: RadarConfig, tx_order: np.ndarray, adc: np.ndarray, frame_time_ns: int,
+                  trajectory: Trajectory, presum: int | None = None) -> FrameFootprint:
+        """Backproject one frame (complex [chirps, rx, samples]) into the map; returns the tiles it changed.
+        ``presum`` overrides the configuration's (a live map catching up sums more chirps per profile: the
+        same image scale, fewer profiles, more phase spread across each sum). With ``algorithm`` "ffbp" the
+        frame joins its radar's block, imaged when the block is full (or a frame standing still ends it)."""
+        cfg = self.config
+        wf = radar.waveform
+        ffbp = cfg.algorithm == "ffbp"
+        mid = frame_time_ns + wf.frame_duration_ns // 2
+        if np.linalg.norm(trajectory.sample(np.array([mid])).velocity_mps[0, :2]) < cfg.min_speed_mps:
+            self.frames_standing += 1
+            ended = self._image_block(radar.name) if ffbp else FrameFootprint([], 0)
+            return dataclasses.replace(ended, skipped="standing still")
+        profiles, tx_m, rx_m, look, times = self.frame_profiles(radar, tx_order, adc, frame_time_ns, trajectory, presum)
+        if ffbp:
+            block = self._blocks.setdefault(radar.name, [])
+            block.append((profiles, tx_m, rx_m, look))
+            if len(block) < cfg.ffbp_block_frames:
+                return FrameFootprint([], 0)
+            return self._image_block(radar.name)
+        centre = 0.5 * (tx_m + rx_m)
+        c_mean = centre.mean(axis=0)[:2]
+        l_mean = look.mean(axis=0)
+        l_mean /= np.linalg.norm(l_mean)
+        touched, masks, refused = self._footprint(c_mean, l_mean)
         if refused and not touched:
             self.frames_off_map += 1
             return FrameFootprint([], 0, skipped="map full")
@@ -273,17 +329,21 @@ class StripMap:
         self.profiles += profiles.data.shape[0]
         refocused = self._finish_tiles(set(touched)) if cfg.refocuses else []
         if not touched:
-            return FrameFootprint([], 0, refocused=refocused)
+            return FrameFootprint([], 0, refocused=refocused, frames_imaged=1)
+        points = []
+        for key, mask in zip(touched, masks):
+            x, y = self.tile_points(key)
+            iy, ix = np.nonzero(mask)
+            points.append(np.stack([x[ix], y[iy], np.full(iy.size, cfg.z_m)], axis=1))
         pts = np.concatenate(points)
         if not cfg.refocuses:
             values, groups = [backproject(profiles, tx_m, rx_m, pts, mode=cfg.mode)], []
         else:
             values, groups = self._group_values(profiles, tx_m, rx_m, look, times, frame_time_ns, wf, pts)
+        n = cfg.tile_px
         start = 0
         for key, mask in zip(touched, masks):
-            tile = self.tiles.get(key)
-            if tile is None:
-                tile = self.tiles[key] = np.zeros((n, n), np.complex128)
+            tile = self._tile(key)
             m = int(mask.sum())
             for v in values:
                 tile[mask] += v[start:start + m]
@@ -293,7 +353,88 @@ class StripMap:
                     image[mask.ravel()] = v[start:start + m]
                     self._groups.setdefault(key, []).append((t_s, antenna, direction, image, radar.name))
             start += m
-        return FrameFootprint(touched, pts.shape[0] * profiles.data.shape[0], refocused=refocused)
+        return FrameFootprint(touched, pts.shape[0] * profiles.data.shape[0], refocused=refocused, frames_imaged=1)
+
+    def flush(self) -> FrameFootprint:
+        """Image every radar's unfinished block ("ffbp"; at the end of a run); the tiles changed and the
+        frames imaged."""
+        tiles, pairs, frames = [], 0, 0
+        for name in list(self._blocks):
+            done = self._image_block(name)
+            tiles += [k for k in done.tiles if k not in tiles]
+            pairs += done.pixel_profile_pairs
+            frames += done.frames_imaged
+        return FrameFootprint(tiles, pairs, frames_imaged=frames)
+
+    def _footprint_outline(self, c_mean: np.ndarray, l_mean: np.ndarray, per_side: int = 32) -> np.ndarray:
+        """Points [M, 2] around the footprint of a block (the rectangle ``footprint_tiles`` spans)."""
+        cfg = self.config
+        half = min(cfg.aperture_m / 2, cfg.range_max_m * math.tan(math.radians(cfg.beam_half_angle_deg)))
+        ahead = np.linspace(cfg.range_min_m, cfg.range_max_m, per_side)
+        along = np.linspace(-half, half, per_side)
+        a = np.concatenate([ahead, ahead, np.full(per_side, cfg.range_min_m), np.full(per_side, cfg.range_max_m)])
+        s = np.concatenate([np.full(per_side, -half), np.full(per_side, half), along, along])
+        side = np.array([-l_mean[1], l_mean[0]])
+        return c_mean + a[:, None] * l_mean + s[:, None] * side
+
+    def _image_block(self, name: str) -> FrameFootprint:
+        """Image radar ``name``'s block ("ffbp") into the tiles of its footprint."""
+        from imaging.factorized_backprojection import FactorizedOptions, plan_factorized, run_factorized
+
+        block = self._blocks.pop(name, None)
+        if not block:
+            return FrameFootprint([], 0)
+        cfg = self.config
+        profiles = [b[0] for b in block]
+        tx_m = np.concatenate([b[1] for b in block])
+        rx_m = np.concatenate([b[2] for b in block])
+        look = np.concatenate([b[3] for b in block])
+        c_mean = (0.5 * (tx_m + rx_m)).mean(axis=0)[:2]
+        l_mean = look.mean(axis=0)
+        l_mean /= np.linalg.norm(l_mean)
+        touched, masks, refused = self._footprint(c_mean, l_mean)
+        if refused and not touched:
+            self.frames_off_map += len(block)
+            return FrameFootprint([], 0, skipped="map full")
+        count = sum(p.data.shape[0] for p in profiles)
+        self.frames += len(block)
+        self.profiles += count
+        self.ffbp_blocks += 1
+        if not touched:
+            return FrameFootprint([], 0, frames_imaged=len(block))
+        # Global pixel indices of the footprint's pixels: tile (ix, iy) holds pixels ix * tile_px + j.
+        n = cfg.tile_px
+        where = [np.nonzero(mask) for mask in masks]
+        gy = np.concatenate([key[1] * n + iy for key, (iy, _) in zip(touched, where)])
+        gx = np.concatenate([key[0] * n + ix for key, (_, ix) in zip(touched, where)])
+        gx0, gy0 = int(gx.min()), int(gy.min())
+        x = (np.arange(gx0, int(gx.max()) + 1) + 0.5) * cfg.pixel_m
+        y = (np.arange(gy0, int(gy.max()) + 1) + 0.5) * cfg.pixel_m
+        try:
+            plan = plan_factorized(tx_m, rx_m, x, y, cfg.z_m, profiles[0].carrier_hz, profiles[0].bandwidth_hz,
+                                   FactorizedOptions(leaf_profiles=profiles[0].data.shape[0], mode=cfg.mode),
+                                   outline_xy=self._footprint_outline(c_mean, l_mean))
+        except ValueError:  # a block whose track bends into its own footprint: no polar grid fits
+            plan = None
+        if plan is None:
+            self.ffbp_blocks_direct += 1
+            pts = np.stack([(gx + 0.5) * cfg.pixel_m, (gy + 0.5) * cfg.pixel_m, np.full(gx.size, cfg.z_m)], axis=1)
+            values = np.zeros(gx.size, np.complex128)
+            first = 0
+            for p in profiles:
+                last = first + p.data.shape[0]
+                backproject(p, tx_m[first:last], rx_m[first:last], pts, mode=cfg.mode, out=values)
+                first = last
+        else:
+            self.ffbp_levels = max(self.ffbp_levels, plan.levels)
+            self.ffbp_error_bound_db = max(self.ffbp_error_bound_db, plan.error_bound_db)
+            self.ffbp_error_estimate_db = max(self.ffbp_error_estimate_db, plan.error_estimate_db)
+            values = run_factorized(plan, profiles, tx_m, rx_m)[gy - gy0, gx - gx0]
+        start = 0
+        for key, (iy, ix) in zip(touched, where):
+            self._tile(key)[iy, ix] += values[start:start + iy.size]
+            start += iy.size
+        return FrameFootprint(touched, gx.size * count, frames_imaged=len(block))
 
     def _group_values(self, profiles, tx_m, rx_m, look, times, frame_time_ns, wf, pts) -> tuple[list, list]:
         """The frame backprojected onto ``pts`` as ``refocus_groups_per_frame`` slow-time groups (their sum
@@ -480,9 +621,14 @@ class StripMap:
         """The map in the image schema (``imaging.io.image_file``)."""
         image, x, y = self.mosaic()
         cfg = self.config
-        meta = {"method": f"stripmap-tdbp-{cfg.mode}", "aperture_limit_m": cfg.aperture_m,
+        meta = {"method": f"stripmap-{'ffbp' if cfg.algorithm == 'ffbp' else 'tdbp'}-{cfg.mode}", "aperture_limit_m": cfg.aperture_m,
                 "beam_half_angle_deg": cfg.beam_half_angle_deg, "presum": cfg.presum, "n_frames": self.frames,
                 "frames_standing_still": self.frames_standing, "frames_off_map": self.frames_off_map,
                 "tiles_refused": self.tiles_refused, "tiles_left_out": self.mosaic_tiles_left_out,
-                "n_profiles": self.profiles, "tiles": len(self.tiles), "tile_px": cfg.tile_px, **(attrs or {})}
+                "n_profiles": self.profiles, "tiles": len(self.tiles), "tile_px": cfg.tile_px}
+        if cfg.algorithm == "ffbp":
+            meta.update(ffbp_block_frames=cfg.ffbp_block_frames, ffbp_blocks=self.ffbp_blocks,
+                        ffbp_blocks_direct=self.ffbp_blocks_direct, ffbp_levels=self.ffbp_levels,
+                        ffbp_error_bound_db=self.ffbp_error_bound_db, ffbp_error_estimate_db=self.ffbp_error_estimate_db)
+        meta.update(attrs or {})
         return SarImage(image, x, y, np.array([cfg.z_m]), meta)

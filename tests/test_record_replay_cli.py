@@ -128,6 +128,21 @@ def test_a_radar_imu_the_rig_or_the_recording_lacks_is_one_line(tmp_path):
     assert not (tmp_path / "left_imu").exists()
 
 
+@pytest.mark.parametrize("options, says", [
+    (["--map-algorithm", "ffbp", "--map-refocus", "pga"], "--map-algorithm (algorithm): ffbp images blocks of frames and cannot refocus"),
+    (["--map-algorithm", "ffbp", "--map-range", "0:3"], "--map-range (range_min_m): must be positive with ffbp"),
+    (["--map-algorithm", "ffbp", "--map-ffbp-block", "0"], "--map-ffbp-block (ffbp_block_frames): must be 1 to 256, got 0"),
+    (["--map-aperture", "-1"], "--map-aperture (aperture_m): must be positive"),
+])
+def test_a_bad_map_setting_names_the_option(tmp_path, options, says):
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG_TOML)
+    res = run_cli("run", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar", "left=50001", "--imu-port",
+                  str(tmp_path / "imu"), *options, "--duration", "1")
+    assert res.returncode == 2 and says in res.stderr and "Traceback" not in res.stderr
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())  # nothing started
+
+
 def test_record_bad_config_is_one_line(tmp_path):
     bad = tmp_path / "rig.toml"
     bad.write_text("[radar.left]\nwaveform = { n_tx = 0 }\n")

@@ -88,6 +88,8 @@ class StripMapWorker(Worker):
         self.status = MapStatus()
         self.poses: collections.deque[PoseBatch] = collections.deque()
         self.frames: collections.deque = collections.deque()  # (name, iq copy, frame time, receive time)
+        #: radar -> receive times of its frames in the map's unfinished block ("ffbp"), for the lag
+        self.in_block: dict[str, collections.deque] = {name: collections.deque() for name in self.radars}
         self.changed: set = set()
         self.last_publish = time.monotonic()
 
@@ -111,6 +113,7 @@ class StripMapWorker(Worker):
             shape = (wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)
             noise = (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)).astype(np.complex64)
             scratch.add_frame(radar, self.orders[name], noise, t0 + 500_000_000, traj)
+        scratch.flush()  # "ffbp": a one-frame block compiles the factorized kernels
 
     def _add_poses(self, batch: PoseBatch) -> None:
         """Keep poses in time order; a batch that repeats times already held keeps only its newer ones."""
@@ -197,21 +200,33 @@ class StripMapWorker(Worker):
             status.presum_factor = factor
             if factor > 1 and not footprint.skipped:
                 status.frames_presummed_more += 1
-            self.changed.update(footprint.tiles)
-            self.changed.update(footprint.refocused)
-            status.tiles_refocused += len(footprint.refocused)
+            if not footprint.skipped:
+                self.in_block[name].append(t_recv)
+            self._account(name, footprint, final)
             status.busy_s += time.monotonic() - t0
-            if footprint.skipped == "map full":
-                if status.frames_off_map == 0:
-                    log.warning("strip map: %d tiles, its limit (max_tiles); frames needing new tiles are left out "
-                                "(counted as frames_off_map)", len(self.map.tiles))
-                status.frames_off_map += 1
-            elif footprint.skipped:
-                status.frames_standing_still += 1
-            else:
-                status.frames_imaged += 1
-            if not final:  # the last pass after the run stops says how long shutting down took, not the lag
-                status.lag_s = (time.time_ns() - t_recv) * 1e-9
+
+    def _account(self, name: str, footprint, final: bool) -> None:
+        """Count what one call into the map did. A frame is imaged when its data is in the map: at once, or
+        ("ffbp") when its block is; the lag is then the block's oldest frame's."""
+        status = self.status
+        self.changed.update(footprint.tiles)
+        self.changed.update(footprint.refocused)
+        status.tiles_refocused += len(footprint.refocused)
+        if footprint.skipped == "standing still":
+            status.frames_standing_still += 1
+        if self.map.frames_off_map > status.frames_off_map:
+            if status.frames_off_map == 0:
+                log.warning("strip map: %d tiles, its limit (max_tiles); frames needing new tiles are left out "
+                            "(counted as frames_off_map)", len(self.map.tiles))
+            status.frames_off_map = self.map.frames_off_map
+        received = self.in_block[name]
+        if footprint.frames_imaged or footprint.skipped == "map full":
+            status.frames_imaged += footprint.frames_imaged
+            oldest = received[0] if received else None
+            received.clear()
+            # the last pass after the run stops says how long shutting down took, not the lag
+            if oldest is not None and footprint.frames_imaged and not final:
+                status.lag_s = (time.time_ns() - oldest) * 1e-9
                 status.max_lag_s = max(status.max_lag_s, status.lag_s)
 
     def catch_up_factor(self, radar: str) -> int:
@@ -248,6 +263,9 @@ class StripMapWorker(Worker):
         # received is accounted for in map/status.
         self.status.frames_beyond_odometry += len(self.frames)
         self.frames.clear()
+        ended = self.map.flush()
+        self.changed.update(ended.tiles)
+        self.status.frames_imaged += ended.frames_imaged
         if self.config.map.refocuses:
             refocused = self.map.refocus_pending()
             self.changed.update(refocused)
