@@ -21,7 +21,8 @@ the map's (last frame imaged). At the end: frames sent against frames recorded, 
 warm-up (its drift, goal within 20 MB, and its largest excursion), and the lag over the run (goal: flat).
 
 Writes docs/results/soak.json and docs/results/soak.png (docs/results/soak_quick.* with --quick); with other
-radars than the left pair, soak_<N>radars.* (all four: ``--radars left_front,left_rear,right_front,right_rear``).
+radars than the left pair, soak_<N>radars.* (all four: ``--radars left_front,left_rear,right_front,right_rear``);
+with other map settings (``--map-args``), soak_<--name>.*.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ import argparse
 import json
 import math
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -158,7 +160,7 @@ def simulate(work: Path) -> Path:
     return path
 
 
-def soak(minutes: float, work: Path, radars: list[str]) -> dict:
+def soak(minutes: float, work: Path, radars: list[str], map_args: list[str] = ()) -> dict:
     with Recording(simulate(work)) as rec:
         frames_per_lap = rec.n_frames(radars[0])
         lap_s = frames_per_lap * float(np.median(np.diff(rec.frame_time_ns(radars[0])))) * 1e-9
@@ -170,7 +172,8 @@ def soak(minutes: float, work: Path, radars: list[str]) -> dict:
     imu_link = work / "imu_tty"
     run_cmd = [*SARBOT, "run", "--config", str(ROOT / "imaging" / "rigs" / "default.toml"), "-o", str(out),
                "--imu-port", str(imu_link), "--split-time", "60", "--health-endpoint", health_endpoint,
-               "--min-free", "4G", "--map-radars", ",".join(radars), "--rio-radars", ",".join(radars), *[a for n, p in ports.items() for a in ("--radar", f"{n}={p}")]]
+               "--min-free", "4G", "--map-radars", ",".join(radars), "--rio-radars", ",".join(radars), *[a for n, p in ports.items() for a in ("--radar", f"{n}={p}")],
+               *map_args]
     log_file = open(work / "run.log", "w")
     # As the unit runs it: the drivers at real-time priority (where this user may), the workers niced.
     env = {**os.environ, "SARBOT_DRIVER_RT_PRIORITY": "40"}
@@ -357,7 +360,12 @@ def main() -> int:
     ap.add_argument("--radars", default="left_front,left_rear",
                     help="radars replayed and mapped (default the left pair; four, with their emulation on the same "
                          "two cores, fill this machine: see the module notes)")
+    ap.add_argument("--map-args", default="", help="more `sarbot run` options for the map, quoted (e.g. \"--map-algorithm "
+                    "ffbp --map-aperture 2 --map-pixel 0.004\"); the results then go to soak_<--name>.*")
+    ap.add_argument("--name", help="the results' name with --map-args (soak_NAME.json)")
     args = ap.parse_args()
+    if args.map_args and not args.name:
+        ap.error("--map-args needs --name (the results must not overwrite the default soak's)")
     if args.summary_of:
         path = Path(args.summary_of)
         result = json.loads(path.read_text())
@@ -370,12 +378,14 @@ def main() -> int:
     minutes = 3.0 if args.quick else args.minutes
     radars = args.radars.split(",")
     with tempfile.TemporaryDirectory(prefix="sarbot-soak-") as tmp:
-        result = soak(minutes, Path(tmp), radars)
+        result = soak(minutes, Path(tmp), radars, shlex.split(args.map_args))
     result["radars"] = radars
+    result["map_args"] = args.map_args
     result["commit"] = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
                                       text=True).stdout.strip()
     # The left pair (the default) writes soak.*; another set of radars a file of its own (soak_4radars.*).
     stem = "soak" if radars == ["left_front", "left_rear"] else f"soak_{len(radars)}radars"
+    stem = f"soak_{args.name}" if args.name else stem
     stem += "_quick" if args.quick else ""
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / f"{stem}.json").write_text(json.dumps(result, indent=1) + "\n")

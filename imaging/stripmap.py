@@ -153,6 +153,12 @@ def max_presum(config: StripMapConfig, radar: RadarConfig, speed_mps: float, max
     return best
 
 
+def ffbp_block_travel_m(config: StripMapConfig, radar: RadarConfig, speed_mps: float) -> float:
+    """How far the radar moves over one "ffbp" block, m: the step by which a pixel's aperture window is
+    decided (a pixel integrates ``aperture_m`` to within about that; keep it a small fraction of it)."""
+    return speed_mps * config.ffbp_block_frames * radar.waveform.frame_interval_s
+
+
 @dataclasses.dataclass
 class FrameFootprint:
     """What one frame touched: tile keys and the profile-pixel pairs evaluated."""

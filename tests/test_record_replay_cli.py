@@ -128,6 +128,26 @@ def test_a_radar_imu_the_rig_or_the_recording_lacks_is_one_line(tmp_path):
     assert not (tmp_path / "left_imu").exists()
 
 
+def test_ffbp_blocks_long_against_the_aperture_are_warned_of(tmp_path, caplog):
+    """A block's travel at --max-speed beyond 1/8 of the aperture: said before the run starts; within it, not."""
+    from acquisition import cli
+
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG_TOML)
+    for aperture, warned in (("0.3", True), ("2.0", False)):
+        caplog.clear()
+        args = cli.build_parser().parse_args(["run", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar", "left=50001",
+                                              "--imu-port", str(tmp_path / "imu"), "--map-algorithm", "ffbp",
+                                              "--map-aperture", aperture, "--map-ffbp-block", "8", "--max-speed", "0.5"])
+        with caplog.at_level("WARNING", logger="sarbot"):
+            _, _, config = cli.run_workers(cli.record_setup(args), args, tmp_path / "out", "t")
+        assert config.algorithm == "ffbp" and config.ffbp_block_frames == 8
+        said = [r.getMessage() for r in caplog.records if "FFBP block" in r.getMessage()]
+        assert bool(said) == warned, said
+        if warned:
+            assert "8 frames spans 0.21 m at 0.50 m/s, more than 1/8 of the 0.30 m aperture" in said[0]
+
+
 @pytest.mark.parametrize("options, says", [
     (["--map-algorithm", "ffbp", "--map-refocus", "pga"], "--map-algorithm (algorithm): ffbp images blocks of frames and cannot refocus"),
     (["--map-algorithm", "ffbp", "--map-range", "0:3"], "--map-range (range_min_m): must be positive with ffbp"),

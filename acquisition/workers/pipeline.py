@@ -3,11 +3,18 @@
 from __future__ import annotations
 
 import dataclasses
+import logging
 from pathlib import Path
 
 from . import WorkerSpec
 from .odometry import OdometryWorker, OdometryWorkerConfig
 from .stripmap import StripMapWorker, StripMapWorkerConfig
+
+log = logging.getLogger(f"sarbot.{__name__}")
+
+#: An FFBP block longer than this fraction of the aperture changes the map visibly against the direct
+#: kernel's per-frame windows (benchmarks/stripmap_ffbp.py): said in a warning.
+BLOCK_TRAVEL_PER_APERTURE = 8
 
 
 def add_pipeline_workers(setup, out_dir: Path, stamp: str, config, max_speed_mps: float = 0.5,
@@ -21,12 +28,19 @@ def add_pipeline_workers(setup, out_dir: Path, stamp: str, config, max_speed_mps
     (``StripMapWorkerConfig.threads``). Returns the trajectory path, the map path and the
     strip-map settings used.
     """
-    from imaging.stripmap import max_presum
+    from imaging.stripmap import ffbp_block_travel_m, max_presum
 
     names = [link.name for link in setup.radars]
     map_radars = map_radars or names
     if presum is None:
         presum = min(max_presum(config, setup.rig.radar(n), max_speed_mps) for n in map_radars)
+    if config.algorithm == "ffbp":
+        travel = max(ffbp_block_travel_m(config, setup.rig.radar(n), max_speed_mps) for n in map_radars)
+        if travel > config.aperture_m / BLOCK_TRAVEL_PER_APERTURE:
+            log.warning("strip map: an FFBP block of %d frames spans %.2f m at %.2f m/s, more than 1/%d of the %.2f m "
+                        "aperture: each pixel's aperture is set to within that (fewer --map-ffbp-block frames, or the "
+                        "direct algorithm, for short apertures)", config.ffbp_block_frames, travel, max_speed_mps,
+                        BLOCK_TRAVEL_PER_APERTURE, config.aperture_m)
     config = dataclasses.replace(config, presum=presum)
     out_dir.mkdir(parents=True, exist_ok=True)
     traj_path = out_dir / f"trajectory_{stamp}.h5"
