@@ -51,6 +51,8 @@ TABLE_SHIFTS = 2048
 #: The designed band exceeds the Nyquist band of the oversampled grid by this factor (margin for the
 #: bandwidth estimates: the bistatic offsets, the envelope's own variation).
 BAND_MARGIN = 1.05
+#: A plan whose largest polar grid exceeds this many samples per pixel has gone astray: it goes direct.
+MAX_GRID_PER_PIXEL = 4
 
 
 @dataclasses.dataclass(frozen=True)
@@ -250,6 +252,11 @@ class FactorizedPlan:
         """Merges on the longest path from a leaf to a root."""
         return max(r.level for r in self.roots)
 
+    @property
+    def direct_only(self) -> bool:
+        """Every profile goes straight onto the pixels (FFBP would cost more here): no interpolation error."""
+        return all(r.direct for r in self.roots)
+
     def nodes(self):
         stack = list(self.roots)
         while stack:
@@ -269,6 +276,8 @@ class FactorizedPlan:
         :func:`interpolation_error` for data within the band its grid is sampled for), and the errors add
         coherently along the ``levels + 1`` interpolations between a leaf and a pixel. The leaves' own
         error is the direct kernel's."""
+        if self.direct_only:
+            return -math.inf
         o = self.options
         er, ea = interpolation_error(o.taps, o.oversample_range), interpolation_error(o.taps, o.oversample_angle)
         per_step = er + ea + er * ea
@@ -280,6 +289,8 @@ class FactorizedPlan:
         (:func:`interpolation_rms_error`, data spread evenly over the band) adding in power over the
         ``2 (levels + 1)`` one-dimensional interpolations between a leaf and a pixel. Measured errors sit
         near it (tests and benchmarks/ffbp.py); the bound above is what no band-limited input exceeds."""
+        if self.direct_only:
+            return -math.inf
         o = self.options
         power = interpolation_rms_error(o.taps, o.oversample_range) ** 2 + interpolation_rms_error(o.taps, o.oversample_angle) ** 2
         return float(10 * np.log10(power * (self.levels + 1)))
@@ -419,6 +430,10 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
         rq, aq = np.meshgrid(np.linspace(r.min(), r.max(), 5), np.linspace(alpha.min(), alpha.max(), 5))
         edge = slice(None, None, max(1, r.size // 48))
         rs, as_ = np.concatenate([r[edge], rq.ravel()]), np.concatenate([alpha[edge], aq.ravel()])
+        # Only where the grid is needed: a corner of the (r, alpha) box can lie on the axis (b -> 0), where
+        # the derivatives diverge and would size the grid in the trillions.
+        near = rs ** 2 * (1 - as_ ** 2) - h ** 2 < (0.5 * b_image) ** 2
+        rs, as_ = rs[~near], as_[~near]
         centres = _extreme_points(m[node.start:node.stop], u, n)
         f_r, f_a = _polar_derivatives(node, centres, rs, as_, z_m)
         dr = 1.0 / (2 * (envelope + two_over_lambda * f_r) * BAND_MARGIN * o.oversample_range)
@@ -452,11 +467,22 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
             node.direct = True  # cheaper straight onto the pixels
         return [node]
 
-    roots = choose_roots(build(0, tx.shape[0]))
+    whole = build(0, tx.shape[0])
+    roots = choose_roots(whole)
     for root in roots:
         place_subtree(root)
     k = 2 * math.pi * carrier_hz / SPEED_OF_LIGHT_MPS
-    return FactorizedPlan(roots, x_m, y_m, float(z_m), o, k)
+    plan = FactorizedPlan(roots, x_m, y_m, float(z_m), o, k)
+    # Phase centres all but on the image's edge, or a track bent towards it, can ask a subtree for polar grids
+    # far beyond the pixels (a live strip map once asked for 7e11 samples): then the profiles go straight
+    # onto the pixels, which is never dearer than that.
+    cost = plan.cost()
+    largest = max((n.nr * n.na for n in plan.nodes() if not n.direct), default=0)
+    operations = cost["leaf_backprojections"] + cost["taps_squared"] * (cost["merge_interpolations"] + cost["pixel_interpolations"])
+    if largest > MAX_GRID_PER_PIXEL * max(n_pix, 4096) or operations > cost["direct_backprojections"]:
+        whole.children, whole.level, whole.direct = (), 0, True
+        plan = FactorizedPlan([whole], x_m, y_m, float(z_m), o, k)
+    return plan
 
 
 # -- running it ------------------------------------------------------------------------------------------

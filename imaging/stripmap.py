@@ -203,7 +203,7 @@ class StripMap:
         #: "ffbp": radar -> the frames of its block so far, (profiles, tx_m, rx_m, look)
         self._blocks: dict[str, list] = {}
         self.ffbp_blocks = 0
-        self.ffbp_blocks_direct = 0  # blocks the plan could not take (a sharp turn): imaged directly
+        self.ffbp_blocks_direct = 0  # blocks FFBP could not take or not save on (a sharp turn): imaged directly
         self.ffbp_levels = 0  # the most merges in a block's tree
         self.ffbp_error_bound_db = -math.inf  # the worst block's
         self.ffbp_error_estimate_db = -math.inf
@@ -422,7 +422,7 @@ class StripMap:
                                    outline_xy=self._footprint_outline(c_mean, l_mean))
         except ValueError:  # a block whose track bends into its own footprint: no polar grid fits
             plan = None
-        if plan is None:
+        if plan is None or plan.direct_only:  # no grid fits, or FFBP would cost more than this
             self.ffbp_blocks_direct += 1
             pts = np.stack([(gx + 0.5) * cfg.pixel_m, (gy + 0.5) * cfg.pixel_m, np.full(gx.size, cfg.z_m)], axis=1)
             values = np.zeros(gx.size, np.complex128)

@@ -192,3 +192,43 @@ def test_what_it_cannot_image_is_refused_by_name(straight_pass):
         run_factorized(plan, prof, tx, rx)
     with pytest.raises(Exception, match="taps"):
         FactorizedOptions(taps=5)
+
+
+def test_a_plan_whose_grids_go_astray_goes_direct(straight_pass, monkeypatch):
+    """A plan asking for polar grids far beyond the pixels (a live strip map's block once asked for 7e11
+    samples and died allocating them) sends every profile straight onto the pixels instead: the direct
+    kernel's image, with no interpolation error to state."""
+    import imaging.factorized_backprojection as ffbp
+
+    prof, tx, rx = straight_pass
+    tx, rx = tx[:2048], rx[:2048]
+    x, y = np.arange(-0.3, 0.3, 0.01), np.arange(1.7, 2.1, 0.01)
+    normal = plan_factorized(tx, rx, x, y, 0.3, prof.carrier_hz, prof.bandwidth_hz, FactorizedOptions(leaf_profiles=256))
+    assert not normal.direct_only and normal.levels >= 1
+    largest = max(n.nr * n.na for n in normal.nodes() if not n.direct)
+    monkeypatch.setattr(ffbp, "MAX_GRID_PER_PIXEL", 0.9 * largest / max(x.size * y.size, 4096))
+    plan = plan_factorized(tx, rx, x, y, 0.3, prof.carrier_hz, prof.bandwidth_hz, FactorizedOptions(leaf_profiles=256))
+    assert plan.direct_only and plan.levels == 0 and plan.error_bound_db == -np.inf and plan.error_estimate_db == -np.inf
+    sub = ffbp._slice(prof, 0, 2048)
+    np.testing.assert_allclose(run_factorized(plan, sub, tx, rx), direct(sub, tx, rx, x, y), rtol=0, atol=1e-9 * tx.shape[0])
+
+
+def test_grids_are_sized_where_they_are_needed_not_at_the_axis():
+    """An image plane 0.45 m below a short track, reaching far along it at close range: the corner of the
+    (range, angle) box at the nearest range and widest angle lies on the axis. The grids stay the size of
+    the image (they were sized from derivatives there, which diverge) and the image is the direct one."""
+    rng = np.random.default_rng(1)
+    n_p = 2048
+    centres = np.stack([np.linspace(-0.3, 0.3, n_p), np.zeros(n_p), np.full(n_p, 0.45)], 1)
+    f0, fstep, ns, c = 77e9, 22.75e6, 175, 299_792_458.0
+    x, y = np.arange(-1.5, 1.5, 0.01), np.arange(0.5, 1.3, 0.01)
+    samples = np.zeros((n_p, ns), complex)
+    for sx, sy in rng.uniform([-1.0, 0.6], [1.0, 1.2], (4, 2)):
+        r = 2 * np.linalg.norm(centres - [sx, sy, 0.0], axis=1)
+        samples += np.exp(2j * np.pi / c * (f0 + fstep * np.arange(ns)[None, :]) * r[:, None])
+    prof = range_compress(samples, f0, fstep, oversample=8, guarded=True)
+    plan = plan_factorized(centres, centres, x, y, 0.0, prof.carrier_hz, prof.bandwidth_hz, FactorizedOptions(leaf_profiles=128))
+    grids = [n.nr * n.na for n in plan.nodes() if not n.direct]
+    assert grids and max(grids) < 2 * x.size * y.size
+    img = run_factorized(plan, prof, centres, centres)
+    assert error_db(img, direct(prof, centres, centres, x, y, z=0.0)) < -40.0
