@@ -102,7 +102,7 @@ def cmd_image(args) -> int:
     from imaging.image_formation import ImagingOptions, image_recording, image_title
     from imaging.io.image_file import write_image
     from imaging.io.recording import Recording
-    from imaging.plot import save_image_png
+    from imaging.plot import ImagePicture
 
     from .progress import Progress
 
@@ -121,8 +121,9 @@ def cmd_image(args) -> int:
                               progress=Progress("backproject"), autofocus=autofocus, imu_aided=args.imu_aided,
                               aperture_m=args.aperture)
     path = write_image(out, img)
-    # A volume is shown as its maximum over height.
-    save_image_png(png, img.image, img.x_m, img.y_m, title=image_title(img))
+    # Not laid out beside the backprojection: its kernel has every core, and the figure's Python then holds
+    # the GIL the kernel's calls need (0.15 s slower than after it, benchmarks/image_command.py).
+    ImagePicture(img.x_m, img.y_m).save(png, img.image, title=image_title(img))  # a volume: its maximum over height
     print(f"wrote {path} and {png}")
     if img.track_error is not None:
         print(autofocus_summary(img))
