@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 from conftest import R0, RADAR, point_pass
+from reference_stripmap import block_reference
 
 from imaging import metrics
 from imaging.backprojection import backproject
@@ -156,29 +157,6 @@ def test_frames_taken_standing_still_are_left_out(drive):
     assert fp.skipped == "standing still" and not sm.tiles and sm.frames_standing == 1
 
 
-def block_reference(config, radar, order, adc, times, traj, frames):
-    """The strip map "ffbp" makes, by the direct kernel: each block of ``config.ffbp_block_frames``
-    consecutive frames backprojected onto the pixels of its footprint (the block's mean phase centre and
-    look), profile by profile."""
-    ref = StripMap(dataclasses.replace(config, algorithm="direct"))
-    frames = list(frames)
-    for b in range(0, len(frames), config.ffbp_block_frames):
-        block = [ref.frame_profiles(radar, order, adc[k], int(times[k]), traj)
-                 for k in frames[b:b + config.ffbp_block_frames]]
-        tx, rx = np.concatenate([f[1] for f in block]), np.concatenate([f[2] for f in block])
-        look = np.concatenate([f[3] for f in block]).mean(axis=0)
-        touched, masks, _ = ref._footprint((0.5 * (tx + rx)).mean(axis=0)[:2], look / np.linalg.norm(look))
-        for key, mask in zip(touched, masks):
-            x, y = ref.tile_points(key)
-            iy, ix = np.nonzero(mask)
-            pts = np.stack([x[ix], y[iy], np.full(iy.size, config.z_m)], axis=1)
-            values = np.zeros(iy.size, np.complex128)
-            for profiles, tx_m, rx_m, _, _ in block:
-                backproject(profiles, tx_m, rx_m, pts, mode=config.mode, out=values)
-            ref._tile(key)[iy, ix] += values
-    return ref
-
-
 def error_db(image, reference):
     return 10 * np.log10(np.sum(np.abs(image - reference) ** 2) / np.sum(np.abs(reference) ** 2))
 
@@ -197,7 +175,7 @@ def test_ffbp_blocks_equal_direct_backprojection_within_the_plans_error(drive):
     assert [f.frames_imaged for f in done] == [0, 0, 0, 4] * 12
     assert all(not f.tiles for f in done[::4]) and all(f.tiles for f in done[3::4])
     assert sm.ffbp_blocks == 12 and sm.ffbp_blocks_direct == 0 and sm.ffbp_levels == 2 and sm.frames == 48
-    ref = block_reference(config, radar, order, adc, times, truth, frames)
+    ref = block_reference(config, radar, order, [(adc[k], int(times[k])) for k in frames], truth)
     image, x, y = sm.mosaic()
     expected, x_ref, _ = ref.mosaic()
     assert image.shape == expected.shape and x[0] == x_ref[0]
@@ -251,7 +229,7 @@ def test_an_ffbp_block_whose_track_runs_into_its_footprint_is_imaged_directly(dr
     for k in range(20, 28):
         sm.add_frame(radar, order, adc[k], int(times[k]), towards)
     assert sm.ffbp_blocks == 2 and sm.ffbp_blocks_direct == 2
-    ref = block_reference(config, radar, order, adc, times, towards, range(20, 28))
+    ref = block_reference(config, radar, order, [(adc[k], int(times[k])) for k in range(20, 28)], towards)
     # The same kernel on the same points, grouped differently (its float32 geometry is relative to blocks of points).
     assert error_db(sm.mosaic()[0], ref.mosaic()[0]) < -80
 
