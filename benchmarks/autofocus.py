@@ -180,10 +180,11 @@ def main() -> int:
         rows = vibration_case(Path(tmp), args.quick, repeats)
     rows += gotcha_case(repeats)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    out = RESULTS / "autofocus.json"
+    stem = "autofocus_quick" if args.quick else "autofocus"  # a smoke run keeps the real figures
+    out = RESULTS / f"{stem}.json"
     out.write_text(json.dumps({"quick": args.quick, "rows": rows}, indent=2, default=float))
-    chart(rows, RESULTS / "autofocus.png")
-    print(f"wrote {out} and {RESULTS / 'autofocus.png'}")
+    chart(rows, RESULTS / f"{stem}.png")
+    print(f"wrote {out} and {RESULTS / (stem + '.png')}")
     return 0
 
 

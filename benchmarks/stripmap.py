@@ -141,11 +141,12 @@ def main(argv: list[str]) -> int:
         "baseline": "the default setting in the same process",
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "stripmap.json").write_text(json.dumps(summary, indent=2))
-    plot(rows, sensor_fps, RESULTS / "stripmap.png")
+    stem = "stripmap_quick" if args.quick else "stripmap"  # a smoke run keeps the real figures
+    (RESULTS / f"{stem}.json").write_text(json.dumps(summary, indent=2))
+    plot(rows, sensor_fps, RESULTS / f"{stem}.png")
     rec.close()
     path.unlink()
-    print(f"wrote {RESULTS / 'stripmap.json'}")
+    print(f"wrote {RESULTS / (stem + '.json')}")
     return 0
 
 
