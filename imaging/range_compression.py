@@ -20,8 +20,9 @@ class RangeProfiles:
     two-way range r of a pixel and multiplies by ``exp(-j 2 pi carrier_hz r / c)``.
 
     ``carrier_hz`` is f0 for a profile exactly as DESIGN.md defines it; with ``centred`` compression the
-    linear phase of the fast-time origin is removed and the carrier is the centre frequency, which makes
-    the profile vary slowly with range so that interpolating it is accurate (same result, exactly).
+    linear phase of the fast-time origin is removed and the carrier is the frequency of the middle sample
+    (the lower of the two for an even count), which makes the profile vary slowly with range so that
+    interpolating it is accurate (same result, exactly).
     ``samples`` keeps the windowed, normalised fast-time samples for the exact matched filter.
     ``rows``, when compression was asked for ``guarded`` profiles, is the buffer ``data`` is a view of:
     [P, n_bins + 3] with one zero bin before each profile and two after, the layout the backprojection
@@ -73,7 +74,7 @@ def range_compress(
     oversample : int
         Zero-padding factor; ``n_fft = oversample * n`` unless ``n_fft`` is given.
     centred : bool
-        Remove the linear phase of the fast-time origin (carrier becomes the centre frequency).
+        Remove the linear phase of the fast-time origin (carrier becomes the middle sample's frequency).
     signed : bool
         Put range zero in the middle (for data whose range axis is relative to a reference range).
     guarded : bool
@@ -99,8 +100,18 @@ def range_compress(
     lead = 1 if guarded else 0
     rows = np.zeros((*samples.shape[:-1], n_fft + (3 if guarded else 0)), np.complex64)
     buf = rows[..., lead:lead + n_fft]
-    np.multiply(samples, w, out=buf[..., :n], casting="same_kind")
-    windowed = buf[..., :n].copy() if keep_samples else None
+    # Centring multiplies bin k by exp(2j pi m k / n_fft), which is the same as moving sample i to
+    # position i - m (mod n_fft) before the FFT; so the samples are written there and no pass over the
+    # (oversampled, 16 times larger) spectrum is needed. m is the middle sample, rounded down for even n.
+    m = (n - 1) // 2 if centred else 0
+    np.multiply(samples[..., m:], w[m:], out=buf[..., :n - m], casting="same_kind")
+    if m:
+        np.multiply(samples[..., :m], w[:m], out=buf[..., n_fft - m:], casting="same_kind")
+    windowed = None
+    if keep_samples:
+        windowed = np.empty((*samples.shape[:-1], n), np.complex64)
+        windowed[..., m:] = buf[..., :n - m]
+        windowed[..., :m] = buf[..., n_fft - m:]
     # In place where scipy can (it can for a complex64 view): the profiles are written once, where the
     # kernel reads them. numpy's FFT would work in double precision.
     spectrum = scipy.fft.fft(buf, axis=-1, overwrite_x=True, workers=workers)
@@ -110,12 +121,7 @@ def range_compress(
         buf[...] = spectrum
     step = SPEED_OF_LIGHT_MPS / (n_fft * frequency_step_hz)
     start = -(n_fft // 2) * step if signed else 0.0
-    carrier = f0_hz
-    if centred:
-        m = 0.5 * (n - 1)
-        r = start + step * np.arange(n_fft)
-        buf *= np.exp(2j * np.pi * m * frequency_step_hz * r / SPEED_OF_LIGHT_MPS).astype(np.complex64)
-        carrier = f0_hz + m * frequency_step_hz
+    carrier = f0_hz + m * frequency_step_hz
     return RangeProfiles(
         data=buf,
         range_start_m=start,
