@@ -196,10 +196,11 @@ class _BlockReader:
         along = centres @ axis
         return ApertureTaper(axis, float(along.min()), float(along.max()), options.aperture_window)
 
-    def block(self, b: int):
-        """Read and range-compress the block starting at the b-th selected frame: frame_profiles' result,
-        its profiles tapered along the aperture if the options ask for it."""
-        idx = self.frame_indices[b:b + self.options.frames_per_block]
+    def block(self, b: int, n_frames: int | None = None):
+        """Read and range-compress the block of ``n_frames`` (``options.frames_per_block`` by default)
+        starting at the b-th selected frame: frame_profiles' result, its profiles tapered along the
+        aperture if the options ask for it."""
+        idx = self.frame_indices[b:b + (n_frames or self.options.frames_per_block)]
         block = slice(int(idx[0]), int(idx[-1]) + 1)
         adc = self.recording.adc(self.radar_name, block)
         ftimes = self.recording.frame_time_ns(self.radar_name, block)
@@ -248,19 +249,25 @@ def form_image(
     boresights = []
     n_profiles = 0
     step = options.frames_per_block
-    prepare = reader.block
+    # The first block is a quarter of the others: nothing overlaps its range compression, so the kernel
+    # starts sooner; every later block is compressed while the one before it is backprojected.
+    first = max(1, step // 4)
+    starts = [0, *range(first, frame_indices.size, step)] if frame_indices.size else []
+    ends = [*starts[1:], frame_indices.size]
 
-    starts = list(range(0, frame_indices.size, step))
+    def prepare(n):
+        return reader.block(starts[n], ends[n] - starts[n])
+
     ffbp = options.algorithm == "ffbp"
     if ffbp and grid.z_m.size > 1:
         raise SarbotError("fast factorized backprojection images a horizontal plane; the grid is a volume (use the direct algorithm)")
     points = None if ffbp else grid.points()
     held: list = []  # ffbp: every block's (profiles, tx, rx), imaged at the end
     with ThreadPoolExecutor(1, thread_name_prefix="range-compress") as pool:
-        pending = pool.submit(prepare, starts[0]) if starts else None
-        for n, b in enumerate(starts):
+        pending = pool.submit(prepare, 0) if starts else None
+        for n in range(len(starts)):
             profiles, tx_m, rx_m, times, track = pending.result()
-            pending = pool.submit(prepare, starts[n + 1]) if n + 1 < len(starts) else None
+            pending = pool.submit(prepare, n + 1) if n + 1 < len(starts) else None
             if profiles.data.shape[0] and profiles.data.size:
                 if ffbp:
                     held.append((profiles, tx_m, rx_m))
@@ -273,7 +280,7 @@ def form_image(
                 speeds.append(np.linalg.norm(trajectory.sample(track.time_ns).velocity_mps, axis=1))
             del profiles  # before the next block's are made: at most two blocks of profiles in memory
             if progress is not None:
-                progress(min(b + step, frame_indices.size), frame_indices.size)
+                progress(ends[n], frame_indices.size)
     if n_profiles == 0:
         raise SarbotError(f"{recording.path}: radar {radar_name}: no chirp falls in the selected frames and time window")
     extra = _image_factorized(held, grid, options, image) if ffbp else {}

@@ -27,6 +27,8 @@ def test_a_picture_drawn_over_its_prepared_figure_equals_a_full_draw(tmp_path, m
     again = picture.save(tmp_path / "again.png", 2 * image[::-1], title="another")  # a picture saves more than once
     full_draw(ImagePicture(x, y, marks=marks), tmp_path / "full.png", image, "left_front frames 0:16 (tdbp-linear)")
     fast, full = mpimg.imread(tmp_path / "fast.png"), mpimg.imread(tmp_path / "full.png")
+    assert np.all(full[..., 3] == 1)  # opaque, which is why the picture is written as RGB
+    full = full[..., :3]
     assert fast.shape == full.shape and fast.shape[1] == round(9 * DPI)
     np.testing.assert_allclose(fast, full, atol=2 / 255)
     assert np.abs(mpimg.imread(again) - fast).max() > 0.5  # the other image and title were drawn
