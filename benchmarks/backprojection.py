@@ -307,7 +307,10 @@ def chart(rows, numpy_bps, floors, torchbp, path):
         ax.annotate(label, (r["backprojections_per_s"] / 1e9, ser), xytext=(5, 4), textcoords="offset points", fontsize=8)
     ax.axvline(numpy_bps / 1e9, color="grey", ls=":", label=f"numpy reference ({numpy_bps / 1e6:.0f} M/s)")
     if "backprojections_per_s" in torchbp:
-        ax.axvline(torchbp["backprojections_per_s"] / 1e9, color="tab:red", ls="--", label="torchbp Cartesian CPU kernel (measured)")
+        ax.scatter(torchbp["backprojections_per_s"] / 1e9, torchbp["ser_db"], s=70, marker="X", color="tab:red",
+                   label="torchbp Cartesian CPU kernel (measured; monostatic)")
+        ax.scatter(torchbp["backprojections_per_s"] / 1e9, torchbp["bistatic_magnitude_ser_db"], s=40, marker="x",
+                   color="tab:red", label="torchbp against the bistatic image (|image|)")
     ax.axvline(floors["geometry_plus_gather_per_s"] / 1e9, color="tab:green", ls="-.", label="floor: float64 geometry + gather")
     ax.axhline(60, color="k", lw=0.5)
     ax.set_xscale("log")
