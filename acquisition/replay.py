@@ -168,13 +168,13 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
         lap_ns = lap_duration_ns(rec, radar_targets) if laps > 1 else 0
         emulators: dict[str, tuple[XbusPty, Path]] = {}  # "IMU" or "IMU of radar NAME" -> emulator, its link
         if imu_link:
-            if rec.imu() is None:
+            if rec.imu_sample_count() == 0:
                 raise SarbotError(f"--imu-link: {path} has no IMU samples to replay")
             _link_to_pty(Path(imu_link), "--imu-link")
         for name, link in (radar_imu_links or {}).items():
             if name not in rec.radar_names:
                 raise SarbotError(f"--radar-imu-link {name}: {path} has no such radar (radars: {', '.join(rec.radar_names)})")
-            if rec.radar_imu(name) is None:
+            if rec.imu_sample_count(name) == 0:
                 raise SarbotError(f"--radar-imu-link {name}: {path} has no samples of an IMU on radar {name} to replay")
             _link_to_pty(Path(link), "--radar-imu-link")
         if imu_link:

@@ -94,6 +94,7 @@ def test_an_imu_on_a_radar_mount_is_replayed_and_recorded_sample_for_sample(tmp_
         np.testing.assert_array_equal(again.imu()["time_ns"], imu.time_ns)
         got = again.radar_imu("left")
         assert got is not None
+        assert again.imu_sample_count("left") == got["time_ns"].size and again.imu_sample_count() == imu.time_ns.size
         for key in ("time_ns", "gyro_radps", "accel_mps2"):
             np.testing.assert_array_equal(got[key], want[key], err_msg=key)
         assert again.radar("left").imu.rate_hz == 1000.0

@@ -369,6 +369,11 @@ class Recording:
             raise FileFormatError(f"{self.path}: radar {name} has no /detections")
         return {k: g["detections"][k][()] for k in ("time_ns", "scan", "xyz_m", "doppler_mps", "snr_db")}
 
+    def imu_sample_count(self, radar: str | None = None) -> int:
+        """How many samples ``/imu`` holds (with ``radar``: ``/radar/<radar>/imu``), without reading them."""
+        key = "imu/time_ns" if radar is None else f"radar/{radar}/imu/time_ns"
+        return self._f[key].shape[0] if key in self._f else 0
+
     def imu(self) -> dict[str, np.ndarray] | None:
         if "imu" not in self._f or self._f["imu/time_ns"].shape[0] == 0:
             return None
