@@ -235,7 +235,7 @@ def soak(minutes: float, work: Path, radars: list[str], map_args: list[str] = ()
             if last_map is not None:
                 sample.update(map_lag_s=round(last_map.lag_s, 3), map_dropped=last_map.frames_dropped_behind,
                               map_presummed_more=last_map.frames_presummed_more,
-                              map_imaged=last_map.frames_imaged)
+                              map_imaged=last_map.frames_imaged, map_tiles=last_map.tiles)
             sample["imu_in_file_lag_s"] = checker.imu_lag_s()
             checker.check_finished()
             samples.append(sample)
