@@ -9,6 +9,7 @@ the environment.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import os
 import signal
@@ -24,9 +25,6 @@ DRIVER_RT_PRIORITY_ENV = "SARBOT_DRIVER_RT_PRIORITY"
 #: machine the live products fall behind (and say so) rather than the recording losing data.
 WORKER_NICE_ENV = "SARBOT_WORKER_NICE"
 WORKER_NICE = 10
-#: Allocations at least this large are mapped on their own and unmapped when freed (glibc's M_MMAP_THRESHOLD).
-MMAP_THRESHOLD_BYTES = 1 << 20
-_M_MMAP_THRESHOLD = -3  # glibc's malloc.h
 LOG_FORMAT = "%(levelname)s %(name)s: %(message)s"
 
 
@@ -86,28 +84,34 @@ def ensure_jit_cache_dir() -> str | None:
     return None
 
 
-def limit_heap_retention(threshold_bytes: int = MMAP_THRESHOLD_BYTES) -> bool:
-    """Have freed arrays of ``threshold_bytes`` or more go back to the system at once; True if set.
-
-    glibc raises its mmap threshold each time a mapped block is freed (up to 32 MB), so a worker that once
-    freed a large array serves later arrays of a few MB from the heap, where a small long-lived allocation
-    made after them keeps the heap from shrinking. The strip map's process then held 850-1040 MB in a
-    2 m FFBP soak where it used 400-600 (docs/results/soak_ffbp_2m*.json). A fixed threshold also turns
-    off that raising. Left alone when the environment sets ``MALLOC_MMAP_THRESHOLD_`` or the C library
-    is not glibc.
-    """
-    if "MALLOC_MMAP_THRESHOLD_" in os.environ:
-        return False
+@functools.cache
+def _malloc_trim():
+    """glibc's ``malloc_trim``, or None (another C library)."""
     import ctypes
     import ctypes.util
 
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
+        trim = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
     except (OSError, AttributeError):
-        return False
-    mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
-    return mallopt(_M_MMAP_THRESHOLD, int(threshold_bytes)) == 1
+        return None
+    trim.argtypes, trim.restype = (ctypes.c_size_t,), ctypes.c_int
+    return trim
+
+
+def release_free_heap() -> bool:
+    """Give the free pages inside the C heap back to the system (glibc's ``malloc_trim(0)``); True if
+    some were. A no-op elsewhere. The workers call it once a second.
+
+    glibc raises its mmap threshold each time a mapped block is freed (up to 32 MB), so a worker that once
+    freed a large array serves later arrays of a few MB from its heap, and a small long-lived allocation
+    made after them keeps the heap from shrinking: the strip map's process held 850-1040 MB in a 2 m FFBP
+    soak where it used 400-600 (docs/results/soak_ffbp_2m*.json). Fixing the threshold instead (1 MB, as
+    db42989 did) maps and faults in every array of a MB or more each time: the odometry's point cloud took
+    2.6-3.0 ms a scan with glibc's default, 5.7-7.8 ms with the threshold fixed, and the four-radar map
+    lagged further for the CPU it lost. A trim costs about 16 ms for 300 MB freed, 0.15 ms for nothing.
+    """
+    trim = _malloc_trim()
+    return bool(trim(0)) if trim is not None else False
 
 
 def die_with_parent(name: str | None = None) -> None:
@@ -140,7 +144,6 @@ def become_child(role: str, realtime: bool = False, background: bool = False) ->
     the unit asks for it); ``background``: a worker, niced below the drivers and the recorder.
     """
     die_with_parent(f"sarbot-{role}")
-    limit_heap_retention()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     configure_logging(role=role)
     if background:

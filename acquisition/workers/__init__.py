@@ -15,7 +15,7 @@ from typing import Any
 
 from ..bus import FRAME_QUEUE, BusPublisher, BusSubscriber
 from ..messages import BusMessage, WorkerState, decode
-from ..processes import become_child, free_tcp_endpoint
+from ..processes import become_child, free_tcp_endpoint, release_free_heap
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
@@ -68,7 +68,9 @@ class Worker:
 
 def run_worker(worker: Worker, sub: BusSubscriber, stop, state=None) -> None:
     """The run loop every worker shares: live until ``stop`` is set, then drain, then finish. ``state``
-    (a callable) is called about once a second while live: the worker's state onto the bus."""
+    (a callable) is called about once a second while live: the worker's state onto the bus. As often, the
+    C heap's free pages go back to the system (``release_free_heap``): the arrays a worker frees every
+    frame would otherwise stay with it."""
     last_state = 0.0
     while not stop.is_set():
         msg = sub.receive(timeout_ms=50)
@@ -81,8 +83,10 @@ def run_worker(worker: Worker, sub: BusSubscriber, stop, state=None) -> None:
             msg = sub.receive(timeout_ms=0) if received < MAX_BATCH else None
         worker.lost_on_bus(sub.missed_by_topic())
         worker.step()
-        if state is not None and time.monotonic() - last_state >= 1.0:
-            state()
+        if time.monotonic() - last_state >= 1.0:
+            if state is not None:
+                state()
+            release_free_heap()
             last_state = time.monotonic()
     now = time.monotonic()
     deadline, quiet_until = now + worker.drain_max_s, now + worker.drain_quiet_s
