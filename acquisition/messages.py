@@ -268,6 +268,7 @@ class MapStatus(HeaderMessage):
     frames_presummed_more: int = 0  # imaged with more pre-summing than configured, to catch up
     presum_factor: int = 1  # the extra pre-summing of the latest frame (1: as configured)
     lag_s: float = 0.0  # frame reception to imaged, the latest frame
+    waiting_for_poses_s: float = 0.0  # sensor time the newest frame is ahead of the odometry's newest pose
     max_lag_s: float = 0.0
     busy_s: float = 0.0  # time spent imaging
     tiles: int = 0

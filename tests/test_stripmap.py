@@ -433,6 +433,47 @@ def test_a_worker_behind_sums_more_chirps_before_it_drops_a_frame(drive):
         assert abs(img.x_m[ix] - 0.0) < 0.02 and abs(img.y_m[iy] - R0) < 0.02
 
 
+def test_map_status_says_how_much_of_the_lag_is_waiting_for_the_odometry(drive):
+    """3 s of frames queued but poses for only the first 0.2 s of them: the covered frames are imaged, the
+    rest wait, and map/status gives how far the newest frame is ahead of the newest pose. Once the poses
+    cover the queue, it is imaged and nothing waits."""
+    from acquisition.messages import PoseBatch, RadarFrameMessage
+    from acquisition.workers.stripmap import StripMapWorker, StripMapWorkerConfig
+    from drivers.radar.stream import RadarFrame
+    from imaging.core.rig import Rig
+    from imaging.core.samples import complex_to_iq
+
+    rec, radar, truth, order = drive
+    adc, times = rec.adc(RADAR), rec.frame_time_ns(RADAR)
+    config = StripMapConfig(pixel_m=0.01, aperture_m=0.3, range_min_m=1.5, range_max_m=2.5, z_m=0.3, presum=2)
+    worker = StripMapWorker(StripMapWorkerConfig(Rig((radar,)), None, config, "tcp://unused:1", "unused.h5"), None)
+
+    def poses_until(t_end_ns):
+        t = truth.time_ns[truth.time_ns <= t_end_ns]
+        s = truth.sample(t)
+        return PoseBatch(t, s.position_m, s.orientation_xyzw, s.velocity_mps)
+
+    for k in range(len(times)):
+        frame = RadarFrame(k, int(times[k]), int(times[k]), True, 0, complex_to_iq(adc[k], 1000.0))
+        worker.handle(RadarFrameMessage(RADAR, frame), live=True)
+    worker._image_ready(budget_s=None)  # no poses yet: everything queued waits
+    assert worker.status.waiting_for_poses_s == pytest.approx((times[-1] - times[0]) * 1e-9)
+    covered_ns = int(times[0]) + 200_000_000
+    worker.handle(poses_until(covered_ns), live=True)
+    queued = len(worker.frames)
+    worker._image_ready(budget_s=None)
+    status = worker.status
+    assert 0 < queued - len(worker.frames) < queued // 4  # the covered frames went, the rest wait
+    newest_pose = int(worker.poses[-1].time_ns[-1])
+    assert status.waiting_for_poses_s == pytest.approx((times[-1] - newest_pose) * 1e-9)
+    assert status.waiting_for_poses_s > 2.5
+
+    worker.handle(poses_until(int(times[-1]) + 10 ** 9), live=True)  # the odometry catches up
+    worker._image_ready(budget_s=None)
+    assert not worker.frames and status.waiting_for_poses_s == 0.0
+    assert status.frames_dropped_behind == 0
+
+
 def test_the_worker_accounts_for_every_frame_when_the_odometry_stops_short(drive):
     """The run ends with the odometry's last pose short of the last frames: those are counted as beyond the
     odometry, so imaged + standing still + beyond + dropped + invalid is every frame received."""

@@ -30,12 +30,12 @@ POSE_WINDOW_NS = 5_000_000_000
 STEP_BUDGET_S = 0.25
 #: Behind by more than CATCH_UP_START_S of sensor time, the worker sums twice the chirps per profile, four
 #: times CATCH_UP_STEP_S later, and so on (up to all of a TX's chirps in a frame): fewer profiles, a coarser
-#: map, before it drops a frame (at ``max_queue_s``). The odometry holds its poses back about 0.3 s, so a
-#: longer backlog means the map is short of CPU (four radars on two cores with their emulation: 0.5 of a
-#: core for 77 frames/s); coarsening from 1 s keeps a live map live (the four-radar soak lagged 4-5 s when
-#: it began at 4 s).
-CATCH_UP_START_S = 1.0
-CATCH_UP_STEP_S = 0.5
+#: map, before it drops a frame (at ``max_queue_s``). The backlog counts the frames waiting for the
+#: odometry's poses too (it holds them back about 0.3 s): on a shared machine an odometry behind is one
+#: short of CPU, and a coarser map leaves it more. In the four-radar soak the map lagged 4-5 s when
+#: coarsening began at 4 s, 1.2-1.3 s (median) when it began at 1 s, 0.75-0.86 s from 0.5 s.
+CATCH_UP_START_S = 0.5
+CATCH_UP_STEP_S = 0.25
 
 
 @dataclasses.dataclass
@@ -177,8 +177,10 @@ class StripMapWorker(Worker):
         """Image the queued frames the poses cover, oldest first; live, for at most ``budget_s``."""
         frames, status = self.frames, self.status
         if not frames or not self.poses:
+            status.waiting_for_poses_s = 0.0 if not frames else (frames[-1][2] - frames[0][2]) * 1e-9
             return
         newest_pose = int(self.poses[-1].time_ns[-1])
+        status.waiting_for_poses_s = max(0.0, (frames[-1][2] - newest_pose) * 1e-9)
         traj = None
         until = None if budget_s is None else time.monotonic() + budget_s
         while frames and (until is None or time.monotonic() < until):
