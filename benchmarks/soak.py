@@ -17,7 +17,8 @@ since 4671886 every frame is recorded and mapped, the map pre-summing more to ke
 
 Every 10 s it samples each process's resident memory (VmRSS) and CPU, the health report (bus loss,
 invalid frames, restarts) and the workers' lag: the odometry's (last radar scan to its point cloud) and
-the map's (last frame imaged). At the end: frames sent against frames recorded, memory per process after
+the map's (last frame imaged), with the highest of every status message in between (a stall shorter than
+10 s shows there too) and how much of the map's lag is waiting for the odometry's poses. At the end: frames sent against frames recorded, memory per process after
 warm-up (its drift, goal within 20 MB, and its largest excursion), and the lag over the run (goal: flat).
 
 Writes docs/results/soak.json and docs/results/soak.png (docs/results/soak_quick.* with --quick); with other
@@ -184,6 +185,9 @@ def soak(minutes: float, work: Path, radars: list[str], map_args: list[str] = ()
     samples: list[dict] = []
     last_health: Health | None = None
     last_map: MapStatus | None = None
+    # the highest lag of every message between two samples: a stall shorter than the sampling is seen too
+    window_max = {"map_lag_window_max_s": 0.0, "odometry_lag_window_max_s": 0.0,
+                  "map_waiting_for_poses_window_max_s": 0.0}
     t_warm = time.monotonic()
     deadline = time.monotonic() + 600
     while time.monotonic() < deadline:  # the workers compile their kernels before the pipeline is warm
@@ -208,10 +212,17 @@ def soak(minutes: float, work: Path, radars: list[str], map_args: list[str] = ()
             m = sub.receive(timeout_ms=200)
             if m is not None:
                 last_health = Health.from_message(m)
+                odometry = last_health.workers.get("rio")
+                if odometry is not None:
+                    window_max["odometry_lag_window_max_s"] = max(window_max["odometry_lag_window_max_s"],
+                                                                  odometry.counters.get("lag_ms", 0) / 1e3)
                 if map_sub is None and "stripmap" in last_health.endpoints:
                     map_sub = BusSubscriber(last_health.endpoints["stripmap"], topics=[MapStatus.TOPIC])
             while map_sub is not None and (mm := map_sub.receive(timeout_ms=0)) is not None:
                 last_map = decode(mm)
+                window_max["map_lag_window_max_s"] = max(window_max["map_lag_window_max_s"], last_map.lag_s)
+                window_max["map_waiting_for_poses_window_max_s"] = max(
+                    window_max["map_waiting_for_poses_window_max_s"], last_map.waiting_for_poses_s)
             if time.monotonic() < next_sample:
                 continue
             next_sample += SAMPLE_EVERY_S
@@ -235,12 +246,16 @@ def soak(minutes: float, work: Path, radars: list[str], map_args: list[str] = ()
             if last_map is not None:
                 sample.update(map_lag_s=round(last_map.lag_s, 3), map_dropped=last_map.frames_dropped_behind,
                               map_presummed_more=last_map.frames_presummed_more,
-                              map_imaged=last_map.frames_imaged, map_tiles=last_map.tiles)
+                              map_imaged=last_map.frames_imaged, map_tiles=last_map.tiles,
+                              map_waiting_for_poses_s=round(last_map.waiting_for_poses_s, 3))
+            sample.update({k: round(v, 3) for k, v in window_max.items()})
+            window_max = dict.fromkeys(window_max, 0.0)
             sample["imu_in_file_lag_s"] = checker.imu_lag_s()
             checker.check_finished()
             samples.append(sample)
             print(f"soak: {sample['t_s']:6.0f} s  RSS {sum(sample['rss_mb'].values()):6.0f} MB  "
-                  f"odometry lag {sample.get('odometry_lag_s')}  map lag {sample.get('map_lag_s')}  "
+                  f"odometry lag {sample.get('odometry_lag_s')} (<= {sample.get('odometry_lag_window_max_s')})  "
+                  f"map lag {sample.get('map_lag_s')} (<= {sample.get('map_lag_window_max_s')})  "
                   f"map dropped {sample.get('map_dropped')}  bus lost {sample.get('bus_lost')}", flush=True)
             if daemon.poll() is not None:
                 break
@@ -292,14 +307,19 @@ def summarise(samples, checker, laps, frames_per_lap, lap_s, warm_up_s, replay_c
               log_tail) -> dict:
     duration_s = samples[-1]["t_s"] if samples else 0.0
     growth = rss_summary(samples, duration_s)
-    def lag_stats(key):
+    def lag_stats(key, window_key=None):
         values = np.array([s[key] for s in samples if s.get(key) is not None], float)
         if values.size == 0:
             return None
         half = values.size // 2
-        return {"p50_s": float(np.median(values)), "max_s": float(values.max()),
-                "first_half_p50_s": float(np.median(values[:half])) if half else None,
-                "second_half_p50_s": float(np.median(values[half:]))}
+        stats = {"p50_s": float(np.median(values)), "max_s": float(values.max()),
+                 "first_half_p50_s": float(np.median(values[:half])) if half else None,
+                 "second_half_p50_s": float(np.median(values[half:]))}
+        peaks = np.array([s[window_key] for s in samples if s.get(window_key) is not None], float)
+        if peaks.size:  # max_s is of the samples (every 10 s); these are of every status message
+            stats.update(max_any_s=float(peaks.max()), p99_any_s=float(np.quantile(peaks, 0.99)),
+                         windows_over_2s=int(np.sum(peaks > 2.0)), windows=int(peaks.size))
+        return stats
 
     sent = laps * frames_per_lap
     last = samples[-1] if samples else {}
@@ -313,7 +333,9 @@ def summarise(samples, checker, laps, frames_per_lap, lap_s, warm_up_s, replay_c
         "odometry_counters": last.get("odometry_counters"),
         "rss": growth, "rss_goal_mb": RSS_GOAL_MB,
         "rss_flat": all(g["drift_mb"] <= RSS_GOAL_MB for g in growth.values()),
-        "odometry_lag": lag_stats("odometry_lag_s"), "map_lag": lag_stats("map_lag_s"),
+        "odometry_lag": lag_stats("odometry_lag_s", "odometry_lag_window_max_s"),
+        "map_lag": lag_stats("map_lag_s", "map_lag_window_max_s"),
+        "map_waiting_for_poses": lag_stats("map_waiting_for_poses_s", "map_waiting_for_poses_window_max_s"),
         "imu_in_file_lag": lag_stats("imu_in_file_lag_s"),
         "no_loss": all(checker.frames[n] == sent and checker.invalid[n] == 0 for n in checker.frames)
         and last.get("bus_lost") == 0,
@@ -341,6 +363,7 @@ def chart(result: dict, path: Path) -> None:
     radars = result.get("radars", [])
     ax1.set_title(f"soak at 1x: {result['minutes']:.0f} min, {len(radars)} radars + IMU, recorder, odometry, live map")
     for key, label in (("odometry_lag_s", "odometry lag"), ("map_lag_s", "map lag"),
+                       ("map_lag_window_max_s", "map lag, highest in each 10 s"),
                        ("imu_in_file_lag_s", "IMU in file lag")):
         ax2.plot(t, [s.get(key) if s.get(key) is not None else np.nan for s in samples], label=label)
     ax2.set_ylabel("lag, s")
