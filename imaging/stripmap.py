@@ -153,6 +153,56 @@ def max_presum(config: StripMapConfig, radar: RadarConfig, speed_mps: float, max
     return best
 
 
+def presum_chirps(adc: np.ndarray, tx_order: np.ndarray, n_tx: int, presum: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sums of ``presum`` consecutive chirps of each TX (the same virtual channel).
+
+    Parameters
+    ----------
+    adc : ndarray, shape (chirps, rx, samples) complex, or (chirps, rx, samples, 2) int16 I/Q pairs
+        One frame. I/Q pairs are summed as they are and only the sums converted (the live map takes them
+        straight off the bus: converting the whole frame first cost more than the sums).
+    tx_order : ndarray, shape (chirps,)
+        TX of each chirp.
+    n_tx : int
+    presum : int
+        Chirps per sum; a TX's last chirps short of a whole group are left out.
+
+    Returns
+    -------
+    samples : ndarray, shape (G, rx, samples), complex (complex64 from I/Q pairs)
+        The sums, TX by TX, each TX's in time order.
+    groups : ndarray, shape (G, presum), int
+        The chirps of each sum.
+    tx_index : ndarray, shape (G,), int
+    """
+    tx_order = np.asarray(tx_order)
+    groups, tx_index = [], []
+    for tx in range(n_tx):
+        k = np.flatnonzero(tx_order == tx)
+        n = k.size // presum * presum
+        if n:
+            groups.append(k[:n].reshape(-1, presum))
+            tx_index.append(np.full(n // presum, tx))
+    if not groups:
+        raise ValueError(f"presum {presum}: more chirps than any TX sends in a frame")
+    groups, tx_index = np.concatenate(groups), np.concatenate(tx_index)
+    pairs = not np.iscomplexobj(adc)
+    if pairs and adc.shape[-1:] != (2,):
+        raise ValueError(f"a frame is complex [chirps, rx, samples] or I/Q pairs [..., 2]; got {adc.dtype} {adc.shape}")
+    dtype = np.float32 if pairs else None  # float32 sums of int16 are exact (|sum| < 2^24 for presum < 512)
+    per_tx = tx_order.size // n_tx
+    g = per_tx // presum
+    if tx_order.size == n_tx * per_tx and np.array_equal(tx_order, np.tile(np.arange(n_tx), per_tx)):
+        # TXs in turn: chirp (j * presum + i) * n_tx + tx, so the groups are a reshape, with no gather.
+        sums = adc[:g * presum * n_tx].reshape(g, presum, n_tx, *adc.shape[1:]).sum(axis=1, dtype=dtype)
+        sums = sums.swapaxes(0, 1).reshape(n_tx * g, *adc.shape[1:])
+    else:
+        sums = adc[groups].sum(axis=1, dtype=dtype)
+    if pairs:
+        sums = np.ascontiguousarray(sums).view(np.complex64)[..., 0]
+    return sums, groups, tx_index
+
+
 def ffbp_block_travel_m(config: StripMapConfig, radar: RadarConfig, speed_mps: float) -> float:
     """How far the radar moves over one "ffbp" block, m: the step by which a pixel's aperture window is
     decided (a pixel integrates ``aperture_m`` to within about that; keep it a small fraction of it)."""
@@ -215,26 +265,15 @@ class StripMap:
 
     def frame_profiles(self, radar: RadarConfig, tx_order: np.ndarray, adc: np.ndarray, frame_time_ns: int,
                        trajectory: Trajectory, presum: int | None = None):
-        """Range profiles [P, bins] and TX/RX positions [P, 3] of one frame, pre-summed per TX (``presum``
-        chirps, the configuration's by default)."""
+        """Range profiles [P, bins] and TX/RX positions [P, 3] of one frame (complex [chirps, rx, samples] or
+        int16 I/Q pairs [..., 2]), pre-summed per TX (``presum`` chirps, the configuration's by default)."""
         cfg = self.config
         presum = presum or cfg.presum
         wf = radar.waveform
-        tx_order = np.asarray(tx_order)
         times = frame_time_ns + np.round(np.arange(wf.chirps_per_frame) * wf.chirp_interval_s * 1e9).astype(np.int64)
-        samples, chirp_times, tx_index = [], [], []
-        for tx in range(wf.n_tx):
-            k = np.flatnonzero(tx_order == tx)
-            n = k.size // presum * presum
-            if n == 0:
-                continue
-            groups = k[:n].reshape(-1, presum)
-            samples.append(adc[groups].sum(axis=1))  # [G, rx, samples]; a sum keeps the image scale of presum 1
-            chirp_times.append(times[groups].mean(axis=1).round().astype(np.int64))
-            tx_index.append(np.full(groups.shape[0], tx))
-        samples = np.concatenate(samples)
-        chirp_times = np.concatenate(chirp_times)
-        tx_index = np.concatenate(tx_index)
+        # a sum, not a mean, keeps the image scale of presum 1
+        samples, groups, tx_index = presum_chirps(adc, tx_order, wf.n_tx, presum)
+        chirp_times = times[groups].mean(axis=1).round().astype(np.int64)
         track = antenna_track(radar, trajectory, chirp_times, tx_index)
         n_rx = wf.n_rx
         profiles = range_compress(samples.reshape(-1, wf.samples_per_chirp), wf.f0_hz, wf.frequency_step_hz,
@@ -304,7 +343,8 @@ class StripMap:
 
     def add_frame(self, radar: RadarConfig, tx_order: np.ndarray, adc: np.ndarray, frame_time_ns: int,
                   trajectory: Trajectory, presum: int | None = None) -> FrameFootprint:
-        """Backproject one frame (complex [chirps, rx, samples]) into the map; returns the tiles it changed.
+        """Backproject one frame (complex [chirps, rx, samples], or int16 I/Q pairs [..., 2] as received)
+        into the map; returns the tiles it changed.
         ``presum`` overrides the configuration's (a live map catching up sums more chirps per profile: the
         same image scale, fewer profiles, more phase spread across each sum). With ``algorithm`` "ffbp" the
         frame joins its radar's block, imaged when the block is full (or a frame standing still ends it)."""

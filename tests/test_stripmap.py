@@ -21,6 +21,7 @@ from imaging.stripmap import (
     StripMap,
     StripMapConfig,
     max_presum,
+    presum_chirps,
     presum_phase_spread_rad,
 )
 
@@ -145,6 +146,40 @@ def test_presum_within_its_bound_keeps_the_image_and_beyond_it_does_not(drive):
         errors[presum] = 10 * np.log10(np.sum(np.abs(img - ref) ** 2) / np.sum(np.abs(ref) ** 2))
     assert errors[allowed] < -20
     assert errors[16] > errors[allowed] + 6
+
+
+@pytest.mark.parametrize("order_kind", ["in turn", "shuffled"])
+@pytest.mark.parametrize("presum", [1, 3, 4, 64])
+def test_presum_chirps_sums_each_txs_consecutive_chirps(order_kind, presum):
+    """Against a plain loop over groups: the same sums, from complex samples or straight from I/Q pairs
+    (TXs in turn take a reshape instead of a gather; 64 is all of a TX's chirps, 3 leaves a remainder)."""
+    from imaging.core.samples import iq_to_complex
+
+    rng = np.random.default_rng(7)
+    n_tx, per_tx = 4, 64
+    order = np.tile(np.arange(n_tx), per_tx)
+    if order_kind == "shuffled":
+        order = np.concatenate([rng.permutation(n_tx) for _ in range(per_tx)])
+    iq = rng.integers(-32768, 32767, (n_tx * per_tx, 3, 5, 2), dtype=np.int16)
+    adc = iq_to_complex(iq)
+    want, want_groups, want_tx = [], [], []
+    for tx in range(n_tx):
+        k = np.flatnonzero(order == tx)
+        for g in range(per_tx // presum):
+            chirps = k[g * presum:(g + 1) * presum]
+            want.append(sum(adc[c].astype(np.complex128) for c in chirps))
+            want_groups.append(chirps)
+            want_tx.append(tx)
+    for frame in (adc, iq):
+        sums, groups, tx_index = presum_chirps(frame, order, n_tx, presum)
+        assert sums.dtype == np.complex64 and sums.shape == (len(want), 3, 5)
+        np.testing.assert_array_equal(groups, want_groups)
+        np.testing.assert_array_equal(tx_index, want_tx)
+        np.testing.assert_array_equal(sums, np.array(want))  # sums of int16 are exact in float32
+    with pytest.raises(ValueError, match="presum 65"):
+        presum_chirps(iq, order, n_tx, 65)
+    with pytest.raises(ValueError, match="I/Q pairs"):
+        presum_chirps(iq[..., 0], order, n_tx, 4)
 
 
 def test_frames_taken_standing_still_are_left_out(drive):

@@ -94,13 +94,13 @@ class Mount:
 
     def to_body(self, points_sensor_m: np.ndarray) -> np.ndarray:
         """Sensor-frame points [..., 3] to body frame."""
-        return self.rotation.apply(np.asarray(points_sensor_m).reshape(-1, 3)).reshape(
-            np.shape(points_sensor_m)
-        ) + self.translation_m
+        # by the cached matrix: a live map places every frame's antennas, and building a Rotation each
+        # time cost more than the arithmetic
+        return np.asarray(points_sensor_m, float) @ self.rotation_matrix.T + self.translation_m
 
     @property
     def boresight_body(self) -> np.ndarray:
-        return self.rotation.apply([1.0, 0.0, 0.0])
+        return self.rotation_matrix[:, 0].copy()
 
 
 @dataclasses.dataclass(frozen=True)
