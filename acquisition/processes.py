@@ -100,7 +100,7 @@ def _malloc_trim():
 
 def release_free_heap() -> bool:
     """Give the free pages inside the C heap back to the system (glibc's ``malloc_trim(0)``); True if
-    some were. A no-op elsewhere. The workers call it once a second.
+    some were. A no-op elsewhere. The workers and the daemon's recorder loop call it once a second.
 
     glibc raises its mmap threshold each time a mapped block is freed (up to 32 MB), so a worker that once
     freed a large array serves later arrays of a few MB from its heap, and a small long-lived allocation
