@@ -145,9 +145,14 @@ class StripMapWorker(Worker):
             return
         frames.append((message.radar, f.iq, f.frame_time_ns, f.receive_ns))
         # Never fall more than max_queue_s behind: the oldest frames go (counted).
-        while live and (frames[-1][2] - frames[0][2]) * 1e-9 > self.config.max_queue_s:
+        while live and self._queued_s() > self.config.max_queue_s:
             frames.popleft()
             status.frames_dropped_behind += 1
+
+    def _queued_s(self) -> float:
+        """Sensor time from the oldest queued frame to the newest, s (0 with none queued)."""
+        frames = self.frames
+        return (frames[-1][2] - frames[0][2]) * 1e-9 if frames else 0.0
 
     def lost_on_bus(self, missed: dict[str, int]) -> None:
         self.status.frames_lost_on_bus = sum(missed.get(RadarFrameMessage.topic_of(n), 0) for n in self.radars)
@@ -178,7 +183,7 @@ class StripMapWorker(Worker):
         """Image the queued frames the poses cover, oldest first; live, for at most ``budget_s``."""
         frames, status = self.frames, self.status
         if not frames or not self.poses:
-            status.waiting_for_poses_s = 0.0 if not frames else (frames[-1][2] - frames[0][2]) * 1e-9
+            status.waiting_for_poses_s = self._queued_s()
             return
         newest_pose = int(self.poses[-1].time_ns[-1])
         status.waiting_for_poses_s = max(0.0, (frames[-1][2] - newest_pose) * 1e-9)
@@ -237,7 +242,7 @@ class StripMapWorker(Worker):
         ``catch_up_start_s`` of sensor time, then 2, doubling every ``catch_up_step_s`` more, up to all of a
         TX's chirps."""
         cfg = self.config
-        backlog_s = (self.frames[-1][2] - self.frames[0][2]) * 1e-9 if self.frames else 0.0
+        backlog_s = self._queued_s()
         if backlog_s < cfg.catch_up_start_s:
             return 1
         steps = 1 + (int((backlog_s - cfg.catch_up_start_s) / cfg.catch_up_step_s) if cfg.catch_up_step_s > 0 else 0)
