@@ -69,7 +69,7 @@ def simulate_scan(radar: RadarConfig, trajectory: Trajectory, time_ns: int, stat
     """One scan of ``radar`` at ``time_ns`` (the scan's mid time)."""
     s = trajectory.sample(np.array([time_ns]))
     r_b = s.rotation.as_matrix()[0]
-    r_s = r_b @ radar.mount.rotation.as_matrix()  # sensor -> world
+    r_s = r_b @ radar.mount.rotation_matrix  # sensor -> world
     lever = radar.mount.translation_m
     p_s = s.position_m[0] + r_b @ lever
     v_s = s.velocity_mps[0] + r_b @ np.cross(s.angular_velocity_body_radps[0], lever)

@@ -54,7 +54,7 @@ def simulate_imu(trajectory: Trajectory, imu: ImuConfig, start_ns: int, stop_ns:
     rot = s.rotation.as_matrix()
     f_world = s.acceleration_mps2 + np.array([0.0, 0.0, GRAVITY_MPS2])
     f_body = np.einsum("nji,nj->ni", rot, f_world)  # R^T f
-    mount = imu.mount.rotation.as_matrix()
+    mount = imu.mount.rotation_matrix
     f_imu = f_body @ mount  # (R_m^T f)^T = f^T R_m
     w_imu = s.angular_velocity_body_radps @ mount
     t_rel = (time_ns - start_ns) * 1e-9
