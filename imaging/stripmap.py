@@ -16,6 +16,9 @@ backprojection kernel (``imaging.backprojection``) in one call. Optionally ``pre
 (the same virtual channel) are averaged before range compression: the antenna moves between them, which
 spreads the phase of a pixel seen at squint angle theta by 2 pi * 2 d sin(theta) / lambda over the group
 (d the distance travelled); :func:`presum_phase_spread_rad` gives that bound so a caller can keep it small.
+Several frames of one radar can go in together (``StripMap.add_frames``): each keeps its own pixels, so the
+map is the same, and what a frame costs besides the kernel (antenna placement, range compression, footprint,
+tile updates) is shared; a live map behind takes its queued frames that way.
 
 With ``refocus`` ("pga" or "entropy") a tile is refocused on its strongest scatterers once the radar has
 passed it: while it is being imaged each frame goes in as ``refocus_groups_per_frame`` slow-time group
@@ -220,7 +223,23 @@ class FrameFootprint:
     #: Frames whose data went into the map by this call: 1 for an imaged frame, with "ffbp" 0 while its block
     #: fills and the block's frames when it is imaged (also when a frame standing still closes a block).
     frames_imaged: int = 0
+    frames_standing: int = 0  # frames of the call left out standing still
 
+
+def _merged(footprints: list[FrameFootprint]) -> FrameFootprint:
+    """One footprint for several calls: the tiles any changed, the sums of the counts; skipped only if every
+    call was, for the last one's reason."""
+    tiles, refocused = [], []
+    for f in footprints:
+        tiles += [k for k in f.tiles if k not in tiles]
+        refocused += [k for k in f.refocused if k not in refocused]
+    skipped = footprints[-1].skipped if all(f.skipped for f in footprints) else ""
+    return FrameFootprint(tiles, sum(f.pixel_profile_pairs for f in footprints), skipped, refocused,
+                          sum(f.frames_imaged for f in footprints), sum(f.frames_standing for f in footprints))
+
+
+#: The most frames ``StripMap.add_frames`` takes at once (each pixel notes which of them take it in one int64).
+MAX_BATCH_FRAMES = 62
 
 #: The most pixels a map's mosaic (and its file) holds: 2 GB of complex64.
 MOSAIC_MAX_PIXELS = 1 << 28
@@ -267,13 +286,26 @@ class StripMap:
                        trajectory: Trajectory, presum: int | None = None):
         """Range profiles [P, bins] and TX/RX positions [P, 3] of one frame (complex [chirps, rx, samples] or
         int16 I/Q pairs [..., 2]), pre-summed per TX (``presum`` chirps, the configuration's by default)."""
+        return self.frames_profiles(radar, tx_order, [adc], [frame_time_ns], trajectory, presum)
+
+    def frames_profiles(self, radar: RadarConfig, tx_order: np.ndarray, adcs, frame_times_ns, trajectory: Trajectory,
+                        presum: int | None = None):
+        """As :meth:`frame_profiles`, for several frames of one radar at once (their profiles one after the
+        other): one antenna placement and one range compression for all of them."""
         cfg = self.config
         presum = presum or cfg.presum
         wf = radar.waveform
-        times = frame_time_ns + np.round(np.arange(wf.chirps_per_frame) * wf.chirp_interval_s * 1e9).astype(np.int64)
-        # a sum, not a mean, keeps the image scale of presum 1
-        samples, groups, tx_index = presum_chirps(adc, tx_order, wf.n_tx, presum)
-        chirp_times = times[groups].mean(axis=1).round().astype(np.int64)
+        offsets_ns = np.round(np.arange(wf.chirps_per_frame) * wf.chirp_interval_s * 1e9).astype(np.int64)
+        samples, chirp_times, tx_index = [], [], []
+        for adc, frame_time_ns in zip(adcs, frame_times_ns):
+            # a sum, not a mean, keeps the image scale of presum 1
+            sums, groups, tx = presum_chirps(adc, tx_order, wf.n_tx, presum)
+            samples.append(sums)
+            # offsets averaged apart from the frame time: float64 has 256 ns steps at 1e18 ns of PTP time
+            chirp_times.append(int(frame_time_ns) + offsets_ns[groups].mean(axis=1).round().astype(np.int64))
+            tx_index.append(tx)
+        samples = samples[0] if len(samples) == 1 else np.concatenate(samples)
+        chirp_times, tx_index = np.concatenate(chirp_times), np.concatenate(tx_index)
         track = antenna_track(radar, trajectory, chirp_times, tx_index)
         n_rx = wf.n_rx
         profiles = range_compress(samples.reshape(-1, wf.samples_per_chirp), wf.f0_hz, wf.frequency_step_hz,
@@ -301,13 +333,18 @@ class StripMap:
         return [(ix, iy) for ix in range(lo[0], hi[0] + 1) for iy in range(lo[1], hi[1] + 1)]
 
     def footprint_mask(self, x: np.ndarray, y: np.ndarray, centre_xy: np.ndarray, look_xy: np.ndarray) -> np.ndarray:
-        """Which pixels (x, y, any shape) a frame with mean phase centre ``centre_xy`` and horizontal
-        look direction ``look_xy`` (unit) integrates into."""
+        """Which pixels (x, y, any shape S) a frame with mean phase centre ``centre_xy`` and horizontal
+        look direction ``look_xy`` (unit) integrates into: [*S]; for frames ``centre_xy``, ``look_xy``
+        [F, 2], one mask per frame [F, *S]."""
         cfg = self.config
-        dx = x - centre_xy[0]
-        dy = y - centre_xy[1]
-        ahead = dx * look_xy[0] + dy * look_xy[1]
-        along = np.abs(dy * look_xy[0] - dx * look_xy[1])
+        cx, cy, lx, ly = centre_xy[..., 0], centre_xy[..., 1], look_xy[..., 0], look_xy[..., 1]
+        if np.ndim(cx):  # frames: their axis in front of the pixels'
+            each = (-1,) + (1,) * max(np.ndim(x), np.ndim(y))
+            cx, cy, lx, ly = (a.reshape(each) for a in (cx, cy, lx, ly))
+        dx = x - cx
+        dy = y - cy
+        ahead = dx * lx + dy * ly
+        along = np.abs(dy * lx - dx * ly)
         return ((ahead >= cfg.range_min_m) & (ahead <= cfg.range_max_m) & (along <= cfg.aperture_m / 2)
                 & (along <= ahead * math.tan(math.radians(cfg.beam_half_angle_deg))))
 
@@ -315,13 +352,22 @@ class StripMap:
         """The tiles a frame (or block) with mean phase centre ``c_mean`` [2] and look ``l_mean`` [2] images
         into, each with its pixel mask [tile_px, tile_px] (rows along y), within ``max_tiles``; and how many
         new tiles that limit refused."""
+        touched, masks, refused = self._footprints(c_mean[None], l_mean[None])
+        return touched, [m[0] for m in masks], refused
+
+    def _footprints(self, centres: np.ndarray, looks: np.ndarray) -> tuple[list, list, int]:
+        """As ``_footprint`` for F frames (``centres``, ``looks`` [F, 2]): the tiles any of them images into,
+        each with the frames' pixel masks [F, tile_px, tile_px]."""
         cfg = self.config
         touched, masks = [], []
         room = cfg.max_tiles - len(self.tiles)
         refused = 0
-        for key in self.footprint_tiles(c_mean[None], l_mean[None]):
+        for key in self.footprint_tiles(centres, looks):
             x, y = self.tile_points(key)
-            mask = self.footprint_mask(x[None, :], y[:, None], c_mean, l_mean)
+            if len(centres) == 1:  # the common case, without a frame axis to broadcast over
+                mask = self.footprint_mask(x[None, :], y[:, None], centres[0], looks[0])[None]
+            else:
+                mask = self.footprint_mask(x[None, :], y[:, None], centres, looks)
             if not mask.any():
                 continue
             if key not in self.tiles:
@@ -348,58 +394,119 @@ class StripMap:
         ``presum`` overrides the configuration's (a live map catching up sums more chirps per profile: the
         same image scale, fewer profiles, more phase spread across each sum). With ``algorithm`` "ffbp" the
         frame joins its radar's block, imaged when the block is full (or a frame standing still ends it)."""
+        return self.add_frames(radar, tx_order, [adc], [frame_time_ns], trajectory, presum)
+
+    def add_frames(self, radar: RadarConfig, tx_order: np.ndarray, adcs, frame_times_ns, trajectory: Trajectory,
+                   presum: int | None = None) -> FrameFootprint:
+        """Backproject consecutive frames of one radar together: the same map as :meth:`add_frame` frame by
+        frame (to float rounding), for less work per frame.
+
+        Each frame still chooses its own pixels (its mean phase centre and look), so every pixel keeps the
+        aperture window of frame-by-frame imaging; what the frames share is the work per call: one antenna
+        placement, one range compression, one pass over the tiles, and one kernel call per set of frames that
+        take the same pixels (all of them in the middle of the footprint, fewer at its leading and trailing
+        edges). That work dominates once the chirps are pre-summed as far as they go, as in a live map far
+        behind. Frames standing still are left out (``frames_standing`` of the result). With "ffbp" or
+        refocusing the frames go in one by one (a block is already a batch; refocusing keeps each frame's
+        own group images).
+
+        Parameters
+        ----------
+        adcs : sequence of ndarray, each as ``add_frame``'s ``adc``
+            At most ``MAX_BATCH_FRAMES``.
+        frame_times_ns : sequence of int, the frames' start times, ns
+        """
         cfg = self.config
         wf = radar.waveform
         ffbp = cfg.algorithm == "ffbp"
-        mid = frame_time_ns + wf.frame_duration_ns // 2
-        if np.linalg.norm(trajectory.sample(np.array([mid])).velocity_mps[0, :2]) < cfg.min_speed_mps:
-            self.frames_standing += 1
+        if len(adcs) != len(frame_times_ns) or not 1 <= len(adcs) <= MAX_BATCH_FRAMES:
+            raise ValueError(f"add_frames: {len(adcs)} frames and {len(frame_times_ns)} frame times "
+                             f"(1 to {MAX_BATCH_FRAMES} of each)")
+        if len(adcs) > 1 and (ffbp or cfg.refocuses):
+            return _merged([self.add_frames(radar, tx_order, [a], [t], trajectory, presum)
+                            for a, t in zip(adcs, frame_times_ns)])
+        mid = np.asarray(frame_times_ns, np.int64) + wf.frame_duration_ns // 2
+        moving = np.linalg.norm(trajectory.sample(mid).velocity_mps[:, :2], axis=1) >= cfg.min_speed_mps
+        standing = int(np.count_nonzero(~moving))
+        self.frames_standing += standing
+        if not moving.any():
             ended = self._image_block(radar.name) if ffbp else FrameFootprint([], 0)
-            return dataclasses.replace(ended, skipped="standing still")
-        profiles, tx_m, rx_m, look, times = self.frame_profiles(radar, tx_order, adc, frame_time_ns, trajectory, presum)
+            return dataclasses.replace(ended, skipped="standing still", frames_standing=standing)
+        n_frames = int(np.count_nonzero(moving))
+        profiles, tx_m, rx_m, look, times = self.frames_profiles(
+            radar, tx_order, [a for a, m in zip(adcs, moving) if m],
+            [t for t, m in zip(frame_times_ns, moving) if m], trajectory, presum)
         if ffbp:
             block = self._blocks.setdefault(radar.name, [])
             block.append((profiles, tx_m, rx_m, look))
             if len(block) < cfg.ffbp_block_frames:
                 return FrameFootprint([], 0)
             return self._image_block(radar.name)
-        centre = 0.5 * (tx_m + rx_m)
-        c_mean = centre.mean(axis=0)[:2]
-        l_mean = look.mean(axis=0)
-        l_mean /= np.linalg.norm(l_mean)
-        touched, masks, refused = self._footprint(c_mean, l_mean)
+        # Each frame's mean phase centre and look decide its pixels, as if imaged alone.
+        per = profiles.data.shape[0] // n_frames
+        centres = (0.5 * (tx_m + rx_m))[:, :2].reshape(n_frames, per, 2).mean(axis=1)
+        looks = look.reshape(n_frames, per, 2).mean(axis=1)
+        looks /= np.linalg.norm(looks, axis=1, keepdims=True)
+        touched, masks, refused = self._footprints(centres, looks)
         if refused and not touched:
-            self.frames_off_map += 1
-            return FrameFootprint([], 0, skipped="map full")
-        self.frames += 1
+            self.frames_off_map += n_frames
+            return FrameFootprint([], 0, skipped="map full", frames_standing=standing)
+        self.frames += n_frames
         self.profiles += profiles.data.shape[0]
         refocused = self._finish_tiles(set(touched)) if cfg.refocuses else []
         if not touched:
-            return FrameFootprint([], 0, refocused=refocused, frames_imaged=1)
-        points = []
+            return FrameFootprint([], 0, refocused=refocused, frames_imaged=n_frames, frames_standing=standing)
+        # Every pixel any frame takes, tile by tile, and which of the frames take it (bit f: frame f).
+        bit = np.int64(1) << np.arange(n_frames, dtype=np.int64)
+        points, takers, where = [], [], []
         for key, mask in zip(touched, masks):
             x, y = self.tile_points(key)
-            iy, ix = np.nonzero(mask)
+            taken = mask[0] if n_frames == 1 else mask.any(axis=0)
+            iy, ix = np.nonzero(taken)
             points.append(np.stack([x[ix], y[iy], np.full(iy.size, cfg.z_m)], axis=1))
+            if n_frames > 1:
+                takers.append(bit @ mask[:, iy, ix])
+            where.append((taken, iy.size))
         pts = np.concatenate(points)
-        if not cfg.refocuses:
+        if not cfg.refocuses and n_frames == 1:
             values, groups = [backproject(profiles, tx_m, rx_m, pts, mode=cfg.mode)], []
-        else:
-            values, groups = self._group_values(profiles, tx_m, rx_m, look, times, frame_time_ns, wf, pts)
+        elif not cfg.refocuses:
+            values, groups = [self._backproject_takers(profiles, tx_m, rx_m, pts, np.concatenate(takers), per)], []
+        else:  # one frame (add_frames refocuses frame by frame)
+            values, groups = self._group_values(profiles, tx_m, rx_m, look, times, int(frame_times_ns[0]), wf, pts)
         n = cfg.tile_px
         start = 0
-        for key, mask in zip(touched, masks):
+        for key, (taken, m) in zip(touched, where):
             tile = self._tile(key)
-            m = int(mask.sum())
             for v in values:
-                tile[mask] += v[start:start + m]
+                tile[taken] += v[start:start + m]  # a boolean mask: faster here than the indices
             if cfg.refocuses:
                 for (t_s, antenna, direction), v in zip(groups, values):
                     image = np.zeros(n * n, np.complex64)
-                    image[mask.ravel()] = v[start:start + m]
+                    image[taken.ravel()] = v[start:start + m]
                     self._groups.setdefault(key, []).append((t_s, antenna, direction, image, radar.name))
             start += m
-        return FrameFootprint(touched, pts.shape[0] * profiles.data.shape[0], refocused=refocused, frames_imaged=1)
+        pairs = pts.shape[0] * profiles.data.shape[0] if n_frames == 1 else sum(int(np.count_nonzero(m)) for m in masks) * per
+        return FrameFootprint(touched, pairs, refocused=refocused, frames_imaged=n_frames, frames_standing=standing)
+
+    def _backproject_takers(self, profiles, tx_m, rx_m, pts: np.ndarray, takers: np.ndarray, per: int) -> np.ndarray:
+        """Backproject each pixel of ``pts`` from the frames its ``takers`` bits name (frame f: profiles
+        f * per to (f + 1) * per): one kernel call per distinct set of frames."""
+        values = np.zeros(pts.shape[0], np.complex128)
+        codes, inverse = np.unique(takers, return_inverse=True)
+        for c, code in enumerate(codes):
+            frames = [f for f in range(MAX_BATCH_FRAMES) if int(code) >> f & 1]
+            first, last = frames[0], frames[-1] + 1
+            if len(frames) == last - first:  # consecutive frames, as along a track: views, no copy
+                rows = slice(first * per, last * per)
+            else:  # a turn can leave a frame out between two that take the pixel
+                rows = np.concatenate([np.arange(f * per, (f + 1) * per) for f in frames])
+            sub = dataclasses.replace(profiles, data=profiles.data[rows],
+                                      rows=profiles.rows[rows] if isinstance(rows, slice) and profiles.rows is not None else None,
+                                      samples=None if profiles.samples is None else profiles.samples[rows])
+            sel = np.flatnonzero(inverse == c)
+            values[sel] = backproject(sub, tx_m[rows], rx_m[rows], pts[sel], mode=self.config.mode)
+        return values
 
     def flush(self) -> FrameFootprint:
         """Image every radar's unfinished block ("ffbp"; at the end of a run); the tiles changed and the
