@@ -267,6 +267,7 @@ class MapStatus(HeaderMessage):
     frames_off_map: int = 0  # needed tiles beyond the map's max_tiles (a long drive, an odometry gone astray)
     frames_presummed_more: int = 0  # imaged with more pre-summing than configured, to catch up
     presum_factor: int = 1  # the extra pre-summing of the latest frame (1: as configured)
+    frames_batched: int = 0  # imaged together with other queued frames of their radar (the same map, cheaper)
     lag_s: float = 0.0  # frame reception to imaged, the latest frame
     waiting_for_poses_s: float = 0.0  # sensor time the newest frame is ahead of the odometry's newest pose
     max_lag_s: float = 0.0

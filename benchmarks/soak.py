@@ -246,6 +246,7 @@ def soak(minutes: float, work: Path, radars: list[str], map_args: list[str] = ()
             if last_map is not None:
                 sample.update(map_lag_s=round(last_map.lag_s, 3), map_dropped=last_map.frames_dropped_behind,
                               map_presummed_more=last_map.frames_presummed_more,
+                              map_batched=last_map.frames_batched,
                               map_imaged=last_map.frames_imaged, map_tiles=last_map.tiles,
                               map_waiting_for_poses_s=round(last_map.waiting_for_poses_s, 3))
             sample.update({k: round(v, 3) for k, v in window_max.items()})
@@ -330,6 +331,7 @@ def summarise(samples, checker, laps, frames_per_lap, lap_s, warm_up_s, replay_c
         "imu_samples_sent": int(round(laps * lap_s * 400)), "parts": checker.parts,
         "bus_lost": last.get("bus_lost"), "restarts": last.get("restarts"),
         "map_frames_dropped": last.get("map_dropped"), "map_frames_imaged": last.get("map_imaged"),
+        "map_frames_presummed_more": last.get("map_presummed_more"), "map_frames_batched": last.get("map_batched"),
         "odometry_counters": last.get("odometry_counters"),
         "rss": growth, "rss_goal_mb": RSS_GOAL_MB,
         "rss_flat": all(g["drift_mb"] <= RSS_GOAL_MB for g in growth.values()),

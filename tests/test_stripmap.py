@@ -192,6 +192,90 @@ def test_frames_taken_standing_still_are_left_out(drive):
     assert fp.skipped == "standing still" and not sm.tiles and sm.frames_standing == 1
 
 
+def _pausing(truth, times, first: int, last: int):
+    """The drive's poses every 10 ms, but standing still (zero velocity) for frames first..last-1."""
+    from imaging.core.trajectory import SampledTrajectory
+
+    t = np.arange(int(times[0]) - 10 ** 8, int(times[-1]) + 10 ** 9, 10 ** 7, dtype=np.int64)
+    s = truth.sample(t)
+    velocity = s.velocity_mps.copy()
+    velocity[(t >= times[first]) & (t < times[last])] = 0.0
+    return SampledTrajectory(t, s.position_m, s.orientation_xyzw, velocity)
+
+
+@pytest.mark.parametrize("batch", [2, 3, 4, 8])
+def test_frames_imaged_together_make_the_map_they_make_one_by_one(drive, batch):
+    """add_frames keeps every frame's own aperture window: the same tiles, values, counts and work as
+    add_frame frame by frame, also with frames standing still inside a batch."""
+    rec, radar, truth, order = drive
+    adc, times = rec.adc(RADAR), rec.frame_time_ns(RADAR)
+    trajectory = _pausing(truth, times, 30, 33)  # frames 30, 31 and 32 taken standing still
+    config = StripMapConfig(pixel_m=0.01, aperture_m=0.3, range_min_m=1.5, range_max_m=2.5, presum=4)
+    frames = list(range(10, 50))
+    one, together = StripMap(config), StripMap(config)
+    pairs_one = sum(one.add_frame(radar, order, adc[k], int(times[k]), trajectory).pixel_profile_pairs for k in frames)
+    pairs, imaged, standing = 0, 0, 0
+    for a in range(0, len(frames), batch):
+        ks = frames[a:a + batch]
+        fp = together.add_frames(radar, order, [adc[k] for k in ks], [int(times[k]) for k in ks], trajectory)
+        pairs, imaged, standing = pairs + fp.pixel_profile_pairs, imaged + fp.frames_imaged, standing + fp.frames_standing
+    assert standing == 3 and together.frames_standing == one.frames_standing == 3
+    assert imaged == together.frames == one.frames == len(frames) - 3
+    assert together.profiles == one.profiles and pairs == pairs_one
+    assert together.tiles.keys() == one.tiles.keys()
+    # To the float32 kernel's rounding (its blocks of pixels are not the same): -80 dB, as the kernel's budget.
+    scale = max(np.abs(t).max() for t in one.tiles.values())
+    for key, tile in one.tiles.items():
+        np.testing.assert_allclose(together.tiles[key], tile, rtol=0, atol=1e-4 * scale)
+    assert error_db(together.mosaic()[0], one.mosaic()[0]) < -80
+    # Pre-summed as a live map catching up does it: the same again.
+    one, together = StripMap(config), StripMap(config)
+    for k in frames[:8]:
+        one.add_frame(radar, order, adc[k], int(times[k]), trajectory, presum=64)
+    together.add_frames(radar, order, [adc[k] for k in frames[:8]], [int(times[k]) for k in frames[:8]], trajectory, presum=64)
+    assert together.tiles.keys() == one.tiles.keys() and error_db(together.mosaic()[0], one.mosaic()[0]) < -80
+
+
+def test_pixels_take_exactly_the_frames_their_takers_name(drive):
+    """Where a turn leaves a frame out between two that take a pixel (takers 0b101), the pixel gets the
+    sum of exactly the frames named; and the footprint masks of several frames are each frame's own."""
+    rec, radar, truth, order = drive
+    adc, times = rec.adc(RADAR), rec.frame_time_ns(RADAR)
+    sm = StripMap(StripMapConfig(presum=8))
+    ks = [20, 21, 22]
+    profiles, tx_m, rx_m, look, _ = sm.frames_profiles(radar, order, [adc[k] for k in ks], [int(times[k]) for k in ks], truth)
+    per = profiles.data.shape[0] // 3
+    rng = np.random.default_rng(3)
+    pts = np.stack([rng.uniform(-0.3, 0.3, 600), rng.uniform(1.5, 2.5, 600), np.full(600, 0.3)], axis=1)
+    takers = rng.choice(np.array([0b001, 0b101, 0b111, 0b110, 0b010]), 600)
+    got = sm._backproject_takers(profiles, tx_m, rx_m, pts, takers, per)
+    each = [backproject(dataclasses.replace(profiles, data=profiles.data[f * per:(f + 1) * per], rows=None, samples=None),
+                        tx_m[f * per:(f + 1) * per], rx_m[f * per:(f + 1) * per], pts) for f in range(3)]
+    want = sum(np.where(takers >> f & 1, each[f], 0) for f in range(3))
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-4 * np.abs(want).max())  # float32 sums in the kernel
+    centres = (0.5 * (tx_m + rx_m))[:, :2].reshape(3, per, 2).mean(axis=1)
+    looks = look.reshape(3, per, 2).mean(axis=1)
+    looks /= np.linalg.norm(looks, axis=1, keepdims=True)
+    x, y = sm.tile_points((0, 3))
+    masks = sm.footprint_mask(x[None, :], y[:, None], centres, looks)
+    assert masks.shape == (3, 64, 64) and masks.any() and not masks.all(axis=0).all()
+    for f in range(3):
+        assert np.array_equal(masks[f], sm.footprint_mask(x[None, :], y[:, None], centres[f], looks[f]))
+
+
+def test_add_frames_refuses_mismatched_or_too_many_frames(drive):
+    from imaging.stripmap import MAX_BATCH_FRAMES
+
+    rec, radar, truth, order = drive
+    adc, times = rec.adc(RADAR), rec.frame_time_ns(RADAR)
+    sm = StripMap(StripMapConfig())
+    with pytest.raises(ValueError, match="2 frames and 1 frame times"):
+        sm.add_frames(radar, order, [adc[0], adc[1]], [int(times[0])], truth)
+    with pytest.raises(ValueError, match=f"1 to {MAX_BATCH_FRAMES}"):
+        sm.add_frames(radar, order, [adc[0]] * (MAX_BATCH_FRAMES + 1), [int(times[0])] * (MAX_BATCH_FRAMES + 1), truth)
+    assert not sm.tiles and sm.frames == 0
+
+
 def error_db(image, reference):
     return 10 * np.log10(np.sum(np.abs(image - reference) ** 2) / np.sum(np.abs(reference) ** 2))
 
@@ -466,6 +550,49 @@ def test_a_worker_behind_sums_more_chirps_before_it_drops_a_frame(drive):
         mag = np.abs(img.image)
         iy, ix = np.unravel_index(np.argmax(mag), mag.shape)
         assert abs(img.x_m[ix] - 0.0) < 0.02 and abs(img.y_m[iy] - R0) < 0.02
+
+
+def test_a_worker_behind_images_queued_frames_of_a_radar_together(drive):
+    """A backlog of two radars' frames (the drive's, under a second name too, interleaved as they arrive):
+    the worker images up to max_batch_frames of a radar per call, counts them, and makes the map it makes
+    frame by frame; frames not yet covered by poses wait."""
+    from acquisition.messages import PoseBatch, RadarFrameMessage
+    from acquisition.workers.stripmap import StripMapWorker, StripMapWorkerConfig
+    from drivers.radar.stream import RadarFrame
+    from imaging.core.rig import Rig
+    from imaging.core.samples import complex_to_iq
+
+    rec, radar, truth, order = drive
+    twin = dataclasses.replace(radar, name="twin")
+    adc, times = rec.adc(RADAR), rec.frame_time_ns(RADAR)
+    n = 24
+    covered = t = truth.time_ns[truth.time_ns <= times[n - 4]]  # poses up to frame n-4's start: the last 4 wait
+    s = truth.sample(t)
+    config = StripMapConfig(pixel_m=0.01, aperture_m=0.3, range_min_m=1.5, range_max_m=2.5, z_m=0.3, presum=4)
+
+    def run(batch):
+        worker = StripMapWorker(StripMapWorkerConfig(Rig((radar, twin)), None, config, "tcp://unused:1", "unused.h5",
+                                                     catch_up_start_s=100.0, max_batch_frames=batch), None)
+        worker.handle(PoseBatch(covered, s.position_m, s.orientation_xyzw, s.velocity_mps), live=True)
+        for k in range(n):
+            for name in (RADAR, "twin"):
+                frame = RadarFrame(k, int(times[k]), int(times[k]), True, 0, complex_to_iq(adc[k], 1000.0))
+                worker.handle(RadarFrameMessage(name, frame), live=True)
+        calls = []
+        add_frames = worker.map.add_frames
+        worker.map.add_frames = lambda radar, o, adcs, *a, **kw: calls.append((radar.name, len(adcs))) or add_frames(radar, o, adcs, *a, **kw)
+        worker._image_ready(budget_s=None)
+        return worker, calls
+
+    one, one_calls = run(1)
+    four, calls = run(4)
+    waiting = [(f[0], int(f[2])) for f in four.frames]
+    assert waiting == [(f[0], int(f[2])) for f in one.frames] and len(waiting) == 2 * 4  # not covered yet
+    assert [c[1] for c in one_calls] == [1] * 40 and one.status.frames_batched == 0
+    assert max(c[1] for c in calls) == 4 and sum(c[1] for c in calls) == 40 and len(calls) == 10
+    assert four.status.frames_batched == 40 and four.status.frames_imaged == one.status.frames_imaged == 40
+    assert four.map.tiles.keys() == one.map.tiles.keys()
+    assert error_db(four.map.mosaic()[0], one.map.mosaic()[0]) < -80
 
 
 def test_map_status_says_how_much_of_the_lag_is_waiting_for_the_odometry(drive):
