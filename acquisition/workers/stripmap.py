@@ -36,9 +36,11 @@ STEP_BUDGET_S = 0.25
 CATCH_UP_START_S = 0.5
 CATCH_UP_STEP_S = 0.25
 #: The most queued frames of one radar imaged in one call (``StripMap.add_frames``: the same map, less work
-#: per frame). Only frames already queued and covered by poses go together, so batching adds no lag; behind,
-#: 4 frames cost about a quarter less CPU each than one at a time, more than 4 little more.
-MAX_BATCH_FRAMES = 4
+#: per frame). Only frames already queued and covered by poses go together, so batching adds no lag. It pays
+#: where the map is far behind: pre-summing all of a TX's chirps, 8 frames together cost 1.5x less CPU each
+#: than one at a time (4: 1.4x); at the default pre-summing the kernel dominates and it gains nothing
+#: (benchmarks/stripmap.py).
+MAX_BATCH_FRAMES = 8
 
 
 @dataclasses.dataclass
