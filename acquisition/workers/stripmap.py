@@ -51,8 +51,8 @@ class StripMapWorkerConfig:
     Frames of one radar already queued and covered by poses are imaged together, up to ``max_batch_frames``
     (with "direct" and no refocusing; the map is the same).
     ``threads``: the backprojection kernel's threads. One by default: beside the drivers, the recorder and
-    the odometry a second thread mostly waits for a core, and the same frames cost more CPU with two (17.7
-    against 10.2 ms per frame on this two-core machine, benchmarks/stripmap.py); more only where the map has
+    the odometry a second thread mostly waits for a core, and the same frames cost more CPU with two (14.8
+    against 9.4 ms per frame on this two-core machine, benchmarks/stripmap.py); more only where the map has
     cores to itself."""
 
     rig: Rig
