@@ -214,7 +214,8 @@ def ffbp_block_travel_m(config: StripMapConfig, radar: RadarConfig, speed_mps: f
 
 @dataclasses.dataclass
 class FrameFootprint:
-    """What one frame touched: tile keys and the profile-pixel pairs evaluated."""
+    """What one call (a frame, or a batch of a radar's frames) touched: tile keys and the profile-pixel
+    pairs evaluated."""
 
     tiles: list[tuple[int, int]]
     pixel_profile_pairs: int
@@ -486,7 +487,7 @@ class StripMap:
                     image[taken.ravel()] = v[start:start + m]
                     self._groups.setdefault(key, []).append((t_s, antenna, direction, image, radar.name))
             start += m
-        pairs = pts.shape[0] * profiles.data.shape[0] if n_frames == 1 else sum(int(np.count_nonzero(m)) for m in masks) * per
+        pairs = sum(int(np.count_nonzero(m)) for m in masks) * per  # each frame's pixels times its profiles
         return FrameFootprint(touched, pairs, refocused=refocused, frames_imaged=n_frames, frames_standing=standing)
 
     def _backproject_takers(self, profiles, tx_m, rx_m, pts: np.ndarray, takers: np.ndarray, per: int) -> np.ndarray:

@@ -204,8 +204,8 @@ class StripMapWorker(Worker):
         traj = None
         until = None if budget_s is None else time.monotonic() + budget_s
         while frames and (until is None or time.monotonic() < until):
-            name, iq, t_frame, t_recv = frames[0]
-            if t_frame + self.frame_ns[name] > newest_pose:
+            name, _, t_frame, _ = frames[0]
+            if not self._covered(name, t_frame, newest_pose):
                 if not final:
                     return
                 frames.popleft()  # never covered by the odometry: the drive ended
@@ -220,14 +220,17 @@ class StripMapWorker(Worker):
             footprint = self.map.add_frames(self.radars[name], self.orders[name], [b[1] for b in batch],
                                             [b[2] for b in batch], traj, presum=self.config.map.presum * factor)
             status.presum_factor = factor
-            if factor > 1 and not footprint.skipped:
-                status.frames_presummed_more += len(batch) - footprint.frames_standing
-            if len(batch) > 1 and not footprint.skipped:
-                status.frames_batched += len(batch) - footprint.frames_standing
             if not footprint.skipped:
+                moving = len(batch) - footprint.frames_standing
+                status.frames_presummed_more += moving if factor > 1 else 0
+                status.frames_batched += moving if len(batch) > 1 else 0
                 self.in_block[name].extend(b[3] for b in batch)
             self._account(name, footprint, final)
             status.busy_s += time.monotonic() - t0
+
+    def _covered(self, name: str, t_frame: int, newest_pose: int) -> bool:
+        """Whether the poses reach to the end of radar ``name``'s frame starting at ``t_frame``."""
+        return t_frame + self.frame_ns[name] <= newest_pose
 
     def _take_batch(self, name: str, newest_pose: int) -> list:
         """Take the oldest queued frame (radar ``name``'s) and the next of the same radar the poses cover, up to
@@ -243,7 +246,7 @@ class StripMapWorker(Worker):
             other, _, t_frame, _ = frames[i]
             if other != name:
                 continue
-            if t_frame + self.frame_ns[name] > newest_pose:
+            if not self._covered(name, t_frame, newest_pose):
                 break
             taken.append(i)
             if len(taken) + 1 == self.batch_frames:
