@@ -101,6 +101,29 @@ def cpu_s(pid: int) -> float | None:
     return (int(fields[11]) + int(fields[12])) / CLK_TCK
 
 
+def run_queue_wait_s(pid: int) -> float | None:
+    """How long the process's threads have waited, runnable, for a core (/proc/PID/task/*/schedstat), s."""
+    total = 0.0
+    try:
+        tasks = list(Path(f"/proc/{pid}/task").iterdir())
+    except FileNotFoundError:
+        return None
+    for t in tasks:
+        try:
+            total += int((t / "schedstat").read_text().split()[1]) * 1e-9
+        except (FileNotFoundError, IndexError, ValueError):
+            continue  # a thread that ended since the listing
+    return total
+
+
+def machine_cpu_s() -> dict[str, float]:
+    """All cores' time since boot from /proc/stat, s: ``busy`` (user, nice, system, interrupts), ``steal`` (taken
+    by the hypervisor) and ``idle`` (with I/O wait)."""
+    fields = [int(v) / CLK_TCK for v in Path("/proc/stat").read_text().splitlines()[0].split()[1:]]
+    user, nice, system, idle, iowait, irq, softirq, steal = (fields + [0.0] * 8)[:8]
+    return {"busy": user + nice + system + irq + softirq, "steal": steal, "idle": idle + iowait}
+
+
 class PartChecker:
     """Counts what the finished parts of the recording hold, then deletes them (the disk would fill)."""
 
@@ -207,6 +230,9 @@ def soak(minutes: float, work: Path, radars: list[str], map_args: list[str] = ()
     try:
         t0 = time.monotonic()
         cpu_before: dict[int, float] = {}
+        wait_before: dict[int, float] = {}
+        machine_before = machine_cpu_s()
+        map_busy_before = 0.0
         next_sample = t0 + SAMPLE_EVERY_S
         while replay.poll() is None or time.monotonic() < next_sample - SAMPLE_EVERY_S + 5:
             m = sub.receive(timeout_ms=200)
@@ -227,15 +253,33 @@ def soak(minutes: float, work: Path, radars: list[str], map_args: list[str] = ()
                 continue
             next_sample += SAMPLE_EVERY_S
             tree = process_tree(daemon.pid)
-            sample = {"t_s": round(time.monotonic() - t0, 1), "rss_mb": {}, "cpu_pct": {}}
+            sample = {"t_s": round(time.monotonic() - t0, 1), "rss_mb": {}, "cpu_pct": {}, "waiting_for_core_pct": {}}
             for pid, name in tree.items():
-                rss, cpu = rss_mb(pid), cpu_s(pid)
+                rss, cpu, wait = rss_mb(pid), cpu_s(pid), run_queue_wait_s(pid)
                 if rss is None or cpu is None:
                     continue
                 sample["rss_mb"][name] = round(rss, 1)
                 if pid in cpu_before:
                     sample["cpu_pct"][name] = round(100 * (cpu - cpu_before[pid]) / SAMPLE_EVERY_S, 1)
+                if wait is not None and pid in wait_before:
+                    sample["waiting_for_core_pct"][name] = round(100 * (wait - wait_before[pid]) / SAMPLE_EVERY_S, 1)
                 cpu_before[pid] = cpu
+                if wait is not None:
+                    wait_before[pid] = wait
+            # The emulated hardware shares the unit's two cores here (on the robot it does not): what it took,
+            # and whether the machine as a whole had any left.
+            for pid, name in {replay.pid: "replay", **{c: f"replay-{i}" for i, c in enumerate(
+                    sorted(set(process_tree(replay.pid)) - {replay.pid}))}}.items():
+                cpu = cpu_s(pid)
+                if cpu is not None and pid in cpu_before:
+                    sample["replay_cpu_pct"] = sample.get("replay_cpu_pct", 0.0) + round(
+                        100 * (cpu - cpu_before[pid]) / SAMPLE_EVERY_S, 1)
+                if cpu is not None:
+                    cpu_before[pid] = cpu
+            machine = machine_cpu_s()
+            sample["machine_cpu_pct"] = {k: round(100 * (machine[k] - machine_before[k]) / SAMPLE_EVERY_S, 1)
+                                         for k in machine}
+            machine_before = machine
             if last_health is not None:
                 odometry = last_health.workers.get("rio")
                 sample.update(bus_lost=last_health.bus_lost, restarts=last_health.restarts,
@@ -246,9 +290,11 @@ def soak(minutes: float, work: Path, radars: list[str], map_args: list[str] = ()
             if last_map is not None:
                 sample.update(map_lag_s=round(last_map.lag_s, 3), map_dropped=last_map.frames_dropped_behind,
                               map_presummed_more=last_map.frames_presummed_more,
-                              map_batched=last_map.frames_batched,
+                              map_batched=last_map.frames_batched, map_thinned=last_map.frames_thinned,
                               map_imaged=last_map.frames_imaged, map_tiles=last_map.tiles,
-                              map_waiting_for_poses_s=round(last_map.waiting_for_poses_s, 3))
+                              map_waiting_for_poses_s=round(last_map.waiting_for_poses_s, 3),
+                              map_imaging_cpu_pct=round(100 * (last_map.busy_s - map_busy_before) / SAMPLE_EVERY_S, 1))
+                map_busy_before = last_map.busy_s
             sample.update({k: round(v, 3) for k, v in window_max.items()})
             window_max = dict.fromkeys(window_max, 0.0)
             sample["imu_in_file_lag_s"] = checker.imu_lag_s()
@@ -332,6 +378,7 @@ def summarise(samples, checker, laps, frames_per_lap, lap_s, warm_up_s, replay_c
         "bus_lost": last.get("bus_lost"), "restarts": last.get("restarts"),
         "map_frames_dropped": last.get("map_dropped"), "map_frames_imaged": last.get("map_imaged"),
         "map_frames_presummed_more": last.get("map_presummed_more"), "map_frames_batched": last.get("map_batched"),
+        "map_frames_thinned": last.get("map_thinned"),
         "odometry_counters": last.get("odometry_counters"),
         "rss": growth, "rss_goal_mb": RSS_GOAL_MB,
         "rss_flat": all(g["drift_mb"] <= RSS_GOAL_MB for g in growth.values()),
