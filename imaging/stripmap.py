@@ -290,9 +290,10 @@ class StripMap:
         return self.frames_profiles(radar, tx_order, [adc], [frame_time_ns], trajectory, presum)
 
     def frames_profiles(self, radar: RadarConfig, tx_order: np.ndarray, adcs, frame_times_ns, trajectory: Trajectory,
-                        presum: int | None = None):
+                        presum: int | None = None, weight: float = 1.0):
         """As :meth:`frame_profiles`, for several frames of one radar at once (their profiles one after the
-        other): one antenna placement and one range compression for all of them."""
+        other): one antenna placement and one range compression for all of them. ``weight`` scales the
+        profiles (see :meth:`add_frames`)."""
         cfg = self.config
         presum = presum or cfg.presum
         wf = radar.waveform
@@ -306,6 +307,8 @@ class StripMap:
             chirp_times.append(int(frame_time_ns) + offsets_ns[groups].mean(axis=1).round().astype(np.int64))
             tx_index.append(tx)
         samples = samples[0] if len(samples) == 1 else np.concatenate(samples)
+        if weight != 1.0:
+            samples *= np.float32(weight)  # the sums are this call's own arrays; compression is linear
         chirp_times, tx_index = np.concatenate(chirp_times), np.concatenate(tx_index)
         track = antenna_track(radar, trajectory, chirp_times, tx_index)
         n_rx = wf.n_rx
@@ -398,7 +401,7 @@ class StripMap:
         return self.add_frames(radar, tx_order, [adc], [frame_time_ns], trajectory, presum)
 
     def add_frames(self, radar: RadarConfig, tx_order: np.ndarray, adcs, frame_times_ns, trajectory: Trajectory,
-                   presum: int | None = None) -> FrameFootprint:
+                   presum: int | None = None, weight: float = 1.0) -> FrameFootprint:
         """Backproject consecutive frames of one radar together: the same map as :meth:`add_frame` frame by
         frame (to float rounding), for less work per frame.
 
@@ -416,6 +419,9 @@ class StripMap:
         adcs : sequence of ndarray, each as ``add_frame``'s ``adc``
             At most ``MAX_BATCH_FRAMES``.
         frame_times_ns : sequence of int, the frames' start times, ns
+        weight : float
+            Scales the frames' contributions: a live map far behind that images only one frame of a radar in
+            ``k`` weights those it images by ``k``, so the map keeps the scale of every frame imaged.
         """
         cfg = self.config
         wf = radar.waveform
@@ -424,7 +430,7 @@ class StripMap:
             raise ValueError(f"add_frames: {len(adcs)} frames and {len(frame_times_ns)} frame times "
                              f"(1 to {MAX_BATCH_FRAMES} of each)")
         if len(adcs) > 1 and (ffbp or cfg.refocuses):
-            return _merged([self.add_frames(radar, tx_order, [a], [t], trajectory, presum)
+            return _merged([self.add_frames(radar, tx_order, [a], [t], trajectory, presum, weight)
                             for a, t in zip(adcs, frame_times_ns)])
         mid = np.asarray(frame_times_ns, np.int64) + wf.frame_duration_ns // 2
         moving = np.linalg.norm(trajectory.sample(mid).velocity_mps[:, :2], axis=1) >= cfg.min_speed_mps
@@ -436,7 +442,7 @@ class StripMap:
         n_frames = int(np.count_nonzero(moving))
         profiles, tx_m, rx_m, look, times = self.frames_profiles(
             radar, tx_order, [a for a, m in zip(adcs, moving) if m],
-            [t for t, m in zip(frame_times_ns, moving) if m], trajectory, presum)
+            [t for t, m in zip(frame_times_ns, moving) if m], trajectory, presum, weight)
         if ffbp:
             block = self._blocks.setdefault(radar.name, [])
             block.append((profiles, tx_m, rx_m, look))

@@ -595,6 +595,88 @@ def test_a_worker_behind_images_queued_frames_of_a_radar_together(drive):
     assert error_db(four.map.mosaic()[0], one.map.mosaic()[0]) < -80
 
 
+def test_a_frame_weighted_k_adds_k_times_its_contribution(drive):
+    """``weight`` scales a frame's contribution and nothing else: the same tiles, the map times the weight."""
+    rec, radar, truth, order = drive
+    adc, times = rec.adc(RADAR), rec.frame_time_ns(RADAR)
+    config = StripMapConfig(pixel_m=0.01, aperture_m=0.3, range_min_m=1.5, range_max_m=2.5, z_m=0.3, presum=4)
+    maps = {}
+    for weight in (1.0, 4.0):
+        sm = maps[weight] = StripMap(config)
+        for k in range(20, 26, 2):
+            sm.add_frames(radar, order, [adc[k], adc[k + 1]], [int(times[k]), int(times[k + 1])], truth, weight=weight)
+    assert maps[4.0].tiles.keys() == maps[1.0].tiles.keys() and maps[1.0].tiles
+    np.testing.assert_allclose(maps[4.0].mosaic()[0], 4.0 * maps[1.0].mosaic()[0], rtol=1e-6)
+
+
+def test_the_catch_up_ladder_sums_all_chirps_before_it_thins_frames(drive):
+    """The extra pre-summing doubles every catch_up_step_s of backlog past catch_up_start_s until a TX's chirps
+    are all one sum; only the steps after that thin frames (2, then 4, never past max_thinning)."""
+    from acquisition.workers.stripmap import StripMapWorker, StripMapWorkerConfig
+    from imaging.core.rig import Rig
+
+    rec, radar, truth, order = drive
+    wf = radar.waveform
+    most = wf.chirps_per_frame // wf.n_tx // 4
+    assert most == 16  # so the ladder below: 2, 4, 8, 16, then thinning
+    config = StripMapConfig(presum=4)
+
+    def ladder(backlog_s, **kw):
+        worker = StripMapWorker(StripMapWorkerConfig(Rig((radar,)), None, config, "tcp://unused:1", "unused.h5", **kw), None)
+        worker.frames.extend([(RADAR, None, 0, 0), (RADAR, None, round(backlog_s * 1e9), 0)])
+        return worker.catch_up(RADAR)
+
+    assert [ladder(b) for b in (0.0, 0.49, 0.5, 0.75, 1.0, 1.25, 1.49, 1.5, 1.75, 10.0)] == [
+        (1, 1), (1, 1), (2, 1), (4, 1), (8, 1), (16, 1), (16, 1), (16, 2), (16, 4), (16, 4)]
+    assert ladder(10.0, max_thinning=1) == (16, 1) and ladder(10.0, max_thinning=2) == (16, 2)
+    assert ladder(10.0, max_thinning=16) == (16, 16)
+    with pytest.raises(ConfigError, match="max_thinning"):
+        StripMapWorkerConfig(Rig((radar,)), None, config, "tcp://unused:1", "unused.h5", max_thinning=3)
+
+
+def test_a_worker_far_behind_thins_frames_and_keeps_the_map_s_scale(drive):
+    """A backlog of the whole drive (3 s) with a catch-up that starts at once: past all-chirps pre-summing the
+    worker images one frame in 2 or 4, counted, weighted so the target keeps its brightness; every frame is
+    accounted for and none dropped."""
+    from acquisition.messages import PoseBatch, RadarFrameMessage
+    from acquisition.workers.stripmap import StripMapWorker, StripMapWorkerConfig
+    from drivers.radar.stream import RadarFrame
+    from imaging.core.rig import Rig
+    from imaging.core.samples import complex_to_iq
+
+    rec, radar, truth, order = drive
+    adc, times = rec.adc(RADAR), rec.frame_time_ns(RADAR)
+    t = truth.time_ns[::10]
+    poses = PoseBatch(t, truth.sample(t).position_m, truth.sample(t).orientation_xyzw, truth.sample(t).velocity_mps)
+    config = StripMapConfig(pixel_m=0.01, aperture_m=0.3, range_min_m=1.5, range_max_m=2.5, z_m=0.3, presum=4)
+
+    def run(max_thinning):
+        worker = StripMapWorker(StripMapWorkerConfig(Rig((radar,)), None, config, "tcp://unused:1", "unused.h5",
+                                                     catch_up_start_s=0.0, catch_up_step_s=0.25,
+                                                     max_thinning=max_thinning), None)
+        worker.handle(poses, live=True)
+        for k in range(len(times)):
+            frame = RadarFrame(k, int(times[k]), int(times[k]), True, 0, complex_to_iq(adc[k], 1000.0))
+            worker.handle(RadarFrameMessage(RADAR, frame), live=True)
+        worker._image_ready(budget_s=None)
+        return worker
+
+    thinned, summed = run(4), run(1)
+    st = thinned.status
+    assert summed.status.frames_thinned == 0 and summed.status.frames_imaged + summed.status.frames_standing_still == len(times)
+    assert st.frames_thinned > len(times) // 4 and st.frames_dropped_behind == 0 and not thinned.frames
+    assert st.frames_imaged + st.frames_standing_still + st.frames_thinned == len(times)
+    assert st.frames_imaged < 0.6 * summed.status.frames_imaged and thinned.map.profiles < 0.7 * summed.map.profiles
+    peaks = []
+    for worker in (thinned, summed):
+        img = worker.map.to_image()
+        mag = np.abs(img.image)
+        iy, ix = np.unravel_index(np.argmax(mag), mag.shape)
+        assert abs(img.x_m[ix] - 0.0) < 0.02 and abs(img.y_m[iy] - R0) < 0.02
+        peaks.append(mag.max())
+    assert 0.8 < peaks[0] / peaks[1] < 1.25  # weighted: the target as bright as with every frame imaged
+
+
 def test_map_status_says_how_much_of_the_lag_is_waiting_for_the_odometry(drive):
     """3 s of frames queued but poses for only the first 0.2 s of them: the covered frames are imaged, the
     rest wait, and map/status gives how far the newest frame is ahead of the newest pose. Once the poses

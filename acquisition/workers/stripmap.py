@@ -35,6 +35,12 @@ STEP_BUDGET_S = 0.25
 #: coarsening began at 4 s, 1.2-1.3 s (median) when it began at 1 s, 0.75-0.86 s from 0.5 s.
 CATCH_UP_START_S = 0.5
 CATCH_UP_STEP_S = 0.25
+#: The catch-up's last steps, once a TX's chirps are all summed into one profile: one frame of a radar in 2
+#: imaged, then one in 4 (at most MAX_THINNING), each weighted by that factor so the map keeps its scale.
+#: A coarser slow-time sampling of the same aperture, counted (``frames_thinned``), before a frame is dropped:
+#: on a machine so short of CPU that the niced map gets a tenth of a core for tens of seconds (the four-radar
+#: soak, whose emulated hardware takes half a core of the same two), the map otherwise fell 5-10 s behind.
+MAX_THINNING = 4
 #: The most queued frames of one radar imaged in one call (``StripMap.add_frames``: the same map, less work
 #: per frame). Only frames already queued and covered by poses go together, so batching adds no lag. It pays
 #: where the map is far behind: pre-summing all of a TX's chirps, 8 frames together cost 1.5x less CPU each
@@ -47,7 +53,8 @@ MAX_BATCH_FRAMES = 8
 class StripMapWorkerConfig:
     """``radars`` None: all of the rig's. ``map`` is the ``imaging.stripmap.StripMapConfig``. Frames wait
     for poses at most ``max_queue_s`` (of sensor time) before the oldest are dropped, counted; before that,
-    a backlog is imaged with more pre-summing (``catch_up_start_s``, ``catch_up_step_s``), counted too.
+    a backlog is imaged with more pre-summing (``catch_up_start_s``, ``catch_up_step_s``), then with only
+    one frame of a radar in 2, 4 (up to ``max_thinning``; 1: never), counted too.
     Frames of one radar already queued and covered by poses are imaged together, up to ``max_batch_frames``
     (with "direct" and no refocusing; the map is the same).
     ``threads``: the backprojection kernel's threads. One by default: beside the drivers, the recorder and
@@ -65,6 +72,7 @@ class StripMapWorkerConfig:
     catch_up_step_s: float = CATCH_UP_STEP_S
     threads: int = 1
     max_batch_frames: int = MAX_BATCH_FRAMES
+    max_thinning: int = MAX_THINNING
 
     def __post_init__(self) -> None:
         from imaging.core.config import require
@@ -73,6 +81,8 @@ class StripMapWorkerConfig:
         require(self.threads >= 1, "threads", f"must be at least 1, got {self.threads}")
         require(1 <= self.max_batch_frames <= most, "max_batch_frames",
                 f"must be 1 to {most}, got {self.max_batch_frames}")
+        require(self.max_thinning >= 1 and self.max_thinning & (self.max_thinning - 1) == 0, "max_thinning",
+                f"must be 1, 2, 4, ... (one frame in that many imaged at most), got {self.max_thinning}")
 
 
 class StripMapWorker(Worker):
@@ -105,6 +115,8 @@ class StripMapWorker(Worker):
         self.frames: collections.deque = collections.deque()
         #: radar -> receive times of its frames in the map's unfinished block ("ffbp"), for the lag
         self.in_block: dict[str, collections.deque] = {name: collections.deque() for name in self.radars}
+        #: radar -> its frames taken off the queue while thinning, to keep one in every k
+        self.thinning_count = dict.fromkeys(self.radars, 0)
         self.changed: set = set()
         self.last_publish = time.monotonic()
 
@@ -214,11 +226,17 @@ class StripMapWorker(Worker):
             traj = traj or self._trajectory()
             if traj is None:  # a single pose so far: the frame waits for the next (at the end, finish counts it)
                 return
-            factor = 1 if final else self.catch_up_factor(name)
-            batch = self._take_batch(name, newest_pose)
+            factor, thinning = (1, 1) if final else self.catch_up(name)
+            batch = self._take_batch(name, newest_pose, self.batch_frames * thinning)
+            status.thinning = thinning
+            if thinning > 1:
+                batch = self._thin(name, batch, thinning)
+                if not batch:
+                    continue
             t0 = time.monotonic()
             footprint = self.map.add_frames(self.radars[name], self.orders[name], [b[1] for b in batch],
-                                            [b[2] for b in batch], traj, presum=self.config.map.presum * factor)
+                                            [b[2] for b in batch], traj, presum=self.config.map.presum * factor,
+                                            weight=float(thinning))
             status.presum_factor = factor
             if not footprint.skipped:
                 moving = len(batch) - footprint.frames_standing
@@ -232,15 +250,15 @@ class StripMapWorker(Worker):
         """Whether the poses reach to the end of radar ``name``'s frame starting at ``t_frame``."""
         return t_frame + self.frame_ns[name] <= newest_pose
 
-    def _take_batch(self, name: str, newest_pose: int) -> list:
+    def _take_batch(self, name: str, newest_pose: int, most: int) -> list:
         """Take the oldest queued frame (radar ``name``'s) and the next of the same radar the poses cover, up to
-        ``batch_frames``, off the queue; the other radars' frames keep their places."""
+        ``most``, off the queue; the other radars' frames keep their places."""
         frames = self.frames
         batch = [frames.popleft()]
-        if self.batch_frames == 1:
+        if most == 1:
             return batch
         # Look no further than the next few frames of every radar: they arrive interleaved.
-        horizon = min(len(frames), 2 * self.batch_frames * len(self.radars))
+        horizon = min(len(frames), 2 * most * len(self.radars))
         taken = []
         for i in range(horizon):
             other, _, t_frame, _ = frames[i]
@@ -249,12 +267,20 @@ class StripMapWorker(Worker):
             if not self._covered(name, t_frame, newest_pose):
                 break
             taken.append(i)
-            if len(taken) + 1 == self.batch_frames:
+            if len(taken) + 1 == most:
                 break
         for i in reversed(taken):
             batch.insert(1, frames[i])
             del frames[i]
         return batch
+
+    def _thin(self, name: str, batch: list, thinning: int) -> list:
+        """One of every ``thinning`` frames of radar ``name`` (counting on across batches); the others are
+        counted as thinned."""
+        kept = [b for i, b in enumerate(batch, self.thinning_count[name]) if i % thinning == 0]
+        self.thinning_count[name] += len(batch)
+        self.status.frames_thinned += len(batch) - len(kept)
+        return kept
 
     def _account(self, name: str, footprint, final: bool) -> None:
         """Count what one call into the map did. A frame is imaged when its data is in the map: at once, or
@@ -279,17 +305,22 @@ class StripMapWorker(Worker):
                 status.lag_s = (time.time_ns() - oldest) * 1e-9
                 status.max_lag_s = max(status.max_lag_s, status.lag_s)
 
-    def catch_up_factor(self, radar: str) -> int:
-        """Extra pre-summing for the oldest queued frame: 1 while the queue holds less than
-        ``catch_up_start_s`` of sensor time, then 2, doubling every ``catch_up_step_s`` more, up to all of a
-        TX's chirps."""
+    def catch_up(self, radar: str) -> tuple[int, int]:
+        """How the oldest queued frame (radar ``radar``'s) is imaged: (extra pre-summing, thinning). (1, 1)
+        while the queue holds less than ``catch_up_start_s`` of sensor time; then pre-summing 2, doubling
+        every ``catch_up_step_s`` more up to all of a TX's chirps; the steps after that thin 2, 4, ... up to
+        ``max_thinning``."""
         cfg = self.config
         backlog_s = self._queued_s()
         if backlog_s < cfg.catch_up_start_s:
-            return 1
+            return 1, 1
         steps = 1 + (int((backlog_s - cfg.catch_up_start_s) / cfg.catch_up_step_s) if cfg.catch_up_step_s > 0 else 0)
+        steps = min(steps, 32)
         wf = self.radars[radar].waveform
-        return min(2 ** min(steps, 16), max(1, wf.chirps_per_frame // wf.n_tx // cfg.map.presum))
+        most = max(1, wf.chirps_per_frame // wf.n_tx // cfg.map.presum)
+        factor = min(2 ** steps, most)
+        beyond = steps - (most - 1).bit_length()  # steps past the one that first sums all of a TX's chirps
+        return factor, min(2 ** max(beyond, 0), cfg.max_thinning)
 
     def _publish_tiles(self) -> None:
         cfg = self.config.map
