@@ -105,6 +105,36 @@ def test_trajectory_file_round_trip_and_tum(tmp_path):
         read_trajectory(tmp_path / "i.h5")
 
 
+def test_trajectory_writer_gathers_appends_and_writes_them_all(tmp_path):
+    """Poses appended a few at a time (as the live odometry does) reach the file in order: a chunk's worth
+    without a flush, the rest at a flush and at close; an empty append is harmless."""
+    from imaging.io.trajectory_file import WRITE_EVERY_POSES, TrajectoryWriter
+
+    truth = StraightLine(speed_mps=0.4, t0_ns=1_700_000_000_000_000_000)
+    n = WRITE_EVERY_POSES + 1000
+    traj = SampledTrajectory.from_trajectory(truth, truth.t0_ns + np.arange(n, dtype=np.int64) * 2_500_000)
+    cov = np.arange(n * 6, dtype=float).reshape(n, 6)
+    path = tmp_path / "rio.h5"
+    with TrajectoryWriter(path, "rio", covariance_width=6) as w:
+        written = lambda: w._f["trajectory/time_ns"].shape[0]  # noqa: E731
+        edges = list(range(0, n, 7)) + [n]
+        for i, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
+            w.append(traj.time_ns[a:b], traj.position_m[a:b], traj.orientation_xyzw[a:b], traj.velocity_mps[a:b], cov[a:b])
+            if i == 10:
+                assert written() == 0  # gathered
+                w.flush()
+                assert written() == b
+        assert WRITE_EVERY_POSES <= written() < n  # a chunk's worth went without a flush; the rest waits
+        w.append(traj.time_ns[:0], traj.position_m[:0], traj.orientation_xyzw[:0], traj.velocity_mps[:0], cov[:0])
+    back = read_trajectory(path)
+    np.testing.assert_array_equal(back.time_ns, traj.time_ns)
+    np.testing.assert_array_equal(back.position_m, traj.position_m)
+    np.testing.assert_array_equal(back.orientation_xyzw, traj.orientation_xyzw)
+    np.testing.assert_array_equal(back.velocity_mps, traj.velocity_mps)
+    with h5py.File(path) as f:
+        np.testing.assert_array_equal(f["trajectory/covariance_diag"][()], cov)
+
+
 def test_sampled_trajectory_interpolates_a_turn():
     truth = PathWithTurns(segments=[("straight", 0.5), ("arc", 0.5, 180.0), ("straight", 0.5)], speed_mps=0.5)
     times = np.arange(0, 5_000_000_000, 1_000_000)
