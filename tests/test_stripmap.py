@@ -622,7 +622,8 @@ def test_the_catch_up_ladder_sums_all_chirps_before_it_thins_frames(drive):
     config = StripMapConfig(presum=4)
 
     def ladder(backlog_s, **kw):
-        worker = StripMapWorker(StripMapWorkerConfig(Rig((radar,)), None, config, "tcp://unused:1", "unused.h5", **kw), None)
+        worker = StripMapWorker(StripMapWorkerConfig(Rig((radar,)), None, config, "tcp://unused:1", "unused.h5",
+                                                     catch_up_start_s=0.5, catch_up_step_s=0.25, **kw), None)
         worker.frames.extend([(RADAR, None, 0, 0), (RADAR, None, round(backlog_s * 1e9), 0)])
         return worker.catch_up(RADAR)
 

@@ -32,9 +32,11 @@ STEP_BUDGET_S = 0.25
 #: map, before it drops a frame (at ``max_queue_s``). The backlog counts the frames waiting for the
 #: odometry's poses too (it holds them back about 0.3 s): on a shared machine an odometry behind is one
 #: short of CPU, and a coarser map leaves it more. In the four-radar soak the map lagged 4-5 s when
-#: coarsening began at 4 s, 1.2-1.3 s (median) when it began at 1 s, 0.75-0.86 s from 0.5 s.
+#: coarsening began at 4 s, 1.2-1.3 s (median) when it began at 1 s, 0.75-0.86 s from 0.5 s. Steps of
+#: 0.15 s (0.25 s before the thinning below) reach the last step 1.25 s behind: in five-minute soaks the
+#: highest lag was 2.0 s (4.4 s with 0.25 s steps).
 CATCH_UP_START_S = 0.5
-CATCH_UP_STEP_S = 0.25
+CATCH_UP_STEP_S = 0.15
 #: The catch-up's last steps, once a TX's chirps are all summed into one profile: one frame of a radar in 2
 #: imaged, then one in 4 (at most MAX_THINNING), each weighted by that factor so the map keeps its scale.
 #: A coarser slow-time sampling of the same aperture, counted (``frames_thinned``), before a frame is dropped:
