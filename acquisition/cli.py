@@ -532,6 +532,8 @@ def run_workers(setup, args, out_dir: Path, stamp: str):
         raise SarbotError(str(e).replace(f"{e.field}:", f"{option} ({e.field}):", 1) if option else str(e)) from None
     if args.map_threads < 1:
         raise SarbotError(f"--map-threads {args.map_threads}: must be at least 1")
+    if args.map_max_thinning < 1 or args.map_max_thinning & (args.map_max_thinning - 1):
+        raise SarbotError(f"--map-max-thinning {args.map_max_thinning}: must be 1, 2, 4, 8, ... (1: image every frame)")
     view = None
     if args.view:
         from .workers.view import parse_view_address
@@ -539,7 +541,7 @@ def run_workers(setup, args, out_dir: Path, stamp: str):
         view = parse_view_address(args.view)
     return add_pipeline_workers(setup, out_dir, stamp, config, args.max_speed,
                                 map_radars, _names(args.rio_radars, "--rio-radars", names),
-                                presum, view, args.map_threads)
+                                presum, view, args.map_threads, args.map_max_thinning)
 
 
 def _names(text: str | None, option: str, known: set[str]) -> list[str]:
@@ -915,6 +917,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--map-radars", help="radars to image (comma-separated; default all)")
     s.add_argument("--map-threads", type=int, default=1, help="threads of the map's backprojection (default 1: on a "
                    "machine shared with the drivers a second one costs more CPU than it saves time)")
+    s.add_argument("--map-max-thinning", type=int, default=4,
+                   help="a map far behind, once it sums all of a TX's chirps, images only one frame of a radar in 2, "
+                        "then in this many (default 4; counted as frames_thinned); 1: every frame, and on a machine short "
+                        "of CPU the map falls further behind, up to its 10 s bound, where it drops the oldest")
     s.add_argument("--rio-radars", help="radars the odometry uses (comma-separated; default all)")
     s.add_argument("--view", metavar="[HOST:]PORT",
                    help="serve the live map, pose, health and events on the Foxglove WebSocket protocol (loopback "

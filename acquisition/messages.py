@@ -268,6 +268,7 @@ class MapStatus(HeaderMessage):
     frames_presummed_more: int = 0  # imaged with more pre-summing than configured, to catch up
     presum_factor: int = 1  # the extra pre-summing of the latest frame (1: as configured)
     frames_batched: int = 0  # imaged together with other queued frames of their radar (the same map, cheaper)
+    frames_rx_summed: int = 0  # imaged with each TX's RX channels summed into one profile, to catch up
     frames_thinned: int = 0  # left out to catch up, once pre-summing went as far as it goes (one in `thinning` kept)
     thinning: int = 1  # of the latest frames: one in that many imaged (1: every frame)
     lag_s: float = 0.0  # frame reception to imaged, the latest frame

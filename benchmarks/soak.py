@@ -291,6 +291,7 @@ def soak(minutes: float, work: Path, radars: list[str], map_args: list[str] = ()
                 sample.update(map_lag_s=round(last_map.lag_s, 3), map_dropped=last_map.frames_dropped_behind,
                               map_presummed_more=last_map.frames_presummed_more,
                               map_batched=last_map.frames_batched, map_thinned=last_map.frames_thinned,
+                              map_rx_summed=last_map.frames_rx_summed,
                               map_imaged=last_map.frames_imaged, map_tiles=last_map.tiles,
                               map_waiting_for_poses_s=round(last_map.waiting_for_poses_s, 3),
                               map_imaging_cpu_pct=round(100 * (last_map.busy_s - map_busy_before) / SAMPLE_EVERY_S, 1))
@@ -378,7 +379,7 @@ def summarise(samples, checker, laps, frames_per_lap, lap_s, warm_up_s, replay_c
         "bus_lost": last.get("bus_lost"), "restarts": last.get("restarts"),
         "map_frames_dropped": last.get("map_dropped"), "map_frames_imaged": last.get("map_imaged"),
         "map_frames_presummed_more": last.get("map_presummed_more"), "map_frames_batched": last.get("map_batched"),
-        "map_frames_thinned": last.get("map_thinned"),
+        "map_frames_rx_summed": last.get("map_rx_summed"), "map_frames_thinned": last.get("map_thinned"),
         "odometry_counters": last.get("odometry_counters"),
         "rss": growth, "rss_goal_mb": RSS_GOAL_MB,
         "rss_flat": all(g["drift_mb"] <= RSS_GOAL_MB for g in growth.values()),

@@ -90,7 +90,8 @@ def small_recording(tmp_path_factory):
 OPTIONS_RECORD = ["--radar", "--dca1000", "--imu-port", "--radar-imu", "--can", "--can-arg", "--can-trigger-id", "--duration",
                   "--split-size", "--split-time", "--min-free", "--health-endpoint"]
 OPTIONS_RUN = ["--view", "--map-aperture", "--map-pixel", "--map-range", "--map-height", "--map-presum", "--max-speed",
-               "--map-radars", "--rio-radars", "--map-threads", "--map-algorithm", "--map-ffbp-block"]
+               "--map-radars", "--rio-radars", "--map-threads", "--map-algorithm", "--map-ffbp-block",
+               "--map-max-thinning"]
 OPTIONS_REPLAY = ["--radar", "--radar-imu-link", "--speed", "--start-delay", "--laps", "--can-trigger-id"]
 
 

@@ -149,11 +149,27 @@ def test_ffbp_blocks_long_against_the_aperture_are_warned_of(tmp_path, caplog):
             assert "8 frames spans 0.21 m at 0.50 m/s, more than 1/8 of the 0.30 m aperture" in said[0]
 
 
+def test_map_max_thinning_reaches_the_map_worker(tmp_path):
+    from acquisition import cli
+    from acquisition.workers.stripmap import MAX_THINNING
+
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG_TOML)
+    for options, thinning in (([], MAX_THINNING), (["--map-max-thinning", "1"], 1), (["--map-max-thinning", "8"], 8)):
+        args = cli.build_parser().parse_args(["run", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar",
+                                              "left=50001", "--imu-port", str(tmp_path / "imu"), *options])
+        setup = cli.record_setup(args)
+        cli.run_workers(setup, args, tmp_path / "out", "t")
+        assert [w.config.max_thinning for w in setup.workers if w.role == "stripmap"] == [thinning]
+
+
 @pytest.mark.parametrize("options, says", [
     (["--map-algorithm", "ffbp", "--map-refocus", "pga"], "--map-algorithm (algorithm): ffbp images blocks of frames and cannot refocus"),
     (["--map-algorithm", "ffbp", "--map-range", "0:3"], "--map-range (range_min_m): must be positive with ffbp"),
     (["--map-algorithm", "ffbp", "--map-ffbp-block", "0"], "--map-ffbp-block (ffbp_block_frames): must be 1 to 256, got 0"),
     (["--map-aperture", "-1"], "--map-aperture (aperture_m): must be positive"),
+    (["--map-max-thinning", "3"], "--map-max-thinning 3: must be 1, 2, 4, 8, ... (1: image every frame)"),
+    (["--map-max-thinning", "0"], "--map-max-thinning 0: must be 1, 2, 4, 8, ..."),
 ])
 def test_a_bad_map_setting_names_the_option(tmp_path, options, says):
     rig = tmp_path / "rig.toml"

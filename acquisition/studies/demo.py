@@ -187,7 +187,8 @@ def evaluate(scene, sim_path, rec_path, traj_path, map_path, health, config) -> 
     report["strip_map"] = {"tiles": int(img.attrs["tiles"]), "frames_imaged": int(img.attrs["frames_imaged"]),
                            "max_lag_s": float(img.attrs["max_lag_s"]), "presum": int(img.attrs["presum"]),
                            **{k: int(img.attrs[k]) for k in ("frames_standing_still", "frames_beyond_odometry",
-                                                             "frames_presummed_more", "frames_batched", "frames_thinned",
+                                                             "frames_presummed_more", "frames_batched", "frames_rx_summed",
+                                                             "frames_thinned",
                                                              "frames_dropped_behind",
                                                              "frames_lost_on_bus")},
                            "aperture_m": config.aperture_m, "extent_m": [float(np.ptp(img.x_m)), float(np.ptp(img.y_m))]}

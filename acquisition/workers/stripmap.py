@@ -33,15 +33,19 @@ STEP_BUDGET_S = 0.25
 #: odometry's poses too (it holds them back about 0.3 s): on a shared machine an odometry behind is one
 #: short of CPU, and a coarser map leaves it more. In the four-radar soak the map lagged 4-5 s when
 #: coarsening began at 4 s, 1.2-1.3 s (median) when it began at 1 s, 0.75-0.86 s from 0.5 s. Steps of
-#: 0.15 s (0.25 s before the thinning below) reach the last step 1.25 s behind: in five-minute soaks the
-#: highest lag was 2.0 s (4.4 s with 0.25 s steps).
+#: 0.15 s (0.25 s before the steps below) reach all of a TX's chirps 0.95 s behind and the last step 1.4 s
+#: behind: in five-minute soaks the highest lag was 2.0 s against 4.4 s with 0.25 s steps.
 CATCH_UP_START_S = 0.5
 CATCH_UP_STEP_S = 0.15
-#: The catch-up's last steps, once a TX's chirps are all summed into one profile: one frame of a radar in 2
-#: imaged, then one in 4 (at most MAX_THINNING), each weighted by that factor so the map keeps its scale.
-#: A coarser slow-time sampling of the same aperture, counted (``frames_thinned``), before a frame is dropped:
-#: on a machine so short of CPU that the niced map gets a tenth of a core for tens of seconds (the four-radar
-#: soak, whose emulated hardware takes half a core of the same two), the map otherwise fell 5-10 s behind.
+#: The catch-up's last steps, once a TX's chirps are all summed into one profile: each TX's RX channels
+#: summed into one (``StripMap.add_frames(sum_rx=True)``: 1.45x less CPU a frame, the map's error against every
+#: frame at the default pre-summing -8.8 dB against -9.0 dB without; benchmarks/stripmap_thinning.py), then
+#: one frame of a radar in 2 imaged, then one in 4 (at most MAX_THINNING), each weighted by that factor so the
+#: map keeps its scale. Thinning is a coarser slow-time sampling of the same aperture, and it shows: the
+#: frames 2 cm apart no longer overlap their 3 cm virtual array, so grating lobes rise (peak side lobe -4.6 dB
+#: at 1 in 2, -1.5 dB at 1 in 4, against -20 dB), counted (``frames_thinned``), but the map keeps up: on a
+#: machine so short of CPU that the niced map gets a tenth of a core for tens of seconds (the four-radar soak,
+#: whose emulated hardware takes half a core of the same two), it otherwise fell 5-10 s behind.
 MAX_THINNING = 4
 #: The most queued frames of one radar imaged in one call (``StripMap.add_frames``: the same map, less work
 #: per frame). Only frames already queued and covered by poses go together, so batching adds no lag. It pays
@@ -55,8 +59,9 @@ MAX_BATCH_FRAMES = 8
 class StripMapWorkerConfig:
     """``radars`` None: all of the rig's. ``map`` is the ``imaging.stripmap.StripMapConfig``. Frames wait
     for poses at most ``max_queue_s`` (of sensor time) before the oldest are dropped, counted; before that,
-    a backlog is imaged with more pre-summing (``catch_up_start_s``, ``catch_up_step_s``), then with only
-    one frame of a radar in 2, 4 (up to ``max_thinning``; 1: never), counted too.
+    a backlog is imaged with more pre-summing (``catch_up_start_s``, ``catch_up_step_s``), then ("direct", no
+    refocusing) with each TX's RX channels summed, then with only one frame of a radar in 2, 4 (up to
+    ``max_thinning``; 1: never), counted too.
     Frames of one radar already queued and covered by poses are imaged together, up to ``max_batch_frames``
     (with "direct" and no refocusing; the map is the same).
     ``threads``: the backprojection kernel's threads. One by default: beside the drivers, the recorder and
@@ -109,7 +114,10 @@ class StripMapWorker(Worker):
         self.frame_ns = {name: r.waveform.frame_duration_ns for name, r in self.radars.items()}
         self.map = StripMap(config.map)
         # A block ("ffbp") is already a batch, and refocusing keeps every frame's own group images.
-        self.batch_frames = config.max_batch_frames if config.map.algorithm == "direct" and not config.map.refocuses else 1
+        direct = config.map.algorithm == "direct" and not config.map.refocuses
+        self.batch_frames = config.max_batch_frames if direct else 1
+        # refocusing keeps every channel's group images, and an "ffbp" block one layout of channels
+        self.sums_rx = {name: direct and r.waveform.n_rx > 1 for name, r in self.radars.items()}
         self.status = MapStatus()
         self.poses: collections.deque[PoseBatch] = collections.deque()
         # (name, iq, frame time, receive time); iq is the received message's own buffer, not a copy: a copy
@@ -228,7 +236,7 @@ class StripMapWorker(Worker):
             traj = traj or self._trajectory()
             if traj is None:  # a single pose so far: the frame waits for the next (at the end, finish counts it)
                 return
-            factor, thinning = (1, 1) if final else self.catch_up(name)
+            factor, sum_rx, thinning = (1, False, 1) if final else self.catch_up(name)
             batch = self._take_batch(name, newest_pose, self.batch_frames * thinning)
             status.thinning = thinning
             if thinning > 1:
@@ -238,11 +246,12 @@ class StripMapWorker(Worker):
             t0 = time.monotonic()
             footprint = self.map.add_frames(self.radars[name], self.orders[name], [b[1] for b in batch],
                                             [b[2] for b in batch], traj, presum=self.config.map.presum * factor,
-                                            weight=float(thinning))
+                                            weight=float(thinning), sum_rx=sum_rx)
             status.presum_factor = factor
             if not footprint.skipped:
                 moving = len(batch) - footprint.frames_standing
                 status.frames_presummed_more += moving if factor > 1 else 0
+                status.frames_rx_summed += moving if sum_rx else 0
                 status.frames_batched += moving if len(batch) > 1 else 0
                 self.in_block[name].extend(b[3] for b in batch)
             self._account(name, footprint, final)
@@ -307,22 +316,23 @@ class StripMapWorker(Worker):
                 status.lag_s = (time.time_ns() - oldest) * 1e-9
                 status.max_lag_s = max(status.max_lag_s, status.lag_s)
 
-    def catch_up(self, radar: str) -> tuple[int, int]:
-        """How the oldest queued frame (radar ``radar``'s) is imaged: (extra pre-summing, thinning). (1, 1)
-        while the queue holds less than ``catch_up_start_s`` of sensor time; then pre-summing 2, doubling
-        every ``catch_up_step_s`` more up to all of a TX's chirps; the steps after that thin 2, 4, ... up to
-        ``max_thinning``."""
+    def catch_up(self, radar: str) -> tuple[int, bool, int]:
+        """How the oldest queued frame (radar ``radar``'s) is imaged: (extra pre-summing, RX channels summed,
+        thinning). (1, False, 1) while the queue holds less than ``catch_up_start_s`` of sensor time; then
+        pre-summing 2, doubling every ``catch_up_step_s`` more up to all of a TX's chirps; the next step sums
+        the RX channels (where the map can), the steps after that thin 2, 4, ... up to ``max_thinning``."""
         cfg = self.config
         backlog_s = self._queued_s()
         if backlog_s < cfg.catch_up_start_s:
-            return 1, 1
+            return 1, False, 1
         steps = 1 + (int((backlog_s - cfg.catch_up_start_s) / cfg.catch_up_step_s) if cfg.catch_up_step_s > 0 else 0)
         steps = min(steps, 32)
         wf = self.radars[radar].waveform
         most = max(1, wf.chirps_per_frame // wf.n_tx // cfg.map.presum)
         factor = min(2 ** steps, most)
         beyond = steps - (most - 1).bit_length()  # steps past the one that first sums all of a TX's chirps
-        return factor, min(2 ** max(beyond, 0), cfg.max_thinning)
+        sum_rx = self.sums_rx[radar] and beyond >= 1
+        return factor, sum_rx, min(2 ** max(beyond - self.sums_rx[radar], 0), cfg.max_thinning)
 
     def _publish_tiles(self) -> None:
         cfg = self.config.map
