@@ -532,7 +532,9 @@ def run_workers(setup, args, out_dir: Path, stamp: str):
         raise SarbotError(str(e).replace(f"{e.field}:", f"{option} ({e.field}):", 1) if option else str(e)) from None
     if args.map_threads < 1:
         raise SarbotError(f"--map-threads {args.map_threads}: must be at least 1")
-    if args.map_max_thinning < 1 or args.map_max_thinning & (args.map_max_thinning - 1):
+    from .workers.stripmap import is_thinning
+
+    if not is_thinning(args.map_max_thinning):
         raise SarbotError(f"--map-max-thinning {args.map_max_thinning}: must be 1, 2, 4, 8, ... (1: image every frame)")
     view = None
     if args.view:

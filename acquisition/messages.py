@@ -269,7 +269,7 @@ class MapStatus(HeaderMessage):
     presum_factor: int = 1  # the extra pre-summing of the latest frame (1: as configured)
     frames_batched: int = 0  # imaged together with other queued frames of their radar (the same map, cheaper)
     frames_rx_summed: int = 0  # imaged with each TX's RX channels summed into one profile, to catch up
-    frames_thinned: int = 0  # left out to catch up, once pre-summing went as far as it goes (one in `thinning` kept)
+    frames_thinned: int = 0  # left out to catch up, once pre-summing and RX sums went as far as they go (one in `thinning` kept)
     thinning: int = 1  # of the latest frames: one in that many imaged (1: every frame)
     lag_s: float = 0.0  # frame reception to imaged, the latest frame
     waiting_for_poses_s: float = 0.0  # sensor time the newest frame is ahead of the odometry's newest pose

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from . import WorkerSpec
 from .odometry import OdometryWorker, OdometryWorkerConfig
-from .stripmap import StripMapWorker, StripMapWorkerConfig
+from .stripmap import MAX_THINNING, StripMapWorker, StripMapWorkerConfig
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
@@ -20,13 +20,13 @@ BLOCK_TRAVEL_PER_APERTURE = 8
 def add_pipeline_workers(setup, out_dir: Path, stamp: str, config, max_speed_mps: float = 0.5,
                          map_radars: list[str] | None = None, rio_radars: list[str] | None = None,
                          presum: int | None = None, view: tuple[str, int] | None = None, map_threads: int = 1,
-                         map_max_thinning: int | None = None):
+                         map_max_thinning: int = MAX_THINNING):
     """Give ``setup`` (``acquisition.daemon.Setup``) the odometry and strip-map workers.
 
     ``config`` is the ``imaging.stripmap.StripMapConfig``; ``presum`` None picks the largest pre-summing
     whose phase spread stays within pi/4 at ``max_speed_mps``. ``view`` (host, port): also serve the run
     on the Foxglove WebSocket protocol (``workers.view``). ``map_threads``: the map's backprojection threads
-    (``StripMapWorkerConfig.threads``); ``map_max_thinning`` its ``max_thinning`` (None: the default).
+    (``StripMapWorkerConfig.threads``); ``map_max_thinning`` its ``max_thinning``.
     Returns the trajectory path, the map path and the
     strip-map settings used.
     """
@@ -51,8 +51,7 @@ def add_pipeline_workers(setup, out_dir: Path, stamp: str, config, max_speed_mps
                                                                       publish_points=view is not None))
     stripmap = WorkerSpec("stripmap", StripMapWorker,
                           StripMapWorkerConfig(setup.rig, map_radars, config, odometry.endpoint, str(map_path),
-                                               threads=map_threads,
-                                               **({} if map_max_thinning is None else {"max_thinning": map_max_thinning})))
+                                               threads=map_threads, max_thinning=map_max_thinning))
     setup.workers = [odometry, stripmap]
     if view is not None:
         from ..processes import free_tcp_endpoint

@@ -47,6 +47,11 @@ CATCH_UP_STEP_S = 0.15
 #: machine so short of CPU that the niced map gets a tenth of a core for tens of seconds (the four-radar soak,
 #: whose emulated hardware takes half a core of the same two), it otherwise fell 5-10 s behind.
 MAX_THINNING = 4
+
+
+def is_thinning(n: int) -> bool:
+    """Whether ``n`` can be a thinning factor: 1, 2, 4, ... (the ladder doubles it)."""
+    return n >= 1 and n & (n - 1) == 0
 #: The most queued frames of one radar imaged in one call (``StripMap.add_frames``: the same map, less work
 #: per frame). Only frames already queued and covered by poses go together, so batching adds no lag. It pays
 #: where the map is far behind: pre-summing all of a TX's chirps, 8 frames together cost 1.5x less CPU each
@@ -88,7 +93,7 @@ class StripMapWorkerConfig:
         require(self.threads >= 1, "threads", f"must be at least 1, got {self.threads}")
         require(1 <= self.max_batch_frames <= most, "max_batch_frames",
                 f"must be 1 to {most}, got {self.max_batch_frames}")
-        require(self.max_thinning >= 1 and self.max_thinning & (self.max_thinning - 1) == 0, "max_thinning",
+        require(is_thinning(self.max_thinning), "max_thinning",
                 f"must be 1, 2, 4, ... (one frame in that many imaged at most), got {self.max_thinning}")
 
 

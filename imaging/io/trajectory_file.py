@@ -38,7 +38,7 @@ class TrajectoryWriter:
         g = self._f.create_group("trajectory")
         fields = list(_FIELDS) + ([("covariance_diag", np.float64, (covariance_width,))] if covariance_width else [])
         for name, dtype, tail in fields:
-            g.create_dataset(name, (0, *tail), dtype, maxshape=(None, *tail), chunks=(4096, *tail))
+            g.create_dataset(name, (0, *tail), dtype, maxshape=(None, *tail), chunks=(WRITE_EVERY_POSES, *tail))
         self.n = 0  # poses appended (written or gathered)
         self._written = 0
         self._pending: list[dict] = []
