@@ -1,17 +1,18 @@
 """Radar-inertial odometry as the data arrives: the same filter and updates as ``run_rio``, fed in pieces.
 
 IMU batches and radar scans come in whatever order the bus delivers them. A radar scan reaches the bus a
-frame or more after its measurement time (it is formed from a whole frame), so the filter holds back: it
-runs up to ``max_scan_delay_s`` before the newest IMU sample and takes each scan in time order on the way.
-
-A busy consumer falls behind on the radar (a frame is 0.7 MB, an IMU batch 1 kB): the IMU then runs
-seconds ahead of the radar, and every scan would come too late, leaving the filter to the IMU alone. So
-each radar's progress is a watermark too (``radar_seen``, also for frames not made into scans): the filter
-runs no further than ``max_scan_delay_s`` before the radar furthest behind, however far ahead the IMU is,
-up to ``max_radar_wait_s``. A radar gone silent (``radar_silent``) is not waited for until it sends again;
-with none left, the filter goes on with the IMU alone. Before the first radar data it waits as well, since
-a backlog starts at once. A scan later than the filter is counted and left out. Poses come out at
-``options.output_rate_hz``, delayed by the hold-back; ``finish`` runs the filter to the end of the data.
+frame or more after its measurement time (it is formed from a whole frame), and a busy consumer falls
+further behind on the radar (a frame is 0.7 MB, an IMU batch 1 kB): the IMU then runs seconds ahead of the
+radar, and every scan would come too late, leaving the filter to the IMU alone. So each radar's progress
+is a watermark (``radar_seen``, also for frames not made into scans): the filter runs up to the radar
+furthest behind, however far ahead the IMU is, up to ``max_radar_wait_s``, and takes each scan in time
+order on the way. A radar's frames come in order, so once every radar is past a time no scan before it
+can still come, and the filter need hold back no further: its poses are out as soon as the last radar's
+frame is (a fixed hold-back behind the watermark would only keep the live map waiting for them). A radar
+gone silent (``radar_silent``) is not waited for until it sends again; with none left, the filter goes on
+with the IMU alone, ``max_scan_delay_s`` behind the newest IMU sample in case a radar comes back. Before
+the first radar data it waits as well, since a backlog starts at once. A scan later than the filter is counted and left out. Poses come out at
+``options.output_rate_hz``; ``finish`` runs the filter to the end of the data.
 """
 
 from __future__ import annotations
@@ -153,11 +154,12 @@ class StreamingRio:
         horizon = int(self._imu_t[-1])
         if not final:
             watermark = self.radar_watermark_ns
-            if watermark is not None:
+            if watermark is None:
+                horizon -= self.max_scan_delay_ns
+            else:
                 # Never further ahead of the radar than the wait allows, so a radar stalled for good (a
                 # consumer starved for minutes) cannot hold the IMU without bound.
                 horizon = min(horizon, max(watermark, horizon - self.max_radar_wait_ns))
-            horizon -= self.max_scan_delay_ns
         while self._scans and self._scans[0].time_ns <= horizon:
             scan = self._scans.pop(0)
             if scan.time_ns < self.ekf.state.time_ns:
