@@ -22,7 +22,10 @@ VERBOSITY_ENV = "SARBOT_VERBOSITY"
 #: SCHED_FIFO priority for the driver processes (the unit sets it; 0 or unset: normal scheduling).
 DRIVER_RT_PRIORITY_ENV = "SARBOT_DRIVER_RT_PRIORITY"
 #: Niceness of the workers (odometry, strip map): below the drivers and the recorder, so that on a busy
-#: machine the live products fall behind (and say so) rather than the recording losing data.
+#: machine the live products fall behind (and say so) rather than the recording losing data. A worker that
+#: others wait on (``upstream``: the odometry, whose poses the map needs before it can image a frame) is
+#: niced half as much, so on a saturated machine it takes its bounded share first instead of splitting the
+#: leftover evenly with the map it holds up.
 WORKER_NICE_ENV = "SARBOT_WORKER_NICE"
 WORKER_NICE = 10
 LOG_FORMAT = "%(levelname)s %(name)s: %(message)s"
@@ -135,19 +138,27 @@ def die_with_parent(name: str | None = None) -> None:
         os._exit(0)  # the parent died before the signal was asked for
 
 
-def become_child(role: str, realtime: bool = False, background: bool = False) -> None:
+def worker_nice(upstream: bool = False) -> int:
+    """How far a worker process is niced: ``SARBOT_WORKER_NICE`` (default 10), half that (rounded down)
+    for an ``upstream`` worker."""
+    nice = int(os.environ.get(WORKER_NICE_ENV, WORKER_NICE) or 0)
+    return nice // 2 if upstream else nice
+
+
+def become_child(role: str, realtime: bool = False, background: bool = False, upstream: bool = False) -> None:
     """Set up a child process: die with the supervisor, carry the role's name, log like the parent.
 
     A driver whose supervisor died (SIGKILL, OOM) must not keep the port or the device busy; the name
     lets top and ps say which process is which. SIGINT is ignored (the supervisor decides when to stop:
     it sets the stop event); SIGTERM ends the process at once. ``realtime``: a driver (SCHED_FIFO when
-    the unit asks for it); ``background``: a worker, niced below the drivers and the recorder.
+    the unit asks for it); ``background``: a worker, niced below the drivers and the recorder (``upstream``:
+    one other workers wait on, niced less; ``worker_nice``).
     """
     die_with_parent(f"sarbot-{role}")
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     configure_logging(role=role)
     if background:
-        os.nice(int(os.environ.get(WORKER_NICE_ENV, WORKER_NICE) or 0))
+        os.nice(worker_nice(upstream))
     priority = int(os.environ.get(DRIVER_RT_PRIORITY_ENV, "0") or 0)
     if realtime and priority > 0:
         # Only the drivers, which must drain their sockets and serial ports in time; a CPU-heavy worker at

@@ -69,3 +69,44 @@ def test_a_worker_gives_freed_arrays_back():
         pytest.skip(f"this C library keeps only {plain:.0f} MB of the pattern: nothing to show")
     worker = run_pattern("worker")
     assert worker < 10, f"a sarbot worker still holds {worker:.0f} MB of freed arrays (a plain process {plain:.0f} MB)"
+
+
+# How far become_child nices a process of the given kind, relative to the process that started it.
+NICE_PROBE = """
+import os, sys
+from acquisition.processes import become_child
+base = os.nice(0)
+become_child("nice-test", realtime=sys.argv[1] == "driver", background=sys.argv[1] != "driver",
+             upstream=sys.argv[1] == "upstream")
+print(os.nice(0) - base)
+"""
+
+
+def niced_by(kind: str, worker_nice: str | None) -> int:
+    env = {k: v for k, v in os.environ.items() if k != "SARBOT_WORKER_NICE"}
+    if worker_nice is not None:
+        env["SARBOT_WORKER_NICE"] = worker_nice
+    out = subprocess.run([sys.executable, "-c", NICE_PROBE, kind], cwd=ROOT, env=env, capture_output=True, text=True,
+                         timeout=60, check=True)
+    return int(out.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.skipif(not hasattr(os, "nice"), reason="POSIX niceness")
+def test_the_map_is_niced_below_the_odometry_it_waits_for(tmp_path):
+    """The pipeline's odometry is its upstream worker: the map cannot image a frame before the odometry's poses
+    cover it, so on a saturated machine the odometry (whose CPU is bounded: it thins scans) is niced half as
+    much as the map, below the drivers and the recorder all the same. Read off real child processes."""
+    from acquisition.daemon import Setup
+    from acquisition.workers.pipeline import add_pipeline_workers
+    from drivers.can_driver import CanConfig
+    from drivers.radar.link import RadarLink
+    from imaging.core.rig import default_rig
+    from imaging.stripmap import StripMapConfig
+
+    setup = Setup(default_rig(), [RadarLink("left_front", 50001)], imu_port="/nonexistent/imu",
+                  can=CanConfig("virtual", "nice"))
+    add_pipeline_workers(setup, tmp_path, "t", StripMapConfig())
+    assert {w.role: w.upstream for w in setup.workers} == {"rio": True, "stripmap": False}
+    assert [niced_by(kind, None) for kind in ("driver", "upstream", "worker")] == [0, 5, 10]  # the defaults
+    assert [niced_by(kind, "7") for kind in ("upstream", "worker")] == [3, 7]  # SARBOT_WORKER_NICE, as the unit sets it
+    assert [niced_by(kind, "0") for kind in ("upstream", "worker")] == [0, 0]

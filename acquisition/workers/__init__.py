@@ -110,19 +110,21 @@ def run_worker(worker: Worker, sub: BusSubscriber, stop, state=None) -> None:
 @dataclasses.dataclass
 class WorkerSpec:
     """A worker for the daemon: ``worker`` (a Worker subclass) built with ``config`` in a process named
-    ``role`` that publishes on ``endpoint``."""
+    ``role`` that publishes on ``endpoint``. ``upstream``: other workers wait on what it publishes (niced
+    less than they are: ``acquisition.processes.worker_nice``)."""
 
     role: str
     worker: type
     config: Any
     endpoint: str = dataclasses.field(default_factory=free_tcp_endpoint)
+    upstream: bool = False
 
 
 def worker_process(spec: WorkerSpec, driver_endpoints: list[str], stop, frame_endpoints: list[str] = ()) -> None:
     """A worker's process: subscribe to the drivers (and the worker's own extra endpoints), run, write.
     ``frame_endpoints`` (the radars') get a short queue: a worker that falls behind loses frames (counted,
     ``bus_lost`` in its state), not the machine's memory."""
-    become_child(spec.role, background=True)
+    become_child(spec.role, background=True, upstream=spec.upstream)
     pub = BusPublisher(spec.endpoint)
     worker = spec.worker(spec.config, pub)
     # Subscribed before warming up: what the drivers send meanwhile queues, and is handled in order after.

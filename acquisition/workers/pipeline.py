@@ -47,8 +47,9 @@ def add_pipeline_workers(setup, out_dir: Path, stamp: str, config, max_speed_mps
     out_dir.mkdir(parents=True, exist_ok=True)
     traj_path = out_dir / f"trajectory_{stamp}.h5"
     map_path = out_dir / f"stripmap_{stamp}.h5"
+    # The map waits for the odometry's poses: the odometry is the upstream worker (niced less).
     odometry = WorkerSpec("rio", OdometryWorker, OdometryWorkerConfig(setup.rig, rio_radars or names, str(traj_path),
-                                                                      publish_points=view is not None))
+                                                                      publish_points=view is not None), upstream=True)
     stripmap = WorkerSpec("stripmap", StripMapWorker,
                           StripMapWorkerConfig(setup.rig, map_radars, config, odometry.endpoint, str(map_path),
                                                threads=map_threads, max_thinning=map_max_thinning))

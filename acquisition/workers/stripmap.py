@@ -30,12 +30,14 @@ STEP_BUDGET_S = 0.25
 #: Behind by more than CATCH_UP_START_S of sensor time, the worker sums twice the chirps per profile, four
 #: times CATCH_UP_STEP_S later, and so on (up to all of a TX's chirps in a frame): fewer profiles, a coarser
 #: map, before it drops a frame (at ``max_queue_s``). The backlog counts the frames waiting for the
-#: odometry's poses too (it holds them back about 0.3 s): on a shared machine an odometry behind is one
-#: short of CPU, and a coarser map leaves it more. In the four-radar soak the map lagged 4-5 s when
-#: coarsening began at 4 s, 1.2-1.3 s (median) when it began at 1 s, 0.75-0.86 s from 0.5 s. Steps of
-#: 0.15 s (0.25 s before the steps below) reach all of a TX's chirps 0.95 s behind and the last step 1.4 s
+#: odometry's poses too: on a shared machine an odometry behind is one short of CPU, and a coarser map leaves
+#: it more. In the four-radar soak the map lagged 4-5 s when coarsening began at 4 s, 1.2-1.3 s (median) when
+#: it began at 1 s, 0.75-0.86 s from 0.5 s. The start was 0.5 s while the odometry held its poses back 0.2 s
+#: behind the radars (a wait of 0.24 s, median); without that hold-back (0.04 s) the same start only lets the
+#: queue of frames to image grow 0.2 s longer at the same pre-summing, so it starts 0.2 s sooner. Steps of
+#: 0.15 s (0.25 s before the steps below) reach all of a TX's chirps 0.75 s behind and the last step 1.2 s
 #: behind: in five-minute soaks the highest lag was 2.0 s against 4.4 s with 0.25 s steps.
-CATCH_UP_START_S = 0.5
+CATCH_UP_START_S = 0.3
 CATCH_UP_STEP_S = 0.15
 #: The catch-up's last steps, once a TX's chirps are all summed into one profile: each TX's RX channels
 #: summed into one (``StripMap.add_frames(sum_rx=True)``: 1.45x less CPU a frame, the map's error against every
