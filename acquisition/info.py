@@ -137,8 +137,10 @@ def info(path: str | Path) -> dict[str, Any]:
 
 
 def _imu_line(i: dict[str, Any]) -> str:
-    drift = f"{i['clock_drift_ppm']:+.1f} ppm" if i["clock_drift_ppm"] is not None else "unknown"
-    return f"{i['samples']} samples at {i['rate_hz'] or 0:.1f} Hz, {i['counter_gaps']} missing by counter, clock drift {drift}"
+    from .messages import imu_clock_text
+
+    return (f"{i['samples']} samples at {i['rate_hz'] or 0:.1f} Hz, {i['counter_gaps']} missing by counter, "
+            f"{imu_clock_text(i['clock_drift_ppm'])}")
 
 
 def format_info(d: dict[str, Any]) -> str:

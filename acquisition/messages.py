@@ -296,6 +296,20 @@ class WorkerState(HeaderMessage):
 
 #: Sensors silent this long are said to be idle in health (a warning; the daemon itself is fine).
 IDLE_WARNING_S = 5.0
+#: An IMU clock this far off the host's is no crystal's drift (tens of ppm) but a clock at another rate, as a
+#: replay at another speed gives (`sarbot demo` replays at 0.5x): the health line says the rate instead.
+CLOCK_RATE_NOT_DRIFT_PPM = 10_000.0
+
+
+def imu_clock_text(drift_ppm: float | None) -> str:
+    """An IMU clock against the host's, for a person: "clock drift +12.3 ppm", "clock drift unknown", or its
+    rate where it is no drift ("clock at 0.50x host time (a replay at that speed?)")."""
+    if drift_ppm is None:
+        return "clock drift unknown"
+    if abs(drift_ppm) < CLOCK_RATE_NOT_DRIFT_PPM:
+        return f"clock drift {drift_ppm:+.1f} ppm"
+    # drift_ppm is (host clock rate / IMU clock rate - 1) * 1e6
+    return f"clock at {1.0 / (1.0 + drift_ppm * 1e-6):.2f}x host time (a replay at that speed?)"
 
 
 @dataclasses.dataclass
@@ -353,8 +367,7 @@ class Health(HeaderMessage):
         parts = [f"sensors idle for {self.sensors_idle_s:.0f} s"] if self.sensors_idle_s >= IDLE_WARNING_S else []
         parts += [f"{n} {r:.1f} frames/s" for n, r in self.frames_per_s.items()]
         parts.append(f"IMU {self.imu_hz:.0f} Hz")
-        drift = self.clock.imu_drift_ppm
-        parts.append(f"IMU drift {drift:+.1f} ppm" if drift is not None else "IMU drift unknown")
+        parts.append(f"IMU {imu_clock_text(self.clock.imu_drift_ppm)}")
         locks = self.clock.ptp_locked
         unlocked = [n for n, ok in locks.items() if not ok]
         if locks:

@@ -142,3 +142,19 @@ def test_several_publishers_of_one_topic_are_not_gaps():
         p.close()
     sub.close()
     ctx.term()
+
+
+def test_the_health_line_tells_a_drifting_imu_clock_from_one_at_another_rate():
+    """A crystal drifts tens of ppm; a replay at 0.5x (the demo) makes the IMU's clock run at half the host's,
+    which the line says as a rate rather than as +1,000,000 ppm of drift."""
+    from acquisition.messages import ClockState, Health
+
+    def line(drift_ppm):
+        clock = ClockState({"left": True}, True, drift_ppm)
+        return Health({"left": 19.2}, 400.0, 0, 0, 0, {"left": 0}, 0, None, {}, clock).line()
+
+    assert "IMU clock drift +12.3 ppm" in line(12.3) and "IMU clock drift -850.0 ppm" in line(-850.0)
+    assert "IMU clock drift unknown" in line(None)
+    assert "IMU clock at 0.50x host time (a replay at that speed?)" in line(1e6)  # replayed at 0.5x
+    assert "IMU clock at 2.00x host time" in line(-5e5)  # at 2x
+    assert "ppm" not in line(1e6)
