@@ -7,6 +7,7 @@ pseudo-terminal; /can on a python-can bus. The drivers cannot tell it from the r
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import multiprocessing as mp
 import os
@@ -148,14 +149,32 @@ def _link_to_pty(link: Path, option: str) -> None:
         link.unlink()
 
 
+#: Longest the emulated devices wait for ``DevicesHeld.go`` or ``DevicesHeld.release``, s.
+MAX_HOLD_S = 900.0
+
+
+@dataclasses.dataclass
+class DevicesHeld:
+    """Events (``multiprocessing`` ones, for a replay in a process of its own) that keep the emulated devices
+    plugged in around the sending, as a robot's are: the IMU's pty and the CAN bus are up before anything is
+    sent, and the sending waits for ``go`` (the reader is ready); ``sent`` is set once everything is sent;
+    the devices stay until ``release`` is set (the reader has stopped), so that a reader started first and
+    stopped last sees neither a missing device nor one unplugged. Each wait lasts ``MAX_HOLD_S`` at most."""
+
+    go: object
+    sent: object
+    release: object
+
+
 def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str | None, speed: float | None,
            start_delay_s: float = 0.0, can: CanConfig | None = None, laps: int = 1,
-           radar_imu_links: dict[str, str] | None = None) -> dict:
+           radar_imu_links: dict[str, str] | None = None, held: DevicesHeld | None = None) -> dict:
     """Send a recording through emulated hardware: each radar's datagrams (in the wire format it was
     recorded in) to its UDP address, the IMU as Xbus bytes on a pty that ``imu_link`` points to (and each
     IMU on a radar's mount on a pty of its own, ``radar_imu_links``: radar -> link), and /can on
     a python-can bus. ``laps`` > 1: the drive again and again, back to back, times and counters
-    continuing (a soak test; the drive should end where and as it started, at rest). Returns what was sent
+    continuing (a soak test; the drive should end where and as it started, at rest). ``held``: the devices
+    up before the sending and after it until released (``DevicesHeld``). Returns what was sent
     ({radar: datagrams, "can": frames})."""
     if laps < 1:
         raise SarbotError(f"--laps: must be at least 1, got {laps}")
@@ -184,6 +203,8 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
         for emu, link in emulators.values():
             link.symlink_to(emu.port)
         can_bus = can.open() if can is not None else None
+        if held is not None:
+            held.go.wait(MAX_HOLD_S)
         time.sleep(start_delay_s)
         sent = {}
         failures = []
@@ -244,6 +265,9 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
             emu.done.wait()
         if emulators:
             time.sleep(0.5)  # let the readers drain the ptys
+        if held is not None:
+            held.sent.set()
+            held.release.wait(MAX_HOLD_S)
         for label, (emu, link) in emulators.items():
             emu.close()
             if emu.failure:

@@ -66,10 +66,20 @@ def demo_scene():
     return dataclasses.replace(scene, targets=[*scene.targets, RIGHT_REFLECTOR])
 
 
-def _emulate_hardware(sim_path: str, targets: dict, imu_link: str, speed: float, can) -> None:
+def _emulate_hardware(sim_path: str, targets: dict, imu_link: str, speed: float, can, held) -> None:
     from ..replay import replay
 
-    replay(Path(sim_path), targets, imu_link, speed, start_delay_s=4.0, can=can)
+    replay(Path(sim_path), targets, imu_link, speed, start_delay_s=4.0, can=can, held=held)
+
+
+def _wait_for_link(link: Path, emulator, timeout_s: float = 60.0) -> None:
+    """Until the emulator has made its IMU pty (``link`` points to it), or has died trying."""
+    deadline = time.monotonic() + timeout_s
+    while not link.is_symlink():
+        if not emulator.is_alive() or time.monotonic() > deadline:
+            emulator.join(5)
+            raise SarbotError(f"the emulated hardware did not come up (exit code {emulator.exitcode}); see its message above")
+        time.sleep(0.05)
 
 
 def run_demo(out_dir: Path, speed: float = 0.5, view: tuple[str, int] | None = None) -> int:
@@ -78,6 +88,7 @@ def run_demo(out_dir: Path, speed: float = 0.5, view: tuple[str, int] | None = N
 
     from ..daemon import Setup, record
     from ..processes import free_ports
+    from ..replay import DevicesHeld
     from ..workers.pipeline import add_pipeline_workers
 
     t_start = time.monotonic()
@@ -105,9 +116,14 @@ def run_demo(out_dir: Path, speed: float = 0.5, view: tuple[str, int] | None = N
     # The emulated hardware is a process of its own, as the real sensors are: sharing the daemon's
     # interpreter, its sending would steal the recorder's time.
     ctx = mp.get_context("spawn")
+    # The devices are plugged in before the daemon starts and stay until it has stopped, as on the robot: the
+    # IMU driver finds its port at once, and is not told the device went away as the demo ends.
+    held = DevicesHeld(ctx.Event(), ctx.Event(), ctx.Event())
     emulator = ctx.Process(target=_emulate_hardware, name="emulated-hardware",
                            args=(str(sim_path), {link.name: ("127.0.0.1", link.port) for link in links}, str(imu_link),
-                                 speed, can))
+                                 speed, can, held))
+    emulator.start()
+    _wait_for_link(imu_link, emulator)
     failure: list = []
 
     finished = threading.Event()
@@ -115,12 +131,14 @@ def run_demo(out_dir: Path, speed: float = 0.5, view: tuple[str, int] | None = N
     warm = threading.Event()
 
     def play():
-        # The hardware starts once the workers have compiled their kernels (a cold JIT cache takes tens of
-        # seconds), as a robot starts driving once the daemon says it is ready.
+        # The hardware starts sending once the workers have compiled their kernels (a cold JIT cache takes tens
+        # of seconds), as a robot starts driving once the daemon says it is ready.
         warm.wait(600)
-        emulator.start()
-        emulator.join()
-        if emulator.exitcode != 0:
+        held.go.set()
+        while not held.sent.wait(0.2) and emulator.is_alive():
+            pass
+        if not held.sent.is_set():
+            emulator.join()
             failure.append(SarbotError(f"the emulated hardware failed (exit code {emulator.exitcode}); see its message above"))
             done.set()
         finished.set()
@@ -141,11 +159,20 @@ def run_demo(out_dir: Path, speed: float = 0.5, view: tuple[str, int] | None = N
         if finished.is_set() and not any(report.frames_per_s.values()) and report.imu_hz == 0:
             done.set()
 
-    record(setup, out_dir, until=done, on_health=on_health, path=rec_path)
+    try:
+        record(setup, out_dir, until=done, on_health=on_health, path=rec_path)
+    except BaseException:
+        emulator.terminate()  # nothing left to send to
+        raise
+    finally:
+        held.release.set()
+        player.join(5)
+        emulator.join(30)
     bar(expected_s, expected_s)
-    player.join(5)
     if failure:
         raise failure[0]
+    if emulator.exitcode != 0:
+        raise SarbotError(f"the emulated hardware failed (exit code {emulator.exitcode}); see its message above")
 
     print("sarbot demo: 3/3 checking the products against the simulation's truth")
     report = evaluate(scene, sim_path, rec_path, traj_path, map_path, health, config)
