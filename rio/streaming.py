@@ -11,8 +11,9 @@ can still come, and the filter need hold back no further: its poses are out as s
 frame is (a fixed hold-back behind the watermark would only keep the live map waiting for them). A radar
 gone silent (``radar_silent``) is not waited for until it sends again; with none left, the filter goes on
 with the IMU alone, ``max_scan_delay_s`` behind the newest IMU sample in case a radar comes back. Before
-the first radar data it waits as well, since a backlog starts at once. A scan later than the filter is counted and left out. Poses come out at
-``options.output_rate_hz``; ``finish`` runs the filter to the end of the data.
+the first radar data it waits as well, since a backlog starts at once. A scan later than the filter is
+counted and left out. Poses come out at ``options.output_rate_hz``; ``finish`` runs the filter to the end
+of the data.
 """
 
 from __future__ import annotations

@@ -318,6 +318,7 @@ def test_streaming_rio_poses_reach_as_far_as_the_imu_and_every_radar_have_come(n
     err = np.linalg.norm(pos - res.trajectory.position_m[:times.size], axis=1)
     assert err[times < pending[j - 1].time_ns].max() < 1e-9
 
+
 def _feed(rio, imu, scans, imu_ahead_s, silent_after_s=None):
     """Feed the drive as a backlogged bus delivers it: each radar scan ``imu_ahead_s`` (per radar, if a
     dict) after the IMU samples of its time (a frame is 0.7 MB, an IMU batch 1 kB). ``silent_after_s``: no
