@@ -88,7 +88,11 @@ def _project_source() -> Path | str:
 
 
 def unit_text(name: str, plan: InstallPlan) -> str:
-    """A unit file as shipped, with the venv's executable and the user of ``plan``."""
+    """A unit file as shipped, with the venv's executable and the user of ``plan``.
+
+    The units live once, in the project's top-level ``systemd/``; ``acquisition/systemd`` is a link to it,
+    through which the wheel carries them as package data (and a checkout reads them in place).
+    """
     text = resources.files("acquisition").joinpath("systemd", name).read_text()
     text = text.replace(f"{DEFAULT_VENV}/bin/sarbot", f"{plan.venv}/bin/sarbot")
     return text.replace("User=sarbot", f"User={plan.user}").replace("Group=sarbot", f"Group={plan.user}")

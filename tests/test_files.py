@@ -167,7 +167,7 @@ def test_systemd_units_verify(tmp_path):
     analyze = shutil.which("systemd-analyze")
     if analyze is None:
         pytest.skip("systemd-analyze is not installed")
-    units = Path(__file__).resolve().parents[1] / "acquisition" / "systemd"
+    units = Path(__file__).resolve().parents[1] / "systemd"
     exe = Path(sys.executable).with_name("sarbot")
     for unit in units.iterdir():
         text = unit.read_text().replace("/opt/sarbot/.venv/bin/sarbot", str(exe))
