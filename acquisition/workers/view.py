@@ -1,5 +1,8 @@
 """The live view: the run on the Foxglove WebSocket protocol (``foxglove-sdk``), for Foxglove or any client.
 
+Clients may speak ``foxglove.sdk.v1`` (Foxglove, the SDK) or ``foxglove.websocket.v1`` (Lichtblick, npm's
+``@foxglove/ws-protocol``): see ``view_protocols``.
+
 ``sarbot run --view [HOST:]PORT`` adds this worker. It subscribes to the strip map's tiles, the odometry's
 poses, the daemon's health and every event, and serves:
 
@@ -82,7 +85,7 @@ class ViewWorker(Worker):
         self.last_map = self.last_pose_sent = 0.0
         self.pose = None  # (t, position, orientation) of the newest pose
         self.pose_changed = False
-        self.server = None
+        self.server = self.bridge = None
         self.point_channels: dict = {}
         self.imu = None  # the newest sample (t, gyro, accel)
         self.last_imu_sent = 0.0
@@ -98,7 +101,12 @@ class ViewWorker(Worker):
             PoseInFrameChannel,
         )
 
-        self.server = foxglove.start_server(name="sarbot", host=self.config.host, port=self.config.port)
+        from .view_protocols import SubprotocolBridge
+
+        # The SDK's server on a loopback port of its own; clients reach it through the bridge, which
+        # accepts foxglove.websocket.v1 (Lichtblick, @foxglove/ws-protocol) besides foxglove.sdk.v1.
+        self.server = foxglove.start_server(name="sarbot", host="127.0.0.1", port=0)
+        self.bridge = SubprotocolBridge(self.config.host, self.config.port, self.server.port)
         self.grid_channel = GridChannel("/map")
         self.pose_channel = PoseInFrameChannel("/pose")
         self.tf_channel = FrameTransformsChannel("/tf")
@@ -109,7 +117,8 @@ class ViewWorker(Worker):
                                             schema={"type": "object", "title": "sarbot.Imu"})
         for name in self.config.mounts:  # advertised from the start, so a client sees every topic at once
             self.point_channels[name] = PointCloudChannel(f"/radar/{name}/points")
-        log.info("live view: Foxglove WebSocket on ws://%s:%d", self.config.host, self.server.port)
+        log.info("live view: Foxglove WebSocket (foxglove.sdk.v1, foxglove.websocket.v1) on ws://%s:%d",
+                 self.config.host, self.bridge.port)
 
     def counters(self) -> dict[str, int]:
         return {f"sent_{k}": v for k, v in self.sent.items()}
@@ -160,6 +169,8 @@ class ViewWorker(Worker):
             self._send_pose()
 
     def write_products(self) -> None:
+        if self.bridge is not None:
+            self.bridge.stop()
         if self.server is not None:
             self.server.stop()
 

@@ -1,0 +1,146 @@
+"""The live view read by the Foxglove ecosystem's own client: npm's ``@foxglove/ws-protocol`` under node (the
+library Lichtblick is built on), speaking ``foxglove.websocket.v1`` and decoding every message from the
+schema the server advertises. Installed from npm by the test itself (tests/node/package.json); skipped,
+saying so, only where node or npm is missing."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import queue
+import shutil
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from acquisition.messages import Event, MapTile, PointCloudMessage, PoseBatch
+from acquisition.processes import free_port
+from acquisition.workers.view import ViewWorker, ViewWorkerConfig
+from acquisition.workers.view_protocols import answer_for_client, offered_subprotocols, request_for_sdk
+
+NODE_DIR = Path(__file__).resolve().parent / "node"
+HEAD = (b"GET / HTTP/1.1\r\nHost: 127.0.0.1:8765\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+        b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n"
+        b"Sec-WebSocket-Protocol: %s\r\n\r\n")
+
+
+@pytest.mark.parametrize("offered, forwarded, renamed", [
+    (b"foxglove.websocket.v1", ["foxglove.sdk.v1"], True),
+    (b"foxglove.sdk.v1, foxglove.websocket.v1", ["foxglove.sdk.v1", "foxglove.websocket.v1"], False),
+    (b"foxglove.sdk.v1.1", ["foxglove.sdk.v1.1"], False),
+    (b"mqtt", ["mqtt"], False),
+])
+def test_the_bridge_renames_only_a_client_that_speaks_foxglove_websocket_v1_alone(offered, forwarded, renamed):
+    head, rename = request_for_sdk(HEAD % offered)
+    assert offered_subprotocols(head) == forwarded and rename is renamed
+    assert head.endswith(b"\r\n\r\n") and b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==" in head
+    answer = b"HTTP/1.1 101 Switching Protocols\r\nsec-websocket-protocol: foxglove.sdk.v1\r\n\r\n"
+    assert answer_for_client(answer) == answer.replace(b"foxglove.sdk.v1", b"foxglove.websocket.v1")
+
+
+@pytest.mark.parametrize("subprotocol", ["foxglove.websocket.v1", "foxglove.sdk.v1"])
+def test_a_client_offering_either_subprotocol_alone_is_served(subprotocol):
+    """Without the bridge the SDK's server answers HTTP 400 to foxglove.websocket.v1."""
+    import websockets
+
+    port = free_port()
+    worker = ViewWorker(ViewWorkerConfig("127.0.0.1", port, "tcp://unused:1", "tcp://unused:2", "tcp://unused:3"), None)
+    worker.warm_up()
+
+    async def connect():
+        async with websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=[subprotocol]) as ws:
+            first = json.loads(await asyncio.wait_for(ws.recv(), 5))
+            return ws.subprotocol, first
+
+    try:
+        chosen, first = asyncio.run(connect())
+    finally:
+        worker.write_products()
+    assert chosen == subprotocol
+    assert first["op"] == "serverInfo" and first["name"] == "sarbot"
+
+
+@pytest.fixture(scope="module")
+def node_client() -> list[str]:
+    node, npm = shutil.which("node"), shutil.which("npm")
+    if node is None or npm is None:
+        pytest.skip("node and npm are not installed: the @foxglove/ws-protocol interop test needs them "
+                    "(apt-get install nodejs npm)")
+    if not (NODE_DIR / "node_modules" / "@foxglove" / "ws-protocol").is_dir():
+        res = subprocess.run([npm, "ci", "--no-audit", "--no-fund", "--prefix", str(NODE_DIR)], capture_output=True,
+                             text=True, timeout=600)
+        assert res.returncode == 0, f"npm ci in {NODE_DIR} failed:\n{res.stderr[-2000:]}"
+    return [node, str(NODE_DIR / "foxglove_client.mjs")]
+
+
+def _lines(proc: subprocess.Popen) -> queue.Queue:
+    out: queue.Queue = queue.Queue()
+    threading.Thread(target=lambda: [out.put(line) for line in proc.stdout], daemon=True).start()
+    return out
+
+
+def test_the_official_foxglove_ws_protocol_client_decodes_map_pose_points_and_events(node_client):
+    port = free_port()
+    mounts = {"left_front": ([0.15, 0.2, 0.3], [0.0, 0.0, 0.7071068, 0.7071068])}
+    worker = ViewWorker(ViewWorkerConfig("127.0.0.1", port, "tcp://unused:1", "tcp://unused:2", "tcp://unused:3",
+                                         mounts=mounts), None)
+    worker.warm_up()
+    wanted = ["/map", "/pose", "/tf", "/radar/left_front/points", "/events"]
+    proc = subprocess.Popen([*node_client, f"ws://127.0.0.1:{port}", "foxglove.websocket.v1", "20", *wanted],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines = _lines(proc)
+    got: list[dict] = []
+    try:
+        deadline = time.monotonic() + 20
+        while not any(d.get("event") == "advertise" and d["topic"] == "/map" for d in got):
+            got.append(json.loads(lines.get(timeout=max(0.1, deadline - time.monotonic()))))
+        time.sleep(0.3)  # the client's subscriptions reach the server
+        rng = np.random.default_rng(1)
+        tile = (rng.normal(size=(16, 16)) + 1j * rng.normal(size=(16, 16))).astype(np.complex64)
+        xyz, doppler = rng.normal(size=(3, 3)).astype(np.float32), rng.normal(size=3).astype(np.float32)
+        worker.handle(MapTile((4, 7), 0.01, 16, tile), live=True)
+        worker.handle(PoseBatch(np.array([9_000_000_001], np.int64), np.array([[1.5, -2.0, 0.0]]),
+                                np.array([[0.0, 0.0, 0.0, 1.0]]), np.zeros((1, 3))), live=True)
+        worker.handle(PointCloudMessage("left_front", 9_000_000_000, xyz, doppler), live=True)
+        worker.handle(Event(9_000_000_002, "radar.left_front", "error", "process exited with code -9; restarting"),
+                      live=True)
+        worker.step()
+        proc.wait(timeout=25)
+        while not lines.empty():
+            got.append(json.loads(lines.get()))
+    finally:
+        proc.kill()
+        worker.write_products()
+    assert proc.returncode == 0, proc.stderr.read()[-2000:]
+    assert got[0] == {"event": "open", "protocol": "foxglove.websocket.v1"}
+    messages = {d["topic"]: d for d in got if "message" in d}
+    assert sorted(messages) == sorted(wanted)
+
+    grid = messages["/map"]
+    assert grid["schemaName"] == "foxglove.Grid" and grid["encoding"] == "protobuf"
+    g = grid["message"]
+    assert g["frame_id"] == "world" and g["column_count"] == 16 and g["fields"][0]["name"] == "db"
+    assert g["cell_size"] == {"x": pytest.approx(0.01), "y": pytest.approx(0.01)}
+    assert g["pose"]["position"]["x"] == pytest.approx(4 * 16 * 0.01) and g["pose"]["position"]["y"] == pytest.approx(7 * 16 * 0.01)
+    db = np.frombuffer(base64.b64decode(g["data"]), "<f4").reshape(16, 16)
+    np.testing.assert_allclose(db, 20 * np.log10(np.abs(tile) / np.abs(tile).max()), atol=1e-4)
+
+    pose = messages["/pose"]["message"]
+    assert pose["pose"]["position"] == {"x": 1.5, "y": -2.0, "z": 0.0}
+    assert pose["timestamp"] == {"seconds": 9, "nanos": 1}  # google.protobuf.Timestamp
+    frames = {(t["parent_frame_id"], t["child_frame_id"]) for t in messages["/tf"]["message"]["transforms"]}
+    assert frames == {("world", "base_link"), ("base_link", "left_front")}
+    cloud = messages["/radar/left_front/points"]["message"]
+    assert cloud["frame_id"] == "left_front" and [f["name"] for f in cloud["fields"]] == ["x", "y", "z", "doppler"]
+    np.testing.assert_array_equal(np.frombuffer(base64.b64decode(cloud["data"]), "<f4").reshape(3, 4),
+                                  np.column_stack([xyz, doppler]))
+    log_message = messages["/events"]["message"]
+    assert messages["/events"]["schemaName"] == "foxglove.Log"
+    assert log_message["message"] == "process exited with code -9; restarting" and log_message["name"] == "radar.left_front"
+    assert log_message["level"] in (4, "ERROR")  # foxglove.Log.Level.ERROR
+    assert worker.bridge.renamed == 1
