@@ -26,7 +26,7 @@ from imaging.core.rig import Rig
 from .bus import BusPublisher
 from .devices import DeviceBringUp
 from .driver_loops import can_process, imu_process, imu_role, radar_process
-from .messages import ClockState, Health, Latency, WorkerState
+from .messages import ClockState, Health, Latency, LoggedEvent, WorkerState
 from .processes import ProcessSpec, free_tcp_endpoint, release_free_heap
 from .recorder import DiskFullError, Recorder
 from .sdnotify import notify, watchdog_interval_s
@@ -154,12 +154,14 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
         return proc
 
     procs = {role: start(spec) for role, spec in specs.items()}
+    health_pub = BusPublisher(setup.health_endpoint or "tcp://127.0.0.1:0")
+    log.info("health on %s", health_pub.endpoint)
+    # Every event written to /events is published again beside health: a viewer sees what the file holds.
     recorder = Recorder(path, setup.rig, [s.endpoint for s in specs.values()], flush_interval_s=setup.flush_interval_s,
                         wire_formats={link.name: link.wire_format for link in setup.radars},
                         split_bytes=setup.split_bytes, split_s=setup.split_s, min_free_bytes=setup.min_free_bytes,
-                        frame_endpoints=[s.endpoint for role, s in specs.items() if role.startswith("radar.")])
-    health_pub = BusPublisher(setup.health_endpoint or "tcp://127.0.0.1:0")
-    log.info("health on %s", health_pub.endpoint)
+                        frame_endpoints=[s.endpoint for role, s in specs.items() if role.startswith("radar.")],
+                        on_event=lambda e: health_pub.send(LoggedEvent(e.time_ns, e.source, e.level, e.message)))
     stopping = threading.Event()
 
     def on_signal(signum, frame):

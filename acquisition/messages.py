@@ -215,6 +215,15 @@ class Event(HeaderMessage):
 
 
 @dataclasses.dataclass
+class LoggedEvent(Event):
+    """An event as the daemon wrote it to /events -- a driver's, a worker's, a loss on the bus or the
+    supervisor's own (a restart, a device's answer) -- published again on the health endpoint, so a viewer
+    has every event in one stream, each once."""
+
+    TOPIC: ClassVar[str] = "log"
+
+
+@dataclasses.dataclass
 class PoseBatch(ArrayBatch):
     """Odometry poses: times [N] int64, positions [N, 3] m, orientations [N, 4] xyzw, velocities [N, 3] m/s."""
 
@@ -385,7 +394,7 @@ class Health(HeaderMessage):
 
 
 _BY_TOPIC: dict[str, type[BusMessage]] = {cls.TOPIC: cls for cls in (
-    ImuBatch, CanBatch, Trigger, Event, PoseBatch, PoseEnd, MapTile, MapStatus, WorkerState, Health)}
+    ImuBatch, CanBatch, Trigger, Event, LoggedEvent, PoseBatch, PoseEnd, MapTile, MapStatus, WorkerState, Health)}
 
 
 def decode(msg: Message) -> BusMessage:

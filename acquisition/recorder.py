@@ -70,11 +70,13 @@ class Recorder:
         The radars' endpoints: at most ``RECORDER_FRAME_QUEUE`` frames of each wait to be written. A
         recorder that falls further behind (a machine with too little CPU or a disk too slow) loses frames,
         each loss written to /events, instead of taking the machine's memory until it is killed.
+    on_event : callable, optional
+        Called with every ``Event`` written to /events (the daemon publishes them for viewers).
     """
 
     def __init__(self, path: str | Path, rig: Rig, endpoints, flush_interval_s: float = 0.5, adc_dtype: str = "int16",
                  context=None, wire_formats: dict[str, str] | None = None, split_bytes: int | None = None,
-                 split_s: float | None = None, min_free_bytes: int = 64_000_000, frame_endpoints=()):
+                 split_s: float | None = None, min_free_bytes: int = 64_000_000, frame_endpoints=(), on_event=None):
         self.base_path = Path(path)
         self.rig = rig
         self.adc_dtype = adc_dtype
@@ -86,6 +88,7 @@ class Recorder:
         self._fsync: threading.Thread | None = None
         self.paths: list[Path] = []
         self._triggers: list[tuple[int, str]] = []
+        self.on_event = on_event
         self.writer = self._open_part()
         self._handlers = {RadarFrameMessage: self._store_frame, ImuBatch: self._store_imu, CanBatch: self._store_can,
                           Trigger: self._store_trigger, Event: self._store_event, WorkerState: self._note_worker,
@@ -183,7 +186,7 @@ class Recorder:
                 text = (f"samples of an IMU on radar {m.radar!r}, which the rig does not declare ([radar.{m.radar}.imu]): "
                         "not recorded")
                 log.error(text)
-                self.writer.append_event(int(m.batch.time_ns[0]) if len(m) else 0, "recorder", "error", text)
+                self._write_event(int(m.batch.time_ns[0]) if len(m) else 0, "recorder", "error", text)
             self.radar_imu_unrecorded[m.radar] = self.radar_imu_unrecorded.get(m.radar, 0) + len(m)
             return
         b = m.batch
@@ -207,7 +210,13 @@ class Recorder:
 
     def _store_event(self, m: Event) -> None:
         self.wire_events += 1
-        self.writer.append_event(m.time_ns, m.source, m.level, m.message)
+        self._write_event(m.time_ns, m.source, m.level, m.message)
+
+    def _write_event(self, time_ns: int, source: str, level: str, message: str) -> None:
+        """Into /events, and to ``on_event`` (the daemon publishes every event for viewers)."""
+        self.writer.append_event(time_ns, source, level, message)
+        if self.on_event is not None:
+            self.on_event(Event(time_ns, source, level, message))
 
     def _raise_if_disk_full(self, exc: OSError) -> None:
         if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG) or "No space" in str(exc) or "disk quota" in str(exc).lower():
@@ -220,13 +229,13 @@ class Recorder:
 
     def record_event(self, time_ns: int, source: str, level: str, message: str) -> None:
         """An event of the supervisor's own (a restart) into /events."""
-        self.writer.append_event(time_ns, source, level, message)
+        self._write_event(time_ns, source, level, message)
 
     def _report_gaps(self, topic: str, time_ns: int) -> None:
         st = self.sub.stats[topic]
         before = self._reported_missed.get(topic, 0)
         if st.missed > before:
-            self.writer.append_event(time_ns, "bus", "error", f"{topic}: {st.missed - before} message(s) lost on the bus")
+            self._write_event(time_ns, "bus", "error", f"{topic}: {st.missed - before} message(s) lost on the bus")
             self._reported_missed[topic] = st.missed
 
     def flush(self) -> None:

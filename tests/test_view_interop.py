@@ -8,8 +8,11 @@ from __future__ import annotations
 import asyncio
 import base64
 import json
+import os
 import queue
 import shutil
+import signal
+import socket
 import subprocess
 import threading
 import time
@@ -144,3 +147,84 @@ def test_the_official_foxglove_ws_protocol_client_decodes_map_pose_points_and_ev
     assert log_message["message"] == "process exited with code -9; restarting" and log_message["name"] == "radar.left_front"
     assert log_message["level"] in (4, "ERROR")  # foxglove.Log.Level.ERROR
     assert worker.bridge.renamed == 1
+
+
+def _descendant_named(comm: str) -> int | None:
+    """The pid of a process below this one whose name (``/proc/PID/comm``) is ``comm``."""
+    parents = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            text = stat.read_text()
+        except OSError:
+            continue
+        name = text[text.index("(") + 1:text.rindex(")")]
+        parents[int(stat.parent.name)] = (int(text[text.rindex(")") + 2:].split()[1]), name)
+    for pid, (_, name) in parents.items():
+        if name != comm:
+            continue
+        ancestor = pid
+        while ancestor in parents and ancestor != os.getpid():
+            ancestor = parents[ancestor][0]
+        if ancestor == os.getpid():
+            return pid
+    return None
+
+
+def test_a_killed_driver_reaches_the_official_client_as_an_event_and_the_file_alike(node_client, tmp_path):
+    """The daemon writes a restart to /events and publishes it again for viewers: the live view's /events
+    (foxglove.Log) shows what the file holds."""
+    from acquisition.daemon import Setup, record
+    from acquisition.processes import free_tcp_endpoint
+    from acquisition.workers import WorkerSpec
+    from drivers.radar.link import RadarLink
+    from imaging.core.rig import default_rig
+    from imaging.io.recording import Recording
+
+    view_port = free_port()
+    health = free_tcp_endpoint()
+    view = WorkerSpec("view", ViewWorker, ViewWorkerConfig("127.0.0.1", view_port, "tcp://127.0.0.1:9", "tcp://127.0.0.1:9",
+                                                           health))
+    setup = Setup(default_rig(), [RadarLink("left_front", free_port(socket.SOCK_DGRAM))], health_endpoint=health,
+                  health_interval_s=0.5, workers=[view])
+    until, outcome = threading.Event(), {}
+
+    def viewer():
+        try:
+            deadline = time.monotonic() + 120
+            while True:  # the view worker listens once it is warm
+                try:
+                    socket.create_connection(("127.0.0.1", view_port), timeout=1).close()
+                    break
+                except OSError:
+                    assert time.monotonic() < deadline, "the live view never listened"
+                    time.sleep(0.2)
+            proc = subprocess.Popen([*node_client, f"ws://127.0.0.1:{view_port}", "foxglove.websocket.v1", "40",
+                                     "/events=exited with code -9", "/health"], stdout=subprocess.PIPE,
+                                    stderr=subprocess.PIPE, text=True)
+            lines = _lines(proc)
+            while not any(json.loads(line).get("topic") == "/health" for line in list(lines.queue)):
+                time.sleep(0.1)
+                assert time.monotonic() < deadline and proc.poll() is None, "no health reached the client"
+            driver = _descendant_named("sarbot-left_front"[:15])  # the name the driver gives itself
+            assert driver is not None, "the radar driver process was not found"
+            os.kill(driver, signal.SIGKILL)
+            proc.wait(timeout=45)
+            outcome["returncode"] = proc.returncode
+            outcome["lines"] = [json.loads(line) for line in list(lines.queue)]
+        except BaseException as e:  # noqa: BLE001 - reported by the test below
+            outcome["error"] = e
+        finally:
+            until.set()
+
+    thread = threading.Thread(target=viewer)
+    thread.start()
+    (path,) = record(setup, tmp_path, until=until)
+    thread.join()
+    assert "error" not in outcome, outcome.get("error")
+    assert outcome["returncode"] == 0
+    shown = [d["message"] for d in outcome["lines"] if d.get("topic") == "/events" and "message" in d]
+    restart = [m for m in shown if "exited with code -9" in m["message"]]
+    assert len(restart) == 1 and restart[0]["name"] == "radar.left_front" and restart[0]["level"] == 4  # ERROR
+    with Recording(path) as rec:
+        in_file = [e for e in rec.events() if "exited with code -9" in e[3]]
+    assert [(e[1], e[3]) for e in in_file] == [("radar.left_front", restart[0]["message"])]

@@ -16,7 +16,7 @@ poses, the daemon's health and every event, and serves:
   each scan (x, y, z, doppler as float32);
 - ``/imu`` (JSON: gyro rad/s, specific force m/s^2), the newest sample at most ``pose_rate_hz``;
 - ``/health`` (JSON: the daemon's health report and its one-line summary) and ``/events``
-  (``foxglove.Log``).
+  (``foxglove.Log``): every event the recording's /events gets, as the daemon publishes them.
 
 Loopback by default: the map and the robot's position are not for the whole network unless asked.
 """
@@ -31,7 +31,7 @@ import time
 import numpy as np
 
 from ..exporters import grid_db
-from ..messages import Event, Health, ImuBatch, MapTile, PointCloudMessage, PoseBatch
+from ..messages import Event, Health, ImuBatch, LoggedEvent, MapTile, PointCloudMessage, PoseBatch
 from . import Worker
 
 log = logging.getLogger(f"sarbot.{__name__}")
@@ -77,7 +77,10 @@ class ViewWorker(Worker):
     def __init__(self, config: ViewWorkerConfig, pub):
         self.config = config
         self.pub = pub
-        self.topics = [MapTile.TOPIC, PoseBatch.TOPIC, Health.TOPIC, Event.TOPIC, PointCloudMessage.TOPIC, ImuBatch.TOPIC]
+        # Events from the daemon's one stream of them (LoggedEvent: every event the file gets, each once),
+        # not from each driver and worker, whose own events miss the supervisor's (restarts, devices).
+        self.topics = [MapTile.TOPIC, PoseBatch.TOPIC, Health.TOPIC, LoggedEvent.TOPIC, PointCloudMessage.TOPIC,
+                       ImuBatch.TOPIC]
         self.endpoints = [config.map_endpoint, config.pose_endpoint, config.health_endpoint]
         self.tiles: dict[tuple[int, int], np.ndarray] = {}  # magnitude, float32
         self.pixel_m = self.tile_px = None

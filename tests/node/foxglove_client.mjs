@@ -3,8 +3,9 @@
 // each message from its channel's advertised schema (protobuf from the FileDescriptorSet the server sends,
 // or JSON) and prints one JSON line per message: {topic, schemaName, encoding, message}.
 //
-//   node foxglove_client.mjs URL SUBPROTOCOL SECONDS [TOPIC...]
-// Ends when every TOPIC named has had a message, or after SECONDS; exit 0 if connected, 3 if not.
+//   node foxglove_client.mjs URL SUBPROTOCOL SECONDS [TOPIC[=TEXT]...]
+// Ends when every TOPIC named has had a message (one whose JSON contains TEXT, where given), or after
+// SECONDS; exit 0 if connected, 3 if not.
 import wsProtocol from "@foxglove/ws-protocol";
 import protobuf from "protobufjs";
 import descriptor from "protobufjs/ext/descriptor/index.js";
@@ -12,7 +13,11 @@ import WebSocket from "ws";
 
 const { FoxgloveClient } = wsProtocol;
 
-const [url, subprotocol, seconds, ...wanted] = process.argv.slice(2);
+const [url, subprotocol, seconds, ...wantedArgs] = process.argv.slice(2);
+const wanted = wantedArgs.map((w) => {
+  const at = w.indexOf("=");
+  return at < 0 ? { topic: w, text: "" } : { topic: w.slice(0, at), text: w.slice(at + 1) };
+});
 const ws = new WebSocket(url, [subprotocol]);
 const client = new FoxgloveClient({ ws });
 const decoders = new Map(); // subscription id -> {channel, decode}
@@ -56,9 +61,12 @@ client.on("message", ({ subscriptionId, data }) => {
   if (!entry) return;
   const bytes = new Uint8Array(data.buffer, data.byteOffset, data.byteLength);
   const message = entry.decode(bytes);
-  console.log(JSON.stringify({ topic: entry.channel.topic, schemaName: entry.channel.schemaName,
-                               encoding: entry.channel.encoding, message }));
-  seen.add(entry.channel.topic);
-  if (wanted.length && wanted.every((t) => seen.has(t))) finish(0);
+  const line = JSON.stringify({ topic: entry.channel.topic, schemaName: entry.channel.schemaName,
+                                encoding: entry.channel.encoding, message });
+  console.log(line);
+  wanted.forEach((w, i) => {
+    if (w.topic === entry.channel.topic && line.includes(w.text)) seen.add(i);
+  });
+  if (wanted.length && seen.size === wanted.length) finish(0);
 });
 setTimeout(() => finish(opened ? 0 : 3), Number(seconds) * 1000);
