@@ -19,11 +19,11 @@ With several maps or trajectories, each topic gets the file's stem: ``/map/strip
 from __future__ import annotations
 
 import base64
-import json
 from pathlib import Path
 
 import numpy as np
 
+from imaging.core import strict_json
 from imaging.core.errors import SarbotError
 
 from . import POINT_FIELDS, detection_scans, grid_db
@@ -82,11 +82,11 @@ class _Out:
         if topic not in self.channels:
             if schema not in self.schemas:
                 body = {"title": schema, "type": "object", "properties": SCHEMAS[schema]}
-                self.schemas[schema] = self.writer.register_schema(schema, "jsonschema", json.dumps(body).encode())
+                self.schemas[schema] = self.writer.register_schema(schema, "jsonschema", strict_json.dumps(body).encode())
             self.channels[topic] = self.writer.register_channel(topic, "json", self.schemas[schema])
             self.counts[topic] = 0
         self.writer.add_message(self.channels[topic], log_time=int(t_ns), publish_time=int(t_ns),
-                                data=json.dumps(message, separators=(",", ":")).encode(), sequence=self.counts[topic])
+                                data=strict_json.dumps(message, separators=(",", ":")).encode(), sequence=self.counts[topic])
         self.counts[topic] += 1
 
 

@@ -12,7 +12,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import multiprocessing as mp
 import threading
@@ -22,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from imaging import metrics
+from imaging.core import strict_json
 from imaging.core.errors import SarbotError
 from imaging.io.image_file import read_image
 from imaging.io.recording import Recording
@@ -173,7 +173,7 @@ def run_demo(out_dir: Path, speed: float = 0.5, view: tuple[str, int] | None = N
     report = evaluate(scene, sim_path, rec_path, traj_path, map_path, health, config)
     report["elapsed_s"] = time.monotonic() - t_start
     report["replay_speed"] = speed
-    (out_dir / "report.json").write_text(json.dumps(report, indent=2, default=lambda o: np.asarray(o).tolist()))
+    (out_dir / "report.json").write_text(strict_json.dumps(report, indent=2))
     (out_dir / "report.md").write_text(markdown(report))
     print(markdown(report))
     print(f"sarbot demo: done in {report['elapsed_s']:.0f} s. Wrote to {out_dir.resolve()}/:")

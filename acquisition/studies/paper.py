@@ -31,6 +31,7 @@ import numpy as np
 
 from imaging import metrics
 from imaging.autofocus import AutofocusOptions
+from imaging.core import strict_json
 from imaging.core.geometry import Vibration, antenna_track, chirp_times_ns
 from imaging.core.grid import Grid
 from imaging.core.trajectory import SampledTrajectory, StraightLine
@@ -493,7 +494,7 @@ def run_paper(out_dir: Path, quick: bool = False) -> dict:
         report["autofocus"] = AutofocusStudy(p).run(report["failure"])
         bar(len(steps), len(steps))
     report["elapsed_s"] = time.monotonic() - t0
-    (out_dir / "report.json").write_text(json.dumps(report, indent=2, default=float))
+    (out_dir / "report.json").write_text(strict_json.dumps(report, indent=2))
     (out_dir / "report.md").write_text(markdown(report))
     return report
 

@@ -24,11 +24,12 @@ Loopback by default: the map and the robot's position are not for the whole netw
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import time
 
 import numpy as np
+
+from imaging.core import strict_json
 
 from ..exporters import grid_db
 from ..messages import Event, Health, ImuBatch, LoggedEvent, MapTile, PointCloudMessage, PoseBatch
@@ -140,7 +141,7 @@ class ViewWorker(Worker):
             self.imu = (int(message.time_ns[-1]), message.gyro_radps[-1], message.accel_mps2[-1])
         elif isinstance(message, Health):
             body = {**dataclasses.asdict(message), "summary": message.line()}
-            self.health_channel.log(json.dumps(body, default=_plain).encode())
+            self.health_channel.log(strict_json.dumps(body).encode())
             self.sent["health"] += 1
         elif isinstance(message, Event):
             from foxglove.messages import Log, LogLevel
@@ -157,7 +158,7 @@ class ViewWorker(Worker):
             self.last_pose_sent = now
         if self.imu is not None and now - self.last_imu_sent >= 1.0 / self.config.pose_rate_hz:
             t, g, a = self.imu
-            self.imu_channel.log(json.dumps({"time_ns": t, "gyro_radps": [float(v) for v in g],
+            self.imu_channel.log(strict_json.dumps({"time_ns": t, "gyro_radps": [float(v) for v in g],
                                              "accel_mps2": [float(v) for v in a]}).encode())
             self.imu, self.last_imu_sent = None, now
             self.sent["imu"] += 1
@@ -270,10 +271,3 @@ def block_max(image: np.ndarray, max_cells: int) -> tuple[np.ndarray, int]:
     padded[:image.shape[0], :image.shape[1]] = image
     return padded.reshape(ny // k, k, nx // k, k).max(axis=(1, 3)), k
 
-
-def _plain(obj):
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    return str(obj)

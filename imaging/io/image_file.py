@@ -10,6 +10,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from imaging.core import strict_json
 from imaging.core.errors import FileFormatError
 from imaging.io.schema import open_checked
 
@@ -52,7 +53,7 @@ def write_image(path: str | Path, img: SarImage) -> Path:
             g = f.create_group("autofocus")
             g.attrs["method"] = te.method
             g.attrs["time_origin_ns"] = np.int64(te.time_origin_ns)
-            g.attrs["model"] = json.dumps(te.model) if te.model is not None else ""
+            g.attrs["model"] = strict_json.dumps(te.model) if te.model is not None else ""
             g.create_dataset("time_ns", data=np.int64(te.time_origin_ns) + np.round(te.time_s * 1e9).astype(np.int64))
             g.create_dataset("track_error_m", data=te.displacement_m)
     return path
