@@ -305,7 +305,7 @@ def cmd_import_ti(args) -> int:
                             iq_swap=swap, radar_name=args.radar_name, velocity_mps=velocity, overwrite=args.overwrite,
                             progress=Progress("import"))
     print(f"wrote {out}: {got['frames']} frames, layout {got['layout']}{' (Q before I)' if got['iq_swap'] else ''}, "
-          f"{got['sample_format']} samples, sideband ratio {got['sideband_db']:+.1f} dB")
+          f"{got['sample_format']} {got['adc_output']} samples, {got['measure']} {got['score_db']:+.1f} dB")
     return EXIT_OK
 
 
