@@ -261,7 +261,7 @@ def test_a_radar_that_refuses_its_cfg_stops_the_run_with_exit_code_4(tmp_path):
         radar.close()
     assert run.returncode == 4
     error = run.stderr.strip().splitlines()[-1]
-    assert error.startswith("sarbot: error: radar CLI") and "iwr1843.cfg line 32): 'frameCfg 0 1 2 0 100 1 0' answered 'Error -1'" in error
+    assert error.startswith("sarbot: error: radar CLI") and "iwr1843_one_frame.cfg line 17): 'frameCfg 0 1 2 0 100 1 0' answered 'Error -1'" in error
     assert not board.transcript  # the board is never armed for a radar that is not configured
     (path,) = (tmp_path / "out").glob("recording_*.h5")
     with Recording(path) as rec:
