@@ -16,7 +16,7 @@ sample, I/Q) depends on the radar family and its ``adcbufCfg``:
 Samples are two's complement, or offset binary (0x8000 is zero) as some capture paths write them.
 
 A file says none of this, so :func:`rank_layouts` scores each reading by its sideband ratio: a complex
-FMCW beat signal read the right way has its targets at positive beat frequencies only (DESIGN.md's signal
+FMCW beat signal read the right way has its targets at positive beat frequencies only (docs/signal-model.md's signal
 model, and TI's complex-1x output: both reference captures in ``../shared/data`` put 12 and 22 dB more
 power above zero than below). A wrong layout or a swapped I/Q pairs samples that do not belong together,
 which spreads the power evenly over both sides or mirrors it.
