@@ -29,7 +29,7 @@ FLOOR_DB = -40.0
 
 PAGE = """<!doctype html>
 <html><body style="margin:0;background:#123;color:#ddd;font:14px sans-serif">
-<div style="padding:6px 10px">sarbot live view: <b>/map</b> (foxglove.Grid, dB) from ws://localhost:%(port)s</div>
+<div style="padding:6px 10px">live view: <b>/map</b>, foxglove.Grid in dB</div>
 <canvas id="map"></canvas>
 <script>
 // The minimal Foxglove WebSocket client of tests/test_view_browser.py: subscribe to /map, decode foxglove.Grid, draw its "db" field in grey,
@@ -158,15 +158,15 @@ def main(argv: list[str]) -> int:
     tiles = list(map_tiles(args.map))
     keys = np.array([k for k, *_ in tiles])
     n = tiles[0][2]
-    cols = (keys[:, 0].max() - keys[:, 0].min() + 1) * n
-    rows = (keys[:, 1].max() - keys[:, 1].min() + 1) * n
+    cols = int(keys[:, 0].max() - keys[:, 0].min() + 1) * n
+    rows = int(keys[:, 1].max() - keys[:, 1].min() + 1) * n
     scale = max(1, args.width // cols)
     port = free_port()
     worker = ViewWorker(ViewWorkerConfig("127.0.0.1", port, "tcp://unused:1", "tcp://unused:2", "tcp://unused:3"), None)
     worker.warm_up()
     with tempfile.TemporaryDirectory() as tmp:
         page = Path(tmp) / "view.html"
-        page.write_text(PAGE % {"floor": FLOOR_DB, "scale": scale, "port": 8765})
+        page.write_text(PAGE % {"floor": FLOOR_DB, "scale": scale})
         proc = subprocess.Popen([chromium, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
                                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
                                  "--hide-scrollbars", f"--window-size={cols * scale},{rows * scale + 40}",
@@ -188,7 +188,8 @@ def main(argv: list[str]) -> int:
                 worker.step()
                 tools.wait_for_title(lambda t: t.startswith("rendered"))
                 shot = tools.call("Page.captureScreenshot", format="png",
-                                  clip={"x": 0, "y": 0, "width": cols * scale, "height": rows * scale + 30, "scale": 1})
+                                  clip={"x": 0, "y": 0, "width": cols * scale, "height": rows * scale + 30, "scale": 1},
+                                  captureBeyondViewport=True)
         finally:
             worker.write_products()
             proc.kill()
