@@ -57,6 +57,19 @@ def test_results_generator_tabulates_scalars_and_rows(tmp_path):
     assert "Reproduce: `python3 dev.py bench" in page
 
 
+def test_results_commands_name_scripts_that_exist():
+    """The results page says how to reproduce each section: the benchmark scripts it names are there."""
+    sys.path.insert(0, str(DOCS))
+    try:
+        import gen_results
+    finally:
+        sys.path.remove(str(DOCS))
+    scripts = {s for _, _, command in gen_results.SECTIONS.values() for s in re.findall(r"benchmarks/\w+\.py", command)}
+    assert scripts
+    missing = sorted(s for s in scripts if not (ROOT / s).is_file())
+    assert not missing, f"docs/gen_results.py names scripts that are gone: {missing}"
+
+
 def test_the_pages_the_code_cites_exist():
     for page in PAGES:
         assert (DOCS / page).is_file(), page
