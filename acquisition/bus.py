@@ -1,4 +1,4 @@
-"""The message bus: ZeroMQ multipart ``[topic, msgpack header, raw array buffers...]`` (DESIGN.md).
+"""The message bus: ZeroMQ multipart ``[topic, msgpack header, raw array buffers...]`` (see docs/bus.md).
 
 Every header carries a per-topic sequence number, the sensor time and the host time, plus the dtype and
 shape of each array, so arrays travel without copies or pickling and every consumer can count what it

@@ -5,7 +5,7 @@ One UDP datagram per chunk, little-endian::
     magic "SRF1" | u8 version | u8 flags (bit0: PTP locked) | u16 radar_id | u32 frame_counter
     | u64 frame_time_ns | u32 frame_bytes | u32 offset | [u32 crc32c, version 2] | payload
 
-The payload is int16 I,Q interleaved, ordered [chirp][rx][sample]; ``offset`` is the chunk's byte offset
+The payload is int16 I,Q interleaved, ordered ``[chirp][rx][sample]``; ``offset`` is the chunk's byte offset
 within the frame. Version 2 adds a CRC32C (Castagnoli) over the 28 header bytes before it and the
 payload, so a flipped bit is caught; version 1 (no CRC) stays readable. The assembler puts chunks in place
 by offset, so reordering is harmless; bytes already received are never overwritten, and a chunk that

@@ -28,7 +28,8 @@ mode leaves empty (:data:`IMAGE_BAND`): 0.1 fs in complex 1x, 0.45 fs in complex
 near DC (the TX-RX coupling, the mount, the nearest clutter) then decide, wherever the far reflectors are.
 
 Real-only captures (adcOutputFmt 0) have no I/Q order: :func:`rank_real_layouts` scores their two sample
-orders by how concentrated the spectrum is (a scrambled order smears it), and :func:`real_to_analytic`
+orders by how peaky the spectrum is (a scrambled order smears it; the other order of real samples
+smears it less, so it needs a wider margin), and :func:`real_to_analytic`
 turns them into the complex beat signal sarbot images (the analytic signal: positive frequencies only).
 """
 

@@ -1,4 +1,4 @@
-"""The image file: HDF5 schema "sarbot.image" version 1 (DESIGN.md)."""
+"""The image file: HDF5 schema "sarbot.image" version 1 (see docs/formats/image.md)."""
 
 from __future__ import annotations
 

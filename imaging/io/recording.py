@@ -1,4 +1,4 @@
-"""The recording file: HDF5 schema "sarbot.recording" version 1 (DESIGN.md), writer and reader.
+"""The recording file: HDF5 schema "sarbot.recording" version 1 (see docs/formats/recording.md), writer and reader.
 
 Written by the recorder, the simulator and the bag importer; read by replay, RIO and imaging. The writer
 creates every group and dataset up front and then switches to SWMR, so a reader (or a crash) always sees
