@@ -49,6 +49,8 @@ def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pu
     changes = CounterChanges(counted())
     last_report = time.monotonic()
     kernel_drops = 0
+    if getattr(receiver, "rcvbuf_short", None):  # said once; health repeats it
+        pub.send(Event(time.time_ns(), f"radar.{radar}", "warning", receiver.rcvbuf_short, condition="receive_buffer"))
 
     def report(now_ns: int) -> None:
         if text := changes.since_last(counted()):

@@ -109,6 +109,7 @@ class Recorder:
         self.imu_drift_ppm: float | None = None
         self.latencies_ns: list[int] = []  # datagram (kernel time stamp) to recorder, per radar frame
         self.worker_states: dict[str, WorkerState] = {}
+        self.conditions: dict[str, str] = {}  # lasting trouble a driver said (Event.condition), by source
 
     @property
     def path(self) -> Path:
@@ -208,6 +209,8 @@ class Recorder:
     def _store_event(self, m: Event) -> None:
         self.wire_events += 1
         self.writer.append_event(m.time_ns, m.source, m.level, m.message)
+        if m.condition:
+            self.conditions[m.source] = m.message
 
     def _raise_if_disk_full(self, exc: OSError) -> None:
         if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG) or "No space" in str(exc) or "disk quota" in str(exc).lower():

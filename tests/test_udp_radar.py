@@ -251,3 +251,48 @@ def test_an_empty_socket_is_left_to_fill_so_a_burst_costs_few_wake_ups():
     got, slept = _wakeups_to_receive(coalesce_s=0.002)
     assert got == 2000
     assert slept < 2000 / 5, slept
+
+
+def test_a_receive_buffer_smaller_than_asked_is_said_once_in_the_log_events_and_every_health(tmp_path, caplog):
+    """The kernel caps SO_RCVBUF at net.core.rmem_max (even SO_RCVBUFFORCE at 1 GB): a socket granted less
+    than its driver asked overflowed in bursts while nothing said why. getsockopt's value (twice the grant on
+    Linux) is checked; the shortfall goes to the log, once to /events, and into every health report."""
+    import logging
+    import threading
+
+    import zmq
+
+    from acquisition.bus import BusPublisher
+    from acquisition.daemon import HealthMonitor
+    from acquisition.driver_loops import radar_driver_loop
+    from acquisition.recorder import Recorder
+    from drivers.radar.srf1 import Srf1Stream
+    from imaging.core.rig import rig_from_dict
+    from imaging.io.recording import Recording
+
+    asked = 2**31 - 1  # more than any kernel grants
+    with caplog.at_level(logging.WARNING, logger="sarbot.drivers.radar.udp"):
+        rx = UdpReceiver(rcvbuf_bytes=asked)
+    assert rx.rcvbuf_short is not None and "of 2147.5 MB asked" in rx.rcvbuf_short
+    assert [r.getMessage() for r in caplog.records] == [rx.rcvbuf_short]
+    assert UdpReceiver(rcvbuf_bytes=1 << 16).rcvbuf_short is None  # 64 kB is granted anywhere
+
+    rig = rig_from_dict({"radar": {"left": {"waveform": {"chirps_per_frame": 16, "sample_rate_hz": 200e3}}}})
+    ctx = zmq.Context()
+    pub = BusPublisher("tcp://127.0.0.1:0", context=ctx)
+    rec = Recorder(tmp_path / "r.h5", rig, pub.endpoint, context=ctx)
+    time.sleep(0.3)
+    stop = threading.Event()
+    driver = threading.Thread(target=radar_driver_loop, args=(rx, "left", Srf1Stream((16, 4, 64)), pub, stop))
+    driver.start()
+    monitor = HealthMonitor(rec, {})
+    deadline = time.monotonic() + 5
+    while not rec.conditions and time.monotonic() < deadline:
+        rec.step(timeout_ms=100)
+    lines = [monitor.sample(0).line() for _ in range(2)]
+    stop.set()
+    driver.join(5)
+    rec.close(), rx.close(), pub.close(), ctx.term()
+    assert all(f"radar.left: {rx.rcvbuf_short}" in line for line in lines)
+    with Recording(tmp_path / "r.h5") as r:
+        assert [e[3] for e in r.events()] == [rx.rcvbuf_short]
