@@ -105,6 +105,10 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
 
     With ``radar``, the IMU is the one on that radar's own mount: its batches go out as ``RadarImuBatch``,
     and it does not publish the trigger (its SyncIn marks the same trigger as the robot's IMU).
+
+    With no radar to take the trigger's time from (an IMU-only run), the samples are timed on the host clock
+    (``ImuDriver.use_host_clock``), the trigger so made is published as ``host_clock`` and an event says so:
+    held back for a trigger time that never comes, they were all lost.
     """
     import serial
 
@@ -116,6 +120,7 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
     sub = BusSubscriber(list(radar_endpoints), topics=[RadarFrameMessage.TOPIC]) \
         if radar_endpoints and trigger_time_ns is None else None
     trigger_sent = trigger_ticks is not None
+    host_clock = trigger_time_ns is None and trigger_ticks is None and not radar_endpoints
     driver = None
     waiting_since, said_missing = time.monotonic(), False
     parser_changes, last_report = CounterChanges(), time.monotonic()
@@ -146,6 +151,8 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
                     time.sleep(1.0)
                     continue
                 parser_changes = CounterChanges()  # a new parser counts from zero
+                if host_clock and not trigger_sent:
+                    driver.use_host_clock()
                 said_missing = True  # it existed: a later loss is said as such ("serial port lost")
             if sub is not None and trigger_time_ns is None:
                 msg = sub.receive(timeout_ms=0 if driver.serial.in_waiting else 20)
@@ -170,8 +177,13 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
                 if driver.trigger_estimated:
                     warn(f"no SyncIn mark {driver.syncin_grace_s:g} s after the trigger (its packet lost?): the trigger's "
                          "IMU tick is estimated from the receive times; IMU times are good to a few ms, not to a tick")
+                if driver.host_clock:
+                    warn("no radar to take the trigger's time from: IMU samples are timed on the host clock (the first "
+                         "sample's receive time, CLOCK_REALTIME + TAI-UTC), good to a few ms, not on PTP time")
                 if radar is None:
-                    pub.send(Trigger(clock.trigger_time_ns, "imu_receive_time" if driver.trigger_estimated else "imu_syncin"))
+                    source = "host_clock" if driver.host_clock else (
+                        "imu_receive_time" if driver.trigger_estimated else "imu_syncin")
+                    pub.send(Trigger(clock.trigger_time_ns, source))
                 trigger_sent = True
                 trigger_ticks = clock.trigger_ticks
                 if clock_reference is not None:

@@ -192,3 +192,49 @@ def test_the_driver_loop_says_when_the_trigger_is_estimated_and_sends_samples_in
     (trig,) = [m for m in got if isinstance(m, Trigger)]
     assert trig.source == "imu_receive_time" and trig.time_ns == T_TRIGGER
     assert any(isinstance(m, Event) and "no SyncIn mark" in m.message for m in got)
+
+
+def _record_imu_only(tmp_path, emu, duration_s, on_health=None, start_after_s=2.0):
+    """`record` (the daemon, its IMU driver a real child process) with the robot's IMU and no radar; the
+    emulator starts ``start_after_s`` into the run."""
+    import threading
+
+    from acquisition.daemon import Setup, record
+    from imaging.core.rig import default_rig
+
+    setup = Setup(default_rig(), [], imu_port=emu.port, health_interval_s=0.5, flush_interval_s=0.2)
+    threading.Timer(start_after_s, emu.start).start()
+    reports = []
+
+    def health(report):
+        reports.append(report)
+        if on_health is not None:
+            on_health(report)
+
+    (path,) = record(setup, tmp_path, duration_s=duration_s, path=tmp_path / "imu_only.h5", on_health=health)
+    emu.close()
+    return path, reports
+
+
+def test_an_imu_only_recording_records_the_imu_on_the_host_clock_and_says_so(tmp_path):
+    """No radar, so no first chirp to take the trigger's time from: the samples were held back for a time
+    that never came (2,401 packets sent, none recorded, no event, exit 0). Now they are timed on the host
+    clock (+ TAI-UTC, the PTP scale) by their ticks, the trigger says host_clock and an event says so."""
+    from imaging.core.constants import TAI_MINUS_UTC_NS
+    from imaging.io.recording import Recording
+
+    n = 1200  # 3 s at 400 Hz
+    emu = XbusPty(np.zeros((n, 3)), np.tile([0.0, 0.0, 9.81], (n, 1)), rate_hz=400.0, speed=1.0, stall_timeout_s=20.0)
+    path, _ = _record_imu_only(tmp_path, emu, duration_s=7.0)
+    with Recording(path) as rec:
+        imu = rec.imu()
+        assert imu is not None
+        counters, times = imu["counter"], imu["time_ns"]
+        assert counters.size == n and counters.tolist() == list(range(n))  # all of it, nothing held back
+        np.testing.assert_array_equal(np.diff(times), 2_500_000)  # timed by the IMU's ticks
+        # On the PTP scale by the host clock: within the serial and scheduling latency of the receive times.
+        late_ms = (imu["host_time_ns"] + TAI_MINUS_UTC_NS - times) * 1e-6
+        assert np.all(late_ms > -20) and np.median(late_ms) < 50, late_ms[:5]
+        assert rec.trigger_sources() == ["host_clock"] and rec.triggers().tolist() == [times[0]]
+        assert any(e[1] == "imu" and "timed on the host clock" in e[3] for e in rec.events())
+
