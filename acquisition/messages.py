@@ -352,6 +352,7 @@ class Health(HeaderMessage):
     workers: dict[str, WorkerState] = dataclasses.field(default_factory=dict)
     sensors_idle_s: float = 0.0  # since the last radar frame, IMU sample or CAN frame
     conditions: dict[str, str] = dataclasses.field(default_factory=dict)  # lasting ones, by source: what is wrong
+    imu_samples_lost: int = 0  # across IMU driver restarts, so far
     time_ns: int = 0
 
     @property
@@ -381,6 +382,8 @@ class Health(HeaderMessage):
             parts.append(f"latency p50 {self.latency_ms.p50:.1f} ms, p99 {self.latency_ms.p99:.1f} ms")
         parts.append(f"invalid frames {sum(self.invalid_frames.values())}, wire events {self.wire_events}, "
                      f"bus lost {self.bus_lost}, restarts {self.restarts}")
+        if self.imu_samples_lost:
+            parts.append(f"IMU samples lost {self.imu_samples_lost}")
         parts += [f"{source}: {text}" for source, text in self.conditions.items()]
         cold = [role for role, w in self.workers.items() if not w.warm]
         if self.workers:
