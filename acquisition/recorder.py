@@ -23,7 +23,7 @@ from drivers.radar import registry
 from imaging.core.rig import Rig
 from imaging.io.recording import RecordingWriter
 
-from .bus import BusSubscriber
+from .bus import RECORDER_LISTENING, BusSubscriber
 from .messages import (
     CanBatch,
     Event,
@@ -93,8 +93,12 @@ class Recorder:
         self._handlers = {RadarFrameMessage: self._store_frame, ImuBatch: self._store_imu, CanBatch: self._store_can,
                           Trigger: self._store_trigger, Event: self._store_event, WorkerState: self._note_worker,
                           RadarImuBatch: self._store_radar_imu}
-        self.sub = BusSubscriber(endpoints, topics=[cls.TOPIC for cls in self._handlers], context=context,
-                                 high_water_marks=dict.fromkeys(frame_endpoints, RECORDER_FRAME_QUEUE))
+        # RECORDER_LISTENING last: a driver that sees it knows the subscriptions before it have arrived too.
+        # The drivers wait for it, so their sensor data is counted from its first message (none goes unseen).
+        self.sub = BusSubscriber(endpoints, topics=[*(cls.TOPIC for cls in self._handlers), RECORDER_LISTENING],
+                                 context=context, high_water_marks=dict.fromkeys(frame_endpoints, RECORDER_FRAME_QUEUE),
+                                 counted_from_start=(RadarFrameMessage.TOPIC, ImuBatch.TOPIC, RadarImuBatch.TOPIC,
+                                                     CanBatch.TOPIC, Trigger.TOPIC))
         self.flush_interval_s = flush_interval_s
         self._last_flush = time.monotonic()
         self._reported_missed: dict[str, int] = {}
