@@ -120,6 +120,8 @@ class HealthMonitor:
             clock=ClockState(dict(rec.ptp_locked), bool(rec.triggers_seen), rec.imu_drift_ppm),
             workers={role: rec.worker_states.get(role) or WorkerState(role, False, 0.0, {}) for role in self.worker_roles},
             sensors_idle_s=sensors_idle_s,
+            conditions=dict(rec.conditions),
+            imu_samples_lost=rec.imu_samples_lost,
             time_ns=time.time_ns(),
         )
         self._last = (now, dict(rec.frames), rec.imu_samples)
