@@ -54,11 +54,11 @@ def register(sub) -> None:
     s.add_argument("capture", nargs="+", help="capture file(s), in order (mmWave Studio splits long captures)")
     s.add_argument("--cfg", required=True, help="the TI .cfg the radar ran (waveform, chirps, RX, frame period)")
     s.add_argument("-o", "--output", required=True)
-    s.add_argument("--layout", default="auto", choices=opt.choices_from("drivers.radar.ti_capture", "LAYOUTS", ("auto",)),
+    s.add_argument("--layout", default="auto", choices=opt.ChoicesFrom("drivers.radar.ti_capture", "LAYOUTS", ("auto",)),
                    help="lvds2: xWR16xx/18xx/68xx; lvds4: xWR12xx/14xx; interleaved: channel-interleaved I/Q pairs "
                         "(default auto: the reading whose beat signal is one-sided)")
     s.add_argument("--sample-format", default="auto",
-                   choices=opt.choices_from("drivers.radar.ti_capture", "SAMPLE_FORMATS", ("auto",)),
+                   choices=opt.ChoicesFrom("drivers.radar.ti_capture", "SAMPLE_FORMATS", ("auto",)),
                    help="two's complement or offset binary (default auto)")
     s.add_argument("--iq-swap", default="auto", choices=list(IQ_SWAP),
                    help="Q before I (default: as found, or as the .cfg's adcbufCfg says when --layout is given)")

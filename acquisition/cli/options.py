@@ -3,7 +3,7 @@
 An option group (``imaging_options``, ``acquisition_options``, ``can_options``, ``view_option``,
 ``overwrite_option``) adds its arguments to a command's sub-parser. A value parser turns what the user
 typed into plain values, or raises SarbotError naming the option and the value (exit 2, one line).
-Choice lists come from the module that owns them (``choices_from``), never written out here.
+Choice lists come from the module that owns them (``ChoicesFrom``), never written out here.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from imaging.core.errors import SarbotError
 
 
 # -- choices ----------------------------------------------------------------------------------------------
-class choices_from:  # noqa: N801 - reads as the phrase it stands for: choices=choices_from(...)
+class ChoicesFrom:
     """An option's choices, read from ``module.attribute`` when argparse first needs them: to check a value
     or to print help. Not at import: registries (autofocus methods) may grow at run time, and the owning
     modules may be slow to import (numba), which a command that does not image should not pay for.
@@ -45,28 +45,28 @@ class choices_from:  # noqa: N801 - reads as the phrase it stands for: choices=c
 
 class _ChoicesReadLateFormatter(argparse.HelpFormatter):
     """argparse's help formatter, except that ``add_argument``'s check of an option's metavar (the one call
-    without a default metavar) does not read ``choices_from`` choices: their module is imported when help
+    without a default metavar) does not read ``ChoicesFrom`` choices: their module is imported when help
     is printed or a value is checked, not for every command."""
 
     def _metavar_formatter(self, action, default_metavar):
-        if default_metavar is None and action.metavar is None and isinstance(action.choices, choices_from):
+        if default_metavar is None and action.metavar is None and isinstance(action.choices, ChoicesFrom):
             return lambda size: ("CHOICE",) * size if isinstance(size, int) else ("CHOICE",)
         return super()._metavar_formatter(action, default_metavar)
 
 
 class ArgumentParser(argparse.ArgumentParser):
-    """sarbot's parser and sub-parsers: with choices read late (``choices_from``)."""
+    """sarbot's parser and sub-parsers: with choices read late (``ChoicesFrom``)."""
 
     def __init__(self, *args, **kwargs):
         kwargs.setdefault("formatter_class", _ChoicesReadLateFormatter)
         super().__init__(*args, **kwargs)
 
 
-AUTOFOCUS_METHODS = choices_from("imaging.autofocus", "METHODS")
-WINDOWS = choices_from("imaging.core.windows", "WINDOWS")
-BACKPROJECTION_MODES = choices_from("imaging.backprojection", "MODES")
-IMAGE_ALGORITHMS = choices_from("imaging.image_formation", "ALGORITHMS")
-MAP_ALGORITHMS = choices_from("imaging.stripmap", "ALGORITHMS")
+AUTOFOCUS_METHODS = ChoicesFrom("imaging.autofocus", "METHODS")
+WINDOWS = ChoicesFrom("imaging.core.windows", "WINDOWS")
+BACKPROJECTION_MODES = ChoicesFrom("imaging.backprojection", "MODES")
+IMAGE_ALGORITHMS = ChoicesFrom("imaging.image_formation", "ALGORITHMS")
+MAP_ALGORITHMS = ChoicesFrom("imaging.stripmap", "ALGORITHMS")
 
 
 # -- option groups ----------------------------------------------------------------------------------------

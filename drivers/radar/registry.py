@@ -91,7 +91,7 @@ class WireFormat:
     configure: Callable[[dict, str], Any] = no_settings
     waveform: Callable[[Any], "Waveform | None"] = no_waveform
     options: tuple[str, ...] = ()
-    control_options: dict[str, Callable[[str], dict]] = dataclasses.field(default_factory=dict)
+    control_options: dict[str, Callable[[str], dict]] = dataclasses.field(default_factory=dict, hash=False)
     controls: Callable[[Any, dict], list] = no_controls
 
 
