@@ -190,7 +190,7 @@ def toy_controls(link, settings: dict) -> list:
     return [ToyControl(link.name, link.port, settings["device"])]
 
 
-def test_a_wire_format_brings_its_own_devices_up(tmp_path):
+def test_a_wire_format_brings_its_own_devices_up(tmp_path, monkeypatch):
     """``--radar-cli`` on a radar of a format registered here: the format reads the option and says what to drive;
     on a format without device control it is a clear error naming the formats that take it."""
     from acquisition.cli import build_parser
@@ -198,8 +198,9 @@ def test_a_wire_format_brings_its_own_devices_up(tmp_path):
     from drivers.radar import registry
     from imaging.core.errors import SarbotError
 
-    registry.register(registry.WireFormat("TOY2", "a test's format with a device", toy_open_stream, toy_open_encoder,
-                                          control_options={"--radar-cli": toy_cli_option}, controls=toy_controls))
+    toy = registry.WireFormat("TOY2", "a test's format with a device", toy_open_stream, toy_open_encoder,
+                              control_options={"--radar-cli": toy_cli_option}, controls=toy_controls)
+    monkeypatch.setitem(registry._registered, "TOY2", toy)  # registered for this test only
     rig = tmp_path / "rig.toml"
     rig.write_text("[radar.toy]\n[radar.plain]\n")
 
