@@ -757,6 +757,7 @@ def _version() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from imaging.autofocus import METHODS  # autofocus methods registered by now are offered
     p = argparse.ArgumentParser(prog="sarbot", description="SAR imaging and radar-inertial odometry for mobile robots.")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     p.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only (no progress, no info lines)")
@@ -794,7 +795,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--tx", help="TX channels, e.g. 0,2 (default all)")
     s.add_argument("--rx", help="RX channels, e.g. 0 (default all)")
     s.add_argument("--png", help="where to write the PNG (default: beside the image)")
-    s.add_argument("--autofocus", default="none", choices=["none", "pga", "entropy"],
+    s.add_argument("--autofocus", default="none", choices=list(METHODS),
                    help="estimate the radar's track error along its boresight (vibration, odometry drift) from the "
                         "image and form it again: pga (phase gradient) or entropy (minimum entropy over a bend plus "
                         "sinusoids; the default choice for vibration). The estimate goes into the file; analyze reports it")
@@ -827,7 +828,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--aperture-window", default="rectangular", choices=["rectangular", "hann", "hamming", "taylor"],
                    help="as for image (default rectangular)")
     s.add_argument("--algorithm", default="direct", choices=["direct", "ffbp"], help="as for image (default direct)")
-    s.add_argument("--autofocus", default="none", choices=["none", "pga", "entropy"], help="as for image (default none)")
+    s.add_argument("--autofocus", default="none", choices=list(METHODS), help="as for image (default none)")
     s.add_argument("--aperture", type=float, metavar="METRES", help="as for image: only the central METRES of each track")
     s.add_argument("--png", action="store_true", help="a PNG beside every image")
     s.add_argument("--scheduler", metavar="ADDRESS", help="a running dask.distributed scheduler (tcp://host:8786); its "
@@ -901,7 +902,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--map-pixel", type=float, default=0.01, help="map pixel size, metres (default 0.01)")
     s.add_argument("--map-range", type=_range_pair, default=(1.0, 4.0), help="MIN:MAX look distance imaged, metres (default 1:4)")
     s.add_argument("--map-height", type=float, default=0.3, help="height of the map plane in the world frame, metres (default 0.3)")
-    s.add_argument("--map-refocus", default="none", choices=["none", "pga", "entropy"],
+    s.add_argument("--map-refocus", default="none", choices=list(METHODS),
                    help="refocus each map tile on its strongest scatterers once the robot has passed it (autofocus "
                         "of the radar's track error over the tile's frames; default none)")
     s.add_argument("--map-imu-aided", action="store_true",

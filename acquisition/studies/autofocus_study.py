@@ -23,7 +23,8 @@ import math
 import numpy as np
 
 from imaging import metrics
-from imaging.autofocus import AutofocusOptions, TrackError, fit_vibration, image_entropy, remove_line
+from imaging.autofocus import AutofocusOptions, fit_vibration, image_entropy
+from imaging.core.track_error import TrackError, remove_line
 from imaging.core.geometry import Vibration
 from imaging.core.grid import Grid
 from imaging.core.trajectory import SampledTrajectory, StraightLine
