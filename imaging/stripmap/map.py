@@ -8,11 +8,10 @@ import math
 import numpy as np
 
 from imaging.backprojection import backproject
-from imaging.core.geometry import antenna_track
 from imaging.core.rig import RadarConfig
 from imaging.core.trajectory import Trajectory
 from imaging.io.image_file import SarImage
-from imaging.range_compression import range_compress
+from imaging.profiles import chirp_profiles
 from imaging.stripmap.config import StripMapConfig
 from imaging.stripmap.footprint import (FrameFootprint, footprint_mask, footprint_outline, footprint_tiles,
                                         merged_footprints)
@@ -64,7 +63,8 @@ class StripMap:
     def frames_profiles(self, radar: RadarConfig, tx_order: np.ndarray, adcs, frame_times_ns, trajectory: Trajectory,
                         presum: int | None = None, weight: float = 1.0, sum_rx: bool = False):
         """As :meth:`frame_profiles`, for several frames of one radar at once (their profiles one after the
-        other): one antenna placement and one range compression for all of them. ``weight`` scales the
+        other): one antenna placement and one range compression for all of them (``imaging.profiles.chirp_profiles``,
+        as a one-shot image forms its profiles). ``weight`` scales the
         profiles, ``sum_rx`` sums each TX's RX channels into one (see :meth:`add_frames`)."""
         cfg = self.config
         presum = presum or cfg.presum
@@ -83,20 +83,14 @@ class StripMap:
             samples = samples.sum(axis=1, keepdims=True)
         if weight != 1.0:
             samples *= np.float32(weight)  # the sums are this call's own arrays; compression is linear
-        chirp_times, tx_index = np.concatenate(chirp_times), np.concatenate(tx_index)
-        track = antenna_track(radar, trajectory, chirp_times, tx_index)
-        n_rx = 1 if sum_rx else wf.n_rx
         # an RX sum is placed at its channels' centroid: for a symmetric row of them the sum's phase is the
         # centroid's, and its amplitude their array factor (-0.3 dB 4.3 degrees off boresight for 4 at lambda/2)
-        rx_track = track.rx_m.mean(axis=1, keepdims=True) if sum_rx else track.rx_m
-        profiles = range_compress(samples.reshape(-1, wf.samples_per_chirp), wf.f0_hz, wf.frequency_step_hz,
-                                  window=cfg.window, oversample=cfg.oversample, keep_samples=cfg.mode == "exact",
-                                  guarded=True)
-        tx_m = np.repeat(track.tx_m, n_rx, axis=0)
-        rx_m = rx_track.reshape(-1, 3)
-        look = np.repeat(track.boresight[:, :2], n_rx, axis=0)
+        formed = chirp_profiles(samples, np.concatenate(chirp_times), np.concatenate(tx_index), radar, trajectory,
+                                window=cfg.window, oversample=cfg.oversample, keep_samples=cfg.mode == "exact",
+                                rx_centroid=sum_rx)
+        look = np.repeat(formed.track.boresight[:, :2], samples.shape[1], axis=0)
         look /= np.linalg.norm(look, axis=1, keepdims=True)
-        return profiles, tx_m, rx_m, look, np.repeat(chirp_times, n_rx)
+        return formed.profiles, formed.tx_m, formed.rx_m, look, formed.time_ns
 
     def footprint_tiles(self, centre: np.ndarray, look: np.ndarray) -> list[tuple[int, int]]:
         """Tiles a frame can reach (``imaging.stripmap.footprint.footprint_tiles``)."""
