@@ -45,8 +45,9 @@ pixels, a point target tens of dB.
 Modules, one idea each: ``subapertures`` (the group images and their entropy), ``pga``, ``track_model``
 (the minimum-entropy model), ``registry`` (the methods by name: ``METHODS``, ``register_method``),
 ``estimate`` (``estimate_track_error`` and what every method shares), ``vibration`` (``fit_vibration``),
-``options``; the track error itself is ``imaging.core.track_error``. Every public name is importable
-from ``imaging.autofocus``. See docs/signal-model.md.
+``options``; the track error itself is ``imaging.core.track_error``. Another method is one estimator
+function and one ``register_method`` line (see ``registry``); it is then a choice wherever a method is
+chosen. Every public name is importable from ``imaging.autofocus``. See docs/signal-model.md.
 """
 
 from imaging.autofocus.estimate import (

@@ -112,7 +112,8 @@ def estimate_on_group_images(g: GroupImages, options: AutofocusOptions) -> Autof
     delta, model, it = METHODS[options.method](g, options)
     delta = np.asarray(delta, float)
     if delta.shape != g.time_s.shape:
-        raise ValueError(f"autofocus method {options.method!r} gave {delta.shape} displacements for {g.time_s.size} groups")
+        raise ValueError(f"autofocus method {options.method!r} gave {delta.shape} displacements for "
+                         f"{g.time_s.size} groups")
     e1, _ = entropy_and_gradient(g, g.phase(delta))
     applied = e1 < e0
     note = "" if applied else "the estimate did not sharpen the image; left unapplied"
