@@ -503,8 +503,7 @@ def test_an_entropy_model_that_dims_the_target_is_not_kept(sim_dir, monkeypatch)
     pixels (its peak 2.2 dB down, moved 2 cm, no -3 dB crossing left in the cut). It is refused for PGA's
     estimate, and the width is the taper's theory; with the guard off the failure comes back."""
     import imaging.autofocus.track_model as autofocus_module
-    from acquisition.studies.autofocus_study import ENTROPY
-    from acquisition.studies.paper import image_at, target_xy, widths
+    from acquisition.studies.common import ENTROPY, image_at, target_xy, widths
     from imaging.sim.scene import load_scene
     from imaging.sim.targets import Rod
 
