@@ -6,6 +6,11 @@ in a batch is the image the single command makes, bit for bit. :func:`plan_jobs`
 frame tiles x option sweeps into jobs; :func:`run_batch` runs them on a ``dask.distributed`` cluster (a
 local one of worker processes by default, or a scheduler's address) and gathers one summary per job.
 
+An autofocus method registered in the client's process only (``imaging.autofocus.register_method``: a
+plug-in, a test's own) is unknown to the workers, which import sarbot afresh: :func:`run_batch` resolves the
+methods the jobs name in the client and ships each job its estimator function (cloudpickle takes a function
+that is not importable by value), and :func:`run_job` registers it in the worker before forming the image.
+
 Each worker gives the backprojection kernel its share of the machine's cores (``threads``), so that two
 workers on two cores do not run four threads. Files must be readable and writable at the same paths on
 every worker (a shared file system for a real cluster).
@@ -53,14 +58,20 @@ class ImageJob:
         return Path(self.output).stem
 
 
-def run_job(job: ImageJob) -> dict:
+def run_job(job: ImageJob, autofocus_estimator=None) -> dict:
     """Form and write one image; returns a summary (output, peak, seconds, error). Never raises for a bad
-    input: the error goes into the summary, so one broken recording does not stop a batch."""
+    input: the error goes into the summary, so one broken recording does not stop a batch.
+
+    ``autofocus_estimator``: the function of the job's autofocus method, registered under its name here
+    first (a worker process does not know a method registered only in the client's; ``run_batch``)."""
     started = time.perf_counter()
     try:
         import numba
 
-        from imaging.autofocus import AutofocusOptions
+        from imaging.autofocus import AutofocusOptions, register_method
+
+        if autofocus_estimator is not None:
+            register_method(job.autofocus, autofocus_estimator, replace=True)
         from imaging.image_formation import ImagingOptions, image_recording, image_title
         from imaging.io.image_file import write_image
         from imaging.io.recording import Recording
@@ -168,7 +179,10 @@ def run_batch(jobs: list[ImageJob], scheduler: str | None = None, n_workers: int
         except OSError as exc:
             raise SarbotError(f"--scheduler {scheduler}: cannot reach it ({exc})") from None
     try:
-        futures = {client.submit(run_job, job, pure=False): i for i, job in enumerate(jobs)}
+        from imaging.autofocus import METHODS
+
+        # Each job carries its method's function: the workers know only the methods sarbot registers itself.
+        futures = {client.submit(run_job, job, METHODS.get(job.autofocus), pure=False): i for i, job in enumerate(jobs)}
         results: list[dict | None] = [None] * len(jobs)
         for done, future in enumerate(as_completed(futures), 1):
             results[futures[future]] = future.result()

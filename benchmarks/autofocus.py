@@ -32,7 +32,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 from imaging import metrics  # noqa: E402
-from imaging.autofocus import AutofocusOptions, ProfileBlock, TrackError, backproject_blocks, estimate_track_error  # noqa: E402
+from imaging.autofocus import AutofocusOptions, ProfileBlock, backproject_blocks, estimate_track_error  # noqa: E402
+from imaging.core.track_error import TrackError  # noqa: E402
 from imaging.core.geometry import Vibration  # noqa: E402
 from imaging.core.grid import Grid  # noqa: E402
 from imaging.image_formation import ImagingOptions, focus_image, form_image  # noqa: E402

@@ -260,7 +260,7 @@ def torchbp_comparison(prof, tx, rx, grid, wf, sub, exact_sub, sarbot_bps: float
     try:
         z = float(grid[0, 0, 2])
         pos = torch.from_numpy(((tx + rx) / 2 - [0.0, 0.0, z]).astype(np.float32))
-        # torchbp multiplies by exp(+j 4 pi fc d / c) where sarbot (DESIGN.md) multiplies by exp(-j 2 pi fc r / c):
+        # torchbp multiplies by exp(+j 4 pi fc d / c) where sarbot (docs/signal-model.md) multiplies by exp(-j 2 pi fc r / c):
         # its data carry the conjugate phase, so it is given the conjugate profiles (its image is then the
         # conjugate of sarbot's, with the same magnitude).
         data = torch.from_numpy(np.conj(prof.data))

@@ -5,7 +5,7 @@ backprojection of the same data, for the settings that trade one for the other.
 
 Data: the demo scene (four reference radars, 0.4 m/s past a rod, a reflector and clutter), simulated once.
 Speed: every setting images the same frames of all four radars, interleaved as they arrive live, on this
-machine's two cores (the worker alone; the daemon's other processes are measured by acquisition.py).
+machine's two cores (the worker alone; the daemon's other processes are measured by daemon_recording.py).
 The sensor rate is 4 x 19.2 = 77 frames/s. The live worker runs its kernel on one thread
 (``StripMapWorkerConfig.threads``): the CPU time per frame of the default setting on one and on two
 threads says what a second thread costs a machine the map shares with the drivers. Error: the left-front radar's map over the rod and reflector

@@ -30,7 +30,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from acquisition.studies.paper import label_of, target_xy  # noqa: E402
+from acquisition.studies.common import label_of, target_xy  # noqa: E402
 from imaging import metrics  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
 from imaging.sim.scene import load_scene  # noqa: E402

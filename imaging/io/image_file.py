@@ -12,6 +12,7 @@ import numpy as np
 
 from imaging.core import strict_json
 from imaging.core.errors import FileFormatError
+from imaging.core.track_error import TrackError
 from imaging.io.schema import open_checked, read
 
 SCHEMA = "sarbot.image"
@@ -27,8 +28,8 @@ class SarImage:
     y_m: np.ndarray
     z_m: np.ndarray | None = None
     attrs: dict[str, Any] = dataclasses.field(default_factory=dict)
-    #: imaging.autofocus.TrackError where the image was autofocused (the file's /autofocus group)
-    track_error: Any = None
+    #: the track error where the image was autofocused (the file's /autofocus group)
+    track_error: TrackError | None = None
 
     @property
     def wavelength_m(self) -> float:
@@ -75,8 +76,6 @@ def read_image(path: str | Path) -> SarImage:
         attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
         track_error = None
         if "autofocus" in f:
-            from imaging.autofocus import TrackError
-
             g = f["autofocus"]
             try:
                 origin = int(g.attrs["time_origin_ns"])

@@ -1,7 +1,7 @@
 """Radar-inertial odometry: accuracy on long simulated drives (evaluated with evo) and speed against the
 knobs that trade it (RANSAC iterations, radars used, IMU rate).
 
-    python benchmarks/rio.py [--quick]
+    python benchmarks/odometry.py [--quick]
 
 Writes docs/results/rio.json and docs/results/rio.png.
 """
