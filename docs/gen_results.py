@@ -60,14 +60,14 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
     "rio": ("Radar-inertial odometry",
             "Accuracy on long simulated drives (evaluated with evo), the filter's settings against speed, and a "
             "real ROS bag.",
-            ".venv/bin/python benchmarks/rio.py"),
+            ".venv/bin/python benchmarks/odometry.py"),
     "pointcloud": ("Point clouds from raw frames",
                    "What each live odometry scan costs before the filter sees it, stage by stage.",
                    ".venv/bin/python benchmarks/pointcloud.py"),
     "acquisition": ("Acquisition throughput",
                     "The rate four radars can stream with zero loss through the drivers, the bus and the HDF5 "
                     "recorder, as a multiple of real time.",
-                    ".venv/bin/python benchmarks/acquisition.py"),
+                    ".venv/bin/python benchmarks/daemon_recording.py"),
     "batch": ("`sarbot batch` on Dask",
               "A Dask LocalCluster against the same images made one after another in one process.",
               ".venv/bin/python benchmarks/batch.py"),
