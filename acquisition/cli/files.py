@@ -3,9 +3,9 @@ into recordings and back (see docs/formats/recording.md and docs/export.md)."""
 
 from __future__ import annotations
 
-import json
 import sys
 
+from imaging.core import strict_json
 from imaging.core.errors import SarbotError
 
 from . import options as opt
@@ -76,7 +76,7 @@ def cmd_info(args) -> int:
         raise SarbotError("--tum: give one file (a recording's /truth or a trajectory)")
     reports = [info(path) for path in args.files]
     if args.json:
-        print(json.dumps(reports if len(reports) > 1 else reports[0], indent=2, default=opt.json_default))
+        print(strict_json.dumps(reports if len(reports) > 1 else reports[0], indent=2))
     else:
         print("\n".join(format_info(r) for r in reports))
     if args.tum:

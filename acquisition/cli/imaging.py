@@ -3,13 +3,13 @@ and what they measure (see docs/formats/image.md)."""
 
 from __future__ import annotations
 
-import json
 import logging
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from imaging.core import strict_json
 from imaging.core.errors import SarbotError
 
 from . import options as opt
@@ -172,7 +172,7 @@ def cmd_batch(args) -> int:
     log.info("%d image(s) on %s", len(jobs), where)
     results = run_batch(jobs, args.scheduler, args.workers, progress=Progress("batch", unit="image"))
     summary = out_dir / "batch.json"
-    summary.write_text(json.dumps({"cluster": where, "jobs": results}, indent=2))
+    summary.write_text(strict_json.dumps({"cluster": where, "jobs": results}, indent=2))
     failed = [r for r in results if r["error"]]
     for r in results:
         if not r["error"]:
@@ -213,8 +213,8 @@ def cmd_analyze(args) -> int:
     elif len(set(counts)) >= 2:
         alpha, g0 = metrics.fit_integration_gain(counts, [r["snr_db"] for r in results])
         output["integration_gain"] = {"alpha": alpha, "snr_db_at_one_frame": g0, "n_frames": counts}
-    print(json.dumps(output if len(results) > 1 else {**results[0], **{k: v for k, v in output.items() if k != "images"}},
-                     indent=2, default=opt.json_default))
+    print(strict_json.dumps(output if len(results) > 1 else {**results[0], **{k: v for k, v in output.items() if k != "images"}},
+                     indent=2))
     return EXIT_OK
 
 

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import json
 import sys
 
+from imaging.core import strict_json
 from imaging.core.errors import SarbotError
 
 from . import options as opt
@@ -73,5 +73,5 @@ def cmd_rio(args) -> int:
         from rio.evaluation import drift_report
 
         summary["against_truth"] = drift_report(result.trajectory, truth)
-    print(json.dumps(summary, indent=2, default=opt.json_default))
+    print(strict_json.dumps(summary, indent=2))
     return EXIT_OK

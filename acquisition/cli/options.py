@@ -301,15 +301,6 @@ def view_address(text: str | None) -> tuple[str, int] | None:
     return parse_view_address(text)
 
 
-def json_default(obj):
-    """``json.dumps``'s ``default`` for what commands print: numpy arrays and scalars as lists and numbers."""
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, (np.floating, np.integer)):
-        return obj.item()
-    raise TypeError(type(obj))
-
-
 #: Options whose values often start with a minus sign (negative coordinates), which argparse would
 #: otherwise take for an option: ``--grid -1:1:0.01,...`` is joined to ``--grid=-1:1:0.01,...``.
 NEGATIVE_VALUE_OPTIONS = ("--grid", "--at")
