@@ -1,18 +1,54 @@
 """`sarbot export`: a recording as MCAP, read back with the mcap reader, message for message."""
 
 import base64
+import dataclasses
+import importlib
 import json
 import subprocess
 import sys
 
 import h5py
 import numpy as np
+import pytest
 from mcap.reader import make_reader
 from test_round_trip import make_source
 
 from imaging.io.recording import Recording
 
 CLI = [sys.executable, "-m", "acquisition.cli"]
+
+
+def decode(schema, message) -> dict:
+    """A message as a dict, decoded by the official definition of its schema: Foxglove's protobuf schemas
+    from ``foxglove-schemas-protobuf`` (re-encoding it must give the same bytes: nothing unknown, nothing
+    lost), sarbot's JSON messages by the JSON schema the file carries (``jsonschema``), strictly parsed."""
+    from google.protobuf.json_format import MessageToDict
+
+    if schema.encoding == "protobuf":
+        assert schema.name.startswith("foxglove.")
+        name = schema.name.removeprefix("foxglove.")
+        msg = getattr(importlib.import_module(f"foxglove_schemas_protobuf.{name}_pb2"), name)()
+        msg.ParseFromString(message.data)
+        assert msg.SerializeToString() == message.data
+        return MessageToDict(msg, preserving_proto_field_name=True, use_integers_for_enums=True,
+                             always_print_fields_with_no_presence=True)
+    import jsonschema
+
+    assert schema.encoding == "jsonschema"
+    body = json.loads(message.data, parse_constant=lambda c: pytest.fail(f"not JSON: {c}"))
+    jsonschema.validate(body, json.loads(schema.data))
+    return body
+
+
+def stamp_ns(timestamp) -> int:
+    """A decoded foxglove timestamp (RFC 3339 text from protobuf's JSON form) or sarbot's {sec, nsec}."""
+    if isinstance(timestamp, dict):
+        return timestamp["sec"] * 1_000_000_000 + timestamp["nsec"]
+    from google.protobuf.timestamp_pb2 import Timestamp
+
+    t = Timestamp()
+    t.FromJsonString(timestamp)
+    return t.seconds * 1_000_000_000 + t.nanos
 
 
 def test_recording_to_mcap_and_back_sample_for_sample(tmp_path):
@@ -24,10 +60,10 @@ def test_recording_to_mcap_and_back_sample_for_sample(tmp_path):
     messages: dict[str, list] = {}
     schemas = {}
     with out.open("rb") as f:
-        reader = make_reader(f)
+        reader = make_reader(f, validate_crcs=True)
         summary = reader.get_summary()
         for schema, channel, message in reader.iter_messages(log_time_order=False):
-            messages.setdefault(channel.topic, []).append((message.log_time, json.loads(message.data)))
+            messages.setdefault(channel.topic, []).append((message.log_time, decode(schema, message)))
             schemas[channel.topic] = (schema.name, schema.encoding, channel.message_encoding)
     with Recording(src) as rec:
         times, counters, iq = rec.frame_time_ns("left"), rec.frame_counter("left"), rec.adc_iq("left")
@@ -78,8 +114,8 @@ def test_truth_and_events_become_foxglove_poses_and_logs(tmp_path):
         truth = rec.truth()
     with out.open("rb") as f:
         got = {}
-        for schema, channel, message in make_reader(f).iter_messages():
-            got.setdefault(channel.topic, []).append((schema.name, json.loads(message.data)))
+        for schema, channel, message in make_reader(f, validate_crcs=True).iter_messages():
+            got.setdefault(channel.topic, []).append((schema.name, decode(schema, message)))
     assert len(got["/truth"]) == truth.time_ns.size and got["/truth"][0][0] == "foxglove.PoseInFrame"
     p = got["/truth"][-1][1]["pose"]["position"]
     np.testing.assert_allclose([p["x"], p["y"], p["z"]], truth.position_m[-1])
@@ -112,8 +148,8 @@ def test_a_strip_map_and_a_trajectory_go_along(tmp_path):
     assert res.returncode == 0, res.stderr
     got = {}
     with out.open("rb") as f:
-        for schema, channel, message in make_reader(f).iter_messages():
-            got.setdefault(channel.topic, []).append((schema.name, message.log_time, json.loads(message.data)))
+        for schema, channel, message in make_reader(f, validate_crcs=True).iter_messages():
+            got.setdefault(channel.topic, []).append((schema.name, message.log_time, decode(schema, message)))
     ((schema, log_time, grid),) = got["/map"]
     assert schema == "foxglove.Grid" and log_time == end_ns and grid["column_count"] == x.size
     db = np.frombuffer(base64.b64decode(grid["data"]), "<f4").reshape(-1, grid["row_stride"] // 4)
@@ -180,7 +216,8 @@ def test_point_clouds_in_both_formats(tmp_path):
         res = subprocess.run([*CLI, "export", str(src), "-o", str(out), *extra], capture_output=True, text=True, timeout=120)
         assert res.returncode == 0, res.stderr
     with mcap_path.open("rb") as f:
-        clouds = [json.loads(m.data) for _, c, m in make_reader(f).iter_messages() if c.topic == "/radar/left/points"]
+        clouds = [decode(s, m) for s, c, m in make_reader(f, validate_crcs=True).iter_messages()
+                  if c.topic == "/radar/left/points"]
     with AnyReader([bag_path]) as reader:
         conns = [c for c in reader.connections if c.topic == "/radar/left/points"]
         ros = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(connections=conns)]
@@ -190,3 +227,69 @@ def test_point_clouds_in_both_formats(tmp_path):
         np.testing.assert_array_equal(got, pts)
         assert msg.width == len(pts) and msg.point_step == 20
         np.testing.assert_array_equal(np.frombuffer(bytes(msg.data), "<f4").reshape(-1, 5), pts)
+
+
+def test_a_replayed_recording_exports_on_one_clock_with_its_mounts_and_official_schemas(tmp_path):
+    """A replay's host clock runs 1,107 days after its sensor clock; the driver's event carries host time.
+    The MCAP spans exactly the recording's sensor times, the event sits at the sensor time it happened at,
+    every message decodes by Foxglove's own schemas (or sarbot's JSON schemas), CRCs check out, and
+    /tf_static carries every radar's mount and the IMU's."""
+    from conftest import point_pass
+
+    from acquisition.exporters import sensor_span_ns
+    from imaging.sim.simulator import simulate_recording
+
+    src = tmp_path / "replayed.h5"
+    simulate_recording(dataclasses.replace(point_pass(1.0, duration_s=0.25), imu=True), src)
+    offset_ns = 1107 * 86_400 * 1_000_000_000
+    with h5py.File(src, "a") as f:
+        for name in f["radar"]:
+            f[f"radar/{name}/host_time_ns"][...] = f[f"radar/{name}/frame_time_ns"][...] + offset_ns
+        f["imu/host_time_ns"][...] = f["imu/time_ns"][...] + offset_ns
+        frame_3 = int(f[f"radar/{next(iter(f['radar']))}/frame_time_ns"][3])
+        g = f["events"]
+        for key, value in (("time_ns", frame_3 + offset_ns), ("source", "radar.left_front"), ("level", "warning"),
+                           ("message", "restarted")):
+            g[key].resize((g[key].shape[0] + 1,))
+            g[key][-1] = value
+    with Recording(src) as rec:
+        lo, hi = sensor_span_ns(rec)
+        mounts = {n: rec.radar(n).mount for n in rec.radar_names}
+        imu_mount = rec.imu()["mount_translation_m"]
+        truth = rec.truth()
+    assert hi - lo < 1_000_000_000 and lo == int(truth.time_ns[0])
+    out = tmp_path / "replayed.mcap"
+    res = subprocess.run([*CLI, "export", str(src), "-o", str(out)], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    got: dict[str, list] = {}
+    with out.open("rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        stats = reader.get_summary().statistics
+        for schema, channel, message in reader.iter_messages():
+            got.setdefault(channel.topic, []).append((schema.name, message.log_time, decode(schema, message)))
+    assert (stats.message_start_time, stats.message_end_time) == (lo, hi)
+    ((schema, t, log),) = got["/events"]
+    assert schema == "foxglove.Log" and t == frame_3 and stamp_ns(log["timestamp"]) == frame_3
+    assert log["level"] == 3 and log["name"] == "radar.left_front"
+    ((schema, t, tf_static),) = got["/tf_static"]
+    assert schema == "foxglove.FrameTransforms" and t == lo
+    children = {tr["child_frame_id"]: tr for tr in tf_static["transforms"]}
+    assert set(children) == {*mounts, "imu"} and {tr["parent_frame_id"] for tr in tf_static["transforms"]} == {"base_link"}
+    for name, mount in mounts.items():
+        tr = children[name]
+        np.testing.assert_allclose([tr["translation"][a] for a in "xyz"], mount.translation_m)
+        np.testing.assert_allclose([tr["rotation"][a] for a in "xyzw"], mount.rotation_xyzw)
+    np.testing.assert_allclose([children["imu"]["translation"][a] for a in "xyz"], imu_mount)
+    # /tf: world -> base_link at every pose of the truth (no odometry given), stamped on the sensor clock.
+    assert [t for _, t, _ in got["/tf"]] == truth.time_ns.tolist()
+    last = got["/tf"][-1][2]["transforms"][0]
+    assert (last["parent_frame_id"], last["child_frame_id"]) == ("world", "base_link")
+    np.testing.assert_allclose([last["translation"][a] for a in "xyz"], truth.position_m[-1])
+    # Every channel's schema: Foxglove's own for what Foxglove has one for.
+    schemas = {topic: rows[0][0] for topic, rows in got.items()}
+    assert schemas["/truth"] == "foxglove.PoseInFrame" and schemas["/imu"] == "sarbot.Imu"
+    assert all(s.startswith("foxglove.") for topic, s in schemas.items() if not topic.endswith("/adc")
+               and topic not in ("/imu", "/can", "/trigger"))
+    # The raw frame says all it takes to image it.
+    adc = got[next(t for t in got if t.endswith("/adc"))][0][2]
+    assert len(adc["waveform"]["tdm_tx_order"]) == adc["waveform"]["chirps_per_frame"] == adc["shape"][0]
