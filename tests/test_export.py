@@ -6,6 +6,7 @@ import importlib
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -293,3 +294,123 @@ def test_a_replayed_recording_exports_on_one_clock_with_its_mounts_and_official_
     # The raw frame says all it takes to image it.
     adc = got[next(t for t in got if t.endswith("/adc"))][0][2]
     assert len(adc["waveform"]["tdm_tx_order"]) == adc["waveform"]["chirps_per_frame"] == adc["shape"][0]
+
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_sarbot_msgs_is_a_ros2_interface_package_and_the_exporter_uses_its_files():
+    """ros/sarbot_msgs builds with colcon (package.xml, CMakeLists naming every .msg); the exporter's types are
+    those files, not a copy."""
+    from acquisition.exporters.ros2_bag import RADAR_FRAME, SARBOT_MSGS_DIR, sarbot_typestore
+
+    package = REPO / "ros" / "sarbot_msgs"
+    assert SARBOT_MSGS_DIR.resolve() == package.resolve()
+    msgs = sorted(p.name for p in (package / "msg").glob("*.msg"))
+    assert "RadarFrame.msg" in msgs
+    cmake, xml = (package / "CMakeLists.txt").read_text(), (package / "package.xml").read_text()
+    assert all(f'"msg/{m}"' in cmake for m in msgs) and "rosidl_generate_interfaces" in cmake
+    assert "<name>sarbot_msgs</name>" in xml and "<member_of_group>rosidl_interface_packages</member_of_group>" in xml
+    fields = [name for name, _ in sarbot_typestore().fielddefs[RADAR_FRAME][1]]
+    declared = [line.split()[1] for line in (package / "msg" / "RadarFrame.msg").read_text().splitlines()
+                if line.strip() and not line.startswith("#")]
+    assert fields == declared
+    for waveform_field in ("f0_hz", "slope_hz_per_s", "sample_rate_hz", "chirp_interval_s", "tdm_tx_order",
+                           "tx_positions_m", "rx_positions_m", "mount"):
+        assert waveform_field in fields
+
+
+def test_a_ros2_bag_carries_mounts_triggers_can_events_and_odometry(tmp_path):
+    from rosbags.highlevel import AnyReader
+
+    from imaging.core.trajectory import SampledTrajectory
+    from imaging.io.trajectory_file import write_trajectory
+
+    src = tmp_path / "rec.h5"
+    make_source(src, n_frames=6)
+    with h5py.File(src, "a") as f:
+        t_event = int(f["radar/left/frame_time_ns"][2])
+        for key, value in (("time_ns", t_event), ("source", "radar.left"), ("level", "error"), ("message", "lost 3")):
+            f["events"][key].resize((1,))
+            f["events"][key][-1] = value
+    with Recording(src) as rec:
+        times, can, radar = rec.frame_time_ns("left"), rec.can(), rec.radar("left")
+    t = times[0] + np.arange(5) * 20_000_000
+    traj = SampledTrajectory(t, np.column_stack([np.linspace(0, 0.4, 5), np.zeros(5), np.zeros(5)]), np.tile([0, 0, 0, 1.0], (5, 1)))
+    write_trajectory(tmp_path / "traj.h5", traj)
+    out = tmp_path / "bag"
+    res = subprocess.run([*CLI, "export", str(src), "-o", str(out), "--ros2", "--trajectory", str(tmp_path / "traj.h5")],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    got: dict[str, list] = {}
+    with AnyReader([out]) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        for conn, t_ns, raw in reader.messages():
+            got.setdefault(conn.topic, []).append((t_ns, reader.deserialize(raw, conn.msgtype)))
+    assert types["/tf_static"] == "tf2_msgs/msg/TFMessage" and types["/can"] == "can_msgs/msg/Frame"
+    assert types["/events"] == "rcl_interfaces/msg/Log" and types["/trigger"] == "sarbot_msgs/msg/Trigger"
+    assert types["/odom"] == "nav_msgs/msg/Odometry" and types["/tf"] == "tf2_msgs/msg/TFMessage"
+    ((_, tf_static),) = got["/tf_static"]
+    (mount,) = [tr for tr in tf_static.transforms if tr.child_frame_id == "left"]
+    assert mount.header.frame_id == "base_link"
+    np.testing.assert_allclose([mount.transform.translation.x, mount.transform.translation.y,
+                                mount.transform.translation.z], radar.mount.translation_m)
+    assert [m.source for _, m in got["/trigger"]] == ["sync_box"]
+    assert len(got["/can"]) == can["time_ns"].size
+    for (t_ns, m), ident, dlc, data in zip(got["/can"], can["arbitration_id"], can["dlc"], can["data"]):
+        assert m.id == ident and m.dlc == dlc and bytes(m.data[:dlc]) == bytes(data[:dlc])
+    ((t_ns, log),) = got["/events"]
+    assert t_ns == t_event and log.level == 40 and log.msg == "lost 3" and log.name == "radar.left"
+    assert [t_ns for t_ns, _ in got["/odom"]] == t.tolist()
+    odom = got["/odom"][-1][1]
+    assert odom.child_frame_id == "base_link" and abs(odom.pose.pose.position.x - 0.4) < 1e-12
+    assert abs(odom.twist.twist.linear.x - traj.velocity_mps[-1, 0]) < 1e-9
+    frame = got["/radar/left/adc"][0][1]
+    assert (frame.f0_hz, frame.sample_rate_hz, frame.slope_hz_per_s) == (radar.waveform.f0_hz, radar.waveform.sample_rate_hz,
+                                                                         radar.waveform.slope_hz_per_s)
+    assert list(frame.tdm_tx_order) == radar.waveform.tdm_tx_order()
+    np.testing.assert_array_equal([[p.x, p.y, p.z] for p in frame.rx_positions_m], radar.array.rx_positions_m)
+    refused = subprocess.run([*CLI, "export", str(src), "-o", str(tmp_path / "b2"), "--ros2", "--map", str(src)],
+                             capture_output=True, text=True, timeout=120)
+    assert refused.returncode == 2 and "--map" in refused.stderr
+
+
+def test_recording_to_ros2_bag_and_back_gives_the_same_image(tmp_path):
+    """recording -> ROS 2 bag -> sarbot import-bag -> sarbot image: the image of the bag is the recording's,
+    bit for bit (everything the imaging needs travels in the RadarFrame and /truth)."""
+    from conftest import point_pass
+
+    from imaging.io.image_file import read_image
+    from imaging.io.recording import RecordingWriter
+    from imaging.sim.simulator import simulate_recording
+
+    simulate_recording(point_pass(1.0, duration_s=0.42), tmp_path / "sim.h5")
+    src = tmp_path / "src.h5"  # int16 I/Q as a real radar's recording holds them
+    with Recording(tmp_path / "sim.h5") as sim, RecordingWriter(src, [sim.radar(n) for n in sim.radar_names],
+                                                                 adc_dtype="int16", truth=True) as w:
+        for n in sim.radar_names:
+            w.append_frames(n, sim.adc_iq(n), sim.frame_time_ns(n), sim.frame_counter(n), sim.host_time_ns(n))
+        truth = sim.truth()
+        w.append_truth(truth.sample(truth.time_ns))
+    bag, back = tmp_path / "bag", tmp_path / "back.h5"
+    grid = "-0.3:0.3:0.01,1.8:2.2:0.01"
+    for args in (["export", str(src), "-o", str(bag), "--ros2"], ["import-bag", str(bag), "-o", str(back)],
+                 ["image", str(src), "-o", str(tmp_path / "a.h5"), "--grid", grid],
+                 ["image", str(back), "-o", str(tmp_path / "b.h5"), "--grid", grid]):
+        res = subprocess.run([*CLI, "-q", *args], capture_output=True, text=True, timeout=300)
+        assert res.returncode == 0, res.stderr
+    with Recording(src) as a, Recording(back) as b:
+        (name,) = a.radar_names
+        np.testing.assert_array_equal(b.adc_iq(name), a.adc_iq(name))
+        np.testing.assert_array_equal(b.frame_time_ns(name), a.frame_time_ns(name))
+        ra, rb = a.radar(name), b.radar(name)
+        assert ra.waveform == rb.waveform
+        np.testing.assert_array_equal(rb.array.tx_positions_m, ra.array.tx_positions_m)
+        np.testing.assert_array_equal(rb.mount.translation_m, ra.mount.translation_m)
+    image_a, image_b = read_image(tmp_path / "a.h5").image, read_image(tmp_path / "b.h5").image
+    assert np.abs(image_a).max() > 0
+    np.testing.assert_array_equal(image_b, image_a)
+    # A bag that is not sarbot's still needs its calibration, said in one line.
+    no_calib = subprocess.run([*CLI, "import-bag", str(tmp_path / "nothing"), "-o", str(tmp_path / "c.h5")],
+                              capture_output=True, text=True, timeout=120)
+    assert no_calib.returncode == 2 and "nothing" in no_calib.stderr and "Traceback" not in no_calib.stderr
