@@ -234,3 +234,62 @@ def test_choice_lists_are_read_from_their_sources_when_needed(monkeypatch):
     assert (args.window, args.aperture_window) == ("kaiser", "kaiser")
     record_help = " ".join(_subparser(parser, "record").format_help().split())
     assert all(name in record_help for name in registry.names()) and f"default {registry.DEFAULT}" in record_help
+
+
+def _choices():
+    """What completion must offer, read from where sarbot keeps it (not written out in the test)."""
+    from acquisition.exporters.ros2_bag import STORAGES
+    from drivers.radar.ti_capture import LAYOUTS
+    from imaging.autofocus import METHODS
+    from imaging.core.rig import default_rig
+    from imaging.sim.scene import builtin_scene_names
+
+    return {"scenes": builtin_scene_names(), "radars": [r.name for r in default_rig().radars],
+            "formats": [*STORAGES, *LAYOUTS], "autofocus": list(METHODS)}
+
+
+@pytest.mark.parametrize("shell", ["bash", "zsh", "fish"])
+def test_completion_scripts_carry_the_choices(shell):
+    res = sarbot("completion", shell)
+    assert res.returncode == 0, res.stderr
+    assert "shtab" in res.stdout  # generated from the parser, not written by hand
+    for kind, names in _choices().items():
+        assert names, kind
+        missing = [n for n in names if n not in res.stdout]
+        assert not missing, f"{shell}: {kind} {missing} not in the script"
+
+
+def test_bash_completes_choices_for_real():
+    script = sarbot("completion", "bash").stdout
+    probe = script + "\n".join([
+        'COMP_WORDS=(sarbot image x.h5 --autofocus ""); COMP_CWORD=4; _shtab_sarbot; echo "${COMPREPLY[*]}"',
+        "COMP_WORDS=(sarbot simulate paper_p); COMP_CWORD=2; _shtab_sarbot; echo \"${COMPREPLY[*]}\"",
+        'COMP_WORDS=(sarbot image x.h5 --radar left_); COMP_CWORD=4; _shtab_sarbot; echo "${COMPREPLY[*]}"',
+        "COMP_WORDS=(sarbot export x.h5 --storage s); COMP_CWORD=4; _shtab_sarbot; echo \"${COMPREPLY[*]}\"", ""])
+    out = subprocess.run(["bash", "-c", probe], capture_output=True, text=True, check=True).stdout.splitlines()
+    choices = _choices()
+    assert out[0].split() == choices["autofocus"]
+    assert out[1].split() == [s for s in choices["scenes"] if s.startswith("paper_p")] and out[1]
+    assert out[2].split() == [r for r in choices["radars"] if r.startswith("left_")] and out[2]
+    assert out[3] == "sqlite3"
+
+
+def test_fish_and_zsh_take_the_scripts():
+    """fish completes for real (``complete -C``); zsh loads the script and registers it for sarbot. Each
+    skipped, saying so, where the shell is not installed (apt-get install fish zsh)."""
+    import shutil
+
+    if shutil.which("fish") is None and shutil.which("zsh") is None:
+        pytest.skip("neither fish nor zsh is installed (apt-get install fish zsh)")
+    if shutil.which("fish"):
+        script = sarbot("completion", "fish").stdout
+        res = subprocess.run(["fish", "--no-config", "-c", "source; complete -C 'sarbot image x.h5 --autofocus '"],
+                             input=script, capture_output=True, text=True, timeout=60)
+        assert res.returncode == 0, res.stderr
+        assert [line.split("\t")[0] for line in res.stdout.splitlines()] == _choices()["autofocus"]
+    if shutil.which("zsh"):
+        script = sarbot("completion", "zsh").stdout
+        res = subprocess.run(["zsh", "-f", "-c", "autoload -Uz compinit && compinit -u -d /dev/null; "
+                              "eval \"$(cat)\" >/dev/null 2>&1; print -r -- $_comps[sarbot]"],
+                             input=script, capture_output=True, text=True, timeout=60)
+        assert res.returncode == 0 and res.stdout.strip() == "_shtab_sarbot", res.stderr

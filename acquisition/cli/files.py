@@ -31,7 +31,8 @@ def register(sub) -> None:
     s.add_argument("recording")
     s.add_argument("-o", "--output", required=True, help="the .mcap file, or with --ros2 the bag folder, to write")
     s.add_argument("--ros2", action="store_true", help="a ROS 2 bag (standard messages; raw frames as sarbot_msgs)")
-    s.add_argument("--storage", default="mcap", help="ROS 2 bag storage: mcap (default) or sqlite3")
+    s.add_argument("--storage", default="mcap", choices=opt.ChoicesFrom("acquisition.exporters.ros2_bag", "STORAGES"),
+                   help="ROS 2 bag storage (default mcap)")
     s.add_argument("--map", action="append", metavar="IMAGE.h5",
                    help="add a SAR image or strip map (sarbot run's stripmap_*.h5, sarbot image) as /map, a foxglove.Grid in dB")
     s.add_argument("--trajectory", action="append", metavar="TRAJ.h5",

@@ -24,7 +24,8 @@ EXPERIMENTS = {"paper": ("acquisition.studies.paper", "run_paper")}
 def register(sub) -> None:
     s = sub.add_parser("simulate", help="simulate a scene into a recording",
                        epilog="example: sarbot simulate --list; sarbot simulate paper_pass_0.4 -o pass.h5; sarbot simulate my_scene.toml -o rec.h5")
-    s.add_argument("scene", nargs="?", help="built-in scene name (see --list) or scene TOML file")
+    opt.completes(s.add_argument("scene", nargs="?", help="built-in scene name (see --list) or scene TOML file"),
+                  opt.ChoicesFrom("imaging.sim.scene", "builtin_scene_names"))
     s.add_argument("-o", "--output", help="recording file to write (.h5)")
     opt.overwrite_option(s)
     s.add_argument("--list", action="store_true", help="list the built-in scenes")

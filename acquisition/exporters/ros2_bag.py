@@ -30,6 +30,8 @@ log = logging.getLogger(f"sarbot.{__name__}")
 
 #: The interface package ros/sarbot_msgs (a link to it inside this package, so installs carry it).
 SARBOT_MSGS_DIR = Path(__file__).resolve().parent / "sarbot_msgs"
+#: ROS 2 bag storage plug-ins (``--storage``)
+STORAGES = ("mcap", "sqlite3")
 RADAR_FRAME = "sarbot_msgs/msg/RadarFrame"
 TRIGGER = "sarbot_msgs/msg/Trigger"
 CAN_FRAME = "can_msgs/msg/Frame"
@@ -81,7 +83,7 @@ def export_ros2(recording: str | Path, output: str | Path, storage: str = "mcap"
     output = Path(output)
     if output.exists():
         raise SarbotError(f"{output}: exists already (a ROS 2 bag is a new folder; remove it or give another name)")
-    plugins = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
+    plugins = dict(zip(STORAGES, (StoragePlugin.MCAP, StoragePlugin.SQLITE3)))
     if storage not in plugins:
         raise SarbotError(f"--storage {storage}: expected mcap or sqlite3")
     tracks = {("/odom" if len(trajectories) == 1 else f"/odom/{Path(p).stem}"): read_trajectory(p) for p in trajectories}
