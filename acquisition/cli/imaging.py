@@ -46,7 +46,7 @@ def register(sub) -> None:
     opt.overwrite_option(s, "replace existing output files")
     s.set_defaults(func=cmd_image)
 
-    from ..batch import SWEEPABLE
+    from ..batch import DASHBOARD_ADDRESS, SWEEPABLE
 
     s = sub.add_parser("batch", help="many images on a Dask cluster: recordings, tiles of a long drive, parameter sweeps",
                        epilog="examples: sarbot batch a.h5 b.h5 c.h5 d.h5 --grid -0.5:0.5:0.004,1.5:2.5:0.004 -o images/; "
@@ -65,6 +65,9 @@ def register(sub) -> None:
     s.add_argument("--scheduler", metavar="ADDRESS", help="a running dask.distributed scheduler (tcp://host:8786); its "
                    "workers need sarbot and the files at the same paths. Default: a local cluster")
     s.add_argument("--workers", type=int, default=2, help="worker processes of the local cluster (default 2)")
+    s.add_argument("--dashboard", default=DASHBOARD_ADDRESS, metavar="HOST:PORT",
+                   help=f"where the local cluster serves Dask's dashboard (default {DASHBOARD_ADDRESS}; 'none': "
+                        "nowhere); needs bokeh: pip install 'sarbot[dashboard]'")
     opt.overwrite_option(s, "replace existing images")
     s.set_defaults(func=cmd_batch)
 
@@ -171,7 +174,9 @@ def cmd_batch(args) -> int:
         opt.new_output(Path(job.output), args.overwrite)
     where = args.scheduler or f"a local cluster of {args.workers} worker process(es)"
     log.info("%d image(s) on %s", len(jobs), where)
-    results = run_batch(jobs, args.scheduler, args.workers, progress=Progress("batch", unit="image"))
+    results = run_batch(jobs, args.scheduler, args.workers, progress=Progress("batch", unit="image"),
+                        dashboard_address=None if args.dashboard.lower() == "none" else args.dashboard,
+                        on_dashboard=_say_dashboard)
     summary = out_dir / "batch.json"
     summary.write_text(strict_json.dumps({"cluster": where, "jobs": results}, indent=2))
     failed = [r for r in results if r["error"]]
@@ -182,6 +187,15 @@ def cmd_batch(args) -> int:
         print(f"sarbot: error: {r['label']}: {r['error']}", file=sys.stderr)
     print(f"wrote {summary}: {len(results) - len(failed)} of {len(results)} images")
     return EXIT_USAGE if failed else EXIT_OK
+
+
+def _say_dashboard(link: str | None) -> None:
+    from ..batch import dashboard_available
+
+    if link:
+        print(f"Dask dashboard: {link}", file=sys.stderr, flush=True)
+    elif not dashboard_available():
+        log.info("no Dask dashboard: it needs bokeh (pip install 'sarbot[dashboard]')")
 
 
 def cmd_analyze(args) -> int:
