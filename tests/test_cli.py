@@ -293,3 +293,45 @@ def test_fish_and_zsh_take_the_scripts():
                               "eval \"$(cat)\" >/dev/null 2>&1; print -r -- $_comps[sarbot]"],
                              input=script, capture_output=True, text=True, timeout=60)
         assert res.returncode == 0 and res.stdout.strip() == "_shtab_sarbot", res.stderr
+
+
+def _fake_distribution(site, package: str, name: str, version: str = "9.9") -> None:
+    """A distribution as pip leaves it: its top-level module ``package`` (one file, as many on PyPI are) and
+    a dist-info whose RECORD lists it."""
+    site.mkdir(parents=True)
+    (site / f"{package}.py").write_text(f'"""{name}: not sarbot\'s {package}."""\n')
+    info = site / f"{name.replace('-', '_')}-{version}.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n")
+    (info / "RECORD").write_text(f"{package}.py,,\n{info.name}/METADATA,,\n{info.name}/RECORD,,\n")
+
+
+@pytest.mark.parametrize("package, command", [("rio", ["rio", "rec.h5", "-o", "traj.h5"]), ("drivers", ["info", "rec.h5"])])
+def test_a_package_of_another_distribution_in_place_of_sarbots_is_named_in_one_line(tmp_path, package, command):
+    """``pip install rio`` (or ``drivers``) puts another project's package where sarbot's was; here a folder
+    first on the path does the same. sarbot names the package, where it is, whose it is, and the way out."""
+    import os
+
+    site = tmp_path / "site"
+    _fake_distribution(site, package, f"not-sarbot-{package}")
+    (tmp_path / "rec.h5").write_bytes(b"not HDF5")  # the command gets as far as importing the package
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(site), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    res = subprocess.run([sys.executable, "-m", "acquisition.launcher", *command], capture_output=True, text=True,
+                         env=env, cwd=tmp_path, timeout=300)
+    assert res.returncode == 2, res.stderr
+    (line,) = res.stderr.strip().splitlines()
+    assert line.startswith("sarbot: error: ") and "Traceback" not in res.stderr
+    assert f"'{package}' at {site / package}.py" in line and f"not-sarbot-{package} 9.9" in line
+    assert f"pip uninstall not-sarbot-{package}" in line
+    # Without the stranger, the same command is the usual one-line error about the file.
+    plain = subprocess.run([sys.executable, "-m", "acquisition.launcher", *command], capture_output=True, text=True,
+                           cwd=tmp_path, timeout=300)
+    assert plain.returncode == 2 and "another distribution" not in plain.stderr
+    assert plain.stderr.startswith("sarbot: error: ") and "rec.h5" in plain.stderr
+
+
+def test_the_installed_command_goes_through_the_launcher():
+    from importlib.metadata import entry_points
+
+    (script,) = [e for e in entry_points(group="console_scripts") if e.name == "sarbot"]
+    assert script.value == "acquisition.launcher:main"
