@@ -192,8 +192,8 @@ def cmd_batch(args) -> int:
 def _say_dashboard(link: str | None) -> None:
     from ..batch import dashboard_available
 
-    if link:
-        print(f"Dask dashboard: {link}", file=sys.stderr, flush=True)
+    if link:  # an info line: -q leaves it out with the progress
+        log.info("Dask dashboard: %s", link)
     elif not dashboard_available():
         log.info("no Dask dashboard: it needs bokeh (pip install 'sarbot[dashboard]')")
 
