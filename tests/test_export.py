@@ -414,3 +414,16 @@ def test_recording_to_ros2_bag_and_back_gives_the_same_image(tmp_path):
     no_calib = subprocess.run([*CLI, "import-bag", str(tmp_path / "nothing"), "-o", str(tmp_path / "c.h5")],
                               capture_output=True, text=True, timeout=120)
     assert no_calib.returncode == 2 and "nothing" in no_calib.stderr and "Traceback" not in no_calib.stderr
+
+
+def test_events_move_onto_the_sensor_clock():
+    """Host-clock stamps move by the sensor-minus-host offset; sensor-clock stamps stay; what lies outside the
+    recording on either clock is put at its nearer end."""
+    from acquisition.exporters import event_sensor_times_ns
+
+    span = (1_000_000_000_000, 1_010_000_000_000)  # 10 s of data on the sensor clock
+    offset = -95_644_800_000_000_000  # the replay runs 1,107 days after the recording
+    host = [span[0] - offset + 2_000_000_000, span[1] - offset + 30_000_000_000]
+    got = event_sensor_times_ns([span[0] + 5, span[1] + 1, *host, 1], offset, span)
+    assert got.tolist() == [span[0] + 5, span[1], span[0] + 2_000_000_000, span[1], span[0]]
+    assert event_sensor_times_ns([], offset, span).size == 0

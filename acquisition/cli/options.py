@@ -13,8 +13,6 @@ import importlib
 import math
 from pathlib import Path
 
-import numpy as np
-
 from imaging.core.errors import SarbotError
 
 
