@@ -153,13 +153,28 @@ def plan_jobs(recordings, grid: str, out_dir, *, radar: str | None = None, frame
     return jobs
 
 
+#: Where a local cluster serves its dashboard by default: loopback only (a port in use: Dask takes another).
+DASHBOARD_ADDRESS = "127.0.0.1:8787"
+
+
+def dashboard_available() -> bool:
+    """Whether Dask can serve its dashboard here: it needs bokeh, the optional ``sarbot[dashboard]`` extra."""
+    import importlib.util
+
+    return importlib.util.find_spec("bokeh") is not None
+
+
 def run_batch(jobs: list[ImageJob], scheduler: str | None = None, n_workers: int = 2, progress=None,
-              client=None) -> list[dict]:
+              client=None, dashboard_address: str | None = DASHBOARD_ADDRESS, on_dashboard=None) -> list[dict]:
     """Run ``jobs`` on a Dask cluster; summaries in the order of ``jobs``.
 
     ``scheduler``: the address of a running ``dask.distributed`` scheduler (``tcp://host:8786``); None
     starts a local cluster of ``n_workers`` worker processes, one thread each, for the time of the batch.
     ``client``: a ``dask.distributed.Client`` to use instead (left open).
+    ``dashboard_address``: where the local cluster serves Dask's dashboard (None: nowhere); served only
+    where bokeh is installed (``pip install sarbot[dashboard]``).
+    ``on_dashboard``: called with the dashboard's URL (a remote scheduler's too) once the cluster is up and
+    before any job runs; with None where there is no dashboard.
     """
     if logging.getLogger().level > logging.DEBUG:  # below -vv, Dask's own INFO lines are noise here
         os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")  # read by this process and its workers
@@ -168,10 +183,12 @@ def run_batch(jobs: list[ImageJob], scheduler: str | None = None, n_workers: int
     logging.getLogger("distributed").setLevel(logging.getLevelName(os.environ.get("DASK_LOGGING__DISTRIBUTED", "info").upper()))
     cluster = None
     own_client = client is None
+    serve = None
     if client is not None:
         pass
     elif scheduler is None:
-        cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        serve = dashboard_address if dashboard_address and dashboard_available() else None
+        cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=serve)
         client = Client(cluster)
     else:
         try:
@@ -179,6 +196,9 @@ def run_batch(jobs: list[ImageJob], scheduler: str | None = None, n_workers: int
         except OSError as exc:
             raise SarbotError(f"--scheduler {scheduler}: cannot reach it ({exc})") from None
     try:
+        if on_dashboard is not None:
+            # a local cluster without a dashboard still runs its HTTP server (health, metrics): not a dashboard
+            on_dashboard(None if cluster is not None and serve is None else _dashboard_link(client))
         from imaging.autofocus import METHODS
 
         # Each job carries its method's function: the workers know only the methods sarbot registers itself.
@@ -194,3 +214,13 @@ def run_batch(jobs: list[ImageJob], scheduler: str | None = None, n_workers: int
             client.close()
         if cluster is not None:
             cluster.close()
+
+
+def _dashboard_link(client) -> str | None:
+    """The dashboard's URL, or None where the scheduler serves none."""
+    try:
+        services = client.scheduler_info().get("services", {})
+    except Exception:  # noqa: BLE001 -- a scheduler that cannot say serves nothing we can name
+        return None
+    return client.dashboard_link if "dashboard" in services else None
+

@@ -15,7 +15,6 @@ Writes docs/results/acquisition.json and docs/results/acquisition.png.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import signal
 import socket
@@ -37,6 +36,7 @@ from acquisition.processes import free_ports, free_tcp_endpoint  # noqa: E402
 from drivers.radar.srf1 import encode_frame, restamp  # noqa: E402
 from imaging.core.rig import default_rig  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
+from imaging.core import strict_json  # noqa: E402
 from process_stats import child_pids, cpu_s  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
@@ -195,7 +195,7 @@ def main(argv: list[str]) -> int:
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     stem = "acquisition_quick" if args.quick else "acquisition"  # a smoke run keeps the real figures
-    (RESULTS / f"{stem}.json").write_text(json.dumps(summary, indent=2, default=float))
+    (RESULTS / f"{stem}.json").write_text(strict_json.dumps(summary, indent=2))
     plot(phases, RESULTS / f"{stem}.png")
     path.unlink()
     print(f"four radars sustained {best:.2f}x real time with zero loss ({summary['max_lossless_mbytes_per_s']:.0f} MB/s); "

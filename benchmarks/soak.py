@@ -49,6 +49,7 @@ from acquisition.bus import BusSubscriber  # noqa: E402
 from acquisition.messages import Health, MapStatus, decode  # noqa: E402
 from acquisition.processes import free_ports, free_tcp_endpoint  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
+from imaging.core import strict_json  # noqa: E402
 from process_stats import child_pids, cpu_s, machine_cpu_s, named_process_tree, rss_mb, run_queue_wait_s  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
@@ -377,9 +378,9 @@ def main() -> int:
         result = json.loads(path.read_text())
         result["rss"] = rss_summary(result["samples"], result["samples"][-1]["t_s"])
         result["rss_flat"] = all(g["drift_mb"] <= RSS_GOAL_MB for g in result["rss"].values())
-        path.write_text(json.dumps(result, indent=1) + "\n")
+        path.write_text(strict_json.dumps(result, indent=1) + "\n")
         chart(result, path.with_suffix(".png"))
-        print(json.dumps(result["rss"], indent=1))
+        print(strict_json.dumps(result["rss"], indent=1))
         return 0 if result["no_loss"] and result["rss_flat"] else 1
     minutes = 3.0 if args.quick else args.minutes
     radars = args.radars.split(",")
@@ -394,9 +395,9 @@ def main() -> int:
     stem = f"soak_{args.name}" if args.name else stem
     stem += "_quick" if args.quick else ""
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / f"{stem}.json").write_text(json.dumps(result, indent=1) + "\n")
+    (RESULTS / f"{stem}.json").write_text(strict_json.dumps(result, indent=1) + "\n")
     chart(result, RESULTS / f"{stem}.png")
-    print(json.dumps({k: v for k, v in result.items() if k not in ("samples", "daemon_log_tail")}, indent=1))
+    print(strict_json.dumps({k: v for k, v in result.items() if k not in ("samples", "daemon_log_tail")}, indent=1))
     print(f"wrote {RESULTS / (stem + '.json')} and {stem}.png")
     return 0 if result["no_loss"] and result["rss_flat"] else 1
 

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 import tempfile
 import time
@@ -38,6 +37,7 @@ from imaging.io.recording import Recording  # noqa: E402
 from imaging.sim.scene import load_scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.stripmap import StripMap, StripMapConfig, max_presum  # noqa: E402
+from imaging.core import strict_json  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 DEFAULT = StripMapConfig(aperture_m=0.3, range_min_m=1.0, range_max_m=4.0, z_m=0.3)
@@ -187,7 +187,7 @@ def main(argv: list[str]) -> int:
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     stem = "stripmap_quick" if args.quick else "stripmap"  # a smoke run keeps the real figures
-    (RESULTS / f"{stem}.json").write_text(json.dumps(summary, indent=2))
+    (RESULTS / f"{stem}.json").write_text(strict_json.dumps(summary, indent=2))
     plot(rows, sensor_fps, RESULTS / f"{stem}.png")
     rec.close()
     path.unlink()

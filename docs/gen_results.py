@@ -100,7 +100,9 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
 
 def fmt(value) -> str:
     """A value for a table cell: floats to 4 significant digits, long text cut, lists inline if short."""
-    if isinstance(value, bool) or value is None:
+    if value is None:  # strict JSON's null: a number that was NaN or infinite
+        return "n/a"
+    if isinstance(value, bool):
         return str(value)
     if isinstance(value, int):
         return str(value)

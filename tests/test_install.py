@@ -104,6 +104,9 @@ def test_the_wheel_carries_the_units_of_the_top_level_systemd_folder_and_install
     with zipfile.ZipFile(wheel) as zf:
         for unit in UNITS:
             assert zf.read(f"acquisition/systemd/{unit}") == (ROOT / "systemd" / unit).read_bytes()
+        # So does the ROS 2 interface package, whose .msg files the bag exporter registers.
+        for msg in (ROOT / "ros" / "sarbot_msgs" / "msg").glob("*.msg"):
+            assert zf.read(f"acquisition/exporters/sarbot_msgs/msg/{msg.name}") == msg.read_bytes()
 
     # A fresh venv with the wheel alone; sarbot's dependencies from this interpreter's site-packages (a path
     # entry only: its editable sarbot is not activated, so `acquisition` can come only from the wheel).

@@ -3,9 +3,9 @@ into recordings and back (see docs/formats/recording.md and docs/export.md)."""
 
 from __future__ import annotations
 
-import json
 import sys
 
+from imaging.core import strict_json
 from imaging.core.errors import SarbotError
 
 from . import options as opt
@@ -31,18 +31,23 @@ def register(sub) -> None:
     s.add_argument("recording")
     s.add_argument("-o", "--output", required=True, help="the .mcap file, or with --ros2 the bag folder, to write")
     s.add_argument("--ros2", action="store_true", help="a ROS 2 bag (standard messages; raw frames as sarbot_msgs)")
-    s.add_argument("--storage", default="mcap", help="ROS 2 bag storage: mcap (default) or sqlite3")
+    s.add_argument("--storage", default="mcap", choices=opt.ChoicesFrom("acquisition.exporters.ros2_bag", "STORAGES"),
+                   help="ROS 2 bag storage (default mcap)")
     s.add_argument("--map", action="append", metavar="IMAGE.h5",
                    help="add a SAR image or strip map (sarbot run's stripmap_*.h5, sarbot image) as /map, a foxglove.Grid in dB")
     s.add_argument("--trajectory", action="append", metavar="TRAJ.h5",
-                   help="add an odometry trajectory (sarbot run's trajectory_*.h5, sarbot rio) as /pose")
+                   help="add an odometry trajectory (sarbot run's trajectory_*.h5, sarbot rio): MCAP /pose and /tf, "
+                        "ROS 2 /odom and /tf")
     opt.overwrite_option(s)
     s.set_defaults(func=cmd_export)
 
-    s = sub.add_parser("import-bag", help="convert a ROS 1 or ROS 2 bag (IMU, radar point clouds, trigger) to a recording",
-                       epilog="example: sarbot import-bag demo.bag --calib calib.yaml -o rec.h5 (a ROS 2 bag: give its folder)")
+    s = sub.add_parser("import-bag", help="convert a ROS 1 or ROS 2 bag (sarbot's own, or IMU, radar point clouds, "
+                                          "trigger) to a recording",
+                       epilog="examples: sarbot import-bag rec_bag -o rec.h5 (a bag sarbot export --ros2 wrote); "
+                              "sarbot import-bag demo.bag --calib calib.yaml -o rec.h5 (a ROS 2 bag: give its folder)")
     s.add_argument("bag")
-    s.add_argument("--calib", required=True, help="calibration YAML (topics, radar extrinsics, frame length)")
+    s.add_argument("--calib", help="calibration YAML (topics, radar extrinsics, frame length); not for sarbot's own bags, "
+                                   "whose raw frames carry their radar")
     s.add_argument("-o", "--output", required=True)
     s.add_argument("--radar-name", default="radar")
     opt.overwrite_option(s)
@@ -76,7 +81,7 @@ def cmd_info(args) -> int:
         raise SarbotError("--tum: give one file (a recording's /truth or a trajectory)")
     reports = [info(path) for path in args.files]
     if args.json:
-        print(json.dumps(reports if len(reports) > 1 else reports[0], indent=2, default=opt.json_default))
+        print(strict_json.dumps(reports if len(reports) > 1 else reports[0], indent=2))
     else:
         print("\n".join(format_info(r) for r in reports))
     if args.tum:
@@ -105,10 +110,11 @@ def cmd_export(args) -> int:
     from ..progress import Progress
 
     progress = Progress("export", unit="frame")
-    if args.ros2 and (args.map or args.trajectory):
-        raise SarbotError("--map and --trajectory go into MCAP only (ROS 2 has no message for a dB map); leave out --ros2")
+    if args.ros2 and args.map:
+        raise SarbotError("--map goes into MCAP only (ROS 2 has no message for a dB map); leave out --ros2")
     if args.ros2:
-        counts = export_ros2(args.recording, args.output, storage=args.storage, progress=progress)
+        counts = export_ros2(args.recording, args.output, storage=args.storage, progress=progress,
+                             trajectories=args.trajectory or ())
     else:
         counts = export_mcap(args.recording, args.output, overwrite=args.overwrite, progress=progress,
                              maps=args.map or (), trajectories=args.trajectory or ())
@@ -118,9 +124,16 @@ def cmd_export(args) -> int:
 
 def cmd_import_bag(args) -> int:
     from ..importers.bag import import_bag
+    from ..importers.sarbot_bag import import_sarbot_bag, is_sarbot_bag
     from ..progress import Progress
 
     out = opt.new_output(args.output, args.overwrite)
+    if is_sarbot_bag(args.bag):
+        counts = import_sarbot_bag(args.bag, out, overwrite=args.overwrite, progress=Progress("import"))
+        print(f"wrote {out}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+        return EXIT_OK
+    if not args.calib:
+        raise SarbotError(f"{args.bag}: not a bag of sarbot's (no sarbot_msgs/msg/RadarFrame); give its --calib YAML")
     counts = import_bag(args.bag, args.calib, out, radar_name=args.radar_name, overwrite=args.overwrite,
                         progress=Progress("import"))
     print(f"wrote {out}: " + ", ".join(f"{k} {v:.6g}" for k, v in counts.items()))

@@ -3,13 +3,13 @@ and what they measure (see docs/formats/image.md)."""
 
 from __future__ import annotations
 
-import json
 import logging
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from imaging.core import strict_json
 from imaging.core.errors import SarbotError
 
 from . import options as opt
@@ -24,7 +24,8 @@ EXPERIMENTS = {"paper": ("acquisition.studies.paper", "run_paper")}
 def register(sub) -> None:
     s = sub.add_parser("simulate", help="simulate a scene into a recording",
                        epilog="example: sarbot simulate --list; sarbot simulate paper_pass_0.4 -o pass.h5; sarbot simulate my_scene.toml -o rec.h5")
-    s.add_argument("scene", nargs="?", help="built-in scene name (see --list) or scene TOML file")
+    opt.completes(s.add_argument("scene", nargs="?", help="built-in scene name (see --list) or scene TOML file"),
+                  opt.ChoicesFrom("imaging.sim.scene", "builtin_scene_names"))
     s.add_argument("-o", "--output", help="recording file to write (.h5)")
     opt.overwrite_option(s)
     s.add_argument("--list", action="store_true", help="list the built-in scenes")
@@ -45,7 +46,7 @@ def register(sub) -> None:
     opt.overwrite_option(s, "replace existing output files")
     s.set_defaults(func=cmd_image)
 
-    from ..batch import SWEEPABLE
+    from ..batch import DASHBOARD_ADDRESS, SWEEPABLE
 
     s = sub.add_parser("batch", help="many images on a Dask cluster: recordings, tiles of a long drive, parameter sweeps",
                        epilog="examples: sarbot batch a.h5 b.h5 c.h5 d.h5 --grid -0.5:0.5:0.004,1.5:2.5:0.004 -o images/; "
@@ -64,6 +65,9 @@ def register(sub) -> None:
     s.add_argument("--scheduler", metavar="ADDRESS", help="a running dask.distributed scheduler (tcp://host:8786); its "
                    "workers need sarbot and the files at the same paths. Default: a local cluster")
     s.add_argument("--workers", type=int, default=2, help="worker processes of the local cluster (default 2)")
+    s.add_argument("--dashboard", default=DASHBOARD_ADDRESS, metavar="HOST:PORT",
+                   help=f"where the local cluster serves Dask's dashboard (default {DASHBOARD_ADDRESS}; 'none': "
+                        "nowhere); needs bokeh: pip install 'sarbot[dashboard]'")
     opt.overwrite_option(s, "replace existing images")
     s.set_defaults(func=cmd_batch)
 
@@ -170,9 +174,11 @@ def cmd_batch(args) -> int:
         opt.new_output(Path(job.output), args.overwrite)
     where = args.scheduler or f"a local cluster of {args.workers} worker process(es)"
     log.info("%d image(s) on %s", len(jobs), where)
-    results = run_batch(jobs, args.scheduler, args.workers, progress=Progress("batch", unit="image"))
+    results = run_batch(jobs, args.scheduler, args.workers, progress=Progress("batch", unit="image"),
+                        dashboard_address=None if args.dashboard.lower() == "none" else args.dashboard,
+                        on_dashboard=_say_dashboard)
     summary = out_dir / "batch.json"
-    summary.write_text(json.dumps({"cluster": where, "jobs": results}, indent=2))
+    summary.write_text(strict_json.dumps({"cluster": where, "jobs": results}, indent=2))
     failed = [r for r in results if r["error"]]
     for r in results:
         if not r["error"]:
@@ -181,6 +187,15 @@ def cmd_batch(args) -> int:
         print(f"sarbot: error: {r['label']}: {r['error']}", file=sys.stderr)
     print(f"wrote {summary}: {len(results) - len(failed)} of {len(results)} images")
     return EXIT_USAGE if failed else EXIT_OK
+
+
+def _say_dashboard(link: str | None) -> None:
+    from ..batch import dashboard_available
+
+    if link:  # an info line: -q leaves it out with the progress
+        log.info("Dask dashboard: %s", link)
+    elif not dashboard_available():
+        log.info("no Dask dashboard: it needs bokeh (pip install 'sarbot[dashboard]')")
 
 
 def cmd_analyze(args) -> int:
@@ -213,8 +228,8 @@ def cmd_analyze(args) -> int:
     elif len(set(counts)) >= 2:
         alpha, g0 = metrics.fit_integration_gain(counts, [r["snr_db"] for r in results])
         output["integration_gain"] = {"alpha": alpha, "snr_db_at_one_frame": g0, "n_frames": counts}
-    print(json.dumps(output if len(results) > 1 else {**results[0], **{k: v for k, v in output.items() if k != "images"}},
-                     indent=2, default=opt.json_default))
+    print(strict_json.dumps(output if len(results) > 1 else {**results[0], **{k: v for k, v in output.items() if k != "images"}},
+                     indent=2))
     return EXIT_OK
 
 

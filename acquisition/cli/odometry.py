@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import json
 import sys
 
+from imaging.core import strict_json
 from imaging.core.errors import SarbotError
 
-from . import options as opt
 from .exit_codes import EXIT_FAILED, EXIT_OK
 
 
@@ -73,5 +72,5 @@ def cmd_rio(args) -> int:
         from rio.evaluation import drift_report
 
         summary["against_truth"] = drift_report(result.trajectory, truth)
-    print(json.dumps(summary, indent=2, default=opt.json_default))
+    print(strict_json.dumps(summary, indent=2))
     return EXIT_OK

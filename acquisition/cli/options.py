@@ -13,8 +13,6 @@ import importlib
 import math
 from pathlib import Path
 
-import numpy as np
-
 from imaging.core.errors import SarbotError
 
 
@@ -24,14 +22,16 @@ class ChoicesFrom:
     or to print help. Not at import: registries (autofocus methods) may grow at run time, and the owning
     modules may be slow to import (numba), which a command that does not image should not pay for.
 
-    ``first`` come before the source's names (e.g. "auto"). Works with a tuple, a list or a dict.
+    ``first`` come before the source's names (e.g. "auto"). Works with a tuple, a list or a dict, or a
+    function returning one.
     """
 
     def __init__(self, module: str, attribute: str, first: tuple[str, ...] = ()):
         self.module, self.attribute, self.first = module, attribute, first
 
     def names(self) -> list[str]:
-        return [*self.first, *getattr(importlib.import_module(self.module), self.attribute)]
+        source = getattr(importlib.import_module(self.module), self.attribute)
+        return [*self.first, *(source() if callable(source) else source)]
 
     def __iter__(self):
         return iter(self.names())
@@ -69,6 +69,20 @@ IMAGE_ALGORITHMS = ChoicesFrom("imaging.image_formation", "ALGORITHMS")
 MAP_ALGORITHMS = ChoicesFrom("imaging.stripmap", "ALGORITHMS")
 
 
+def reference_radar_names() -> list[str]:
+    """The radars of the reference rig (docs/config/rig.md): what ``--radar`` completes to."""
+    from imaging.core.rig import default_rig
+
+    return [r.name for r in default_rig().radars]
+
+
+def completes(action: argparse.Action, names: ChoicesFrom) -> argparse.Action:
+    """Let the shell completion (``sarbot completion``) offer ``names`` for an argument that takes other
+    values too (a scene's name or its TOML file): unlike ``choices``, nothing is refused."""
+    action.completes = names
+    return action
+
+
 # -- option groups ----------------------------------------------------------------------------------------
 def overwrite_option(s: argparse.ArgumentParser, help: str = "replace an existing output file") -> None:  # noqa: A002
     s.add_argument("--overwrite", action="store_true", help=help)
@@ -76,7 +90,8 @@ def overwrite_option(s: argparse.ArgumentParser, help: str = "replace an existin
 
 def imaging_options(s: argparse.ArgumentParser) -> None:
     """How images are formed: what ``image`` and ``batch`` share (a batch's job is an ``image``)."""
-    s.add_argument("--radar", help="radar name (needed when a recording has several)")
+    completes(s.add_argument("--radar", help="radar name (needed when a recording has several)"),
+              ChoicesFrom(__name__, "reference_radar_names"))
     s.add_argument("--frames", help="frame range A:B (B excluded); all by default")
     s.add_argument("--aperture", type=float, metavar="METRES",
                    help="image only the central METRES of the frames' track (a synthetic aperture of that length)")
@@ -299,15 +314,6 @@ def view_address(text: str | None) -> tuple[str, int] | None:
     from ..workers.view import parse_view_address
 
     return parse_view_address(text)
-
-
-def json_default(obj):
-    """``json.dumps``'s ``default`` for what commands print: numpy arrays and scalars as lists and numbers."""
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, (np.floating, np.integer)):
-        return obj.item()
-    raise TypeError(type(obj))
 
 
 #: Options whose values often start with a minus sign (negative coordinates), which argparse would

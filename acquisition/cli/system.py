@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import shlex
 from pathlib import Path
 
 from .exit_codes import EXIT_OK
@@ -26,8 +27,11 @@ def register(sub) -> None:
     s.add_argument("--no-deps", action="store_true", help="install sarbot alone (dependencies already there)")
     s.set_defaults(func=cmd_install_unit)
 
-    s = sub.add_parser("completion", help="print a shell completion script: eval \"$(sarbot completion bash)\"")
-    s.add_argument("shell", choices=list(COMPLETIONS), help="the shell (bash; zsh runs it with bashcompinit)")
+    s = sub.add_parser("completion", help="print a shell completion script: eval \"$(sarbot completion bash)\"",
+                       epilog="bash: eval \"$(sarbot completion bash)\" in ~/.bashrc; zsh: sarbot completion zsh > "
+                              "~/.zfunc/_sarbot (a folder on $fpath); fish: sarbot completion fish > "
+                              "~/.config/fish/completions/sarbot.fish")
+    s.add_argument("shell", choices=SHELLS, help="the shell")
     s.set_defaults(func=cmd_completion)
 
 
@@ -49,37 +53,35 @@ def cmd_install_unit(args) -> int:
     return EXIT_OK
 
 
-def bash_completion(parser: argparse.ArgumentParser) -> str:
-    """A bash completion script for ``parser``: the commands, and each command's options."""
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    top = [o for a in parser._actions for o in a.option_strings]
-    cases = []
-    for name, p in sub.choices.items():
-        options = " ".join(o for a in p._actions for o in a.option_strings)
-        cases.append(f'        {name}) opts="{options}" ;;')
-    return "\n".join([
-        "# bash completion for sarbot: eval \"$(sarbot completion bash)\" (e.g. in ~/.bashrc)",
-        "_sarbot() {",
-        '    local cur="${COMP_WORDS[COMP_CWORD]}" cmd="" opts="" w',
-        '    for w in "${COMP_WORDS[@]:1:COMP_CWORD-1}"; do case "$w" in -*) ;; *) cmd="$w"; break ;; esac; done',
-        '    if [ -z "$cmd" ]; then',
-        f'        COMPREPLY=($(compgen -W "{" ".join(sub.choices)} {" ".join(top)}" -- "$cur")); return',
-        "    fi",
-        '    case "$cmd" in',
-        *cases,
-        "    esac",
-        '    if [[ "$cur" == -* ]]; then COMPREPLY=($(compgen -W "$opts" -- "$cur")); else COMPREPLY=($(compgen -f -- "$cur")); fi',
-        "}",
-        "complete -o filenames -F _sarbot sarbot",
-        ""])
+#: Shells ``sarbot completion`` writes a script for (shtab generates each from the parser).
+SHELLS = ("bash", "zsh", "fish")
 
 
-#: Shell -> its completion script for a parser.
-COMPLETIONS = {"bash": bash_completion}
+def completion_script(parser: argparse.ArgumentParser, shell: str) -> str:
+    """shtab's completion script for ``parser`` in ``shell``: commands, options, and the choices of each
+    option (read from their sources, ``ChoicesFrom``), besides the names an argument ``completes`` to."""
+    import shtab
+
+    for action in _all_actions(parser):
+        names = getattr(action, "completes", None)
+        if names is not None:
+            # printf one per line: zsh and fish take lines, bash's compgen -W words
+            action.complete = shtab.cmd("printf '%s\\n' " + " ".join(shlex.quote(n) for n in names))
+        elif action.choices is not None and not isinstance(action, argparse._SubParsersAction):
+            action.choices = list(action.choices)  # ChoicesFrom read once, here
+    return shtab.complete(parser, shell=shell).rstrip("\n") + "\n"  # ends its last line: can be appended to
+
+
+def _all_actions(parser: argparse.ArgumentParser):
+    for action in parser._actions:
+        yield action
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                yield from _all_actions(sub)
 
 
 def cmd_completion(args) -> int:
     from . import build_parser
 
-    print(COMPLETIONS[args.shell](build_parser()), end="")
+    print(completion_script(build_parser(), args.shell), end="")
     return EXIT_OK
