@@ -97,7 +97,7 @@ def cmd_simulate(args) -> int:
     if not args.scene or not args.output:
         raise SarbotError("simulate needs a SCENE and -o OUTPUT (or --list)")
     scene = load_scene(args.scene)
-    out = opt.new_output(args.output, args.overwrite)
+    out = opt.new_output(args.output, args.overwrite, "-o ", inputs=[args.scene])
     counts = simulate_recording(scene, out, progress=Progress("simulate"), overwrite=args.overwrite)
     print(f"wrote {out}: scene {scene.name}, " + ", ".join(f"{n} frames of {r}" for r, n in counts.items()))
     return EXIT_OK
@@ -114,10 +114,11 @@ def cmd_image(args) -> int:
 
     out = Path(args.output)
     png = Path(args.png) if args.png else out.with_suffix(".png")
+    inputs = [args.recording] + ([args.trajectory] if args.trajectory != "truth" else [])
     for path in (out, png):
         if path.exists() and path.resolve() == Path(args.recording).resolve():
             raise SarbotError(f"{path}: that is the recording being imaged; choose another output")
-        opt.new_output(path, args.overwrite)
+        opt.new_output(path, args.overwrite, inputs=inputs)
     options = ImagingOptions(mode=args.mode, window=args.window, oversample=args.oversample,
                              tx=opt.parse_channels(args.tx, "tx"), rx=opt.parse_channels(args.rx, "rx"),
                              algorithm=args.algorithm, aperture_window=args.aperture_window)
@@ -164,10 +165,13 @@ def cmd_batch(args) -> int:
     jobs = plan_jobs(args.recordings, args.grid, args.output, radar=args.radar, frames=(frames.start, frames.stop),
                      tile_frames=args.tile_frames, sweep=parse_sweep(args.sweep), base_options=opt.imaging_values(args),
                      trajectory=args.trajectory, png=args.png, threads=threads)
-    out_dir = Path(args.output)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = opt.new_output_folder(args.output)
+    inputs = [*args.recordings] + ([args.trajectory] if args.trajectory != "truth" else [])
     for job in jobs:
-        opt.new_output(Path(job.output), args.overwrite)
+        opt.new_output(Path(job.output), args.overwrite, inputs=inputs)
+        if args.png:
+            opt.new_output(Path(job.output).with_suffix(".png"), args.overwrite, inputs=inputs)
+    opt.new_output(out_dir / "batch.json", args.overwrite, inputs=inputs)
     where = args.scheduler or f"a local cluster of {args.workers} worker process(es)"
     log.info("%d image(s) on %s", len(jobs), where)
     results = run_batch(jobs, args.scheduler, args.workers, progress=Progress("batch", unit="image"))

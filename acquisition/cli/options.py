@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -206,12 +207,57 @@ def range_pair(text: str) -> tuple[float, float]:
     return lo, hi
 
 
-def new_output(path, overwrite: bool, option: str = "") -> Path:
-    """An output file path; one that exists already only with ``--overwrite`` (nothing is destroyed unasked)."""
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return a.resolve() == b.resolve()
+
+
+def new_output(path, overwrite: bool, option: str = "", inputs=()) -> Path:
+    """An output file path, checked before any work: never one of the command's ``inputs`` (not even with
+    ``--overwrite``), one that exists already only with ``--overwrite`` (nothing is destroyed unasked), and in
+    a folder that exists and can be written. SarbotError naming the option and path otherwise."""
     path = Path(path)
+    for source in inputs:
+        if _same_file(path, Path(source)):
+            raise SarbotError(f"{option}{path}: that is a file this command reads; choose another output")
+    if path.is_dir():
+        raise SarbotError(f"{option}{path}: is a folder; give a file name")
     if path.exists() and not overwrite:
         raise SarbotError(f"{option}{path}: exists already (use --overwrite to replace it)")
+    check_writable_folder(path.parent if str(path.parent) else Path("."), option, path)
     return path
+
+
+def check_writable_folder(folder: Path, option: str = "", shown=None) -> None:
+    """SarbotError unless ``folder`` is an existing folder this process may create files in."""
+    shown = folder if shown is None else shown
+    if not folder.is_dir():
+        raise SarbotError(f"{option}{shown}: folder {folder} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise SarbotError(f"{option}{shown}: folder {folder} is not writable")
+
+
+def new_output_folder(path, option: str = "-o ") -> Path:
+    """A folder to write into (created with its parents), or SarbotError naming the option and why not."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise SarbotError(f"{option}{path}: exists and is not a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SarbotError(f"{option}{path}: cannot create that folder ({exc.strerror})") from None
+    check_writable_folder(path, option)
+    return path
+
+
+def write_output(path: Path, write, option: str = ""):
+    """``write(path)``, an OSError on the way (permissions, a full disk, a folder gone) as a SarbotError."""
+    try:
+        return write(path)
+    except OSError as exc:
+        raise SarbotError(f"{option}{path}: cannot write ({exc.strerror or exc})") from None
 
 
 def radar_targets(items: list[str] | None) -> dict[str, tuple[str, int]]:
