@@ -70,6 +70,13 @@ class InstallPlan:
             raise SarbotError(f"--user: not a valid user name: {self.user!r}")
         if self.config is not None and not self.config.is_file():
             raise SarbotError(f"--config: {self.config} does not exist")
+        if self.config is not None:  # a rig the service can start with, before anything is installed
+            from imaging.core.rig import load_rig
+
+            try:
+                load_rig(self.config)
+            except SarbotError as exc:
+                raise SarbotError(f"--config: not a rig the service could start with: {exc}") from None
         if self.constraints is not None and not self.constraints.is_file():
             raise SarbotError(f"--constraints: {self.constraints} does not exist")
         if not self.source:

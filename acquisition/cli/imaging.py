@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import sys
 from pathlib import Path
 
@@ -191,12 +192,17 @@ def cmd_analyze(args) -> int:
     from imaging import metrics
     from imaging.io.image_file import read_image
 
+    for option, value in (("--radius", args.radius), ("--half-length", args.half_length)):
+        if not (math.isfinite(value) and value > 0):
+            raise SarbotError(f"{option} {value}: must be a positive number of metres")
+    near = opt.parse_xy(args.at, "--at") if args.at else None
+    if near is not None and not all(math.isfinite(v) for v in near):
+        raise SarbotError(f"--at {args.at}: expected finite x,y in metres")
     results = []
     for name in args.images:
         img = read_image(name)
         if img.image.ndim != 2:
             raise SarbotError(f"{name}: analyze works on 2-D images; this one is {img.image.ndim}-D")
-        near = opt.parse_xy(args.at, "--at") if args.at else None
         look = img.attrs.get("look_direction", [0.0, 1.0, 0.0])
         try:
             res = metrics.analyze_target(img.image, img.x_m, img.y_m, look, near_m=near, radius_m=args.radius)

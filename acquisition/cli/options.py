@@ -122,8 +122,9 @@ def acquisition_options(s: argparse.ArgumentParser) -> None:
                    help="where a radar's datagrams arrive (repeat per radar); HOST is the address to listen on "
                         f"(default 127.0.0.1); FORMAT one of the registered wire formats ({', '.join(registry.names())}; "
                         f"default {registry.DEFAULT}), e.g. format=DCA1000,cfg=xwr18xx.cfg")
-    s.add_argument("--dca1000", action="append", metavar="NAME=PORT:CFG",
-                   help="shorthand for --radar NAME=PORT,format=DCA1000,cfg=CFG (a TI radar through a DCA1000)")
+    s.add_argument("--dca1000", action="append", metavar="NAME=[HOST:]PORT:CFG",
+                   help="shorthand for --radar NAME=[HOST:]PORT,format=DCA1000,cfg=CFG (a TI radar through a DCA1000; "
+                        "HOST: this host's address on the DCA1000's network, e.g. 192.168.33.30; default 127.0.0.1)")
     s.add_argument("--dca1000-arm", action="append", metavar="NAME[=HOST[:PORT]][,listen=[HOST:]PORT][,lanes=2|4][,delay_us=US]",
                    help="arm that --dca1000 radar's capture card before recording and stop it after (its configuration "
                         "protocol; default address 192.168.33.180:4096, replies on this host's port 4096, 2 LVDS lanes "
@@ -267,6 +268,8 @@ def radar_targets(items: list[str] | None) -> dict[str, tuple[str, int]]:
         try:
             name, where = item.split("=", 1)
             host, port = where.rsplit(":", 1) if ":" in where else ("127.0.0.1", where)
+            if name in out:
+                raise SarbotError(f"--radar {item!r}: radar {name} given twice")
             out[name] = (host, int(port))
         except ValueError:
             raise SarbotError(f"--radar {item!r}: expected NAME=[HOST:]PORT") from None
@@ -331,6 +334,22 @@ def size_bytes(text: str | None, option: str = "--split-size") -> int | None:
     if not (math.isfinite(value) and value > 0):
         raise SarbotError(f"{option} {text!r}: must be a positive size")
     return int(value)
+
+
+def bus_endpoint(text: str | None, option: str = "--health-endpoint") -> str | None:
+    """A ZeroMQ endpoint to bind: ``tcp://HOST:PORT`` (PORT 0 or ``*``: one the system picks, logged) or
+    ``ipc://PATH``; SarbotError naming the option otherwise (None when not given)."""
+    if text is None:
+        return None
+    scheme, sep, where = text.partition("://")
+    if sep and scheme == "ipc" and where and "\x00" not in where:
+        return text
+    if sep and scheme == "tcp":
+        host, colon, port = where.rpartition(":")
+        host_ok = host and not any(c in host for c in "/ \x00") and (host != "[]")
+        if colon and host_ok and (port == "*" or (port.isdigit() and int(port) < 65536)):
+            return text
+    raise SarbotError(f"{option} {text!r}: expected tcp://HOST:PORT (PORT 0: any free one) or ipc://PATH")
 
 
 def check_duration(value: float | None, option: str = "--duration") -> None:
