@@ -61,6 +61,10 @@ class Setup:
     #: Devices to bring up once the drivers listen, and down before they stop (``TiRadarControl``).
     controls: list = dataclasses.field(default_factory=list)
     control_listen_timeout_s: float = 30.0
+    #: radar -> a shared integer (``multiprocessing`` Value) its driver writes the UDP port it bound to, for a
+    #: link on port 0 (the system picks the port at bind: nothing can take it between choosing and binding).
+    #: Made by ``process_specs`` where not given; a restarted driver binds the same port again.
+    bound_ports: dict = dataclasses.field(default_factory=dict)
 
     @classmethod
     def for_devices(cls, rig_path, links: list[RadarLink], imu_port: str | None = None,
@@ -109,7 +113,7 @@ def check_links_distinct(links: list[RadarLink]) -> None:
             raise SarbotError(f"radar {link.name}: given twice (one --radar or --dca1000 per radar)")
         names.add(link.name)
         where = (link.host, link.port)
-        if where in addresses:
+        if link.port and where in addresses:
             raise SarbotError(f"radar {link.name}: {link.host}:{link.port} is radar {addresses[where]}'s already "
                               "(one UDP port per radar)")
         addresses[where] = link.name
@@ -156,7 +160,10 @@ def process_specs(setup: Setup, stop) -> list[ProcessSpec]:
         endpoint = bus_endpoint(f"radar.{link.name}")
         waveform = link.waveform(setup.rig.radar(link.name).waveform)
         frame_duration_ns[link.name] = waveform.frame_duration_ns
-        specs.append(ProcessSpec(f"radar.{link.name}", radar_process, (link, waveform, endpoint, stop), endpoint))
+        bound = None
+        if link.port == 0:
+            bound = setup.bound_ports.setdefault(link.name, mp.get_context("spawn").Value("i", 0))
+        specs.append(ProcessSpec(f"radar.{link.name}", radar_process, (link, waveform, endpoint, stop, bound), endpoint))
     radar_endpoints = [s.endpoint for s in specs]
     # The robot's IMU, then those on radar mounts (radar None: the robot's).
     imus = ([(None, setup.imu_port)] if setup.imu_port else []) + list(setup.radar_imu_ports.items())
