@@ -99,7 +99,8 @@ def cmd_simulate(args) -> int:
         raise SarbotError("simulate needs a SCENE and -o OUTPUT (or --list)")
     scene = load_scene(args.scene)
     out = opt.new_output(args.output, args.overwrite, "-o ", inputs=[args.scene])
-    counts = simulate_recording(scene, out, progress=Progress("simulate"), overwrite=args.overwrite)
+    counts = opt.write_output(out, lambda p: simulate_recording(scene, p, progress=Progress("simulate"),
+                                                                 overwrite=args.overwrite), "-o ")
     print(f"wrote {out}: scene {scene.name}, " + ", ".join(f"{n} frames of {r}" for r, n in counts.items()))
     return EXIT_OK
 
@@ -128,10 +129,11 @@ def cmd_image(args) -> int:
         img = image_recording(rec, args.radar, args.grid, args.trajectory, opt.parse_frames(args.frames), options,
                               progress=Progress("backproject"), autofocus=autofocus, imu_aided=args.imu_aided,
                               aperture_m=args.aperture)
-    path = write_image(out, img)
+    path = opt.write_output(out, lambda p: write_image(p, img), "-o ")
     # Not laid out beside the backprojection: its kernel has every core, and the figure's Python then holds
     # the GIL the kernel's calls need (0.15 s slower than after it, benchmarks/image_command.py).
-    ImagePicture(img.x_m, img.y_m).save(png, img.image, title=image_title(img))  # a volume: its maximum over height
+    opt.write_output(png, lambda p: ImagePicture(img.x_m, img.y_m).save(p, img.image, title=image_title(img)),
+                     "--png ")  # a volume: its maximum over height
     print(f"wrote {path} and {png}")
     if img.track_error is not None:
         print(autofocus_summary(img))

@@ -102,8 +102,8 @@ def _number(value: Any, field: str, lo: float = -math.inf, hi: float = math.inf,
         raise ConfigError(field, f"expected a number, got {value!r}")
     value = float(value)
     if not math.isfinite(value) or value > hi or value < lo or (lo_open and value == lo):
-        bounds = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
-        raise ConfigError(field, f"must be a finite number in {bounds}, got {value!r}")
+        bounds = "" if math.isinf(lo) and math.isinf(hi) else f" in {'(' if lo_open else '['}{lo:g}, {hi:g}]"
+        raise ConfigError(field, f"must be a finite number{bounds}, got {value!r}")
     return value
 
 
@@ -178,6 +178,8 @@ def _clutter_targets(box: dict[str, Any], prefix: str) -> list[PointTarget]:
         lo_hi = np.asarray(box.pop("box_m"), float)
         amplitude = _number(box.pop("amplitude", 0.5), f"{prefix}.amplitude", 0.0, 1e6)
         rng = np.random.default_rng(_seed(box.pop("seed", 0), f"{prefix}.seed"))
+    except ConfigError:
+        raise
     except KeyError as exc:
         raise ConfigError(f"{prefix}.{exc.args[0]}", "is required") from None
     except (TypeError, ValueError) as exc:
@@ -215,7 +217,8 @@ def _room_settings(room: dict[str, Any]) -> dict[str, Any]:
         raise ConfigError("room.centre_m", "expected [x, y] in metres")
     size = tuple(_number(v, "room.size_m", 0.0, 1000.0, lo_open=True) for v in size)
     centre = tuple(_number(v, "room.centre_m", -1e6, 1e6) for v in centre)
-    height = _number(room.pop("height_m", 2.5), "room.height_m", 0.0, 100.0, lo_open=True)
+    # The lowest row of wall scatterers is at 0.1 m: a room no higher has no walls.
+    height = _number(room.pop("height_m", 2.5), "room.height_m", 0.1, 100.0, lo_open=True)
     spacing = _number(room.pop("spacing_m", 0.3), "room.spacing_m", 0.0, 1000.0, lo_open=True)
     rows = max(0, math.ceil((height - 0.1) / ROOM_ROW_SPACING_M))
     n = 2 * rows * (size[0] / spacing + size[1] / spacing + 2)
@@ -270,6 +273,8 @@ def scene_from_dict(table: dict[str, Any], source: str | None = None, base: Path
             room = dict(table.pop("room"))
             try:
                 static_points = room_scatterers(**_room_settings(room))
+            except ConfigError:
+                raise
             except (TypeError, ValueError, ArithmeticError) as exc:
                 raise ConfigError("room", str(exc)) from None
             if room:
