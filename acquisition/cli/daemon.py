@@ -95,14 +95,14 @@ def dca1000_spec(item: str) -> str:
     (``NAME=[HOST:]PORT,format=DCA1000,cfg=CFG``). HOST is where to listen: the DCA1000 sends to this host's
     address on its network (192.168.33.30 by TI's default), which loopback never receives."""
     name, sep, rest = item.partition("=")
-    host = ""
+    host, host_given = "", not rest.split(":", 1)[0].isdigit()
     if rest.startswith("["):  # [IPv6]:PORT:CFG
         host, _, rest = rest.partition("]:")
         host += "]"
-    elif not rest.split(":", 1)[0].isdigit():  # HOST:PORT:CFG
+    elif host_given:  # HOST:PORT:CFG
         host, _, rest = rest.partition(":")
     port, _, cfg_path = rest.partition(":")
-    if not (sep and name and port.isdigit() and cfg_path) or host in ("[]", "]"):
+    if not (sep and name and port.isdigit() and cfg_path) or (host_given and host.strip("[]") == ""):
         raise SarbotError(f"--dca1000 {item!r}: expected NAME=[HOST:]PORT:CFG_FILE, e.g. "
                           "ti=192.168.33.30:4098:xwr18xx.cfg")
     return f"{name}={host + ':' if host else ''}{port},format=DCA1000,cfg={cfg_path}"
