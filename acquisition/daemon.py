@@ -128,9 +128,8 @@ def check_radar_addresses(links: list[RadarLink]) -> None:
     import socket
 
     for link in links:
-        family = socket.AF_INET6 if ":" in link.host else socket.AF_INET
         try:
-            with socket.socket(family, socket.SOCK_DGRAM) as sock:
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:  # as the driver's (UdpReceiver)
                 sock.bind((link.host, link.port))
         except OSError as exc:
             if exc.errno == errno.EADDRNOTAVAIL:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 from imaging.core.errors import SarbotError
 
@@ -129,7 +130,8 @@ def cmd_export(args) -> int:
         raise SarbotError("--map and --trajectory go into MCAP only (ROS 2 has no message for a dB map); leave out --ros2")
     inputs = [args.recording, *(args.map or ()), *(args.trajectory or ())]
     if args.ros2:
-        opt.new_output(args.output, False, "-o ", inputs=inputs)  # a bag is a new folder, never replaced
+        if not Path(args.output).exists():  # a bag is a new folder, never replaced (export_ros2 says so)
+            opt.new_output(args.output, False, "-o ", inputs=inputs)
     else:
         opt.new_output(args.output, args.overwrite, "-o ", inputs=inputs)
     if args.ros2:
