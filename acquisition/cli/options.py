@@ -141,7 +141,7 @@ def acquisition_options(s: argparse.ArgumentParser) -> None:
     s.add_argument("--split-size", help="start a new file at this size (e.g. 2G)")
     s.add_argument("--split-time", type=float, help="start a new file after this many seconds")
     s.add_argument("--min-free", default="64M", help="stop recording cleanly when less disk space than this is left (default 64M)")
-    s.add_argument("--health-endpoint", help="ZeroMQ endpoint to publish health on (default: a free loopback port, logged)")
+    s.add_argument("--health-endpoint", help="ZeroMQ endpoint to publish health on (tcp://HOST:PORT or ipc://PATH; default: loopback TCP on a port the system picks at bind, logged)")
 
 
 #: The device-control options of ``acquisition_options``, as the wire formats name them (``control_options``).
