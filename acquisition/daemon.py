@@ -120,10 +120,10 @@ def check_links_distinct(links: list[RadarLink]) -> None:
 
 
 def check_radar_addresses(links: list[RadarLink]) -> None:
-    """Bind each radar's UDP address once, before any driver starts: an address this host does not have, or a
-    port another program holds, is said now and stops the run (SarbotError), instead of a driver that dies and
-    is restarted for ever while nothing is recorded. The driver binds it again (no SO_REUSEADDR: see
-    drivers.radar.udp)."""
+    """Bind each radar's UDP address once, before any driver starts: an address this host does not have (or
+    cannot listen on at all) is said now and stops the run (SarbotError), instead of a driver that dies and is
+    restarted for ever while nothing is recorded. A port another program holds is left to the driver's
+    restarts with back-off (the holder may let go); the driver binds the address again itself."""
     import errno
     import socket
 
@@ -132,10 +132,10 @@ def check_radar_addresses(links: list[RadarLink]) -> None:
             with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:  # as the driver's (UdpReceiver)
                 sock.bind((link.host, link.port))
         except OSError as exc:
+            if exc.errno == errno.EADDRINUSE:
+                continue
             if exc.errno == errno.EADDRNOTAVAIL:
                 why = f"{link.host} is not an address of this host (see `ip addr`; the radar's network, e.g. 192.168.33.x)"
-            elif exc.errno == errno.EADDRINUSE:
-                why = f"UDP port {link.port} is in use by another program on {link.host}"
             else:
                 why = f"cannot listen on UDP {link.host}:{link.port} ({exc.strerror or exc})"
             raise SarbotError(f"radar {link.name}: {why}") from None
