@@ -380,6 +380,10 @@ def _hostile_cases() -> list[tuple[str, str]]:
         "import-ti -o its capture": ["import-ti", "{file}", "--cfg", "{dir}/x.cfg", "-o", "{file}", "--overwrite"],
         "import-bag -o an existing file": ["import-bag", "{file}", "--calib", "{file}", "-o", "{rec}"],
         "batch writing over its recording": ["batch", "{rec}", "-o", "{dir}", "--grid", IMAGE_GRID],
+        "batch -o a file": ["batch", "{rec}", "-o", "{file}", "--grid", IMAGE_GRID],
+        "import-ti -o in a file": ["import-ti", "{dir}/x.cfg", "--cfg", "{dir}/x.cfg", "-o", "{file}/r.h5"],
+        "replay radar named twice": ["replay", "{rec}", "--radar", "left_front=127.0.0.1:4098",
+                                     "--radar", "left_front=127.0.0.1:4099"],
     })
     cases.update({f"scene {name}": ["simulate", f"{{dir}}/scene_{name}.toml", "-o", f"{{dir}}/sim_{name}.h5"]
                   for name in ("heading_inf", "seed_neg", "speed_nan", "snr_nan", "imu_string", "spacing", "clutter_seed")})
