@@ -14,7 +14,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from imaging.core.errors import FileFormatError
+from imaging.core.errors import FileFormatError, SarbotError
 
 
 #: ``open_state``: the file was closed by its writer.
@@ -169,6 +169,8 @@ def info(path: str | Path) -> dict[str, Any]:
     kind = file_kind(path)
     try:
         return {"recording": recording_info, "trajectory": trajectory_info, "image": image_info}[kind](path)
+    except SarbotError:  # said already, naming the file
+        raise
     except (KeyError, OSError, RuntimeError, ValueError) as exc:  # a group or attribute missing or damaged
         raise FileFormatError(f"{path}: damaged or incomplete {kind} ({type(exc).__name__}: {exc})") from None
 
