@@ -54,7 +54,11 @@ class BusPublisher:
         self.subscriptions: set[str] = set()
         self.socket.setsockopt(zmq.SNDHWM, high_water_mark)
         self.socket.setsockopt(zmq.LINGER, 1000)
-        (self.socket.bind if bind else self.socket.connect)(endpoint)
+        try:
+            (self.socket.bind if bind else self.socket.connect)(endpoint)
+        except zmq.ZMQError:
+            self.socket.close(0)
+            raise
         self.endpoint = self.socket.getsockopt_string(zmq.LAST_ENDPOINT) if bind else endpoint
         self._seq: dict[str, int] = defaultdict(int)
         # Several publishers may send one topic (every driver sends "event"): sequences are per publisher.

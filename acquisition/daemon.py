@@ -28,7 +28,7 @@ from .bus import BusPublisher
 from .devices import DeviceBringUp
 from .driver_loops import can_process, imu_process, imu_role, radar_process
 from .messages import ClockState, Health, Latency, LoggedEvent, WorkerState
-from .processes import ProcessSpec, free_tcp_endpoint, release_free_heap
+from .processes import ProcessSpec, bus_endpoint, release_free_heap
 from .recorder import DiskFullError, Recorder
 from .sdnotify import notify, watchdog_interval_s
 from .workers import WorkerSpec, worker_process
@@ -61,6 +61,10 @@ class Setup:
     #: Devices to bring up once the drivers listen, and down before they stop (``TiRadarControl``).
     controls: list = dataclasses.field(default_factory=list)
     control_listen_timeout_s: float = 30.0
+    #: radar -> a shared integer (``multiprocessing`` Value) its driver writes the UDP port it bound to, for a
+    #: link on port 0 (the system picks the port at bind: nothing can take it between choosing and binding).
+    #: Made by ``process_specs`` where not given; a restarted driver binds the same port again.
+    bound_ports: dict = dataclasses.field(default_factory=dict)
 
     @classmethod
     def for_devices(cls, rig_path, links: list[RadarLink], imu_port: str | None = None,
@@ -79,6 +83,7 @@ class Setup:
         radar_imu_ports = dict(radar_imu_ports or {})
         rig = load_rig(rig_path)
         radars = {r.name: r for r in rig.radars}
+        check_links_distinct(links)
         for link in links:
             if link.name not in radars:
                 raise SarbotError(f"radar {link.name}: no such radar in {rig_path} (radars: {', '.join(rig.radar_names)})")
@@ -93,32 +98,83 @@ class Setup:
                 raise SarbotError(f"--radar-imu {name}={port}: {rig_path} declares no IMU on radar {name}; add a "
                                   f"[radar.{name}.imu] table with its rate_hz (its axes are the radar's)")
         if not links and not imu_port and not radar_imu_ports and can is None:
-            raise SarbotError("nothing to record: give --radar NAME=[HOST:]PORT, --dca1000 NAME=PORT:CFG, --imu-port DEVICE, "
+            raise SarbotError("nothing to record: give --radar NAME=[HOST:]PORT, --dca1000 NAME=[HOST:]PORT:CFG, --imu-port DEVICE, "
                               "--radar-imu NAME=DEVICE and/or --can")
         return cls(rig, list(links), imu_port, can, radar_imu_ports=radar_imu_ports,
                    controls=device_controls(links, device_options or {}), **settings)
+
+
+def check_links_distinct(links: list[RadarLink]) -> None:
+    """SarbotError for a radar given twice, or two radars on one address (the second would never bind)."""
+    names: set[str] = set()
+    addresses: dict[tuple[str, int], str] = {}
+    for link in links:
+        if link.name in names:
+            raise SarbotError(f"radar {link.name}: given twice (one --radar or --dca1000 per radar)")
+        names.add(link.name)
+        where = (link.host, link.port)
+        if link.port and where in addresses:
+            raise SarbotError(f"radar {link.name}: {link.host}:{link.port} is radar {addresses[where]}'s already "
+                              "(one UDP port per radar)")
+        addresses[where] = link.name
+
+
+def check_radar_addresses(links: list[RadarLink]) -> None:
+    """Bind each radar's UDP address once, before any driver starts: an address this host does not have (or
+    cannot listen on at all) is said now and stops the run (SarbotError), instead of a driver that dies and is
+    restarted for ever while nothing is recorded. A port another program holds is left to the driver's
+    restarts with back-off (the holder may let go); the driver binds the address again itself."""
+    import errno
+    import socket
+
+    for link in links:
+        try:
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:  # as the driver's (UdpReceiver)
+                sock.bind((link.host, link.port))
+        except OSError as exc:
+            if exc.errno == errno.EADDRINUSE:
+                continue
+            if exc.errno == errno.EADDRNOTAVAIL:
+                why = f"{link.host} is not an address of this host (see `ip addr`; the radar's network, e.g. 192.168.33.x)"
+            else:
+                why = f"cannot listen on UDP {link.host}:{link.port} ({exc.strerror or exc})"
+            raise SarbotError(f"radar {link.name}: {why}") from None
+
+
+def open_health_publisher(endpoint: str | None) -> BusPublisher:
+    """The health publisher on ``endpoint`` (default: loopback, a port the system picks at bind); SarbotError
+    naming the endpoint when it cannot be bound."""
+    import zmq
+
+    try:
+        return BusPublisher(endpoint or "tcp://127.0.0.1:0")
+    except zmq.ZMQError as exc:
+        raise SarbotError(f"--health-endpoint {endpoint}: cannot publish there ({exc.strerror})") from None
 
 
 def process_specs(setup: Setup, stop) -> list[ProcessSpec]:
     """The daemon's child processes for ``setup``: drivers first, then the workers, which subscribe to them."""
     specs, frame_duration_ns = [], {}
     for link in setup.radars:
-        endpoint = free_tcp_endpoint()
+        endpoint = bus_endpoint(f"radar.{link.name}")
         waveform = link.waveform(setup.rig.radar(link.name).waveform)
         frame_duration_ns[link.name] = waveform.frame_duration_ns
-        specs.append(ProcessSpec(f"radar.{link.name}", radar_process, (link, waveform, endpoint, stop), endpoint))
+        bound = None
+        if link.port == 0:
+            bound = setup.bound_ports.setdefault(link.name, mp.get_context("spawn").Value("i", 0))
+        specs.append(ProcessSpec(f"radar.{link.name}", radar_process, (link, waveform, endpoint, stop, bound), endpoint))
     radar_endpoints = [s.endpoint for s in specs]
     # The robot's IMU, then those on radar mounts (radar None: the robot's).
     imus = ([(None, setup.imu_port)] if setup.imu_port else []) + list(setup.radar_imu_ports.items())
     for radar, port in imus:
-        endpoint = free_tcp_endpoint()
+        endpoint = bus_endpoint(imu_role(radar))
         # Outlives the IMU process: a restarted driver takes the trigger's PTP time and tick from it.
         clock_reference = mp.get_context("spawn").Array("q", 3)
         specs.append(ProcessSpec(imu_role(radar), imu_process,
                                  (port, endpoint, radar_endpoints, stop, clock_reference, frame_duration_ns, radar),
                                  endpoint))
     if setup.can is not None:
-        endpoint = free_tcp_endpoint()
+        endpoint = bus_endpoint("can")
         specs.append(ProcessSpec("can", can_process, (setup.can, endpoint, stop), endpoint))
     driver_endpoints = [s.endpoint for s in specs]
     for w in setup.workers:
@@ -181,8 +237,13 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
     HardwareError when a device of ``setup.controls`` refuses to come up (the run stops; the file keeps
     what came before and the device's answer in /events).
     """
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SarbotError(f"{out_dir}: cannot create the recordings folder ({exc.strerror})") from None
     path = path or out_dir / time.strftime("recording_%Y%m%dT%H%M%S.h5")
+    check_radar_addresses(setup.radars)
+    health_pub = open_health_publisher(setup.health_endpoint)
     ctx = mp.get_context("spawn")
     stop = ctx.Event()
     specs = {s.role: s for s in process_specs(setup, stop)}
@@ -193,7 +254,6 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
         return proc
 
     procs = {role: start(spec) for role, spec in specs.items()}
-    health_pub = BusPublisher(setup.health_endpoint or "tcp://127.0.0.1:0")
     log.info("health on %s", health_pub.endpoint)
     # Every event written to /events is published again beside health: a viewer sees what the file holds.
     recorder = Recorder(path, setup.rig, [s.endpoint for s in specs.values()], flush_interval_s=setup.flush_interval_s,

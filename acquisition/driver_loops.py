@@ -236,17 +236,22 @@ def publisher_heard_by_recorder(endpoint: str, role: str, stop, **kwargs) -> Bus
     return pub
 
 
-def radar_process(link: RadarLink, waveform: Waveform, endpoint: str, stop) -> None:
-    """A radar's driver process: listens on the link, publishes its frames on ``endpoint``."""
+def radar_process(link: RadarLink, waveform: Waveform, endpoint: str, stop, bound_port=None) -> None:
+    """A radar's driver process: listens on the link, publishes its frames on ``endpoint``. A link on port 0
+    binds one the system picks and writes it to ``bound_port`` (a shared integer); restarted, it binds that
+    one again, so the sender's address stays right."""
     become_child(link.name, realtime=True)
     stream = link.open_stream(waveform)
+    port = (bound_port.value or link.port) if bound_port is not None else link.port
     try:
-        rx = UdpReceiver(link.host, link.port, accept_from=link.source)
+        rx = UdpReceiver(link.host, port, accept_from=link.source)
     except OSError as exc:  # the port taken, the address not this machine's: say so in one line, and exit
         log.error("radar %s: %s", link.name, exc.strerror or exc)
         raise SystemExit(1) from None
     # Bound first: what the radar sends from now on waits in the socket until the recorder listens.
     pub = publisher_heard_by_recorder(endpoint, f"radar {link.name}", stop, high_water_mark=FRAME_QUEUE)
+    if bound_port is not None:
+        bound_port.value = rx.address[1]
     log.info("radar %s: %s on %s:%d", link.name, link.wire_format, link.host, rx.address[1])
     try:
         radar_driver_loop(rx, link.name, stream, pub, stop)

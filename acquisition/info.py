@@ -14,7 +14,41 @@ from typing import Any
 import h5py
 import numpy as np
 
-from imaging.core.errors import FileFormatError
+from imaging.core.errors import FileFormatError, SarbotError
+
+
+#: ``open_state``: the file was closed by its writer.
+CLOSED = "closed"
+#: ``open_state``: a writer holds the file now (a recorder running): read as SWMR readers do.
+BEING_WRITTEN = "being written"
+#: ``open_state``: the writer's SWMR flag is still set but nobody holds the file: a recorder killed (SIGKILL,
+#: power cut). Readable up to its last flush, as export and replay read it.
+NOT_CLOSED_CLEANLY = "not closed cleanly"
+
+
+def open_state(path: str | Path) -> str:
+    """How the HDF5 file at ``path`` was left: CLOSED, BEING_WRITTEN or NOT_CLOSED_CLEANLY; FileFormatError
+    when it cannot be opened at all (missing, not HDF5, damaged)."""
+    path = Path(path)
+    if not path.exists():
+        raise FileFormatError(f"{path}: no such file")
+    try:
+        with h5py.File(path, "r"):
+            return CLOSED
+    except OSError as exc:
+        text = str(exc).lower()
+    if "unable to lock file" in text:  # HDF5's file lock: a live writer
+        return BEING_WRITTEN
+    if "already open for" in text:  # the SWMR-write flag, and no lock: its writer is gone
+        return NOT_CLOSED_CLEANLY
+    raise FileFormatError(f"{path}: not a readable HDF5 file, damaged or cut short") from None
+
+
+def _open(path: Path, state: str) -> h5py.File:
+    try:
+        return h5py.File(path, "r", **({} if state == CLOSED else {"swmr": True}))
+    except OSError as exc:
+        raise FileFormatError(f"{path}: not a readable HDF5 file, damaged or cut short ({exc})") from None
 
 
 def file_kind(path: str | Path) -> str:
@@ -22,15 +56,12 @@ def file_kind(path: str | Path) -> str:
     from imaging.io import image_file, recording, trajectory_file
 
     path = Path(path)
-    if not path.exists():
-        raise FileFormatError(f"{path}: no such file")
+    state = open_state(path)
     try:
-        with h5py.File(path, "r") as f:
+        with _open(path, state) as f:
             schema = f.attrs.get("schema")
-    except OSError as exc:
-        if "lock" in str(exc).lower():  # held by a recorder: a recording being written
-            return "recording"
-        raise FileFormatError(f"{path}: not a readable HDF5 file, damaged or cut short") from None
+    except (KeyError, RuntimeError, ValueError) as exc:  # damaged metadata under the superblock
+        raise FileFormatError(f"{path}: damaged HDF5 metadata ({exc})") from None
     schema = schema.decode() if isinstance(schema, bytes) else schema
     kinds = {recording.SCHEMA: "recording", trajectory_file.SCHEMA: "trajectory", image_file.SCHEMA: "image"}
     if schema not in kinds:
@@ -66,8 +97,9 @@ def _imu_info(samples: dict, nominal_rate_hz: float, clock_drift_ppm) -> dict[st
 def recording_info(path: str | Path) -> dict[str, Any]:
     from imaging.io.recording import Recording
 
+    state = open_state(path)
     with Recording(path) as rec:
-        out: dict[str, Any] = {"file": str(path), "kind": "recording", "radars": {}}
+        out: dict[str, Any] = {"file": str(path), "kind": "recording", "state": state, "radars": {}}
         starts, ends = [], []
         for name in rec.radar_names:
             t = rec.frame_time_ns(name)
@@ -132,8 +164,15 @@ def image_info(path: str | Path) -> dict[str, Any]:
 
 
 def info(path: str | Path) -> dict[str, Any]:
+    """What the file at ``path`` holds; FileFormatError (one line naming it) for anything it cannot read,
+    damaged metadata included."""
     kind = file_kind(path)
-    return {"recording": recording_info, "trajectory": trajectory_info, "image": image_info}[kind](path)
+    try:
+        return {"recording": recording_info, "trajectory": trajectory_info, "image": image_info}[kind](path)
+    except SarbotError:  # said already, naming the file
+        raise
+    except (KeyError, OSError, RuntimeError, ValueError) as exc:  # a group or attribute missing or damaged
+        raise FileFormatError(f"{path}: damaged or incomplete {kind} ({type(exc).__name__}: {exc})") from None
 
 
 def _imu_line(i: dict[str, Any]) -> str:
@@ -146,6 +185,9 @@ def _imu_line(i: dict[str, Any]) -> str:
 def format_info(d: dict[str, Any]) -> str:
     """The info as lines a person reads."""
     lines = [f"{d['file']}: sarbot {d['kind']}"]
+    if d.get("state", CLOSED) != CLOSED:
+        lines[0] += (" (being written now; read up to its last flush)" if d["state"] == BEING_WRITTEN else
+                     " (not closed cleanly: its recorder was stopped hard; read up to its last flush)")
     if d["kind"] == "recording":
         if "duration_s" in d:
             lines.append(f"  duration {d['duration_s']:.1f} s; truth {'yes' if d['truth'] else 'no'}; "

@@ -70,6 +70,13 @@ class InstallPlan:
             raise SarbotError(f"--user: not a valid user name: {self.user!r}")
         if self.config is not None and not self.config.is_file():
             raise SarbotError(f"--config: {self.config} does not exist")
+        if self.config is not None:  # a rig the service can start with, before anything is installed
+            from imaging.core.rig import load_rig
+
+            try:
+                load_rig(self.config)
+            except SarbotError as exc:
+                raise SarbotError(f"--config: not a rig the service could start with: {exc}") from None
         if self.constraints is not None and not self.constraints.is_file():
             raise SarbotError(f"--constraints: {self.constraints} does not exist")
         if not self.source:
@@ -122,18 +129,39 @@ def create_user(plan: InstallPlan) -> Path:
     if sysusers is None:
         raise SarbotError("systemd-sysusers is not installed: this command needs systemd")
     cmd = [sysusers] + ([f"--root={plan.root}"] if plan.root != Path("/") else []) + [str(conf)]
-    if plan.root != Path("/"):
-        # A staging root needs the files sysusers edits; on the robot they exist.
-        for name in ("passwd", "group", "shadow", "gshadow"):
-            f = plan.at(f"/etc/{name}")
-            f.parent.mkdir(parents=True, exist_ok=True)
-            f.touch(exist_ok=True)
-        group = plan.at("/etc/group")
-        if "dialout:" not in group.read_text():
-            with group.open("a") as g:
-                g.write("dialout:x:20:\n")
+    stage_account_files(plan)
     _run(cmd, "creating the user")
+    if plan.root != Path("/"):
+        for name, mode in CREDENTIAL_FILES.items():  # whatever sysusers did, as the system keeps them
+            plan.at(f"/etc/{name}").chmod(mode)
     return conf
+
+
+#: The account files holding password hashes, and their mode (as Fedora and systemd-sysusers create them:
+#: nobody reads them but root, who needs no permission bits).
+CREDENTIAL_FILES = {"shadow": 0o000, "gshadow": 0o000}
+
+
+def stage_account_files(plan: InstallPlan) -> list[Path]:
+    """The account files sysusers edits, for a staging root (on the robot they exist, and this writes
+    nothing: the live system's credentials are systemd-sysusers' alone). passwd and group readable by all,
+    shadow and gshadow by nobody (CREDENTIAL_FILES); dialout declared if missing. Returns what it touched."""
+    if plan.root == Path("/"):
+        return []
+    touched = []
+    for name in ("passwd", "group", *CREDENTIAL_FILES):
+        f = plan.at(f"/etc/{name}")
+        f.parent.mkdir(parents=True, exist_ok=True)
+        if not f.exists():
+            # Created with its final mode: never world-readable, not even for a moment.
+            os.close(os.open(f, os.O_WRONLY | os.O_CREAT | os.O_EXCL, CREDENTIAL_FILES.get(name, 0o644)))
+        f.chmod(CREDENTIAL_FILES.get(name, 0o644))
+        touched.append(f)
+    group = plan.at("/etc/group")
+    if "dialout:" not in group.read_text():
+        with group.open("a") as g:
+            g.write("dialout:x:20:\n")
+    return touched
 
 
 def create_venv(plan: InstallPlan) -> Path:

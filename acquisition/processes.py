@@ -183,8 +183,41 @@ class ProcessSpec:
     worker: bool = False
 
 
+_BUS_FOLDER: str | None = None
+
+
+def bus_folder() -> str:
+    """This process's private folder (mode 0700) for the bus's ``ipc://`` sockets, made at first use and
+    removed at exit; under systemd in the unit's $RUNTIME_DIRECTORY when it has one."""
+    global _BUS_FOLDER
+    if _BUS_FOLDER is None or not os.path.isdir(_BUS_FOLDER):
+        import atexit
+        import shutil
+
+        parent = os.environ.get("RUNTIME_DIRECTORY", "").split(":")[0] or None
+        _BUS_FOLDER = tempfile.mkdtemp(prefix="sarbot-bus-", dir=parent if parent and os.path.isdir(parent) else None)
+        atexit.register(shutil.rmtree, _BUS_FOLDER, True)
+    return _BUS_FOLDER
+
+
+def bus_endpoint(role: str = "bus") -> str:
+    """A new ``ipc://`` endpoint for a publisher on the daemon's bus, named after its ``role``.
+
+    A Unix socket in a private folder: nothing else on the machine can take it between the moment it is
+    chosen and the moment its process binds it (a loopback TCP port picked as free and bound later can be,
+    and a demo lost a radar to that), and no other user can connect to it. A restarted process binds the
+    same path again (ZeroMQ replaces the socket file it left).
+    """
+    import uuid
+
+    safe = "".join(c if c.isalnum() or c in "._-" else "_" for c in role)[:40]
+    return f"ipc://{bus_folder()}/{safe}-{uuid.uuid4().hex[:8]}"
+
+
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
-    """A loopback port free at the moment of asking (TCP by default, or socket.SOCK_DGRAM)."""
+    """A loopback port free at the moment of asking (TCP by default, or socket.SOCK_DGRAM). For tests and
+    benchmarks only: another process may take it before it is bound (production code binds port 0, or uses
+    ``bus_endpoint``)."""
     return free_ports(1, kind)[0]
 
 
@@ -202,4 +235,5 @@ def free_ports(n: int, kind: int = socket.SOCK_DGRAM) -> list[int]:
 
 
 def free_tcp_endpoint() -> str:
+    """A loopback TCP endpoint free at the moment of asking: for tests only (see ``free_port``)."""
     return f"tcp://127.0.0.1:{free_port()}"

@@ -166,6 +166,23 @@ class DevicesHeld:
     release: object
 
 
+#: How long ``bound_port`` waits for a driver to bind, s.
+BIND_WAIT_S = 60.0
+
+
+def bound_port(port) -> int:
+    """A target's UDP port: a number, or a shared integer (``multiprocessing`` Value) a driver that bound port 0
+    writes its port to (``acquisition.daemon.Setup.bound_ports``), read once it is there."""
+    if isinstance(port, int):
+        return port
+    deadline = time.monotonic() + BIND_WAIT_S
+    while not port.value:
+        if time.monotonic() > deadline:
+            raise SarbotError(f"a radar driver did not bind its port within {BIND_WAIT_S:g} s")
+        time.sleep(0.05)
+    return int(port.value)
+
+
 def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str | None, speed: float | None,
            start_delay_s: float = 0.0, can: CanConfig | None = None, laps: int = 1,
            radar_imu_links: dict[str, str] | None = None, held: DevicesHeld | None = None) -> dict:
@@ -174,7 +191,8 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
     IMU on a radar's mount on a pty of its own, ``radar_imu_links``: radar -> link), and /can on
     a python-can bus. ``laps`` > 1: the drive again and again, back to back, times and counters
     continuing (a soak test; the drive should end where and as it started, at rest). ``held``: the devices
-    up before the sending and after it until released (``DevicesHeld``). Returns what was sent
+    up before the sending and after it until released (``DevicesHeld``); a target's port may be a driver's
+    bound port, read once they go (``bound_port``). Returns what was sent
     ({radar: datagrams, "can": frames})."""
     if laps < 1:
         raise SarbotError(f"--laps: must be at least 1, got {laps}")
@@ -205,6 +223,7 @@ def replay(path: Path, radar_targets: dict[str, tuple[str, int]], imu_link: str 
         can_bus = can.open() if can is not None else None
         if held is not None:
             held.go.wait(MAX_HOLD_S)
+        radar_targets = {name: (host, bound_port(port)) for name, (host, port) in radar_targets.items()}
         time.sleep(start_delay_s)
         sent = {}
         failures = []

@@ -250,3 +250,63 @@ def test_a_restarted_imu_driver_records_again(tmp_path):
     # Samples keep coming to the end of the run, on the same time base, with a gap only around the restart.
     assert got.size > 0.8 * imu.time_ns.size and got[-1] >= imu.time_ns[-40]
     assert np.isin(got, imu.time_ns).all()
+
+
+def test_the_daemon_binds_port_0_publishes_the_port_and_its_bus_takes_no_tcp_port(tmp_path):
+    """No port is picked as free and bound later (another process could take it between): a radar link on port
+    0 is bound by its driver to a port the system picks and published in ``Setup.bound_ports``, where a sender
+    (the demo's emulated radars) reads it; every bus endpoint is an ipc:// socket in a private folder."""
+    import multiprocessing as mp
+    import stat
+    from pathlib import Path
+
+    from acquisition.daemon import Setup, process_specs, record
+    from acquisition.replay import replay
+    from drivers.radar.link import RadarLink
+
+    src = tmp_path / "source.h5"
+    iq, _ = make_source(src, n_frames=20)
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG_TOML)
+    setup = Setup.for_devices(rig, [RadarLink("left", 0)])
+    ctx = mp.get_context("spawn")
+    endpoints = [s.endpoint for s in process_specs(setup, ctx.Event())]
+    assert endpoints and all(e.startswith("ipc://") for e in endpoints), endpoints
+    folder = Path(endpoints[0][len("ipc://"):]).parent
+    assert stat.S_IMODE(folder.stat().st_mode) == 0o700
+    bound = setup.bound_ports["left"]
+    done, sent = threading.Event(), {}
+
+    def send():
+        try:
+            sent.update(replay(src, {"left": ("127.0.0.1", bound)}, None, 2.0))
+        finally:
+            time.sleep(1.0)
+            done.set()
+
+    sender = threading.Thread(target=send, daemon=True)
+    sender.start()
+    (path,) = record(setup, tmp_path / "out", until=done, duration_s=60)
+    sender.join(10)
+    assert 1024 <= bound.value < 65536 and sent["left"] > 0
+    with Recording(path) as rec:
+        assert rec.n_frames("left") == 20
+        np.testing.assert_array_equal(rec.file["radar/left/adc"][:], iq)
+
+
+def test_production_code_never_picks_a_free_port_to_bind_later():
+    """free_port, free_ports and free_tcp_endpoint are for tests: no module of the daemon, demo or replay
+    path calls them (acquisition/processes.py only defines them, one on top of the other)."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    offenders = []
+    for folder in ("acquisition", "drivers", "imaging", "rio"):
+        for path in (root / folder).rglob("*.py"):
+            if path == root / "acquisition" / "processes.py":
+                continue
+            text = path.read_text()
+            for name in ("free_port(", "free_ports(", "free_tcp_endpoint("):
+                if name in text.replace(f"def {name}", ""):
+                    offenders.append(f"{path.relative_to(root)}: {name}")
+    assert offenders == [], offenders

@@ -127,3 +127,83 @@ def test_info_on_a_recording_with_a_damaged_chunk_is_a_one_line_error(tmp_path):
     assert res.returncode == 2 and "Traceback" not in res.stderr
     (line,) = res.stderr.strip().splitlines()
     assert f"{path}: /radar/left/valid: damaged data, a chunk's checksum fails" in line
+
+
+def test_info_verify_says_clean_or_each_damaged_chunk(tmp_path):
+    """`info --verify` reads every chunk: a clean file exits 0 with one line; two flipped chunks of two datasets
+    are two lines naming each dataset and chunk, exit 2."""
+    import h5py
+
+    path = tmp_path / "r.h5"
+    make_recording(path)
+    clean = sarbot("info", "--verify", str(path))
+    assert clean.returncode == 0 and "no damage found" in clean.stdout and not clean.stderr
+    with h5py.File(path, "r") as f:
+        places = [f[key].id.get_chunk_info(0).byte_offset for key in ("radar/left/valid", "imu/counter")]
+    with open(path, "r+b") as fh:
+        for offset in places:
+            fh.seek(offset + 5)
+            byte = fh.read(1)[0]
+            fh.seek(offset + 5)
+            fh.write(bytes([byte ^ 0x40]))
+    res = sarbot("info", "--verify", str(path))
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 2
+    assert "/radar/left/valid chunk 0" in lines[0] or "/radar/left/valid chunk 0" in lines[1]
+    assert any("/imu/counter chunk 0" in line for line in lines)
+
+
+KILLED_WRITER = """
+import os, sys
+sys.path.insert(0, {tests!r})
+from test_info import make_recording
+from imaging.io.recording import RecordingWriter
+import test_info
+class Kept(RecordingWriter):
+    def __exit__(self, *exc):  # flushed, never closed: as a recorder killed after its last flush
+        self._f.flush()
+        os._exit(9)
+test_info.RecordingWriter = Kept
+make_recording({path!r})
+"""
+
+
+def test_info_on_a_file_left_by_a_killed_recorder_reads_it_and_says_so(tmp_path):
+    """A recorder killed after a flush leaves the SWMR-write flag set: `info` reads it as export and replay do
+    (exit 0, its numbers) and says it was not closed cleanly, instead of calling it damaged."""
+    from pathlib import Path
+
+    path = tmp_path / "killed.h5"
+    code = KILLED_WRITER.format(tests=str(Path(__file__).parent), path=str(path))
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 9, done.stderr
+    res = sarbot("info", str(path))
+    assert res.returncode == 0, res.stderr
+    assert "not closed cleanly" in res.stdout and "radar left: 20 frames" in res.stdout
+    d = json.loads(sarbot("info", str(path), "--json").stdout)
+    assert d["state"] == "not closed cleanly" and d["radars"]["left"]["frames"] == 20
+    assert sarbot("info", "--verify", str(path)).returncode == 0
+
+
+def test_info_on_damaged_metadata_is_one_line(tmp_path):
+    """A recording whose radar group lost an attribute (the waveform's) is a one-line error, not a KeyError."""
+    import h5py
+
+    path = tmp_path / "r.h5"
+    make_recording(path)
+    with h5py.File(path, "r+") as f:
+        del f["radar/left"].attrs["f0_hz"]
+    res = sarbot("info", str(path))
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1 and str(path) in res.stderr
+
+
+def test_info_tum_never_replaces_the_file_it_reads(tmp_path):
+    t = 1_700_000_000_000_000_000 + np.arange(11, dtype=np.int64) * 10_000_000
+    traj = SampledTrajectory(t, np.zeros((11, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (11, 1)), np.zeros((11, 3)), source="rio")
+    path = write_trajectory(tmp_path / "traj.h5", traj)
+    before = path.read_bytes()
+    res = sarbot("info", str(path), "--tum", str(path), "--overwrite")
+    assert res.returncode == 2 and "a file this command reads" in res.stderr
+    assert path.read_bytes() == before

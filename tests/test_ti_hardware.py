@@ -289,3 +289,29 @@ def test_a_board_that_does_not_answer_leaves_the_radar_stopped(tmp_path):
 def test_bad_arming_options_are_one_line_errors(tmp_path, extra, message):
     run = record(tmp_path, free_udp_port(), extra)
     assert run.returncode == 2 and message in run.stderr and run.stderr.strip().count("\n") == 0
+
+
+@pytest.mark.parametrize("value, host, port", [
+    ("iwr=192.168.33.30:4098:{cfg}", "192.168.33.30", 4098),  # this host's address on the board's network
+    ("iwr=4098:{cfg}", "127.0.0.1", 4098),  # no HOST: loopback, as before
+    ("iwr=[::1]:4099:{cfg}", "::1", 4099),
+])
+def test_the_dca1000_shorthand_takes_a_host_as_radar_does(tmp_path, value, host, port):
+    """`--dca1000 NAME=[HOST:]PORT:CFG`: the HOST is where the link listens (a real board sends to the host's
+    address on its network, never to loopback); the CFG is the rest, read as the radar's waveform."""
+    from acquisition.cli.daemon import dca1000_spec
+    from drivers.radar.link import parse_radar_link
+
+    cfg = iwr1843_cfg(tmp_path)
+    link = parse_radar_link(dca1000_spec(value.format(cfg=cfg)))
+    assert (link.name, link.host, link.port, link.wire_format) == ("iwr", host, port, "DCA1000")
+    assert link.options["cfg"] == str(cfg) and link.waveform(None).chirps_per_frame > 0
+
+
+@pytest.mark.parametrize("value", ["iwr=4098", "iwr=host:cfg", "iwr=:4098:x.cfg", "=4098:x.cfg", "iwr=[]:4098:x.cfg"])
+def test_a_bad_dca1000_shorthand_is_a_one_line_error(value):
+    from acquisition.cli.daemon import dca1000_spec
+    from imaging.core.errors import SarbotError
+
+    with pytest.raises(SarbotError, match=r"expected NAME=\[HOST:\]PORT:CFG_FILE"):
+        dca1000_spec(value)

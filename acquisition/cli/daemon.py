@@ -43,7 +43,8 @@ def register(sub) -> None:
                         "set to within a block's travel, so keep that a small part of --map-aperture (warned beyond 1/8)")
     s.add_argument("--map-presum", default="auto", help="chirps summed per virtual channel before imaging ('auto': the "
                    "most whose phase spread stays within pi/4 at --max-speed)")
-    s.add_argument("--max-speed", type=float, default=0.5, help="fastest the robot drives, m/s (sets automatic pre-summing)")
+    s.add_argument("--max-speed", type=float, default=0.5, help="fastest the robot drives, m/s (sets automatic pre-summing; "
+                   f"above 0, at most {MAX_SPEED_MPS:g})")
     s.add_argument("--map-radars", help="radars to image (comma-separated; default all)")
     s.add_argument("--map-threads", type=int, default=1, help="threads of the map's backprojection (default 1: on a "
                    "machine shared with the drivers a second one costs more CPU than it saves time)")
@@ -83,16 +84,33 @@ def register(sub) -> None:
 
 
 # -- record and run ---------------------------------------------------------------------------------------
+#: Fastest ``run --max-speed``, m/s: it sets the pre-summing, which a wild value would make meaningless.
+MAX_SPEED_MPS = 20.0
+#: Longest ``replay --start-delay``, s.
+MAX_START_DELAY_S = 24 * 3600.0
+
+
+def dca1000_spec(item: str) -> str:
+    """``--dca1000 NAME=[HOST:]PORT:CFG`` as the ``--radar`` text it is short for
+    (``NAME=[HOST:]PORT,format=DCA1000,cfg=CFG``). HOST is where to listen: the DCA1000 sends to this host's
+    address on its network (192.168.33.30 by TI's default), which loopback never receives."""
+    name, sep, rest = item.partition("=")
+    host, host_given = "", not rest.split(":", 1)[0].isdigit()
+    if rest.startswith("["):  # [IPv6]:PORT:CFG
+        host, _, rest = rest.partition("]:")
+        host += "]"
+    elif host_given:  # HOST:PORT:CFG
+        host, _, rest = rest.partition(":")
+    port, _, cfg_path = rest.partition(":")
+    if not (sep and name and port.isdigit() and cfg_path) or (host_given and host.strip("[]") == ""):
+        raise SarbotError(f"--dca1000 {item!r}: expected NAME=[HOST:]PORT:CFG_FILE, e.g. "
+                          "ti=192.168.33.30:4098:xwr18xx.cfg")
+    return f"{name}={host + ':' if host else ''}{port},format=DCA1000,cfg={cfg_path}"
+
+
 def radar_link_specs(args) -> list[str]:
-    """``--radar`` and the ``--dca1000 NAME=PORT:CFG`` shorthand, as ``--radar`` texts."""
-    specs = list(args.radar or [])
-    for item in args.dca1000 or []:  # NAME=PORT:CFG is NAME=PORT,format=DCA1000,cfg=CFG
-        name, sep, rest = item.partition("=")
-        port, sep2, cfg_path = rest.partition(":")
-        if not (sep and sep2 and port.isdigit()):
-            raise SarbotError(f"--dca1000 {item!r}: expected NAME=PORT:CFG_FILE")
-        specs.append(f"{name}={port},format=DCA1000,cfg={cfg_path}")
-    return specs
+    """``--radar`` and the ``--dca1000 NAME=[HOST:]PORT:CFG`` shorthand, as ``--radar`` texts."""
+    return [*(args.radar or []), *(dca1000_spec(item) for item in args.dca1000 or [])]
 
 
 def record_setup(args):
@@ -108,7 +126,7 @@ def record_setup(args):
     return Setup.for_devices(args.config, links, args.imu_port, opt.named_paths(args.radar_imu, "--radar-imu"),
                              opt.can_config(args), device_options, split_bytes=opt.size_bytes(args.split_size),
                              split_s=args.split_time, min_free_bytes=opt.size_bytes(args.min_free, "--min-free"),
-                             health_endpoint=args.health_endpoint)
+                             health_endpoint=opt.bus_endpoint(args.health_endpoint))
 
 
 def _record(setup, out: Path, duration_s: float | None, extra_paths=(), **kwargs) -> int:
@@ -160,6 +178,8 @@ def run_workers(setup, args, out_dir: Path, stamp: str):
     from ..workers.stripmap import MAX_THINNING, is_thinning
 
     names = {link.name for link in setup.radars}
+    if not (math.isfinite(args.max_speed) and 0 < args.max_speed <= MAX_SPEED_MPS):
+        raise SarbotError(f"--max-speed {args.max_speed}: must be a speed above 0 and at most {MAX_SPEED_MPS:g} m/s")
     if args.map_presum == "auto":
         presum = None
     elif args.map_presum.isdigit() and int(args.map_presum) >= 1:
@@ -199,8 +219,8 @@ def check_replay(args) -> dict[str, tuple[str, int]]:
     opt.named_paths(args.radar_imu_link, "--radar-imu-link")
     if not math.isfinite(args.speed) or args.speed < 0:
         raise SarbotError(f"--speed {args.speed}: must be a multiple of real time >= 0 (0: as fast as possible)")
-    if not math.isfinite(args.start_delay) or args.start_delay < 0:
-        raise SarbotError(f"--start-delay {args.start_delay}: must be a number of seconds >= 0")
+    if not (math.isfinite(args.start_delay) and 0 <= args.start_delay <= MAX_START_DELAY_S):
+        raise SarbotError(f"--start-delay {args.start_delay}: must be a number of seconds from 0 to {MAX_START_DELAY_S:g}")
     if args.laps < 1:
         raise SarbotError(f"--laps {args.laps}: must be at least 1")
     opt.can_config(args)

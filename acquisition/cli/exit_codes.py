@@ -25,6 +25,10 @@ def run_command(func, args) -> int:
     except SarbotError as exc:
         print(f"sarbot: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except OSError as exc:  # the last net: a file that cannot be read or written is the user's to fix
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        print(f"sarbot: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return EXIT_USAGE
     except KeyboardInterrupt:
         print("sarbot: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

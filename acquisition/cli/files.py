@@ -4,12 +4,13 @@ into recordings and back (see docs/formats/recording.md and docs/export.md)."""
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 from imaging.core import strict_json
 from imaging.core.errors import SarbotError
 
 from . import options as opt
-from .exit_codes import EXIT_OK
+from .exit_codes import EXIT_OK, EXIT_USAGE
 
 #: ``import-ti --iq-swap``: whether Q comes before I (None: as found in the data).
 IQ_SWAP = {"auto": None, "yes": True, "no": False}
@@ -22,6 +23,9 @@ def register(sub) -> None:
     s.add_argument("files", nargs="+", help="sarbot HDF5 files")
     s.add_argument("--json", action="store_true", help="JSON instead of text")
     s.add_argument("--tum", help="also write the recording's /truth or the trajectory in TUM format to this file")
+    s.add_argument("--verify", action="store_true",
+                   help="read every chunk of every dataset and check its checksum: one line per damaged place, exit 2 "
+                        "if any (0: nothing damaged)")
     opt.overwrite_option(s, "replace an existing --tum file")
     s.set_defaults(func=cmd_info)
 
@@ -79,6 +83,10 @@ def cmd_info(args) -> int:
 
     if args.tum and len(args.files) != 1:
         raise SarbotError("--tum: give one file (a recording's /truth or a trajectory)")
+    if args.verify:
+        return verify_files(args.files)
+    if args.tum:  # before anything is read: the file being read is never the one written
+        opt.new_output(args.tum, args.overwrite, "--tum ", inputs=args.files)
     reports = [info(path) for path in args.files]
     if args.json:
         print(strict_json.dumps(reports if len(reports) > 1 else reports[0], indent=2))
@@ -98,10 +106,23 @@ def cmd_info(args) -> int:
                 raise SarbotError(f"--tum: {args.files[0]} has no /truth to export")
         else:
             raise SarbotError(f"--tum: {args.files[0]} is an image; give a recording or a trajectory")
-        out = opt.new_output(args.tum, args.overwrite, "--tum ")
-        write_tum(out, traj)
+        out = opt.new_output(args.tum, args.overwrite, "--tum ", inputs=args.files)
+        opt.write_output(out, lambda p: write_tum(p, traj), "--tum ")
         print(f"wrote {out} ({traj.time_ns.size} poses, TUM format for evo)", file=sys.stderr if args.json else sys.stdout)
     return EXIT_OK
+
+
+def verify_files(paths: list[str]) -> int:
+    """``info --verify``: every chunk of every file read back; one line per damaged place on stderr, one line per
+    clean file on stdout; exit 2 if anything is damaged."""
+    from ..verify import format_findings, verify_file
+
+    damaged = False
+    for path in paths:
+        findings = verify_file(path)
+        damaged |= bool(findings)
+        print(format_findings(findings, path), file=sys.stderr if findings else sys.stdout)
+    return EXIT_USAGE if damaged else EXIT_OK
 
 
 def cmd_export(args) -> int:
@@ -112,6 +133,12 @@ def cmd_export(args) -> int:
     progress = Progress("export", unit="frame")
     if args.ros2 and args.map:
         raise SarbotError("--map goes into MCAP only (ROS 2 has no message for a dB map); leave out --ros2")
+    inputs = [args.recording, *(args.map or ()), *(args.trajectory or ())]
+    if args.ros2:
+        if not Path(args.output).exists():  # a bag is a new folder, never replaced (export_ros2 says so)
+            opt.new_output(args.output, False, "-o ", inputs=inputs)
+    else:
+        opt.new_output(args.output, args.overwrite, "-o ", inputs=inputs)
     if args.ros2:
         counts = export_ros2(args.recording, args.output, storage=args.storage, progress=progress,
                              trajectories=args.trajectory or ())
@@ -127,7 +154,7 @@ def cmd_import_bag(args) -> int:
     from ..importers.sarbot_bag import import_sarbot_bag, is_sarbot_bag
     from ..progress import Progress
 
-    out = opt.new_output(args.output, args.overwrite)
+    out = opt.new_output(args.output, args.overwrite, "-o ", inputs=[args.bag, *([args.calib] if args.calib else [])])
     if is_sarbot_bag(args.bag):
         counts = import_sarbot_bag(args.bag, out, overwrite=args.overwrite, progress=Progress("import"))
         print(f"wrote {out}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
@@ -145,7 +172,7 @@ def cmd_import_ti(args) -> int:
     from ..progress import Progress
 
     velocity = opt.parse_floats(args.velocity, 3, "--velocity")
-    out = opt.new_output(args.output, args.overwrite)
+    out = opt.new_output(args.output, args.overwrite, "-o ", inputs=[*args.capture, args.cfg])
     got = import_ti_capture(args.capture, args.cfg, out, layout=args.layout, sample_format=args.sample_format,
                             iq_swap=IQ_SWAP[args.iq_swap], radar_name=args.radar_name, velocity_mps=velocity,
                             overwrite=args.overwrite, progress=Progress("import"))

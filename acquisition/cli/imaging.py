@@ -4,6 +4,7 @@ and what they measure (see docs/formats/image.md)."""
 from __future__ import annotations
 
 import logging
+import math
 import sys
 from pathlib import Path
 
@@ -101,8 +102,9 @@ def cmd_simulate(args) -> int:
     if not args.scene or not args.output:
         raise SarbotError("simulate needs a SCENE and -o OUTPUT (or --list)")
     scene = load_scene(args.scene)
-    out = opt.new_output(args.output, args.overwrite)
-    counts = simulate_recording(scene, out, progress=Progress("simulate"), overwrite=args.overwrite)
+    out = opt.new_output(args.output, args.overwrite, "-o ", inputs=[args.scene])
+    counts = opt.write_output(out, lambda p: simulate_recording(scene, p, progress=Progress("simulate"),
+                                                                 overwrite=args.overwrite), "-o ")
     print(f"wrote {out}: scene {scene.name}, " + ", ".join(f"{n} frames of {r}" for r, n in counts.items()))
     return EXIT_OK
 
@@ -118,10 +120,11 @@ def cmd_image(args) -> int:
 
     out = Path(args.output)
     png = Path(args.png) if args.png else out.with_suffix(".png")
+    inputs = [args.recording] + ([args.trajectory] if args.trajectory != "truth" else [])
     for path in (out, png):
         if path.exists() and path.resolve() == Path(args.recording).resolve():
             raise SarbotError(f"{path}: that is the recording being imaged; choose another output")
-        opt.new_output(path, args.overwrite)
+        opt.new_output(path, args.overwrite, inputs=inputs)
     options = ImagingOptions(mode=args.mode, window=args.window, oversample=args.oversample,
                              tx=opt.parse_channels(args.tx, "tx"), rx=opt.parse_channels(args.rx, "rx"),
                              algorithm=args.algorithm, aperture_window=args.aperture_window)
@@ -130,10 +133,11 @@ def cmd_image(args) -> int:
         img = image_recording(rec, args.radar, args.grid, args.trajectory, opt.parse_frames(args.frames), options,
                               progress=Progress("backproject"), autofocus=autofocus, imu_aided=args.imu_aided,
                               aperture_m=args.aperture)
-    path = write_image(out, img)
+    path = opt.write_output(out, lambda p: write_image(p, img), "-o ")
     # Not laid out beside the backprojection: its kernel has every core, and the figure's Python then holds
     # the GIL the kernel's calls need (0.15 s slower than after it, benchmarks/image_command.py).
-    ImagePicture(img.x_m, img.y_m).save(png, img.image, title=image_title(img))  # a volume: its maximum over height
+    opt.write_output(png, lambda p: ImagePicture(img.x_m, img.y_m).save(p, img.image, title=image_title(img)),
+                     "--png ")  # a volume: its maximum over height
     print(f"wrote {path} and {png}")
     if img.track_error is not None:
         print(autofocus_summary(img))
@@ -168,10 +172,13 @@ def cmd_batch(args) -> int:
     jobs = plan_jobs(args.recordings, args.grid, args.output, radar=args.radar, frames=(frames.start, frames.stop),
                      tile_frames=args.tile_frames, sweep=parse_sweep(args.sweep), base_options=opt.imaging_values(args),
                      trajectory=args.trajectory, png=args.png, threads=threads)
-    out_dir = Path(args.output)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = opt.new_output_folder(args.output)
+    inputs = [*args.recordings] + ([args.trajectory] if args.trajectory != "truth" else [])
     for job in jobs:
-        opt.new_output(Path(job.output), args.overwrite)
+        opt.new_output(Path(job.output), args.overwrite, inputs=inputs)
+        if args.png:
+            opt.new_output(Path(job.output).with_suffix(".png"), args.overwrite, inputs=inputs)
+    opt.new_output(out_dir / "batch.json", args.overwrite, inputs=inputs)
     where = args.scheduler or f"a local cluster of {args.workers} worker process(es)"
     log.info("%d image(s) on %s", len(jobs), where)
     results = run_batch(jobs, args.scheduler, args.workers, progress=Progress("batch", unit="image"),
@@ -202,12 +209,17 @@ def cmd_analyze(args) -> int:
     from imaging import metrics
     from imaging.io.image_file import read_image
 
+    for option, value in (("--radius", args.radius), ("--half-length", args.half_length)):
+        if not (math.isfinite(value) and value > 0):
+            raise SarbotError(f"{option} {value}: must be a positive number of metres")
+    near = opt.parse_xy(args.at, "--at") if args.at else None
+    if near is not None and not all(math.isfinite(v) for v in near):
+        raise SarbotError(f"--at {args.at}: expected finite x,y in metres")
     results = []
     for name in args.images:
         img = read_image(name)
         if img.image.ndim != 2:
             raise SarbotError(f"{name}: analyze works on 2-D images; this one is {img.image.ndim}-D")
-        near = opt.parse_xy(args.at, "--at") if args.at else None
         look = img.attrs.get("look_direction", [0.0, 1.0, 0.0])
         try:
             res = metrics.analyze_target(img.image, img.x_m, img.y_m, look, near_m=near, radius_m=args.radius)

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import math
 import sys
+from pathlib import Path
 
 from imaging.core import strict_json
 from imaging.core.errors import SarbotError
@@ -16,6 +18,7 @@ def register(sub) -> None:
     s.add_argument("recording")
     s.add_argument("-o", "--output", required=True, help="trajectory file to write (.h5)")
     s.add_argument("--tum", help="also write TUM text (t x y z qx qy qz qw) for evo")
+    opt.overwrite_option(s, "replace existing output files (-o, --tum)")
     s.add_argument("--radar", action="append", help="radar to use (repeat; default all with detections)")
     s.add_argument("--joint", action="store_true", help="solve simultaneous scans of all radars together")
     s.add_argument("--planar", action="store_true", help="robot on a flat floor: no vertical velocity")
@@ -26,6 +29,19 @@ def register(sub) -> None:
                    help="m/s added to every radar velocity's uncertainty: timing jitter, Doppler quantisation, "
                         "motion within a frame (default 0.05; 0.1 for a hand-held rig)")
     s.set_defaults(func=cmd_rio)
+
+
+def check_rio_options(args) -> None:
+    """The options of ``rio``, before the recording is read: numbers in range, outputs that destroy nothing."""
+    if not (math.isfinite(args.static_init) and args.static_init >= 0):
+        raise SarbotError(f"--static-init {args.static_init}: must be a number of seconds >= 0")
+    if not (math.isfinite(args.velocity_floor) and args.velocity_floor >= 0):
+        raise SarbotError(f"--velocity-floor {args.velocity_floor}: must be a speed in m/s >= 0")
+    out = opt.new_output(args.output, args.overwrite, "-o ", inputs=[args.recording])
+    if args.tum:
+        tum = opt.new_output(args.tum, args.overwrite, "--tum ", inputs=[args.recording])
+        if tum.resolve() == out.resolve():
+            raise SarbotError(f"--tum {tum}: the same file as -o; give each its own")
 
 
 def cmd_rio(args) -> int:
@@ -41,6 +57,7 @@ def cmd_rio(args) -> int:
 
     from ..progress import Progress
 
+    check_rio_options(args)
     with Recording(args.recording) as rec:
         radars = tuple(args.radar) if args.radar else None
         for name in radars or ():
@@ -64,9 +81,10 @@ def cmd_rio(args) -> int:
     except FloatingPointError as exc:
         print(f"sarbot: odometry failed: {exc}", file=sys.stderr)
         return EXIT_FAILED
-    path = write_trajectory(args.output, result.trajectory, result.covariance_diag)
+    path = opt.write_output(Path(args.output), lambda p: write_trajectory(p, result.trajectory, result.covariance_diag),
+                            "-o ")
     if args.tum:
-        write_tum(args.tum, result.trajectory)
+        opt.write_output(Path(args.tum), lambda p: write_tum(p, result.trajectory), "--tum ")
     summary = {"trajectory": str(path), "poses": int(result.trajectory.time_ns.size), **result.stats}
     if truth is not None:
         from rio.evaluation import drift_report

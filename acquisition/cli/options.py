@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import math
+import os
 from pathlib import Path
 
 from imaging.core.errors import SarbotError
@@ -136,8 +137,9 @@ def acquisition_options(s: argparse.ArgumentParser) -> None:
                    help="where a radar's datagrams arrive (repeat per radar); HOST is the address to listen on "
                         f"(default 127.0.0.1); FORMAT one of the registered wire formats ({', '.join(registry.names())}; "
                         f"default {registry.DEFAULT}), e.g. format=DCA1000,cfg=xwr18xx.cfg")
-    s.add_argument("--dca1000", action="append", metavar="NAME=PORT:CFG",
-                   help="shorthand for --radar NAME=PORT,format=DCA1000,cfg=CFG (a TI radar through a DCA1000)")
+    s.add_argument("--dca1000", action="append", metavar="NAME=[HOST:]PORT:CFG",
+                   help="shorthand for --radar NAME=[HOST:]PORT,format=DCA1000,cfg=CFG (a TI radar through a DCA1000; "
+                        "HOST: this host's address on the DCA1000's network, e.g. 192.168.33.30; default 127.0.0.1)")
     s.add_argument("--dca1000-arm", action="append", metavar="NAME[=HOST[:PORT]][,listen=[HOST:]PORT][,lanes=2|4][,delay_us=US]",
                    help="arm that --dca1000 radar's capture card before recording and stop it after (its configuration "
                         "protocol; default address 192.168.33.180:4096, replies on this host's port 4096, 2 LVDS lanes "
@@ -154,7 +156,7 @@ def acquisition_options(s: argparse.ArgumentParser) -> None:
     s.add_argument("--split-size", help="start a new file at this size (e.g. 2G)")
     s.add_argument("--split-time", type=float, help="start a new file after this many seconds")
     s.add_argument("--min-free", default="64M", help="stop recording cleanly when less disk space than this is left (default 64M)")
-    s.add_argument("--health-endpoint", help="ZeroMQ endpoint to publish health on (default: a free loopback port, logged)")
+    s.add_argument("--health-endpoint", help="ZeroMQ endpoint to publish health on (tcp://HOST:PORT or ipc://PATH; default: loopback TCP on a port the system picks at bind, logged)")
 
 
 #: The device-control options of ``acquisition_options``, as the wire formats name them (``control_options``).
@@ -221,12 +223,57 @@ def range_pair(text: str) -> tuple[float, float]:
     return lo, hi
 
 
-def new_output(path, overwrite: bool, option: str = "") -> Path:
-    """An output file path; one that exists already only with ``--overwrite`` (nothing is destroyed unasked)."""
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return a.resolve() == b.resolve()
+
+
+def new_output(path, overwrite: bool, option: str = "", inputs=()) -> Path:
+    """An output file path, checked before any work: never one of the command's ``inputs`` (not even with
+    ``--overwrite``), one that exists already only with ``--overwrite`` (nothing is destroyed unasked), and in
+    a folder that exists and can be written. SarbotError naming the option and path otherwise."""
     path = Path(path)
+    for source in inputs:
+        if _same_file(path, Path(source)):
+            raise SarbotError(f"{option}{path}: that is a file this command reads; choose another output")
+    if path.is_dir():
+        raise SarbotError(f"{option}{path}: is a folder; give a file name")
     if path.exists() and not overwrite:
         raise SarbotError(f"{option}{path}: exists already (use --overwrite to replace it)")
+    check_writable_folder(path.parent if str(path.parent) else Path("."), option, path)
     return path
+
+
+def check_writable_folder(folder: Path, option: str = "", shown=None) -> None:
+    """SarbotError unless ``folder`` is an existing folder this process may create files in."""
+    shown = folder if shown is None else shown
+    if not folder.is_dir():
+        raise SarbotError(f"{option}{shown}: folder {folder} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise SarbotError(f"{option}{shown}: folder {folder} is not writable")
+
+
+def new_output_folder(path, option: str = "-o ") -> Path:
+    """A folder to write into (created with its parents), or SarbotError naming the option and why not."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise SarbotError(f"{option}{path}: exists and is not a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SarbotError(f"{option}{path}: cannot create that folder ({exc.strerror})") from None
+    check_writable_folder(path, option)
+    return path
+
+
+def write_output(path: Path, write, option: str = ""):
+    """``write(path)``, an OSError on the way (permissions, a full disk, a folder gone) as a SarbotError."""
+    try:
+        return write(path)
+    except OSError as exc:
+        raise SarbotError(f"{option}{path}: cannot write ({exc.strerror or exc})") from None
 
 
 def radar_targets(items: list[str] | None) -> dict[str, tuple[str, int]]:
@@ -236,6 +283,8 @@ def radar_targets(items: list[str] | None) -> dict[str, tuple[str, int]]:
         try:
             name, where = item.split("=", 1)
             host, port = where.rsplit(":", 1) if ":" in where else ("127.0.0.1", where)
+            if name in out:
+                raise SarbotError(f"--radar {item!r}: radar {name} given twice")
             out[name] = (host, int(port))
         except ValueError:
             raise SarbotError(f"--radar {item!r}: expected NAME=[HOST:]PORT") from None
@@ -300,6 +349,22 @@ def size_bytes(text: str | None, option: str = "--split-size") -> int | None:
     if not (math.isfinite(value) and value > 0):
         raise SarbotError(f"{option} {text!r}: must be a positive size")
     return int(value)
+
+
+def bus_endpoint(text: str | None, option: str = "--health-endpoint") -> str | None:
+    """A ZeroMQ endpoint to bind: ``tcp://HOST:PORT`` (PORT 0 or ``*``: one the system picks, logged) or
+    ``ipc://PATH``; SarbotError naming the option otherwise (None when not given)."""
+    if text is None:
+        return None
+    scheme, sep, where = text.partition("://")
+    if sep and scheme == "ipc" and where and "\x00" not in where:
+        return text
+    if sep and scheme == "tcp":
+        host, colon, port = where.rpartition(":")
+        host_ok = host and not any(c in host for c in "/ \x00") and (host != "[]")
+        if colon and host_ok and (port == "*" or (port.isdigit() and int(port) < 65536)):
+            return text
+    raise SarbotError(f"{option} {text!r}: expected tcp://HOST:PORT (PORT 0: any free one) or ipc://PATH")
 
 
 def check_duration(value: float | None, option: str = "--duration") -> None:

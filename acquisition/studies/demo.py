@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import multiprocessing as mp
+import random
 import threading
 import time
 from pathlib import Path
@@ -87,7 +88,6 @@ def run_demo(out_dir: Path, speed: float = 0.5, view: tuple[str, int] | None = N
     from drivers.radar.link import RadarLink
 
     from ..daemon import Setup, record
-    from ..processes import free_ports
     from ..replay import DevicesHeld
     from ..workers.pipeline import add_pipeline_workers
 
@@ -101,11 +101,16 @@ def run_demo(out_dir: Path, speed: float = 0.5, view: tuple[str, int] | None = N
     simulate_recording(scene, sim_path, progress=Progress("simulate"), overwrite=True)
 
     rig = scene.rig
-    *radar_ports, can_port = free_ports(len(scene.radars) + 1)
-    links = [RadarLink(name, port) for name, port in zip(scene.radars, radar_ports)]
-    can = CanConfig("udp_multicast", "239.74.163.2", options={"port": can_port})
+    ctx = mp.get_context("spawn")
+    # The drivers bind ports the system picks (0) and publish them; the emulated radars send there once
+    # they go. Never a port picked as free and bound later: another program may take it in between.
+    bound_ports = {name: ctx.Value("i", 0) for name in scene.radars}
+    links = [RadarLink(name, 0) for name in scene.radars]
+    # The emulated CAN bus is a multicast group its members share (SO_REUSEADDR): nothing to bind alone, so a
+    # port of its own per run keeps two demos on one machine apart.
+    can = CanConfig("udp_multicast", "239.74.163.2", options={"port": random.randint(49152, 65535)})
     imu_link = out_dir / "imu_tty"
-    setup = Setup(rig, links, str(imu_link), can, health_interval_s=1.0)
+    setup = Setup(rig, links, str(imu_link), can, health_interval_s=1.0, bound_ports=bound_ports)
     config = StripMapConfig(aperture_m=APERTURE_M, range_min_m=1.0, range_max_m=4.0, z_m=0.3)
     # The map images all four radars, both sides of the drive, into one world-frame map; so does the odometry.
     traj_path, map_path, config = add_pipeline_workers(setup, out_dir, "demo", config, max_speed_mps=0.5, view=view)
@@ -115,12 +120,11 @@ def run_demo(out_dir: Path, speed: float = 0.5, view: tuple[str, int] | None = N
     done = threading.Event()
     # The emulated hardware is a process of its own, as the real sensors are: sharing the daemon's
     # interpreter, its sending would steal the recorder's time.
-    ctx = mp.get_context("spawn")
     # The devices are plugged in before the daemon starts and stay until it has stopped, as on the robot: the
     # IMU driver finds its port at once, and is not told the device went away as the demo ends.
     held = DevicesHeld(ctx.Event(), ctx.Event(), ctx.Event())
     emulator = ctx.Process(target=_emulate_hardware, name="emulated-hardware",
-                           args=(str(sim_path), {link.name: ("127.0.0.1", link.port) for link in links}, str(imu_link),
+                           args=(str(sim_path), {name: ("127.0.0.1", port) for name, port in bound_ports.items()}, str(imu_link),
                                  speed, can, held))
     emulator.start()
     _wait_for_link(imu_link, emulator)

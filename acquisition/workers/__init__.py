@@ -15,7 +15,7 @@ from typing import Any
 
 from ..bus import FRAME_QUEUE, BusPublisher, BusSubscriber
 from ..messages import BusMessage, WorkerState, decode
-from ..processes import become_child, free_tcp_endpoint, release_free_heap
+from ..processes import become_child, bus_endpoint, release_free_heap
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
@@ -116,7 +116,7 @@ class WorkerSpec:
     role: str
     worker: type
     config: Any
-    endpoint: str = dataclasses.field(default_factory=free_tcp_endpoint)
+    endpoint: str = dataclasses.field(default_factory=bus_endpoint)
     upstream: bool = False
 
 

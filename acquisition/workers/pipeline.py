@@ -65,11 +65,11 @@ def stripmap_workers(setup, run: WorkerRun) -> list[WorkerSpec]:
 def view_workers(setup, run: WorkerRun) -> list[WorkerSpec]:
     if run.options.view is None:
         return []
-    from ..processes import free_tcp_endpoint
+    from ..processes import bus_endpoint
     from .view import ViewWorker, ViewWorkerConfig
 
     if not setup.health_endpoint:  # the view shows health: it needs to know where it is published
-        setup.health_endpoint = free_tcp_endpoint()
+        setup.health_endpoint = bus_endpoint("health")
     mounts = {r.name: (r.mount.translation_m.tolist(), r.mount.rotation_xyzw.tolist()) for r in setup.rig.radars}
     host, port = run.options.view
     return [WorkerSpec("view", ViewWorker, ViewWorkerConfig(

@@ -40,7 +40,9 @@ class RadarLink:
 
     def __post_init__(self) -> None:
         where = f"radar.{self.name}"
-        if isinstance(self.port, bool) or not isinstance(self.port, int) or not 0 < self.port < 65536:
+        # Port 0: one the system picks when the driver binds, published by the daemon (``Setup.bound_ports``),
+        # for programs that start both ends (the demo); a user names the port the radar sends to.
+        if isinstance(self.port, bool) or not isinstance(self.port, int) or not 0 <= self.port < 65536:
             raise ConfigError(f"{where}.port", f"{self.port!r} is not a UDP port (1-65535)")
         try:
             ipaddress.ip_address(self.host)
@@ -78,8 +80,8 @@ def parse_radar_link(text: str, option: str = "--radar") -> RadarLink:
         host, _, port_text = address[1:].partition("]:")
     elif ":" in address:
         host, port_text = address.rsplit(":", 1)
-    if not port_text.isdigit():
-        raise SarbotError(f"{where}: {port_text!r} is not a port number")
+    if not port_text.isdigit() or int(port_text) == 0:
+        raise SarbotError(f"{where}: {port_text!r} is not a port number (1-65535)")
     options = {}
     for extra in extras:
         key, sep, value = extra.partition("=")

@@ -22,6 +22,12 @@ def read_toml(path: str | Path) -> dict[str, Any]:
             return tomllib.load(fh)
     except FileNotFoundError:
         raise ConfigError("<file>", "no such file", source=str(path)) from None
+    except IsADirectoryError:
+        raise ConfigError("<file>", "is a folder, not a TOML file", source=str(path)) from None
+    except OSError as exc:  # permissions, a device that is not a file
+        raise ConfigError("<file>", f"cannot be read ({exc.strerror or exc})", source=str(path)) from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError("<file>", f"not UTF-8 text, as TOML must be (byte {exc.start})", source=str(path)) from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError("<file>", f"not valid TOML ({exc})", source=str(path)) from None
 

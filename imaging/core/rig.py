@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import re
 from pathlib import Path
 from typing import Any
 
@@ -103,6 +104,10 @@ class Mount:
         return self.rotation_matrix[:, 0].copy()
 
 
+#: What a radar may be called: its name is a path element of the recording (/radar/NAME) and the bus.
+RADAR_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]{0,63}")
+
+
 @dataclasses.dataclass(frozen=True)
 class RadarConfig:
     """One radar of the rig: its name, waveform, array and mount."""
@@ -116,6 +121,9 @@ class RadarConfig:
     imu: "ImuConfig | None" = None
 
     def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not RADAR_NAME.fullmatch(self.name):
+            raise ConfigError(f"radar.{self.name}", "a radar's name is 1 to 64 letters, digits, '_' or '-' (it names "
+                                                    "an HDF5 group and a bus topic: no '/', '.' or spaces)")
         if self.array.n_tx != self.waveform.n_tx:
             raise ConfigError(f"radar.{self.name}.tx_positions_m", f"has {self.array.n_tx} TX, waveform.n_tx is {self.waveform.n_tx}")
         if self.array.n_rx != self.waveform.n_rx:

@@ -9,6 +9,15 @@ from imaging.core.config import require
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.core.windows import window_width_factor
 
+#: Limits of a waveform's sizes (a radar's own are far below: 255 chirp loops, 4 TX, 4 RX, 1024 samples): a
+#: typo of 10^12 is refused, naming the field and its limit, instead of hanging whatever allocates a frame.
+MAX_CHIRPS_PER_FRAME = 65_536
+MAX_SAMPLES_PER_CHIRP = 65_536
+MAX_CHANNELS = 64
+MAX_FRAME_INTERVAL_S = 3600.0
+#: Most complex samples in one frame (chirps x RX x samples): 512 MB as complex64.
+MAX_SAMPLES_PER_FRAME = 2**26
+
 
 @dataclasses.dataclass(frozen=True)
 class Waveform:
@@ -30,6 +39,23 @@ class Waveform:
     n_rx: int = 4
 
     def __post_init__(self) -> None:
+        # Sizes first, with their limits: a frame of 10^12 chirps would otherwise be allocated (or simulated,
+        # or awaited) until the machine gives up.
+        for field, limit in (("chirps_per_frame", MAX_CHIRPS_PER_FRAME), ("n_tx", MAX_CHANNELS), ("n_rx", MAX_CHANNELS)):
+            value = getattr(self, field)
+            require(value <= limit, field, f"{value} is more than the limit of {limit}")
+        for field in ("f0_hz", "bandwidth_hz", "chirp_duration_s", "chirp_interval_s", "frame_interval_s", "sample_rate_hz"):
+            value = getattr(self, field)
+            require(math.isfinite(value), field, f"must be finite, got {value}")
+        require(self.frame_interval_s <= MAX_FRAME_INTERVAL_S, "frame_interval_s",
+                f"{self.frame_interval_s} s is more than the limit of {MAX_FRAME_INTERVAL_S:g} s")
+        require(self.sample_rate_hz * self.chirp_duration_s <= MAX_SAMPLES_PER_CHIRP, "sample_rate_hz",
+                f"gives {self.sample_rate_hz * self.chirp_duration_s:.6g} samples per chirp, more than the limit of "
+                f"{MAX_SAMPLES_PER_CHIRP}")
+        frame_samples = self.chirps_per_frame * self.n_rx * self.sample_rate_hz * self.chirp_duration_s
+        require(frame_samples <= MAX_SAMPLES_PER_FRAME, "chirps_per_frame",
+                f"{self.chirps_per_frame} chirps x {self.n_rx} RX x {self.sample_rate_hz * self.chirp_duration_s:.6g} "
+                f"samples is {frame_samples:.3g} samples a frame, more than the limit of {MAX_SAMPLES_PER_FRAME}")
         require(self.f0_hz > 0, "f0_hz", f"must be positive, got {self.f0_hz}")
         require(self.bandwidth_hz > 0, "bandwidth_hz", f"must be positive, got {self.bandwidth_hz}")
         require(self.chirp_duration_s > 0, "chirp_duration_s", f"must be positive, got {self.chirp_duration_s}")

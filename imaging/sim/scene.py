@@ -25,6 +25,7 @@ A scene file::
 from __future__ import annotations
 
 import dataclasses
+import math
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -88,20 +89,53 @@ def load_scene(name_or_path: str | Path) -> Scene:
     )
 
 
+#: Fastest a scene's robot drives, m/s (a limit on what is simulated, not on robots).
+MAX_SPEED_MPS = 20.0
+#: The largest seed numpy's generators take (non-negative, 64 bits).
+MAX_SEED = 2**63 - 1
+
+
+def _number(value: Any, field: str, lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False) -> float:
+    """``value`` as a finite float in [lo, hi] (or (lo, hi] with ``lo_open``); ConfigError naming the field
+    and the range otherwise."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(field, f"expected a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value) or value > hi or value < lo or (lo_open and value == lo):
+        bounds = "" if math.isinf(lo) and math.isinf(hi) else f" in {'(' if lo_open else '['}{lo:g}, {hi:g}]"
+        raise ConfigError(field, f"must be a finite number{bounds}, got {value!r}")
+    return value
+
+
+def _flag(value: Any, field: str) -> bool:
+    if not isinstance(value, bool):
+        raise ConfigError(field, f"expected true or false, got {value!r}")
+    return value
+
+
+def _seed(value: Any, field: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_SEED:
+        raise ConfigError(field, f"expected an integer seed from 0 to {MAX_SEED}, got {value!r}")
+    return value
+
+
 def _trajectory_from_table(t: dict[str, Any], start_time_ns: int) -> Trajectory:
     t = dict(t)
     kind = t.pop("kind", "straight")
+    start = t.pop("start_m", (0.0, 0.0, 0.0))
+    if not isinstance(start, (list, tuple)):
+        raise ConfigError("trajectory.start_m", "expected [x, y, z]")
     common = {
-        "start_m": tuple(float(v) for v in t.pop("start_m", (0.0, 0.0, 0.0))),
-        "heading_deg": float(t.pop("heading_deg", 0.0)),
-        "speed_mps": float(t.pop("speed_mps", 0.4)),
+        "start_m": tuple(_number(v, "trajectory.start_m") for v in start),
+        "heading_deg": _number(t.pop("heading_deg", 0.0), "trajectory.heading_deg"),
+        "speed_mps": _number(t.pop("speed_mps", 0.4), "trajectory.speed_mps", 0.0, MAX_SPEED_MPS),
         "t0_ns": start_time_ns,
     }
     profile = {}
     if "accel_mps2" in t:
-        profile["accel_mps2"] = float(t.pop("accel_mps2"))
+        profile["accel_mps2"] = _number(t.pop("accel_mps2"), "trajectory.accel_mps2", 0.0, 100.0, lo_open=True)
     if "start_delay_s" in t:
-        profile["start_delay_s"] = float(t.pop("start_delay_s"))
+        profile["start_delay_s"] = _number(t.pop("start_delay_s"), "trajectory.start_delay_s", 0.0, MAX_DURATION_S)
     if "stops" in t:
         profile["stops"] = [tuple(st) for st in t.pop("stops")]
     if len(common["start_m"]) != 3:
@@ -142,8 +176,10 @@ def _clutter_targets(box: dict[str, Any], prefix: str) -> list[PointTarget]:
     try:
         count = int(box.pop("count"))
         lo_hi = np.asarray(box.pop("box_m"), float)
-        amplitude = float(box.pop("amplitude", 0.5))
-        rng = np.random.default_rng(int(box.pop("seed", 0)))
+        amplitude = _number(box.pop("amplitude", 0.5), f"{prefix}.amplitude", 0.0, 1e6)
+        rng = np.random.default_rng(_seed(box.pop("seed", 0), f"{prefix}.seed"))
+    except ConfigError:
+        raise
     except KeyError as exc:
         raise ConfigError(f"{prefix}.{exc.args[0]}", "is required") from None
     except (TypeError, ValueError) as exc:
@@ -164,6 +200,35 @@ def _bounded_count(value: Any, field: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_SCATTERERS:
         raise ConfigError(field, f"expected a count from 0 to {MAX_SCATTERERS}, got {value!r}")
     return value
+
+
+#: A [room]'s walls carry a scatterer every ``spacing_m`` along and every 0.4 m up (``room_scatterers``).
+ROOM_ROW_SPACING_M = 0.4
+
+
+def _room_settings(room: dict[str, Any]) -> dict[str, Any]:
+    """``[room]``'s settings checked, its scatterer count against MAX_SCATTERERS before any is made (a spacing of
+    a micrometre would otherwise build billions of points)."""
+    size = room.pop("size_m", (12.0, 8.0))
+    centre = room.pop("centre_m", (0.0, 0.0))
+    if not isinstance(size, (list, tuple)) or len(size) != 2:
+        raise ConfigError("room.size_m", "expected [x, y] in metres")
+    if not isinstance(centre, (list, tuple)) or len(centre) != 2:
+        raise ConfigError("room.centre_m", "expected [x, y] in metres")
+    size = tuple(_number(v, "room.size_m", 0.0, 1000.0, lo_open=True) for v in size)
+    centre = tuple(_number(v, "room.centre_m", -1e6, 1e6) for v in centre)
+    # The lowest row of wall scatterers is at 0.1 m: a room no higher has no walls.
+    height = _number(room.pop("height_m", 2.5), "room.height_m", 0.1, 100.0, lo_open=True)
+    spacing = _number(room.pop("spacing_m", 0.3), "room.spacing_m", 0.0, 1000.0, lo_open=True)
+    rows = max(0, math.ceil((height - 0.1) / ROOM_ROW_SPACING_M))
+    n = 2 * rows * (size[0] / spacing + size[1] / spacing + 2)
+    if n > MAX_SCATTERERS:
+        smallest = rows * 2 * (size[0] + size[1]) / (MAX_SCATTERERS - 4 * rows)
+        raise ConfigError("room.spacing_m", f"{spacing:g} m puts about {n:.3g} scatterers on the walls, more than the "
+                                            f"limit of {MAX_SCATTERERS}; at least {smallest:.3g} m for this room")
+    return {"size_m": size, "centre_m": centre, "height_m": height, "spacing_m": spacing,
+            "clutter": _bounded_count(room.pop("clutter", 80), "room.clutter"),
+            "rng": np.random.default_rng(_seed(room.pop("seed", 0), "room.seed"))}
 
 
 def scene_from_dict(table: dict[str, Any], source: str | None = None, base: Path | None = None) -> Scene:
@@ -198,7 +263,7 @@ def scene_from_dict(table: dict[str, Any], source: str | None = None, base: Path
         vibration = None
         if "vibration" in table:
             vibration = from_dict(Vibration, table.pop("vibration"), prefix="vibration")
-        imu = bool(table.pop("imu", False))
+        imu = _flag(table.pop("imu", False), "imu")
         imu_errors = from_dict(ImuErrors, table.pop("imu_errors"), prefix="imu_errors") if "imu_errors" in table else None
         detection_model = None
         if "detections" in table:
@@ -207,11 +272,9 @@ def scene_from_dict(table: dict[str, Any], source: str | None = None, base: Path
         if "room" in table:
             room = dict(table.pop("room"))
             try:
-                static_points = room_scatterers(
-                    size_m=tuple(room.pop("size_m", (12.0, 8.0))), centre_m=tuple(room.pop("centre_m", (0.0, 0.0))),
-                    height_m=float(room.pop("height_m", 2.5)), spacing_m=float(room.pop("spacing_m", 0.3)),
-                    clutter=_bounded_count(room.pop("clutter", 80), "room.clutter"),
-                    rng=np.random.default_rng(int(room.pop("seed", 0))))
+                static_points = room_scatterers(**_room_settings(room))
+            except ConfigError:
+                raise
             except (TypeError, ValueError, ArithmeticError) as exc:
                 raise ConfigError("room", str(exc)) from None
             if room:
@@ -224,8 +287,8 @@ def scene_from_dict(table: dict[str, Any], source: str | None = None, base: Path
         if not 0 < duration_s <= MAX_DURATION_S:
             raise ConfigError("duration_s", f"must be positive and at most {MAX_DURATION_S:g} s, got {duration_s}")
         snr = table.pop("snr_db", None)
-        if snr is not None and (isinstance(snr, bool) or not isinstance(snr, (int, float))):
-            raise ConfigError("snr_db", f"expected a number, got {snr!r}")
+        if snr is not None:
+            snr = _number(snr, "snr_db", -200.0, 400.0)
         scene = Scene(
             name=name,
             description=str(table.pop("description", "")),
@@ -236,11 +299,11 @@ def scene_from_dict(table: dict[str, Any], source: str | None = None, base: Path
             radars=list(radars),
             snr_db=None if snr is None else float(snr),
             vibration=vibration,
-            intra_chirp_motion=bool(table.pop("intra_chirp_motion", True)),
+            intra_chirp_motion=_flag(table.pop("intra_chirp_motion", True), "intra_chirp_motion"),
             adc_counts_per_unit=_positive_or_none(table.pop("adc_counts_per_unit", None), "adc_counts_per_unit"),
-            seed=int(table.pop("seed", 0)),
+            seed=_seed(table.pop("seed", 0), "seed"),
             start_time_ns=start_time_ns,
-            truth_rate_hz=float(table.pop("truth_rate_hz", 1000.0)),
+            truth_rate_hz=_number(table.pop("truth_rate_hz", 1000.0), "truth_rate_hz"),
             imu=imu,
             imu_errors=imu_errors,
             detection_model=detection_model,

@@ -49,7 +49,7 @@ Modules, one idea each: ``config`` (``StripMapConfig``), ``presum`` (chirp sums 
 (``StripMap``). Every public name is importable from ``imaging.stripmap``.
 """
 
-from imaging.stripmap.config import ALGORITHMS, MODES, StripMapConfig, ffbp_block_travel_m
+from imaging.stripmap.config import ALGORITHMS, MAX_PIXEL_M, MIN_PIXEL_M, MODES, StripMapConfig, ffbp_block_travel_m
 from imaging.stripmap.footprint import FrameFootprint
 from imaging.stripmap.map import MAX_BATCH_FRAMES, MOSAIC_MAX_PIXELS, StripMap
 from imaging.stripmap.presum import max_presum, presum_chirps, presum_phase_spread_rad

@@ -3,12 +3,18 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 from imaging.core.config import require
 from imaging.core.rig import RadarConfig
 
 MODES = ("nearest", "linear", "exact")
 ALGORITHMS = ("direct", "ffbp")
+
+#: Limits of a map pixel, m: a tenth of a millimetre is far below the radar's resolution (a pixel of a
+#: nanometre would take minutes to refuse later, tile by tile); a metre above what a map shows.
+MIN_PIXEL_M = 1e-4
+MAX_PIXEL_M = 1.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,7 +55,11 @@ class StripMapConfig:
     ffbp_block_frames: int = 8
 
     def __post_init__(self) -> None:
-        require(self.pixel_m > 0, "pixel_m", "must be positive")
+        for name in ("pixel_m", "aperture_m", "beam_half_angle_deg", "range_min_m", "range_max_m", "z_m", "min_speed_mps",
+                     "radar_imu_keep_s"):
+            require(math.isfinite(getattr(self, name)), name, f"must be finite, got {getattr(self, name)}")
+        require(MIN_PIXEL_M <= self.pixel_m <= MAX_PIXEL_M, "pixel_m",
+                f"{self.pixel_m} m is outside the limits {MIN_PIXEL_M:g} to {MAX_PIXEL_M:g} m")
         require(self.tile_px >= 8, "tile_px", "must be at least 8")
         require(self.aperture_m > 0, "aperture_m", "must be positive")
         require(0 < self.beam_half_angle_deg < 90, "beam_half_angle_deg", "must be in (0, 90)")
