@@ -9,6 +9,7 @@ from pathlib import Path
 from imaging.core import strict_json
 from imaging.core.errors import SarbotError
 
+from . import options as opt
 from .exit_codes import EXIT_FAILED, EXIT_OK
 
 
