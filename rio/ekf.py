@@ -5,6 +5,13 @@ accelerometer bias b_a and gyro bias b_g. Error state (15): dp, dv, dtheta (body
 db_a, db_g. Strapdown propagation at IMU rate; radar ego-velocity updates (sensor frame, lever arm and
 angular rate included) with chi-square gating and the Joseph form; zero-velocity and zero-rate updates at
 standstill; static initialisation of roll, pitch and gyro bias. Pure computation: arrays in, states out.
+
+Online calibration (switchable, ``add_radar_calibration``): each radar added gets 7 more error states after
+the 15 -- its mount rotation (3, sensor frame: R_m = R_m_hat Exp(dtheta_m)), its lever arm (3, body frame)
+and its time offset (1, seconds: the radar's stamp minus the IMU time of the same instant), as in ekf_rio's
+extrinsic states and EKF-RIO-TC's time offset. They are constants (no process noise); the ego-velocity
+updates observe them while the robot turns (lever arm, the boresight's pitch) and accelerates (rotation,
+time offset). A state left out (sigma 0) never moves.
 """
 
 from __future__ import annotations
@@ -60,6 +67,10 @@ class EkfConfig:
     #: into the yaw-rate bias; off by default, the bias is learned at standstill (zero-rate update).
     radar_observes_gyro_bias: bool = False
     planar_sigma_mps: float = 0.05
+    #: Priors of the online calibration (``RadarInertialEkf.add_radar_calibration``) where the rig gives none.
+    calibration_rotation_sigma_rad: float = math.radians(3.0)
+    calibration_translation_sigma_m: float = 0.05
+    calibration_time_offset_sigma_s: float = 0.01
 
 
 @dataclasses.dataclass
@@ -75,6 +86,55 @@ class EkfState:
     @property
     def quaternion_xyzw(self) -> np.ndarray:
         return Rotation.from_matrix(self.R).as_quat()
+
+
+#: Error states of the core filter (p, v, theta, b_a, b_g) and of each calibrated radar (theta_m, l, t_d).
+N_CORE = 15
+N_CALIBRATION = 7
+
+
+@dataclasses.dataclass
+class RadarCalibration:
+    """One radar's calibration estimate inside the filter: the nominal values and where its error states are.
+
+    ``rotation_matrix`` rotates sensor to body, ``translation_m`` is the lever arm (body frame),
+    ``time_offset_s`` the radar's stamp minus the IMU time of the same instant (a radar 5 ms late: +0.005).
+    """
+
+    name: str
+    index: int  # first of its 7 error states in P
+    rotation_matrix: np.ndarray
+    translation_m: np.ndarray
+    time_offset_s: float
+
+    @property
+    def mount(self):
+        from imaging.core.rig import Mount
+
+        return Mount(self.translation_m.copy(), Rotation.from_matrix(self.rotation_matrix).as_quat())
+
+
+@dataclasses.dataclass(frozen=True)
+class CalibrationEstimate:
+    """A radar's calibration as the filter has it: the mount (sensor -> body), the time offset (s, radar
+    stamp minus IMU time) and the standard deviations of the 7 error states: rotation about the sensor's
+    x, y, z (rad), lever arm along body x, y, z (m), time offset (s)."""
+
+    mount: object  # imaging.core.rig.Mount
+    time_offset_s: float
+    sigma: np.ndarray  # [7]
+
+    @property
+    def rotation_sigma_rad(self) -> np.ndarray:
+        return self.sigma[0:3]
+
+    @property
+    def translation_sigma_m(self) -> np.ndarray:
+        return self.sigma[3:6]
+
+    @property
+    def time_offset_sigma_s(self) -> float:
+        return float(self.sigma[6])
 
 
 @dataclasses.dataclass
@@ -109,8 +169,18 @@ def _strapdown(p, v, R, P, f, w, dt, q_density):
     F[3:6, 9:12] = -R * dt
     F[6:9, 6:9] = E
     F[6:9, 12:15] = -np.eye(3) * dt
-    out = F @ P @ F.T
-    for i in range(15):
+    n = P.shape[0]
+    if n == 15:
+        out = F @ P @ F.T
+    else:
+        # Calibration states are constants: their transition is the identity, so only the core block and
+        # its correlations with them change.
+        out = P.copy()
+        out[:15, :15] = F @ P[:15, :15] @ F.T
+        cross = F @ P[:15, 15:]
+        out[:15, 15:] = cross
+        out[15:, :15] = cross.T
+    for i in range(n):
         out[i, i] += q_density[i] * dt
     return p_new, v_new, R_new, 0.5 * (out + out.T)
 
@@ -184,6 +254,11 @@ class RadarInertialEkf:
         self.bias_log: list[tuple[int, np.ndarray, np.ndarray]] = []
         self._last_gyro = np.zeros(3)
         self._last_accel = np.zeros(3)
+        #: The calibrated radars by name (empty: the 15-state filter of before).
+        self.calibration: dict[str, RadarCalibration] = {}
+        # The latest gyro samples (time ns, rate), kept only while calibrating: their slope is the angular
+        # acceleration the time-offset update needs (d/dt of w x l).
+        self._gyro_history: tuple[np.ndarray, np.ndarray] = (np.zeros(0, np.int64), np.zeros((0, 3)))
 
     # -- initialisation -----------------------------------------------------------------------------
     def initialise_static(self, time_ns: int, accel_mps2: np.ndarray, gyro_radps: np.ndarray,
@@ -212,6 +287,48 @@ class RadarInertialEkf:
         self._last_accel = f
         self.bias_log = [(int(time_ns), self.state.bg.copy(), self.state.ba.copy())]
         return self.state
+
+    def add_radar_calibration(self, name: str, mount, time_offset_s: float = 0.0, *,
+                              rotation_sigma_rad: float | None = None, translation_sigma_m: float | None = None,
+                              time_offset_sigma_s: float | None = None) -> RadarCalibration:
+        """Estimate radar ``name``'s mount and time offset online, starting from ``mount`` and
+        ``time_offset_s`` (the rig's values) with these prior standard deviations (None: the config's;
+        0: that part stays fixed). Call after ``initialise_static``."""
+        if name in self.calibration:
+            return self.calibration[name]
+        c = self.config
+        sig = [c.calibration_rotation_sigma_rad if rotation_sigma_rad is None else rotation_sigma_rad,
+               c.calibration_translation_sigma_m if translation_sigma_m is None else translation_sigma_m,
+               c.calibration_time_offset_sigma_s if time_offset_sigma_s is None else time_offset_sigma_s]
+        s = self.state
+        n = s.P.shape[0]
+        P = np.zeros((n + N_CALIBRATION, n + N_CALIBRATION))
+        P[:n, :n] = s.P
+        P[n:, n:] = np.diag(np.repeat(np.square(sig), [3, 3, 1]))
+        s.P = P
+        self._q_density = np.concatenate([self._q_density, np.zeros(N_CALIBRATION)])
+        cal = RadarCalibration(name, n, np.array(mount.rotation_matrix, float), np.array(mount.translation_m, float),
+                               float(time_offset_s))
+        self.calibration[name] = cal
+        return cal
+
+    def calibration_sigma(self, name: str) -> np.ndarray:
+        """Standard deviations of radar ``name``'s 7 calibration error states (rad, m, s)."""
+        i = self.calibration[name].index
+        return np.sqrt(np.clip(np.diag(self.state.P)[i:i + N_CALIBRATION], 0.0, None))
+
+    def calibration_estimates(self) -> dict[str, CalibrationEstimate]:
+        """Every calibrated radar's current estimate and standard deviations."""
+        return {name: CalibrationEstimate(cal.mount, cal.time_offset_s, self.calibration_sigma(name))
+                for name, cal in self.calibration.items()}
+
+    def angular_acceleration_radps2(self) -> np.ndarray:
+        """Slope of the latest gyro samples (rad/s^2); zero before there are enough."""
+        t, g = self._gyro_history
+        if t.size < 4:
+            return np.zeros(3)
+        x = (t - t.mean()) * 1e-9
+        return (x @ (g - g.mean(axis=0))) / (x @ x)
 
     @property
     def last_gyro_radps(self) -> np.ndarray:
@@ -249,6 +366,12 @@ class RadarInertialEkf:
             return None
         if self._in_standstill:
             self._standstill.append((times_ns, gyro_radps))
+        if self.calibration:
+            # 50 ms: a slope through the gyro noise at any IMU rate, short against the second a turn's
+            # onset takes
+            t = np.concatenate([self._gyro_history[0], times_ns])[-256:]
+            keep = t >= t[-1] - 50_000_000
+            self._gyro_history = (t[keep], np.concatenate([self._gyro_history[1], gyro_radps])[-256:][keep])
         (s.p, s.v, s.R, s.P, t_ns, self._last_accel, self._last_gyro,
          *recorded) = _strapdown_batch(s.p, s.v, s.R, s.P, s.time_ns, self._last_accel, self._last_gyro, s.ba, s.bg,
                                        times_ns, accel_mps2, gyro_radps, record, self._q_density)
@@ -271,6 +394,11 @@ class RadarInertialEkf:
         s.R = s.R @ _exp_so3_nb(dx[6:9])
         s.ba = s.ba + dx[9:12]
         s.bg = s.bg + dx[12:15]
+        for cal in self.calibration.values():
+            i = cal.index
+            cal.rotation_matrix = cal.rotation_matrix @ _exp_so3_nb(dx[i:i + 3])
+            cal.translation_m = cal.translation_m + dx[i + 3:i + 6]
+            cal.time_offset_s += float(dx[i + 6])
         entry = (s.time_ns, s.bg.copy(), s.ba.copy())
         if self.keep_bias_log:
             self.bias_log.append(entry)
@@ -278,21 +406,51 @@ class RadarInertialEkf:
             self.bias_log[-1:] = [entry]
         return UpdateResult(True, chi2)
 
-    def update_radar_velocity(self, velocity_sensor_mps: np.ndarray, covariance: np.ndarray, mount) -> UpdateResult:
-        """Sensor-frame ego velocity from one radar: v_s = R_m^T (R^T v + w x l), w = gyro - b_g."""
+    def _zeros(self, rows: int) -> np.ndarray:
+        return np.zeros((rows, self.state.P.shape[0]))
+
+    def measurement_time_ns(self, radar: str, stamp_ns: int) -> int:
+        """The IMU time a radar stamp stands for: the stamp less the radar's estimated time offset."""
+        cal = self.calibration.get(radar)
+        return int(stamp_ns) if cal is None else int(stamp_ns) - int(round(cal.time_offset_s * 1e9))
+
+    def update_radar_velocity(self, velocity_sensor_mps: np.ndarray, covariance: np.ndarray, mount,
+                              radar: str | None = None, stamp_ns: int | None = None) -> UpdateResult:
+        """Sensor-frame ego velocity from one radar: v_s = R_m^T (R^T v + w x l), w = gyro - b_g.
+
+        A radar under calibration (``radar`` named in ``add_radar_calibration``) uses the filter's mount
+        instead of ``mount`` and its time offset: the scan stamped ``stamp_ns`` was measured at
+        stamp - t_d, which may differ from the filter's time by what the state's time offset says; the
+        prediction is moved by that difference along dh/dt, and dh/dt is the time offset's Jacobian.
+        """
         self.end_standstill()
         s = self.state
-        Rm = mount.rotation_matrix
-        lever = mount.translation_m
+        cal = self.calibration.get(radar) if radar is not None else None
+        Rm = mount.rotation_matrix if cal is None else cal.rotation_matrix
+        lever = mount.translation_m if cal is None else cal.translation_m
         w = self._last_gyro - s.bg
         v_body = s.R.T @ s.v
         predicted = Rm.T @ (v_body + cross3(w, lever))
-        H = np.zeros((3, 15))
+        H = self._zeros(3)
         H[:, 3:6] = Rm.T @ s.R.T
         H[:, 6:9] = Rm.T @ skew(v_body)
         covariance = covariance + np.eye(3) * self.config.radar_velocity_sigma_floor_mps ** 2
         if self.config.radar_observes_gyro_bias:
             H[:, 12:15] = Rm.T @ skew(lever)
+        if cal is not None:
+            i = cal.index
+            H[:, i:i + 3] = skew(predicted)  # R_m^T = Exp(-dtheta) R_m_hat^T
+            H[:, i + 3:i + 6] = Rm.T @ skew(w)
+            # d/dt of the body velocity (specific force + gravity - w x v) and of the lever arm's w x l
+            accel_body = (self._last_accel - s.ba) + s.R.T @ GRAVITY - cross3(w, v_body)
+            rate = Rm.T @ (accel_body + cross3(self.angular_acceleration_radps2(), lever))
+            H[:, i + 6] = -rate
+            if stamp_ns is not None:
+                # The strapdown holds each IMU sample over the interval after it, so the velocity it gives
+                # lags by half an interval: the state stands for half an interval before its time.
+                t_hist = self._gyro_history[0]
+                half_interval_s = 0.5e-9 * (t_hist[-1] - t_hist[-2]) if t_hist.size > 1 else 0.0
+                predicted = predicted + rate * ((int(stamp_ns) - s.time_ns) * 1e-9 + half_interval_s - cal.time_offset_s)
         return self._update(np.asarray(velocity_sensor_mps) - predicted, H, covariance, self.config.gate_chi2)
 
     def update_body_velocity(self, velocity_body_mps: np.ndarray, covariance: np.ndarray) -> UpdateResult:
@@ -300,7 +458,7 @@ class RadarInertialEkf:
         self.end_standstill()
         s = self.state
         v_body = s.R.T @ s.v
-        H = np.zeros((3, 15))
+        H = self._zeros(3)
         H[:, 3:6] = s.R.T
         H[:, 6:9] = skew(v_body)
         covariance = covariance + np.eye(3) * self.config.radar_velocity_sigma_floor_mps ** 2
@@ -322,7 +480,7 @@ class RadarInertialEkf:
         """
         self._in_standstill = True
         s = self.state
-        H = np.zeros((3, 15))
+        H = self._zeros(3)
         H[:, 3:6] = np.eye(3)
         return self._update(-s.v, H, np.eye(3) * self.config.zero_velocity_sigma_mps ** 2, None)
 
@@ -351,13 +509,13 @@ class RadarInertialEkf:
             s.P[:, 12:15] = 0.0
             s.P[12:15, 12:15] = np.eye(3) * c.init_gyro_bias_sigma ** 2
             self.bias_resets += 1
-        H = np.zeros((3, 15))
+        H = self._zeros(3)
         H[:, 12:15] = -np.eye(3)  # measured rate - b_g = 0
         return self._update(-rate, H, rate_cov, None)
 
     def update_planar(self) -> UpdateResult:
         """No vertical velocity in the world frame (a robot on a flat floor)."""
         s = self.state
-        H = np.zeros((1, 15))
+        H = self._zeros(1)
         H[0, 5] = 1.0
         return self._update(np.array([-s.v[2]]), H, np.array([[self.config.planar_sigma_mps ** 2]]), CHI2_999[1])
