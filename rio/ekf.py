@@ -53,6 +53,19 @@ class EkfConfig:
     init_gyro_bias_sigma: float = 0.01
     zero_velocity_sigma_mps: float = 0.02  # the radar's zero-velocity threshold: creeping below it looks still
     zero_rate_sigma_radps: float = 2e-3
+    #: Zero-velocity update when the radar calls a standstill and the IMU has not moved since the last radar
+    #: update (``imu_was_still``): then the robot stands, it does not creep into or out of a stop, and the
+    #: velocity is zero to the IMU's noise (0.02 m/s would leave it crawling to zero over seconds).
+    still_zero_velocity_sigma_mps: float = 0.002
+    still_gyro_radps: float = 0.01  # the mean rate between two radar scans this far from the bias ...
+    still_accel_std_mps2: float = 0.1  # ... or the specific force scattered this much ...
+    #: ... or its mean this far from gravity (world frame) is motion: a robot creeping out of a stop below
+    #: the radar's threshold accelerates (0.4 m/s^2), a bias step not yet learned (0.1 m/s^2) is no motion
+    still_accel_mps2: float = 0.15
+    still_window_s: float = 0.1  # over the IMU samples of this long before the radar's verdict
+    #: The tighter zero-velocity update wants the mean specific force this close to gravity: a robot
+    #: creeping out of a stop on a gentle (jerk-limited) ramp has reached 0.01 m/s before 0.15 m/s^2.
+    standing_accel_mps2: float = 0.08
     gate_chi2: float = CHI2_999[3]
     #: Added to every radar velocity covariance: what the Doppler fit does not see (time-stamp jitter,
     #: velocity change within a frame, Doppler quantisation).
@@ -61,6 +74,7 @@ class EkfConfig:
     recovery_velocity_sigma_mps: float = 1.0
     standstill_trim_s: float = 0.5  # gyro samples left out at both ends of a standstill (creeping in and out)
     standstill_min_samples: int = 50
+    standstill_update_s: float = 2.0  # a zero-rate update from every this much of a long standstill
     planar: bool = False  # pseudo-measurement: no vertical velocity (robots on flat floors)
     #: Let radar velocity updates correct the gyro bias through the lever arm (w x l). The coupling is weak
     #: (0.2 m lever arms) and small systematic ego-velocity errors that differ between radars then leak
@@ -250,15 +264,17 @@ class RadarInertialEkf:
         # Chunks of (times [k], gyro [k, 3]) of the current standstill.
         self._standstill: list[tuple[np.ndarray, np.ndarray]] = []
         self._in_standstill = False
+        self._standstill_started = True  # whether the gathered samples begin with the standstill (trim them)
         self.bias_resets = 0
         self.bias_log: list[tuple[int, np.ndarray, np.ndarray]] = []
         self._last_gyro = np.zeros(3)
         self._last_accel = np.zeros(3)
         #: The calibrated radars by name (empty: the 15-state filter of before).
         self.calibration: dict[str, RadarCalibration] = {}
-        # The latest gyro samples (time ns, rate), kept only while calibrating: their slope is the angular
-        # acceleration the time-offset update needs (d/dt of w x l).
-        self._gyro_history: tuple[np.ndarray, np.ndarray] = (np.zeros(0, np.int64), np.zeros((0, 3)))
+        # The IMU samples (time ns, rate, specific force) of the last ``still_window_s`` (at least 50 ms):
+        # whether the IMU stands still, and the gyro's slope, the angular acceleration the time-offset
+        # update needs (d/dt of w x l).
+        self._recent_imu = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
 
     # -- initialisation -----------------------------------------------------------------------------
     def initialise_static(self, time_ns: int, accel_mps2: np.ndarray, gyro_radps: np.ndarray,
@@ -281,7 +297,11 @@ class RadarInertialEkf:
         n = len(gyro_radps)
         bg_var = np.maximum(np.var(gyro_radps, axis=0) / max(n, 1), (1e-5) ** 2)
         P[12:15, 12:15] = np.diag(bg_var)
-        self.state = EkfState(int(time_ns), np.asarray(position_m, float).copy(), np.zeros(3), R, np.zeros(3),
+        # What the mean specific force has beyond gravity's magnitude is accelerometer bias along gravity:
+        # left to the zero-velocity updates, it would first show as a vertical velocity of mm/s growing
+        # each IMU sample (the horizontal bias cannot be told from tilt, and stays with the attitude).
+        ba = (np.linalg.norm(f) - GRAVITY_MPS2) * f / np.linalg.norm(f)
+        self.state = EkfState(int(time_ns), np.asarray(position_m, float).copy(), np.zeros(3), R, ba,
                               np.mean(gyro_radps, axis=0), P)
         self._last_gyro = np.mean(gyro_radps, axis=0)
         self._last_accel = f
@@ -324,7 +344,9 @@ class RadarInertialEkf:
 
     def angular_acceleration_radps2(self) -> np.ndarray:
         """Slope of the latest gyro samples (rad/s^2); zero before there are enough."""
-        t, g = self._gyro_history
+        t, g, _ = self._recent_imu
+        keep = t >= t[-1] - 50_000_000 if t.size else t.astype(bool)
+        t, g = t[keep], g[keep]  # 50 ms: a slope through the gyro noise, short against a turn's onset
         if t.size < 4:
             return np.zeros(3)
         x = (t - t.mean()) * 1e-9
@@ -366,12 +388,11 @@ class RadarInertialEkf:
             return None
         if self._in_standstill:
             self._standstill.append((times_ns, gyro_radps))
-        if self.calibration:
-            # 50 ms: a slope through the gyro noise at any IMU rate, short against the second a turn's
-            # onset takes
-            t = np.concatenate([self._gyro_history[0], times_ns])[-256:]
-            keep = t >= t[-1] - 50_000_000
-            self._gyro_history = (t[keep], np.concatenate([self._gyro_history[1], gyro_radps])[-256:][keep])
+        # The latest IMU samples, for the standstill test and the angular acceleration.
+        t, g, a = self._recent_imu
+        t = np.concatenate([t, times_ns])[-512:]
+        keep = t >= t[-1] - int(max(self.config.still_window_s, 0.05) * 1e9)
+        self._recent_imu = (t[keep], np.concatenate([g, gyro_radps])[-512:][keep], np.concatenate([a, accel_mps2])[-512:][keep])
         (s.p, s.v, s.R, s.P, t_ns, self._last_accel, self._last_gyro,
          *recorded) = _strapdown_batch(s.p, s.v, s.R, s.P, s.time_ns, self._last_accel, self._last_gyro, s.ba, s.bg,
                                        times_ns, accel_mps2, gyro_radps, record, self._q_density)
@@ -448,7 +469,7 @@ class RadarInertialEkf:
             if stamp_ns is not None:
                 # The strapdown holds each IMU sample over the interval after it, so the velocity it gives
                 # lags by half an interval: the state stands for half an interval before its time.
-                t_hist = self._gyro_history[0]
+                t_hist = self._recent_imu[0]
                 half_interval_s = 0.5e-9 * (t_hist[-1] - t_hist[-2]) if t_hist.size > 1 else 0.0
                 predicted = predicted + rate * ((int(stamp_ns) - s.time_ns) * 1e-9 + half_interval_s - cal.time_offset_s)
         return self._update(np.asarray(velocity_sensor_mps) - predicted, H, covariance, self.config.gate_chi2)
@@ -471,6 +492,29 @@ class RadarInertialEkf:
         P[:, 3:6] = 0.0
         P[3:6, 3:6] = np.eye(3) * self.config.recovery_velocity_sigma_mps ** 2
 
+    def imu_was_still(self, accel_limit_mps2: float | None = None) -> bool | None:
+        """Whether the IMU samples of the last ``still_window_s`` show no motion: their mean rate is the bias,
+        their mean specific force is gravity and does not scatter beyond noise (a test of single samples
+        trips on a real IMU's noise: an ADIS16448 at rest shows 0.015 rad/s and 0.15 m/s^2 in single
+        samples). ``accel_limit_mps2``: how far from gravity the mean may be (None: ``still_accel_mps2``).
+        None with fewer than 3 samples."""
+        c = self.config
+        limit = c.still_accel_mps2 if accel_limit_mps2 is None else accel_limit_mps2
+        t, gyro, accel = self._recent_imu
+        keep = t >= t[-1] - int(c.still_window_s * 1e9) if t.size else t.astype(bool)
+        if keep.sum() < 3:
+            return None
+        t, gyro, accel = t[keep], gyro[keep], accel[keep]
+        s = self.state
+        # The specific force's mean over the window and over its last 25 ms: a robot that has just started
+        # to creep out of a stop has accelerated for a fraction of the window only.
+        latest = t >= t[-1] - 25_000_000
+        latest[-3:] = True
+        return bool(np.linalg.norm(gyro.mean(axis=0) - s.bg) < c.still_gyro_radps
+                    and np.linalg.norm(s.R @ (accel.mean(axis=0) - s.ba) + GRAVITY) < limit
+                    and np.linalg.norm(s.R @ (accel[latest].mean(axis=0) - s.ba) + GRAVITY) < limit
+                    and accel.std(axis=0).max() < c.still_accel_std_mps2)
+
     def update_zero_velocity(self) -> UpdateResult:
         """Standstill: world velocity zero now; the angular rate is used once the standstill ends.
 
@@ -478,11 +522,36 @@ class RadarInertialEkf:
         an arc already turns. So the gyro samples of the standstill are gathered and, when it ends, their
         mean without the first and last ``standstill_trim_s`` becomes one zero-rate update (the gyro bias).
         """
+        standing = bool(self.imu_was_still(self.config.standing_accel_mps2))
+        if not self._in_standstill:
+            self._standstill_started = True
         self._in_standstill = True
+        self._zero_rate_during_standstill()
         s = self.state
         H = self._zeros(3)
         H[:, 3:6] = np.eye(3)
-        return self._update(-s.v, H, np.eye(3) * self.config.zero_velocity_sigma_mps ** 2, None)
+        c = self.config
+        sigma = c.still_zero_velocity_sigma_mps if standing else c.zero_velocity_sigma_mps
+        return self._update(-s.v, H, np.eye(3) * sigma ** 2, None)
+
+    def _zero_rate_during_standstill(self) -> None:
+        """A long standstill gives its zero-rate update every ``standstill_update_s``, not only when it ends:
+        a robot standing for minutes learns its gyro bias meanwhile. The last ``standstill_trim_s`` of
+        samples are kept back (the end may yet be creeping) and start the next piece."""
+        c = self.config
+        if not self._standstill:
+            return
+        t_first, t_last = self._standstill[0][0][0], self._standstill[-1][0][-1]
+        trim = c.standstill_trim_s * 1e9
+        if t_last - t_first < c.standstill_update_s * 1e9 + trim * (2 if self._standstill_started else 1):
+            return
+        samples = self._standstill
+        t = np.concatenate([ts for ts, _ in samples])
+        gyro = np.concatenate([g for _, g in samples])
+        held = t > t[-1] - trim
+        self._zero_rate_update(samples, self._standstill_started)
+        self._standstill = [(t[held], gyro[held])]
+        self._standstill_started = False
 
     def end_standstill(self) -> UpdateResult | None:
         """Close the current standstill: one zero-rate update from its trimmed mean gyro rate.
@@ -491,13 +560,19 @@ class RadarInertialEkf:
         knock): its uncertainty is re-opened first, so the update learns the new value.
         """
         samples, self._standstill, self._in_standstill = self._standstill, [], False
+        trim_start, self._standstill_started = self._standstill_started, True
+        return self._zero_rate_update(samples, trim_start)
+
+    def _zero_rate_update(self, samples, trim_start: bool) -> UpdateResult | None:
+        """One zero-rate update from the standstill's gyro ``samples`` without their last
+        ``standstill_trim_s`` (and their first, with ``trim_start``)."""
         c = self.config
         if not samples:
             return None
         t = np.concatenate([ts for ts, _ in samples])
         gyro = np.concatenate([g for _, g in samples])
         trim = int(c.standstill_trim_s * 1e9)
-        keep = (t >= t[0] + trim) & (t <= t[-1] - trim)
+        keep = (t >= t[0] + (trim if trim_start else 0)) & (t <= t[-1] - trim)
         n = int(keep.sum())
         if n < c.standstill_min_samples:
             return None

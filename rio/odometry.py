@@ -230,7 +230,11 @@ def radar_update(ekf: RadarInertialEkf, group: list[RadarScan], options: RioOpti
 
 
 def _imu_still(ekf: RadarInertialEkf) -> bool:
-    """The IMU agrees the robot stands still: no rotation beyond noise, specific force of gravity alone."""
+    """The IMU agrees the robot stands still: no rotation beyond noise, specific force of gravity alone
+    (over the IMU samples of the last ``still_window_s``; the latest sample where there are too few)."""
+    still = ekf.imu_was_still()
+    if still is not None:
+        return still
     w = ekf.last_gyro_radps - ekf.state.bg
     f = ekf.last_accel_mps2 - ekf.state.ba
     return bool(np.linalg.norm(w) < 0.01 and abs(np.linalg.norm(f) - GRAVITY_MPS2) < 0.15)
