@@ -348,3 +348,19 @@ def calibrate_recording(path: str | Path, out: str | Path, rig: Rig | None = Non
     header = f"Calibrated by sarbot calibrate from {Path(path).name}: axes not taken keep the rig's values.\n" + result.report()
     write_rig_toml(refined_rig(rig, result), out, header)
     return result
+
+
+def calibration_for_file(res: RioResult) -> tuple[dict[str, dict], dict[str, dict]]:
+    """The filter's calibration as ``imaging.io.trajectory_file.write_calibration`` takes it: (final values
+    per radar, history per radar)."""
+    radars = {name: {"mount_translation_m": e.mount.translation_m, "mount_rotation_xyzw": e.mount.rotation_xyzw,
+                     "time_offset_s": e.time_offset_s, "sigma": e.sigma} for name, e in res.calibration.items()}
+    history: dict[str, dict] = {}
+    for name in radars:
+        rows = [row for row in res.calibration_log if row[1] == name]
+        history[name] = {"time_ns": np.array([r[0] for r in rows], np.int64),
+                         "rotation_change_rad": np.array([r[2] for r in rows]).reshape(-1, 3),
+                         "lever_arm_m": np.array([r[3] for r in rows]).reshape(-1, 3),
+                         "time_offset_s": np.array([r[4] for r in rows], float),
+                         "sigma": np.array([r[5] for r in rows]).reshape(-1, 7)}
+    return radars, history

@@ -183,3 +183,25 @@ def test_calibration_off_leaves_the_filter_as_it_was(curvy):
     a = run_rio(imu, wrong[:400], RioOptions(ekf=SIM_EKF))
     assert a.calibration == {} and a.calibration_log == []
     assert a.covariance_diag.shape[1] == 15
+
+
+def test_the_estimates_go_into_the_trajectory_file_and_info(curvy, tmp_path):
+    from acquisition.info import format_info, info
+    from imaging.io.trajectory_file import read_calibration, write_calibration, write_trajectory
+    from rio.calibration import calibration_for_file
+
+    _, _, _, _, result = curvy
+    path = write_trajectory(tmp_path / "traj.h5", result.rio.trajectory, result.rio.covariance_diag)
+    write_calibration(path, *calibration_for_file(result.rio))
+    back = read_calibration(path)
+    late = back[LATE_RADAR]
+    assert late["time_offset_s"] == pytest.approx(result.radars[LATE_RADAR].estimate.time_offset_s)
+    np.testing.assert_allclose(late["sigma"], result.radars[LATE_RADAR].estimate.sigma)
+    import h5py
+
+    with h5py.File(path) as f:  # how it converged: the time offset's standard deviation shrinks
+        sigma = f[f"calibration/{LATE_RADAR}/sigma"][()]
+        assert sigma.shape[1] == 7 and sigma[-1, 6] < 0.2 * sigma[0, 6]
+    text = format_info(info(path))
+    assert f"calibration {LATE_RADAR}: lever arm" in text
+    assert "time offset +5." in text.split(f"calibration {LATE_RADAR}")[1].splitlines()[0]

@@ -125,6 +125,11 @@ def test_recording_holds_the_clock_state(tmp_path):
     np.testing.assert_array_equal(ptp["time_ns"], [10, 20])
     assert ptp["offset_from_master_ns"][0] == -12.0 and np.isnan(ptp["offset_from_master_ns"][1])
     assert np.isnan(ptp["phc2sys_offset_ns"]).all()
+    from acquisition.info import format_info, info
+
+    text = format_info(info(path))
+    assert "host PTP: 2 readings, port SLAVE -> LISTENING, offset from master median -12 ns" in text
+    assert f"1 frames from a clock not PTP-locked (marked in /radar/{r.name}/ptp_locked)" in text
 
 
 def _health(ptp: PtpStatus) -> Health:
