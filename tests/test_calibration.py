@@ -9,76 +9,28 @@ import math
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
-from imaging.core.rig import CalibrationPrior, Mount, default_rig, load_rig
+from imaging.core.rig import CalibrationPrior, default_rig, load_rig
 from imaging.core.trajectory import PathWithTurns
-from imaging.sim.detection_simulator import DetectionModel, room_scatterers, simulate_scan
-from imaging.sim.imu_simulator import ImuErrors, simulate_imu
 from imaging.sim.scene import DEFAULT_START_TIME_NS as T0
 from rio.calibration import AXIS_KEYS, calibrate, refined_rig, rig_toml, write_rig_toml
-from rio.ekf import EkfConfig
+from rio.calibration_drive import (
+    LATE_RADAR,
+    LATE_S,
+    PITCH_ERROR_DEG,
+    SIM_EKF,
+    calibration_drive,
+    estimate_errors,
+    simulate_drive,
+    wrong_mount,
+)
 from rio.evaluation import drift_report
-from rio.odometry import ImuData, RadarScan, RioOptions, run_rio
-
-#: Each radar's mount as the rig file has it: 2 deg off in yaw, 1 deg in pitch, 2 cm in the lever arm
-#: (in the plane the robot turns in), and one radar's clock 5 ms late.
-YAW_ERROR_DEG, PITCH_ERROR_DEG = 2.0, 1.0
-LEVER_ERROR_M = np.array([0.02, -0.02, 0.0]) / math.sqrt(2)
-LATE_RADAR, LATE_S = "left_rear", 0.005
-#: The simulated radar has no time-stamp jitter and no velocity change within a frame (it measures at the
-#: stamp): the floor on its velocity noise is what its Doppler fit leaves.
-SIM_EKF = EkfConfig(radar_velocity_sigma_floor_mps=0.008)
-#: Curves that tighten (0.3-0.5 m), in both directions, and a stop at every join: a real robot's yaw rate
-#: changes smoothly, the path's would step where an arc meets a straight at speed.
-CURVES = [("straight", 1.0), ("arc", 0.4, 180.0), ("straight", 0.5), ("arc", 0.3, -270.0), ("straight", 1.0),
-          ("arc", 0.5, 120.0)]
-
-
-def wrong_mount(mount: Mount) -> Mount:
-    rotation = mount.rotation * Rotation.from_euler("ZY", [YAW_ERROR_DEG, PITCH_ERROR_DEG], degrees=True)
-    return Mount(mount.translation_m + LEVER_ERROR_M, rotation.as_quat())
-
-
-def calibration_drive(segments=CURVES, repeats=6, accel=1.0):
-    lengths = [s[1] if s[0] == "straight" else abs(math.radians(s[2])) * s[1] for s in segments * repeats]
-    stops = tuple((float(x), 0.3) for x in np.cumsum(lengths)[:-1])
-    return PathWithTurns(segments=segments * repeats, start_m=(0, 0, 0), speed_mps=0.6, accel_mps2=accel,
-                         start_delay_s=2.0, stops=stops, t0_ns=T0)
-
-
-def simulate(trajectory, duration_s, seed):
-    """IMU and scans of the four radars: (imu, scans with the rig's wrong mounts and the late clock, scans
-    as a perfect rig file would have them)."""
-    rng = np.random.default_rng(seed)
-    rig = default_rig()
-    imu = simulate_imu(trajectory, rig.imu, T0, T0 + int(duration_s * 1e9), rng=rng,
-                       errors=ImuErrors(gyro_bias_radps=(0.002, -0.003, 0.001), accel_bias_mps2=(0.05, -0.04, 0.03)))
-    static = room_scatterers(size_m=(14.0, 10.0), centre_m=(0.0, 0.0), spacing_m=0.5, clutter=60)
-    wrong, right = [], []
-    for r in rig.radars:
-        for k in range(int(duration_s / 0.052)):
-            t = T0 + int((k + 0.5) * 0.052e9)
-            sc = simulate_scan(r, trajectory, t, static, [], DetectionModel(detection_probability=0.5), rng, T0)
-            late = int(LATE_S * 1e9) if r.name == LATE_RADAR else 0
-            wrong.append(RadarScan(t + late, r.name, wrong_mount(r.mount), sc.xyz_m, sc.doppler_mps))
-            right.append(RadarScan(t, r.name, r.mount, sc.xyz_m, sc.doppler_mps))
-    return ImuData(imu.time_ns, imu.gyro_radps, imu.accel_mps2), wrong, right
-
-
-def errors(result, name):
-    """The estimate's error against the truth: rotation (rad, sensor axes), lever arm (m), time offset (s)."""
-    truth = default_rig().radar(name).mount
-    est = result.radars[name].estimate
-    rot = (truth.rotation.inv() * est.mount.rotation).as_rotvec()
-    return np.concatenate([rot, est.mount.translation_m - truth.translation_m,
-                           [est.time_offset_s - (LATE_S if name == LATE_RADAR else 0.0)]])
-
+from rio.odometry import RioOptions, run_rio
 
 @pytest.fixture(scope="module")
 def curvy():
     traj = calibration_drive()
-    imu, wrong, right = simulate(traj, 90.0, seed=1)
+    imu, wrong, right = simulate_drive(traj, 90.0, seed=1)
     result = calibrate(imu, wrong, RioOptions(ekf=SIM_EKF))
     return traj, imu, wrong, right, result
 
@@ -87,7 +39,7 @@ def test_mounts_and_time_offset_converge_where_the_drive_shows_them(curvy):
     _, _, _, _, result = curvy
     observable = [AXIS_KEYS.index(k) for k in ("yaw", "lever_x", "lever_y", "time_offset")]
     for name, r in result.radars.items():
-        err = errors(result, name)
+        err = estimate_errors(result, name)
         assert r.accepted[observable].all(), (name, r.lines())
         assert abs(math.degrees(err[2])) < 0.2, name
         assert np.abs(err[3:5]).max() < 0.005, name
@@ -135,10 +87,10 @@ def test_calibration_standard_deviations_are_consistent_over_seeds():
     observable = [AXIS_KEYS.index(k) for k in ("yaw", "lever_x", "lever_y", "time_offset")]
     nees = []
     for seed in (11, 12, 13):
-        imu, wrong, _ = simulate(traj, 60.0, seed)
+        imu, wrong, _ = simulate_drive(traj, 60.0, seed)
         result = calibrate(imu, wrong, RioOptions(ekf=SIM_EKF))
         for name, r in result.radars.items():
-            e = errors(result, name)[observable]
+            e = estimate_errors(result, name)[observable]
             nees.append(float(np.sum((e / r.estimate.sigma[observable]) ** 2)))
     assert 4 * 0.3 < np.mean(nees) < 4 * 2.0, nees
 
@@ -146,13 +98,13 @@ def test_calibration_standard_deviations_are_consistent_over_seeds():
 def test_a_straight_drive_refuses_the_lever_arm_instead_of_a_confident_wrong_value():
     traj = PathWithTurns(segments=[("straight", 8.0)], start_m=(0, 0, 0), speed_mps=0.6, accel_mps2=1.0,
                          start_delay_s=2.0, stops=((2.0, 0.5), (4.0, 0.5), (6.0, 0.5)), t0_ns=T0)
-    imu, wrong, _ = simulate(traj, 22.0, seed=3)
+    imu, wrong, _ = simulate_drive(traj, 22.0, seed=3)
     result = calibrate(imu, wrong, RioOptions(ekf=SIM_EKF))
     for name, r in result.radars.items():
         for key in ("lever_x", "lever_y", "lever_z"):
             assert not r.accepted[AXIS_KEYS.index(key)]
             assert "hardly turned" in r.reasons[key] and "trades against the yaw" in r.reasons[key]
-        err = errors(result, name)
+        err = estimate_errors(result, name)
         taken = r.accepted
         # whatever it did take, it took within its standard deviation
         assert np.all(np.abs(err[taken]) < 3 * r.estimate.sigma[taken]), (name, r.lines())
