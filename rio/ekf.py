@@ -54,8 +54,10 @@ class EkfConfig:
     zero_velocity_sigma_mps: float = 0.02  # the radar's zero-velocity threshold: creeping below it looks still
     zero_rate_sigma_radps: float = 2e-3
     #: Zero-velocity update when the radar calls a standstill and the IMU has not moved since the last radar
-    #: update (``imu_was_still``): then the robot stands, it does not creep into or out of a stop, and the
-    #: velocity is zero to the IMU's noise (0.02 m/s would leave it crawling to zero over seconds).
+    #: update (``imu_was_still``), in a stop after driving: then the robot stands, it does not creep into or
+    #: out of a stop, and the velocity the drive left is pulled to zero at once (0.02 m/s would leave it
+    #: crawling there over seconds). Not at the start, which the static initialisation gives zero velocity
+    #: already, and where the tighter update would lean harder on a tilt the IMU cannot tell from its bias.
     still_zero_velocity_sigma_mps: float = 0.002
     still_gyro_radps: float = 0.01  # the mean rate between two radar scans this far from the bias ...
     still_accel_std_mps2: float = 0.1  # ... or the specific force scattered this much ...
@@ -260,8 +262,7 @@ class RadarInertialEkf:
                                           np.full(3, config.gyro_noise_density ** 2), np.full(3, config.accel_bias_random_walk ** 2),
                                           np.full(3, config.gyro_bias_random_walk ** 2)])
         self.state: EkfState | None = None
-        # Gyro samples of the current standstill (time ns, rate), for one zero-rate update when it ends.
-        # Chunks of (times [k], gyro [k, 3]) of the current standstill.
+        # Chunks of (times [k], gyro [k, 3]) of the current standstill, for its zero-rate updates.
         self._standstill: list[tuple[np.ndarray, np.ndarray]] = []
         self._in_standstill = False
         self._standstill_started = True  # whether the gathered samples begin with the standstill (trim them)
@@ -275,6 +276,7 @@ class RadarInertialEkf:
         # whether the IMU stands still, and the gyro's slope, the angular acceleration the time-offset
         # update needs (d/dt of w x l).
         self._recent_imu = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+        self._has_moved = False  # a radar velocity update has been taken: the robot has driven
 
     # -- initialisation -----------------------------------------------------------------------------
     def initialise_static(self, time_ns: int, accel_mps2: np.ndarray, gyro_radps: np.ndarray,
@@ -334,8 +336,7 @@ class RadarInertialEkf:
 
     def calibration_sigma(self, name: str) -> np.ndarray:
         """Standard deviations of radar ``name``'s 7 calibration error states (rad, m, s)."""
-        i = self.calibration[name].index
-        return np.sqrt(np.clip(np.diag(self.state.P)[i:i + N_CALIBRATION], 0.0, None))
+        return np.sqrt(np.clip(np.diag(self.state.P)[self.calibration[name].index:][:N_CALIBRATION], 0.0, None))
 
     def calibration_estimates(self) -> dict[str, CalibrationEstimate]:
         """Every calibrated radar's current estimate and standard deviations."""
@@ -402,7 +403,8 @@ class RadarInertialEkf:
         return recorded
 
     # -- updates ------------------------------------------------------------------------------------------
-    def _update(self, residual: np.ndarray, H: np.ndarray, R_meas: np.ndarray, gate: float | None) -> UpdateResult:
+    def _update(self, residual: np.ndarray, H: np.ndarray, R_meas: np.ndarray, gate: float | None,
+                kind: str = "") -> UpdateResult:
         s = self.state
         ok, chi2, dx, P = _joseph_update(s.P, np.ascontiguousarray(H, dtype=np.float64),
                                          np.ascontiguousarray(R_meas, dtype=np.float64),
@@ -411,6 +413,8 @@ class RadarInertialEkf:
             return UpdateResult(False, chi2)
         s.P = P
         s.p = s.p + dx[0:3]
+        if kind == "velocity":
+            self._has_moved = True
         s.v = s.v + dx[3:6]
         s.R = s.R @ _exp_so3_nb(dx[6:9])
         s.ba = s.ba + dx[9:12]
@@ -427,7 +431,7 @@ class RadarInertialEkf:
             self.bias_log[-1:] = [entry]
         return UpdateResult(True, chi2)
 
-    def _zeros(self, rows: int) -> np.ndarray:
+    def _zeros(self, rows: int) -> np.ndarray:  # a measurement Jacobian's rows, as wide as the error state
         return np.zeros((rows, self.state.P.shape[0]))
 
     def measurement_time_ns(self, radar: str, stamp_ns: int) -> int:
@@ -472,7 +476,7 @@ class RadarInertialEkf:
                 t_hist = self._recent_imu[0]
                 half_interval_s = 0.5e-9 * (t_hist[-1] - t_hist[-2]) if t_hist.size > 1 else 0.0
                 predicted = predicted + rate * ((int(stamp_ns) - s.time_ns) * 1e-9 + half_interval_s - cal.time_offset_s)
-        return self._update(np.asarray(velocity_sensor_mps) - predicted, H, covariance, self.config.gate_chi2)
+        return self._update(np.asarray(velocity_sensor_mps) - predicted, H, covariance, self.config.gate_chi2, "velocity")
 
     def update_body_velocity(self, velocity_body_mps: np.ndarray, covariance: np.ndarray) -> UpdateResult:
         """Body-frame velocity (several radars solved together)."""
@@ -483,7 +487,7 @@ class RadarInertialEkf:
         H[:, 3:6] = s.R.T
         H[:, 6:9] = skew(v_body)
         covariance = covariance + np.eye(3) * self.config.radar_velocity_sigma_floor_mps ** 2
-        return self._update(np.asarray(velocity_body_mps) - v_body, H, covariance, self.config.gate_chi2)
+        return self._update(np.asarray(velocity_body_mps) - v_body, H, covariance, self.config.gate_chi2, "velocity")
 
     def inflate_velocity_uncertainty(self) -> None:
         """Reset the velocity block of P (and its correlations) to a wide prior."""
@@ -522,7 +526,7 @@ class RadarInertialEkf:
         an arc already turns. So the gyro samples of the standstill are gathered and, when it ends, their
         mean without the first and last ``standstill_trim_s`` becomes one zero-rate update (the gyro bias).
         """
-        standing = bool(self.imu_was_still(self.config.standing_accel_mps2))
+        standing = self._has_moved and bool(self.imu_was_still(self.config.standing_accel_mps2))
         if not self._in_standstill:
             self._standstill_started = True
         self._in_standstill = True
