@@ -6,6 +6,11 @@ in a batch is the image the single command makes, bit for bit. :func:`plan_jobs`
 frame tiles x option sweeps into jobs; :func:`run_batch` runs them on a ``dask.distributed`` cluster (a
 local one of worker processes by default, or a scheduler's address) and gathers one summary per job.
 
+An autofocus method registered in the client's process only (``imaging.autofocus.register_method``: a
+plug-in, a test's own) is unknown to the workers, which import sarbot afresh: :func:`run_batch` resolves the
+methods the jobs name in the client and ships each job its estimator function (cloudpickle takes a function
+that is not importable by value), and :func:`run_job` registers it in the worker before forming the image.
+
 Each worker gives the backprojection kernel its share of the machine's cores (``threads``), so that two
 workers on two cores do not run four threads. Files must be readable and writable at the same paths on
 every worker (a shared file system for a real cluster).
@@ -53,14 +58,20 @@ class ImageJob:
         return Path(self.output).stem
 
 
-def run_job(job: ImageJob) -> dict:
+def run_job(job: ImageJob, autofocus_estimator=None) -> dict:
     """Form and write one image; returns a summary (output, peak, seconds, error). Never raises for a bad
-    input: the error goes into the summary, so one broken recording does not stop a batch."""
+    input: the error goes into the summary, so one broken recording does not stop a batch.
+
+    ``autofocus_estimator``: the function of the job's autofocus method, registered under its name here
+    first (a worker process does not know a method registered only in the client's; ``run_batch``)."""
     started = time.perf_counter()
     try:
         import numba
 
-        from imaging.autofocus import AutofocusOptions
+        from imaging.autofocus import AutofocusOptions, register_method
+
+        if autofocus_estimator is not None:
+            register_method(job.autofocus, autofocus_estimator, replace=True)
         from imaging.image_formation import ImagingOptions, image_recording, image_title
         from imaging.io.image_file import write_image
         from imaging.io.recording import Recording
@@ -142,13 +153,28 @@ def plan_jobs(recordings, grid: str, out_dir, *, radar: str | None = None, frame
     return jobs
 
 
+#: Where a local cluster serves its dashboard by default: loopback only (a port in use: Dask takes another).
+DASHBOARD_ADDRESS = "127.0.0.1:8787"
+
+
+def dashboard_available() -> bool:
+    """Whether Dask can serve its dashboard here: it needs bokeh, the optional ``sarbot[dashboard]`` extra."""
+    import importlib.util
+
+    return importlib.util.find_spec("bokeh") is not None
+
+
 def run_batch(jobs: list[ImageJob], scheduler: str | None = None, n_workers: int = 2, progress=None,
-              client=None) -> list[dict]:
+              client=None, dashboard_address: str | None = DASHBOARD_ADDRESS, on_dashboard=None) -> list[dict]:
     """Run ``jobs`` on a Dask cluster; summaries in the order of ``jobs``.
 
     ``scheduler``: the address of a running ``dask.distributed`` scheduler (``tcp://host:8786``); None
     starts a local cluster of ``n_workers`` worker processes, one thread each, for the time of the batch.
     ``client``: a ``dask.distributed.Client`` to use instead (left open).
+    ``dashboard_address``: where the local cluster serves Dask's dashboard (None: nowhere); served only
+    where bokeh is installed (``pip install sarbot[dashboard]``).
+    ``on_dashboard``: called with the dashboard's URL (a remote scheduler's too) once the cluster is up and
+    before any job runs; with None where there is no dashboard.
     """
     if logging.getLogger().level > logging.DEBUG:  # below -vv, Dask's own INFO lines are noise here
         os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")  # read by this process and its workers
@@ -157,10 +183,12 @@ def run_batch(jobs: list[ImageJob], scheduler: str | None = None, n_workers: int
     logging.getLogger("distributed").setLevel(logging.getLevelName(os.environ.get("DASK_LOGGING__DISTRIBUTED", "info").upper()))
     cluster = None
     own_client = client is None
+    serve = None
     if client is not None:
         pass
     elif scheduler is None:
-        cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        serve = dashboard_address if dashboard_address and dashboard_available() else None
+        cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=serve)
         client = Client(cluster)
     else:
         try:
@@ -168,7 +196,13 @@ def run_batch(jobs: list[ImageJob], scheduler: str | None = None, n_workers: int
         except OSError as exc:
             raise SarbotError(f"--scheduler {scheduler}: cannot reach it ({exc})") from None
     try:
-        futures = {client.submit(run_job, job, pure=False): i for i, job in enumerate(jobs)}
+        if on_dashboard is not None:
+            # a local cluster without a dashboard still runs its HTTP server (health, metrics): not a dashboard
+            on_dashboard(None if cluster is not None and serve is None else _dashboard_link(client))
+        from imaging.autofocus import METHODS
+
+        # Each job carries its method's function: the workers know only the methods sarbot registers itself.
+        futures = {client.submit(run_job, job, METHODS.get(job.autofocus), pure=False): i for i, job in enumerate(jobs)}
         results: list[dict | None] = [None] * len(jobs)
         for done, future in enumerate(as_completed(futures), 1):
             results[futures[future]] = future.result()
@@ -180,3 +214,13 @@ def run_batch(jobs: list[ImageJob], scheduler: str | None = None, n_workers: int
             client.close()
         if cluster is not None:
             cluster.close()
+
+
+def _dashboard_link(client) -> str | None:
+    """The dashboard's URL, or None where the scheduler serves none."""
+    try:
+        services = client.scheduler_info().get("services", {})
+    except Exception:  # noqa: BLE001 -- a scheduler that cannot say serves nothing we can name
+        return None
+    return client.dashboard_link if "dashboard" in services else None
+

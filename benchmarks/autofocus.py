@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 import tempfile
 import time
@@ -32,13 +31,15 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 from imaging import metrics  # noqa: E402
-from imaging.autofocus import AutofocusOptions, ProfileBlock, TrackError, backproject_blocks, estimate_track_error  # noqa: E402
+from imaging.autofocus import AutofocusOptions, ProfileBlock, backproject_blocks, estimate_track_error  # noqa: E402
+from imaging.core.track_error import TrackError  # noqa: E402
 from imaging.core.geometry import Vibration  # noqa: E402
 from imaging.core.grid import Grid  # noqa: E402
 from imaging.image_formation import ImagingOptions, focus_image, form_image  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
 from imaging.sim.scene import load_scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
+from imaging.core import strict_json  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 VIBRATION = Vibration(3.83, 0.319e-3, 0.7)
@@ -182,7 +183,7 @@ def main() -> int:
     RESULTS.mkdir(parents=True, exist_ok=True)
     stem = "autofocus_quick" if args.quick else "autofocus"  # a smoke run keeps the real figures
     out = RESULTS / f"{stem}.json"
-    out.write_text(json.dumps({"quick": args.quick, "rows": rows}, indent=2, default=float))
+    out.write_text(strict_json.dumps({"quick": args.quick, "rows": rows}, indent=2))
     chart(rows, RESULTS / f"{stem}.png")
     print(f"wrote {out} and {RESULTS / (stem + '.png')}")
     return 0

@@ -16,7 +16,6 @@ Writes docs/results/backprojection.json and docs/results/backprojection.png.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import platform
@@ -39,6 +38,7 @@ from imaging.core.trajectory import StraightLine  # noqa: E402
 from imaging.range_compression import range_compress  # noqa: E402
 from imaging.sim.simulator import simulate_frames  # noqa: E402
 from imaging.sim.targets import PointTarget  # noqa: E402
+from imaging.core import strict_json  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 
@@ -235,7 +235,7 @@ def main() -> int:
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     name = "backprojection_quick" if args.quick else "backprojection"
-    (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2))
+    (RESULTS / f"{name}.json").write_text(strict_json.dumps(result, indent=2))
     chart(rows, numpy_bps, floors, torchbp, RESULTS / f"{name}.png")
     print(f"wrote {RESULTS / (name + '.json')} and {name}.png")
     return 0
@@ -260,7 +260,7 @@ def torchbp_comparison(prof, tx, rx, grid, wf, sub, exact_sub, sarbot_bps: float
     try:
         z = float(grid[0, 0, 2])
         pos = torch.from_numpy(((tx + rx) / 2 - [0.0, 0.0, z]).astype(np.float32))
-        # torchbp multiplies by exp(+j 4 pi fc d / c) where sarbot (DESIGN.md) multiplies by exp(-j 2 pi fc r / c):
+        # torchbp multiplies by exp(+j 4 pi fc d / c) where sarbot (docs/signal-model.md) multiplies by exp(-j 2 pi fc r / c):
         # its data carry the conjugate phase, so it is given the conjugate profiles (its image is then the
         # conjugate of sarbot's, with the same magnitude).
         data = torch.from_numpy(np.conj(prof.data))

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 import tempfile
 import time
@@ -31,6 +30,7 @@ from image_command import make_recording  # noqa: E402
 
 from acquisition.batch import plan_jobs, run_batch, run_job  # noqa: E402
 from imaging.io.image_file import read_image  # noqa: E402
+from imaging.core import strict_json  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 
@@ -83,7 +83,7 @@ def main() -> int:
           f"({t_single / t_batch:.2f}x; {t_batch_cold:.2f} s with a cold cluster), identical: {identical}")
     RESULTS.mkdir(parents=True, exist_ok=True)
     name = "batch_quick" if args.quick else "batch"
-    (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2))
+    (RESULTS / f"{name}.json").write_text(strict_json.dumps(result, indent=2))
     print(f"wrote {RESULTS / (name + '.json')}")
     return 0 if identical and not errors else 1
 

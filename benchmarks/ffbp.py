@@ -14,7 +14,6 @@ Writes docs/results/ffbp.json and docs/results/ffbp.png (``ffbp_quick.*`` with -
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -32,6 +31,7 @@ from backprojection import make_case  # noqa: E402
 from imaging.backprojection import backproject  # noqa: E402
 from imaging.factorized_backprojection import FactorizedOptions, plan_factorized, run_factorized  # noqa: E402
 from imaging.range_compression import range_compress  # noqa: E402
+from imaging.core import strict_json  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 SPEED_MPS = 0.4
@@ -138,7 +138,7 @@ def main() -> int:
               "cases": cases}
     RESULTS.mkdir(parents=True, exist_ok=True)
     name = "ffbp_quick" if args.quick else "ffbp"
-    (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2))
+    (RESULTS / f"{name}.json").write_text(strict_json.dumps(result, indent=2))
     chart(result, RESULTS / f"{name}.png")
     print(f"wrote {RESULTS / (name + '.json')} and {name}.png")
     return 0

@@ -14,7 +14,6 @@ Writes docs/results/image_command.json.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 from pathlib import Path
@@ -35,6 +34,7 @@ from imaging.io.recording import Recording  # noqa: E402
 from imaging.sim.scene import DEFAULT_START_TIME_NS, Scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.sim.targets import PointTarget  # noqa: E402
+from imaging.core import strict_json  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 
@@ -116,7 +116,7 @@ def main() -> int:
           f"sarbot image {work / t_command / 1e9:.3f} G/s ({100 * t_kernel / t_command:.0f} % of the kernel); seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in s.items()))
     RESULTS.mkdir(parents=True, exist_ok=True)
     name = "image_command_quick" if args.quick else "image_command"
-    (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2))
+    (RESULTS / f"{name}.json").write_text(strict_json.dumps(result, indent=2))
     print(f"wrote {RESULTS / (name + '.json')}")
     return 0
 

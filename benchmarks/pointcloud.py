@@ -12,7 +12,6 @@ Writes docs/results/pointcloud.json.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -30,6 +29,7 @@ from imaging.sim.simulator import simulate_frames  # noqa: E402
 from imaging.sim.targets import PointTarget  # noqa: E402
 from reference_pointcloud import reference_cube  # noqa: E402
 from rio.pointcloud import PointCloudConfig, cfar_2d, detect, range_doppler_cube  # noqa: E402
+from imaging.core import strict_json  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 SCANS_PER_S_PER_RADAR = 10.0  # the odometry worker's default scan rate
@@ -97,7 +97,7 @@ def main() -> int:
           f"max error {cube_error:.1e} of the peak")
     RESULTS.mkdir(parents=True, exist_ok=True)
     name = "pointcloud_quick.json" if args.quick else "pointcloud.json"
-    (RESULTS / name).write_text(json.dumps(out, indent=2) + "\n")
+    (RESULTS / name).write_text(strict_json.dumps(out, indent=2) + "\n")
     return 0
 
 

@@ -49,79 +49,13 @@ from acquisition.bus import BusSubscriber  # noqa: E402
 from acquisition.messages import Health, MapStatus, decode  # noqa: E402
 from acquisition.processes import free_ports, free_tcp_endpoint  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
+from imaging.core import strict_json  # noqa: E402
+from process_stats import child_pids, cpu_s, machine_cpu_s, named_process_tree, rss_mb, run_queue_wait_s  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 SARBOT = [sys.executable, "-m", "acquisition.cli"]
-CLK_TCK = os.sysconf("SC_CLK_TCK")
 SAMPLE_EVERY_S = 10.0
 RSS_GOAL_MB = 20.0
-
-
-def process_tree(pid: int) -> dict[int, str]:
-    """The daemon and its children by the names they give themselves (``sarbot-imu``, ...), numbered where
-    two names are the same (15 characters of a name are kept)."""
-    out = {pid: "supervisor+recorder"}
-    seen: dict[str, int] = {}
-    try:
-        tasks = list(Path(f"/proc/{pid}/task").iterdir())
-    except FileNotFoundError:
-        return {}
-    children = set()
-    for t in tasks:
-        try:
-            children.update(int(c) for c in (t / "children").read_text().split())
-        except FileNotFoundError:
-            continue  # a thread that ended since the listing
-    children = sorted(children)
-    for child in children:
-        try:
-            name = Path(f"/proc/{child}/comm").read_text().strip()
-        except FileNotFoundError:
-            continue
-        seen[name] = seen.get(name, 0) + 1
-        out[child] = name if seen[name] == 1 else f"{name}#{seen[name]}"
-    return out
-
-
-def rss_mb(pid: int) -> float | None:
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    except FileNotFoundError:
-        return None
-    return None
-
-
-def cpu_s(pid: int) -> float | None:
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except FileNotFoundError:
-        return None
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK
-
-
-def run_queue_wait_s(pid: int) -> float | None:
-    """How long the process's threads have waited, runnable, for a core (/proc/PID/task/*/schedstat), s."""
-    total = 0.0
-    try:
-        tasks = list(Path(f"/proc/{pid}/task").iterdir())
-    except FileNotFoundError:
-        return None
-    for t in tasks:
-        try:
-            total += int((t / "schedstat").read_text().split()[1]) * 1e-9
-        except (FileNotFoundError, IndexError, ValueError):
-            continue  # a thread that ended since the listing
-    return total
-
-
-def machine_cpu_s() -> dict[str, float]:
-    """All cores' time since boot from /proc/stat, s: ``busy`` (user, nice, system, interrupts), ``steal`` (taken
-    by the hypervisor) and ``idle`` (with I/O wait)."""
-    fields = [int(v) / CLK_TCK for v in Path("/proc/stat").read_text().splitlines()[0].split()[1:]]
-    user, nice, system, idle, iowait, irq, softirq, steal = (fields + [0.0] * 8)[:8]
-    return {"busy": user + nice + system + irq + softirq, "steal": steal, "idle": idle + iowait}
 
 
 class PartChecker:
@@ -252,7 +186,7 @@ def soak(minutes: float, work: Path, radars: list[str], map_args: list[str] = ()
             if time.monotonic() < next_sample:
                 continue
             next_sample += SAMPLE_EVERY_S
-            tree = process_tree(daemon.pid)
+            tree = named_process_tree(daemon.pid, "supervisor+recorder")
             sample = {"t_s": round(time.monotonic() - t0, 1), "rss_mb": {}, "cpu_pct": {}, "waiting_for_core_pct": {}}
             for pid, name in tree.items():
                 rss, cpu, wait = rss_mb(pid), cpu_s(pid), run_queue_wait_s(pid)
@@ -269,7 +203,7 @@ def soak(minutes: float, work: Path, radars: list[str], map_args: list[str] = ()
             # The emulated hardware shares the unit's two cores here (on the robot it does not): what it took,
             # and whether the machine as a whole had any left.
             for pid, name in {replay.pid: "replay", **{c: f"replay-{i}" for i, c in enumerate(
-                    sorted(set(process_tree(replay.pid)) - {replay.pid}))}}.items():
+                    child_pids(replay.pid) or [])}}.items():
                 cpu = cpu_s(pid)
                 if cpu is not None and pid in cpu_before:
                     sample["replay_cpu_pct"] = sample.get("replay_cpu_pct", 0.0) + round(
@@ -444,9 +378,9 @@ def main() -> int:
         result = json.loads(path.read_text())
         result["rss"] = rss_summary(result["samples"], result["samples"][-1]["t_s"])
         result["rss_flat"] = all(g["drift_mb"] <= RSS_GOAL_MB for g in result["rss"].values())
-        path.write_text(json.dumps(result, indent=1) + "\n")
+        path.write_text(strict_json.dumps(result, indent=1) + "\n")
         chart(result, path.with_suffix(".png"))
-        print(json.dumps(result["rss"], indent=1))
+        print(strict_json.dumps(result["rss"], indent=1))
         return 0 if result["no_loss"] and result["rss_flat"] else 1
     minutes = 3.0 if args.quick else args.minutes
     radars = args.radars.split(",")
@@ -461,9 +395,9 @@ def main() -> int:
     stem = f"soak_{args.name}" if args.name else stem
     stem += "_quick" if args.quick else ""
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / f"{stem}.json").write_text(json.dumps(result, indent=1) + "\n")
+    (RESULTS / f"{stem}.json").write_text(strict_json.dumps(result, indent=1) + "\n")
     chart(result, RESULTS / f"{stem}.png")
-    print(json.dumps({k: v for k, v in result.items() if k not in ("samples", "daemon_log_tail")}, indent=1))
+    print(strict_json.dumps({k: v for k, v in result.items() if k not in ("samples", "daemon_log_tail")}, indent=1))
     print(f"wrote {RESULTS / (stem + '.json')} and {stem}.png")
     return 0 if result["no_loss"] and result["rss_flat"] else 1
 

@@ -5,7 +5,7 @@ backprojection of the same data, for the settings that trade one for the other.
 
 Data: the demo scene (four reference radars, 0.4 m/s past a rod, a reflector and clutter), simulated once.
 Speed: every setting images the same frames of all four radars, interleaved as they arrive live, on this
-machine's two cores (the worker alone; the daemon's other processes are measured by acquisition.py).
+machine's two cores (the worker alone; the daemon's other processes are measured by daemon_recording.py).
 The sensor rate is 4 x 19.2 = 77 frames/s. The live worker runs its kernel on one thread
 (``StripMapWorkerConfig.threads``): the CPU time per frame of the default setting on one and on two
 threads says what a second thread costs a machine the map shares with the drivers. Error: the left-front radar's map over the rod and reflector
@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 import tempfile
 import time
@@ -38,6 +37,7 @@ from imaging.io.recording import Recording  # noqa: E402
 from imaging.sim.scene import load_scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.stripmap import StripMap, StripMapConfig, max_presum  # noqa: E402
+from imaging.core import strict_json  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 DEFAULT = StripMapConfig(aperture_m=0.3, range_min_m=1.0, range_max_m=4.0, z_m=0.3)
@@ -187,7 +187,7 @@ def main(argv: list[str]) -> int:
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     stem = "stripmap_quick" if args.quick else "stripmap"  # a smoke run keeps the real figures
-    (RESULTS / f"{stem}.json").write_text(json.dumps(summary, indent=2))
+    (RESULTS / f"{stem}.json").write_text(strict_json.dumps(summary, indent=2))
     plot(rows, sensor_fps, RESULTS / f"{stem}.png")
     rec.close()
     path.unlink()

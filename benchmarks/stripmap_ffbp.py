@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 import tempfile
 import time
@@ -43,6 +42,7 @@ from imaging.sim.scene import load_scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.stripmap import StripMap, StripMapConfig  # noqa: E402
 from reference_stripmap import block_reference  # noqa: E402
+from imaging.core import strict_json  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 RADAR = "left_front"
@@ -161,7 +161,7 @@ def main(argv: list[str]) -> int:
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     stem = "stripmap_ffbp_quick" if args.quick else "stripmap_ffbp"  # a smoke run keeps the real figures
-    (RESULTS / f"{stem}.json").write_text(json.dumps(summary, indent=2))
+    (RESULTS / f"{stem}.json").write_text(strict_json.dumps(summary, indent=2))
     plot(rows, radar_fps, RESULTS / f"{stem}.png")
     rec.close()
     path.unlink()

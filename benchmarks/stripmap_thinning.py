@@ -19,7 +19,6 @@ measures speed), with the reference's as the baseline ratio. Writes docs/results
 from __future__ import annotations
 
 import dataclasses
-import json
 import sys
 import tempfile
 import time
@@ -30,13 +29,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from acquisition.studies.paper import label_of, target_xy  # noqa: E402
+from acquisition.studies.common import label_of, target_xy  # noqa: E402
 from imaging import metrics  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
 from imaging.sim.scene import load_scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.sim.targets import CornerReflector, Rod  # noqa: E402
 from imaging.stripmap import StripMap, StripMapConfig, max_presum  # noqa: E402
+from imaging.core import strict_json  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 RADAR = "left_front"
@@ -133,7 +133,7 @@ def main() -> int:
     result = {"radar": RADAR, "frames": len(frames), "aperture_m": CONFIG.aperture_m, "pixel_m": CONFIG.pixel_m,
               "speed_mps": 0.4, "frame_spacing_m": 0.4 * wf.frame_interval_s, "rows": rows}
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "stripmap_thinning.json").write_text(json.dumps(result, indent=1) + "\n")
+    (RESULTS / "stripmap_thinning.json").write_text(strict_json.dumps(result, indent=1) + "\n")
     chart(panels, xr, yr, targets, RESULTS / "stripmap_thinning.png")
     print(f"wrote {RESULTS / 'stripmap_thinning.json'} and stripmap_thinning.png")
     rec.close()

@@ -8,7 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from imaging.backprojection import backproject
+from imaging.backprojection import MODES, backproject
 from imaging.core.errors import SarbotError
 from imaging.core.geometry import antenna_track, chirp_times_ns, principal_axis
 from imaging.core.grid import Grid
@@ -16,9 +16,13 @@ from imaging.core.rig import RadarConfig
 from imaging.core.trajectory import Trajectory
 from imaging.io.image_file import SarImage
 from imaging.io.recording import Recording
-from imaging.range_compression import range_compress
+from imaging.profiles import chirp_profiles
 
 log = logging.getLogger(f"sarbot.{__name__}")
+
+#: How an image is formed: "direct" (every profile onto every pixel) or "ffbp" (fast factorized
+#: backprojection, a horizontal plane only; holds all the profiles in memory; imaging.factorized_backprojection).
+ALGORITHMS = ("direct", "ffbp")
 
 
 @dataclasses.dataclass
@@ -31,9 +35,7 @@ class ImagingOptions:
     tx: tuple[int, ...] | None = None
     rx: tuple[int, ...] | None = None
     frames_per_block: int = 8  # range compression of the next block overlaps the backprojection of this one
-    #: "direct" (every profile onto every pixel) or "ffbp" (fast factorized backprojection, a horizontal
-    #: plane only; holds all the profiles in memory; imaging.factorized_backprojection)
-    algorithm: str = "direct"
+    algorithm: str = "direct"  # one of ALGORITHMS
     #: Slow-time taper: each profile weighted by this window at its bistatic phase centre's place along the
     #: aperture (imaging.core.windows.window_at). "rectangular" (no taper) keeps the sinc's -13.3 dB side
     #: lobes; a taper lowers them and widens the main lobe by the window's width factor.
@@ -43,13 +45,14 @@ class ImagingOptions:
         from imaging.core.config import require
         from imaging.core.windows import WINDOWS
 
-        require(self.mode in ("nearest", "linear", "exact"), "mode", f"must be nearest, linear or exact, got {self.mode!r}")
+        require(self.mode in MODES, "mode", f"must be {', '.join(MODES[:-1])} or {MODES[-1]}, got {self.mode!r}")
         require(self.window in WINDOWS, "window", f"must be one of {', '.join(WINDOWS)}, got {self.window!r}")
         require(self.aperture_window in WINDOWS, "aperture_window",
                 f"must be one of {', '.join(WINDOWS)}, got {self.aperture_window!r}")
         require(1 <= self.oversample <= 1024, "oversample", f"must be 1 to 1024, got {self.oversample}")
         require(self.frames_per_block >= 1, "frames_per_block", f"must be at least 1, got {self.frames_per_block}")
-        require(self.algorithm in ("direct", "ffbp"), "algorithm", f"must be direct or ffbp, got {self.algorithm!r}")
+        require(self.algorithm in ALGORITHMS, "algorithm",
+                f"must be {', '.join(ALGORITHMS[:-1])} or {ALGORITHMS[-1]}, got {self.algorithm!r}")
 
 
 def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajectory, tx_order, options: ImagingOptions,
@@ -64,31 +67,21 @@ def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajector
         TX index of each chirp within a frame.
     time_window_ns : (start, stop), optional
         Keep only chirps starting in [start, stop).
-    track_error : imaging.autofocus.TrackError, optional
+    track_error : imaging.core.track_error.TrackError, optional
         A displacement of the radar along its boresight the trajectory does not know (from autofocus).
 
     Returns
     -------
-    profiles : RangeProfiles with data [P, bins]; tx_m, rx_m : [P, 3]; along with chirp times [P].
+    ChirpProfiles
+        ``imaging.profiles.chirp_profiles`` of the selected chirps and channels: profiles [P, bins], tx_m,
+        rx_m [P, 3], chirp times [P], the antennas' track.
     """
     wf = radar.waveform
-    n_f = adc.shape[0]
     times, tx_index, keep, rx_sel = _selected_chirps(frame_time_ns, wf, tx_order, options, time_window_ns)
-    track = antenna_track(radar, trajectory, times[keep], tx_index[keep])
-    if track_error is not None:
-        d = track_error.at((track.time_ns - np.int64(track_error.time_origin_ns)) * 1e-9)[:, None] * track.boresight
-        track.tx_m = track.tx_m + d
-        track.rx_m = track.rx_m + d[:, None, :]
-    samples = adc.reshape(n_f * wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)[keep][:, rx_sel, :]
-    n_keep = samples.shape[0]
-    profiles = range_compress(
-        samples.reshape(n_keep * rx_sel.size, wf.samples_per_chirp), wf.f0_hz, wf.frequency_step_hz,
-        window=options.window, oversample=options.oversample, keep_samples=options.mode == "exact",
-        guarded=True, workers=-1,
-    )
-    tx_m = np.repeat(track.tx_m, rx_sel.size, axis=0)
-    rx_m = track.rx_m[:, rx_sel, :].reshape(-1, 3)
-    return profiles, tx_m, rx_m, np.repeat(times[keep], rx_sel.size), track
+    samples = adc.reshape(adc.shape[0] * wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)[keep][:, rx_sel, :]
+    return chirp_profiles(samples, times[keep], tx_index[keep], radar, trajectory, window=options.window,
+                          oversample=options.oversample, keep_samples=options.mode == "exact", rx=rx_sel,
+                          track_error=track_error, workers=-1)
 
 
 def _selected_chirps(frame_time_ns, wf, tx_order, options: ImagingOptions, time_window_ns):

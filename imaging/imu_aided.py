@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.signal
 
-from imaging.autofocus import TrackError, remove_line
+from imaging.core.track_error import TrackError, remove_line
 
 
 def boresight_track_from_imu(time_ns: np.ndarray, accel_mps2: np.ndarray, time_window_ns: tuple[int, int],

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 
 import numpy as np
 import pytest
@@ -18,8 +19,7 @@ from imaging.autofocus import (
     AutofocusOptions,
     GroupImages,
     ProfileBlock,
-    TrackError,
-    _entropy_and_gradient,
+    entropy_and_gradient,
     backproject_blocks,
     estimate_track_error,
     fit_vibration,
@@ -29,6 +29,7 @@ from imaging.autofocus import (
 )
 from imaging.core.errors import ConfigError
 from imaging.core.geometry import Vibration
+from imaging.core.track_error import TrackError
 from imaging.core.grid import Grid
 from imaging.image_formation import ImagingOptions, _BlockReader, focus_image, form_image
 from imaging.io.recording import Recording
@@ -82,13 +83,13 @@ def test_entropy_gradient_is_exact():
     g = GroupImages(b, rng.uniform(0.9, 1.0, (n_q, n_t)), np.arange(n_q, dtype=float), np.zeros((n_t * TILE, 3)),
                     np.ones(n_t * TILE, np.float32), 1600.0, 1.0, np.zeros(3), np.zeros((n_q, 3)), 0.04)
     phase = rng.uniform(-1, 1, (n_q, n_t))
-    _, grad = _entropy_and_gradient(g, phase)
+    _, grad = entropy_and_gradient(g, phase)
     step = 1e-3
     for q, t in [(0, 0), (4, 1), (11, 2), (7, 0)]:
         up, down = phase.copy(), phase.copy()
         up[q, t] += step
         down[q, t] -= step
-        numeric = (_entropy_and_gradient(g, up)[0] - _entropy_and_gradient(g, down)[0]) / (2 * step)
+        numeric = (entropy_and_gradient(g, up)[0] - entropy_and_gradient(g, down)[0]) / (2 * step)
         assert grad[q, t] == pytest.approx(numeric, rel=2e-3, abs=1e-6)
 
 
@@ -243,6 +244,65 @@ def test_image_autofocus_and_analyze_report_the_track_error(vibrating, tmp_path,
     assert "sinusoids: must be 0 to 4" in capsys.readouterr().err
     assert not (tmp_path / "x.h5").exists()
 
+
+
+def test_an_autofocus_method_registered_here_reaches_image_and_batch(vibrating, tmp_path, capsys):
+    """A method registered in the test, and nowhere else, is a choice of `sarbot image --autofocus` and of
+    `sarbot batch --sweep autofocus=` and does the estimating, in this process and on Dask worker processes
+    that never saw it registered. The toy knows the simulated vibration in advance: its track error is
+    what the image files hold, and the images come out sharper."""
+    from acquisition import cli
+    from imaging.autofocus import METHODS, register_method, remove_line
+    from imaging.io.image_file import read_image
+
+    with Recording(vibrating) as rec:
+        times = rec.frame_time_ns(RADAR)
+        first, last = times.size // 2 - 6, times.size // 2 + 6
+    origin = int(times[first])  # the group times' origin: the first frame imaged
+
+    def known_vibration(g, options):
+        """The vibration the simulator applied, at the groups' times, as only an image can see it."""
+        truth = PAPER_VIBRATION.displacement_m(g.time_s + (origin - DEFAULT_START_TIME_NS) * 1e-9)
+        return remove_line(g.time_s, truth), {"kind": "toy"}, 1
+
+    def expected(te):
+        truth = PAPER_VIBRATION.displacement_m(te.time_s + (te.time_origin_ns - DEFAULT_START_TIME_NS) * 1e-9)
+        return remove_line(te.time_s, truth)
+
+    grid = "-0.1:0.1:0.002,1.9:2.1:0.004"
+    image_args = ["image", str(vibrating), "--grid", grid, "--tx", "0", "--rx", "0", "--frames", f"{first}:{last}"]
+    with pytest.raises(SystemExit) as refused:  # not yet a choice
+        cli.main([*image_args, "-o", str(tmp_path / "before.h5"), "--autofocus", "known"])
+    assert refused.value.code == 2
+    assert "invalid choice: 'known'" in capsys.readouterr().err
+    register_method("known", known_vibration)
+    try:
+        with pytest.raises(ValueError, match="already registered"):
+            register_method("known", lambda g, options: None)
+        out = tmp_path / "known.h5"
+        assert cli.main([*image_args, "-o", str(out), "--autofocus", "known"]) == 0
+        assert "autofocus (known): track error 0.2" in capsys.readouterr().out
+        img = read_image(out)
+        assert img.attrs["autofocus"] == "known" and img.attrs["autofocus_applied"] == 1
+        assert img.attrs["autofocus_entropy_after"] < img.attrs["autofocus_entropy_before"]
+        assert img.track_error.method == "known" and img.track_error.model == {"kind": "toy"}
+        assert img.track_error.displacement_m.size == img.attrs["autofocus_groups"] > 100
+        np.testing.assert_allclose(img.track_error.displacement_m, expected(img.track_error), atol=1e-9)
+
+        batch = tmp_path / "batch"
+        assert cli.main(["-q", "batch", str(vibrating), "--grid", grid, "--frames", f"{first}:{last}", "-o", str(batch),
+                         "--sweep", "autofocus=none,known", "--workers", "1"]) == 0
+        jobs = json.loads((batch / "batch.json").read_text())["jobs"]
+        assert [j["autofocus"] for j in jobs] == ["none", "known"] and all(j["error"] is None for j in jobs)
+        assert jobs[1]["worker_pid"] != os.getpid()  # formed in a worker process
+        plain, known = read_image(jobs[0]["output"]), read_image(jobs[1]["output"])
+        assert plain.track_error is None and known.attrs["autofocus_applied"] == 1
+        assert known.track_error.method == "known"
+        np.testing.assert_allclose(known.track_error.displacement_m, expected(known.track_error), atol=1e-9)
+        assert image_entropy(known.image) < image_entropy(plain.image)
+        assert np.abs(known.image).max() > 1.1 * np.abs(plain.image).max()
+    finally:
+        del METHODS["known"]
 
 def test_track_error_survives_the_image_file(tmp_path):
     from imaging.io.image_file import SarImage, read_image, write_image
@@ -442,9 +502,8 @@ def test_an_entropy_model_that_dims_the_target_is_not_kept(sim_dir, monkeypatch)
     found a sixth-order bend of 2.4 mm rms that lowered the entropy by moving the rod's energy out of the
     pixels (its peak 2.2 dB down, moved 2 cm, no -3 dB crossing left in the cut). It is refused for PGA's
     estimate, and the width is the taper's theory; with the guard off the failure comes back."""
-    import imaging.autofocus as autofocus_module
-    from acquisition.studies.autofocus_study import ENTROPY
-    from acquisition.studies.paper import image_at, target_xy, widths
+    import imaging.autofocus.track_model as autofocus_module
+    from acquisition.studies.common import ENTROPY, image_at, target_xy, widths
     from imaging.sim.scene import load_scene
     from imaging.sim.targets import Rod
 

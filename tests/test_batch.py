@@ -141,3 +141,32 @@ def test_a_sweep_over_aperture_algorithm_and_autofocus(recordings, tmp_path):
                          (["aperture_window=magic"], "aperture_window")):
         with pytest.raises(SarbotError, match=message):
             plan_jobs(recordings[:1], GRID, tmp_path, sweep=parse_sweep(bad))
+
+
+def test_the_dask_dashboard_is_served_on_loopback_and_its_address_printed(recordings, tmp_path):
+    """With bokeh installed (the dashboard extra, in the test extra), the local cluster serves Dask's
+    dashboard: its page comes over HTTP while the batch runs, and ``sarbot batch`` prints its address."""
+    import re
+    import urllib.request
+
+    pytest.importorskip("bokeh", reason="the dashboard needs bokeh: pip install 'sarbot[dashboard]'")
+    pages = []
+
+    def fetch(link):
+        assert link is not None and link.startswith("http://127.0.0.1:")
+        with urllib.request.urlopen(link, timeout=30) as answer:  # the dashboard's status page
+            pages.append((answer.status, answer.read().decode()))
+
+    jobs = plan_jobs(recordings[:1], GRID, tmp_path / "api", threads=1)
+    results = run_batch(jobs, n_workers=1, dashboard_address="127.0.0.1:0", on_dashboard=fetch)
+    assert results[0]["error"] is None
+    ((status, page),) = pages
+    assert status == 200 and "Dask" in page and "bokeh" in page.lower()
+    # The command says where it is.
+    run = subprocess.run([*CLI, "batch", str(recordings[0]), "--grid", GRID, "-o", str(tmp_path / "cli"), "--workers", "1",
+                          "--dashboard", "127.0.0.1:0"], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert re.search(r"Dask dashboard: http://127\.0\.0\.1:\d+/status", run.stderr), run.stderr
+    quiet = subprocess.run([*CLI, "batch", str(recordings[0]), "--grid", GRID, "-o", str(tmp_path / "none"), "--workers",
+                            "1", "--dashboard", "none"], capture_output=True, text=True, timeout=300)
+    assert quiet.returncode == 0 and "dashboard" not in quiet.stderr, quiet.stderr

@@ -201,3 +201,137 @@ def test_rio_from_the_command_line(tmp_path):
     adc = tmp_path / "adc.h5"
     assert sarbot("simulate", "point_target", "-o", adc).returncode == 0
     assert_user_error(sarbot("rio", adc, "-o", tmp_path / "t2.h5"), "no /imu")
+
+
+def _subparser(parser, command):
+    import argparse
+
+    return next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[command]
+
+
+def test_choice_lists_are_read_from_their_sources_when_needed(monkeypatch):
+    """Autofocus methods, windows and wire formats are not written out in the command line: a method added to
+    the autofocus registry at run time (a tuple or a dict) is taken and listed by a parser built before."""
+    import imaging.autofocus
+    import imaging.core.windows
+    from acquisition.cli import build_parser
+    from drivers.radar import registry
+
+    parser = build_parser()
+    image = ["image", "rec.h5", "-o", "img.h5", "--grid", "0:1:0.1,1:2:0.1"]
+    run = ["run", "--config", "rig.toml", "-o", "out"]
+    with pytest.raises(SystemExit):
+        parser.parse_args([*image, "--autofocus", "toy"])
+    methods = imaging.autofocus.METHODS
+    for grown in ((*methods, "toy"), {**{m: None for m in methods}, "toy": None}):
+        monkeypatch.setattr(imaging.autofocus, "METHODS", grown)
+        assert parser.parse_args([*image, "--autofocus", "toy"]).autofocus == "toy"
+        assert parser.parse_args(["batch", "a.h5", "-o", "out", "--grid", "g", "--autofocus", "toy"]).autofocus == "toy"
+        assert parser.parse_args([*run, "--map-refocus", "toy"]).map_refocus == "toy"
+        assert "{" + ",".join([*methods, "toy"]) + "}" in _subparser(parser, "image").format_help()
+    monkeypatch.setattr(imaging.core.windows, "WINDOWS", (*imaging.core.windows.WINDOWS, "kaiser"))
+    args = parser.parse_args([*image, "--window", "kaiser", "--aperture-window", "kaiser"])
+    assert (args.window, args.aperture_window) == ("kaiser", "kaiser")
+    record_help = " ".join(_subparser(parser, "record").format_help().split())
+    assert all(name in record_help for name in registry.names()) and f"default {registry.DEFAULT}" in record_help
+
+
+def _choices():
+    """What completion must offer, read from where sarbot keeps it (not written out in the test)."""
+    from acquisition.exporters.ros2_bag import STORAGES
+    from drivers.radar.ti_capture import LAYOUTS
+    from imaging.autofocus import METHODS
+    from imaging.core.rig import default_rig
+    from imaging.sim.scene import builtin_scene_names
+
+    return {"scenes": builtin_scene_names(), "radars": [r.name for r in default_rig().radars],
+            "formats": [*STORAGES, *LAYOUTS], "autofocus": list(METHODS)}
+
+
+@pytest.mark.parametrize("shell", ["bash", "zsh", "fish"])
+def test_completion_scripts_carry_the_choices(shell):
+    res = sarbot("completion", shell)
+    assert res.returncode == 0, res.stderr
+    assert "shtab" in res.stdout  # generated from the parser, not written by hand
+    for kind, names in _choices().items():
+        assert names, kind
+        missing = [n for n in names if n not in res.stdout]
+        assert not missing, f"{shell}: {kind} {missing} not in the script"
+
+
+def test_bash_completes_choices_for_real():
+    script = sarbot("completion", "bash").stdout
+    probe = script + "\n".join([
+        'COMP_WORDS=(sarbot image x.h5 --autofocus ""); COMP_CWORD=4; _shtab_sarbot; echo "${COMPREPLY[*]}"',
+        "COMP_WORDS=(sarbot simulate paper_p); COMP_CWORD=2; _shtab_sarbot; echo \"${COMPREPLY[*]}\"",
+        'COMP_WORDS=(sarbot image x.h5 --radar left_); COMP_CWORD=4; _shtab_sarbot; echo "${COMPREPLY[*]}"',
+        "COMP_WORDS=(sarbot export x.h5 --storage s); COMP_CWORD=4; _shtab_sarbot; echo \"${COMPREPLY[*]}\"", ""])
+    out = subprocess.run(["bash", "-c", probe], capture_output=True, text=True, check=True).stdout.splitlines()
+    choices = _choices()
+    assert out[0].split() == choices["autofocus"]
+    assert out[1].split() == [s for s in choices["scenes"] if s.startswith("paper_p")] and out[1]
+    assert out[2].split() == [r for r in choices["radars"] if r.startswith("left_")] and out[2]
+    assert out[3] == "sqlite3"
+
+
+def test_fish_and_zsh_take_the_scripts():
+    """fish completes for real (``complete -C``); zsh loads the script and registers it for sarbot. Each
+    skipped, saying so, where the shell is not installed (apt-get install fish zsh)."""
+    import shutil
+
+    if shutil.which("fish") is None and shutil.which("zsh") is None:
+        pytest.skip("neither fish nor zsh is installed (apt-get install fish zsh)")
+    if shutil.which("fish"):
+        script = sarbot("completion", "fish").stdout
+        res = subprocess.run(["fish", "--no-config", "-c", "source; complete -C 'sarbot image x.h5 --autofocus '"],
+                             input=script, capture_output=True, text=True, timeout=60)
+        assert res.returncode == 0, res.stderr
+        assert [line.split("\t")[0] for line in res.stdout.splitlines()] == _choices()["autofocus"]
+    if shutil.which("zsh"):
+        script = sarbot("completion", "zsh").stdout
+        res = subprocess.run(["zsh", "-f", "-c", "autoload -Uz compinit && compinit -u -d /dev/null; "
+                              "eval \"$(cat)\" >/dev/null 2>&1; print -r -- $_comps[sarbot]"],
+                             input=script, capture_output=True, text=True, timeout=60)
+        assert res.returncode == 0 and res.stdout.strip() == "_shtab_sarbot", res.stderr
+
+
+def _fake_distribution(site, package: str, name: str, version: str = "9.9") -> None:
+    """A distribution as pip leaves it: its top-level module ``package`` (one file, as many on PyPI are) and
+    a dist-info whose RECORD lists it."""
+    site.mkdir(parents=True)
+    (site / f"{package}.py").write_text(f'"""{name}: not sarbot\'s {package}."""\n')
+    info = site / f"{name.replace('-', '_')}-{version}.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n")
+    (info / "RECORD").write_text(f"{package}.py,,\n{info.name}/METADATA,,\n{info.name}/RECORD,,\n")
+
+
+@pytest.mark.parametrize("package, command", [("rio", ["rio", "rec.h5", "-o", "traj.h5"]), ("drivers", ["info", "rec.h5"])])
+def test_a_package_of_another_distribution_in_place_of_sarbots_is_named_in_one_line(tmp_path, package, command):
+    """``pip install rio`` (or ``drivers``) puts another project's package where sarbot's was; here a folder
+    first on the path does the same. sarbot names the package, where it is, whose it is, and the way out."""
+    import os
+
+    site = tmp_path / "site"
+    _fake_distribution(site, package, f"not-sarbot-{package}")
+    (tmp_path / "rec.h5").write_bytes(b"not HDF5")  # the command gets as far as importing the package
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(site), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    res = subprocess.run([sys.executable, "-m", "acquisition.launcher", *command], capture_output=True, text=True,
+                         env=env, cwd=tmp_path, timeout=300)
+    assert res.returncode == 2, res.stderr
+    (line,) = res.stderr.strip().splitlines()
+    assert line.startswith("sarbot: error: ") and "Traceback" not in res.stderr
+    assert f"'{package}' at {site / package}.py" in line and f"not-sarbot-{package} 9.9" in line
+    assert f"pip uninstall not-sarbot-{package}" in line
+    # Without the stranger, the same command is the usual one-line error about the file.
+    plain = subprocess.run([sys.executable, "-m", "acquisition.launcher", *command], capture_output=True, text=True,
+                           cwd=tmp_path, timeout=300)
+    assert plain.returncode == 2 and "another distribution" not in plain.stderr
+    assert plain.stderr.startswith("sarbot: error: ") and "rec.h5" in plain.stderr
+
+
+def test_the_installed_command_goes_through_the_launcher():
+    from importlib.metadata import entry_points
+
+    (script,) = [e for e in entry_points(group="console_scripts") if e.name == "sarbot"]
+    assert script.value == "acquisition.launcher:main"

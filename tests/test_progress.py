@@ -55,8 +55,8 @@ def test_quiet_command_and_version(tmp_path):
 def test_bash_completion_completes_commands_and_their_options():
     script = subprocess.run([*CLI, "completion", "bash"], capture_output=True, text=True, check=True).stdout
     probe = script + "\n".join([
-        "COMP_WORDS=(sarbot rep); COMP_CWORD=1; _sarbot; echo \"${COMPREPLY[*]}\"",
-        "COMP_WORDS=(sarbot -v replay --la); COMP_CWORD=3; _sarbot; echo \"${COMPREPLY[*]}\"",
-        "COMP_WORDS=(sarbot image x.h5 --ov); COMP_CWORD=3; _sarbot; echo \"${COMPREPLY[*]}\"", ""])
+        "COMP_WORDS=(sarbot rep); COMP_CWORD=1; _shtab_sarbot; echo \"${COMPREPLY[*]}\"",
+        "COMP_WORDS=(sarbot -v replay --la); COMP_CWORD=3; _shtab_sarbot; echo \"${COMPREPLY[*]}\"",
+        "COMP_WORDS=(sarbot image x.h5 --ov); COMP_CWORD=3; _shtab_sarbot; echo \"${COMPREPLY[*]}\"", ""])
     out = subprocess.run(["bash", "-c", probe], capture_output=True, text=True, check=True).stdout.splitlines()
     assert out == ["replay", "--laps", "--oversample --overwrite"]

@@ -52,3 +52,49 @@ def test_node_json_parse_reads_it():
                          timeout=60)
     assert res.returncode == 0, res.stderr
     assert json.loads(res.stdout) == {"pslr_db": None, "width_m": [0.1, None]}
+
+
+REPO = Path(__file__).resolve().parents[1]
+CLI = [__import__("sys").executable, "-m", "acquisition.cli"]
+
+
+def node_parses(text: str) -> None:
+    """node's JSON.parse reads ``text`` (where node is installed)."""
+    if shutil.which("node") is None:
+        return
+    res = subprocess.run(["node", "-e", "let s='';process.stdin.on('data',d=>s+=d).on('end',()=>JSON.parse(s))"],
+                         input=text, capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stderr[-500:]
+
+
+def test_every_committed_json_file_is_strict_json():
+    files = [p for p in REPO.rglob("*.json") if not {"node_modules", ".venv", ".git", "site"} & set(p.parts)]
+    assert any(p.match("docs/results/paper/report.json") for p in files)
+    for path in files:
+        text = path.read_text()
+        strict_loads(text)
+        node_parses(text)
+
+
+def test_info_json_and_analyze_print_strict_json(tmp_path):
+    """A recording whose IMU clock drift is unknown (NaN in the file) and an image whose one bright cell has
+    no side lobes (PSLR -inf): both once printed NaN or -Infinity."""
+    from test_round_trip import make_source
+
+    from imaging.io.image_file import SarImage, write_image
+
+    rec = tmp_path / "rec.h5"
+    make_source(rec, n_frames=3)
+    x, y = np.arange(-0.5, 0.5, 0.01), np.arange(1.5, 2.5, 0.01)
+    image = np.zeros((y.size, x.size), np.complex64)
+    image[50, 50] = 1.0
+    write_image(tmp_path / "img.h5", SarImage(image, x, y, np.array([0.0]), {"wavelength_m": 0.0039}))
+    outputs = []
+    for args in (["info", str(rec), "--json"], ["analyze", str(tmp_path / "img.h5")]):
+        res = subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=300)
+        assert res.returncode == 0, res.stderr
+        outputs.append(strict_loads(res.stdout))
+        node_parses(res.stdout)
+    info, analysis = outputs
+    assert info["kind"] == "recording" and info["imu"]["clock_drift_ppm"] is None
+    assert analysis["snr_db"] is None and analysis["peak_amplitude"] == 1.0  # the rest is there as numbers

@@ -586,7 +586,7 @@ def test_a_worker_behind_images_queued_frames_of_a_radar_together(drive):
 
     one, one_calls = run(1)
     four, calls = run(4)
-    waiting = [(f[0], int(f[2])) for f in four.frames]
+    waiting = [(f.radar, int(f.frame_time_ns)) for f in four.frames]
     assert waiting == [(f[0], int(f[2])) for f in one.frames] and len(waiting) == 2 * 4  # not covered yet
     assert [c[1] for c in one_calls] == [1] * 40 and one.status.frames_batched == 0
     assert max(c[1] for c in calls) == 4 and sum(c[1] for c in calls) == 40 and len(calls) == 10
@@ -637,7 +637,7 @@ def test_the_catch_up_ladder_sums_all_chirps_and_rx_before_it_thins_frames(drive
     """The extra pre-summing doubles every catch_up_step_s of backlog past catch_up_start_s until a TX's chirps
     are all one sum; the next step sums the RX channels; only the steps after that thin frames (2, then 4,
     never past max_thinning)."""
-    from acquisition.workers.stripmap import StripMapWorker, StripMapWorkerConfig
+    from acquisition.workers.stripmap import QueuedFrame, StripMapWorker, StripMapWorkerConfig
     from imaging.core.rig import Rig
 
     rec, radar, truth, order = drive
@@ -649,7 +649,7 @@ def test_the_catch_up_ladder_sums_all_chirps_and_rx_before_it_thins_frames(drive
     def ladder(backlog_s, **kw):
         worker = StripMapWorker(StripMapWorkerConfig(Rig((radar,)), None, config, "tcp://unused:1", "unused.h5",
                                                      catch_up_start_s=0.5, catch_up_step_s=0.25, **kw), None)
-        worker.frames.extend([(RADAR, None, 0, 0), (RADAR, None, round(backlog_s * 1e9), 0)])
+        worker.frames.extend([QueuedFrame(RADAR, None, 0, 0), QueuedFrame(RADAR, None, round(backlog_s * 1e9), 0)])
         return worker.catch_up(RADAR)
 
     assert [ladder(b) for b in (0.0, 0.49, 0.5, 0.75, 1.0, 1.25, 1.49, 1.5, 1.75, 2.0, 10.0)] == [

@@ -1,4 +1,5 @@
-"""Study 7 of ``sarbot experiment paper``: the reference study's limits again, with autofocus.
+"""Study 7 of ``sarbot experiment paper``: the reference study's limits again, with autofocus
+(``acquisition.studies.paper`` runs it after studies 1-6).
 
 The paper stopped at a usable aperture of 0.34 m: the odometry's error and the sensor's vibration
 (3.83 Hz, 0.319 mm along the boresight) broke focus beyond it. Here the same robot drives past the rod and
@@ -23,28 +24,29 @@ import math
 import numpy as np
 
 from imaging import metrics
-from imaging.autofocus import AutofocusOptions, TrackError, fit_vibration, image_entropy, remove_line
+from imaging.autofocus import AutofocusOptions, fit_vibration, image_entropy
 from imaging.core.geometry import Vibration
 from imaging.core.grid import Grid
+from imaging.core.track_error import TrackError, remove_line
 from imaging.core.trajectory import SampledTrajectory, StraightLine
 from imaging.image_formation import focus_image, form_image
 from imaging.io.recording import Recording
 from imaging.sim.scene import load_scene
 from imaging.sim.targets import CornerReflector, PointTarget, Rod
 
-from .paper import (
+from .common import (
     ENTROPY,
     ONE_PAIR,
     RADAR,
     USABLE,
     USABLE_PSL_DB,
-    _plt,
     broadside_time_ns,
     image_at,
     integrated_snr_db,
     label_of,
     odometry,
     perturbed,
+    pyplot,
     target_xy,
     usable_aperture,
     widths,
@@ -75,7 +77,7 @@ def bent_by(truth, error_of, t_shift_ns: int) -> SampledTrajectory:
 
 @dataclasses.dataclass
 class AutofocusStudy:
-    paper: object  # the Paper running the studies (its simulate, out, quick)
+    paper: object  # the ReferenceStudy of the same run (its simulate, out, quick)
 
     @property
     def apertures(self) -> list[float]:
@@ -96,7 +98,7 @@ class AutofocusStudy:
         return runs
 
     def usable(self, runs: dict) -> dict:
-        plt = _plt()
+        plt = pyplot()
         out = {}
         fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
         for col, (speed, run) in enumerate(runs.items()):
@@ -147,7 +149,7 @@ class AutofocusStudy:
     # b ---------------------------------------------------------------------------------------------------
     def vibration(self) -> dict:
         """The paper's vibration read off the track error at its 0.14 m aperture (truth trajectory)."""
-        plt = _plt()
+        plt = pyplot()
         base = load_scene("paper_vibration")
         scene = dataclasses.replace(base, vibration=PAPER_VIBRATION)
         path = self.paper.simulate(scene, "vibration_paper")
@@ -183,7 +185,7 @@ class AutofocusStudy:
     # c ---------------------------------------------------------------------------------------------------
     def integration_gain(self, runs: dict) -> dict:
         """Study 4 with the paper's vibration, on the truth bent by the 0.4 m/s odometry's own error."""
-        plt = _plt()
+        plt = pyplot()
         base = load_scene("paper_vibration")
         counts = [1, 2, 4, 8, 16] if self.paper.quick else [1, 2, 4, 8, 16, 32]
         phases = 3 if self.paper.quick else 7
@@ -304,7 +306,7 @@ class AutofocusStudy:
     def failure(self, plain: dict | None) -> dict:
         """Study 6 again with autofocus: usable aperture against an uncompensated acceleration along the look
         direction (a quadratic bend of the track) and against vibration amplitude (study 6's scenes)."""
-        plt = _plt()
+        plt = pyplot()
         apertures = self.apertures
         accels = [0.0, 0.01, 0.05] if self.paper.quick else [0.0, 0.005, 0.01, 0.02, 0.05, 0.1]
         scene = load_scene("paper_pass_0.4")
@@ -368,7 +370,7 @@ class AutofocusStudy:
 
 def breakdown_chart(result: dict, path) -> None:
     """Residual track error and width against SNR; residual and entropy drop against strong scatterers."""
-    plt = _plt()
+    plt = pyplot()
     snr_rows, count_rows, la = result["snr"], result["scatterers"], result["aperture_m"]
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
     good = [r for r in snr_rows if r["applied"]]

@@ -33,7 +33,7 @@ from imaging.sim.targets import CornerReflector, Rod
 from imaging.stripmap import StripMapConfig
 
 from ..progress import Progress
-from .paper import label_of, target_xy
+from .common import label_of, target_xy
 
 log = logging.getLogger(f"sarbot.{__name__}")
 

@@ -11,6 +11,7 @@ import collections
 import dataclasses
 import logging
 import time
+import typing
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,16 @@ from ..messages import MapStatus, MapTile, PoseBatch, PoseEnd, RadarFrameMessage
 from . import Worker
 
 log = logging.getLogger(f"sarbot.{__name__}")
+
+
+class QueuedFrame(typing.NamedTuple):
+    """A radar frame waiting for the poses that place it. ``iq`` is the received message's own buffer, not a
+    copy: a copy of every frame cost the catching-up map a seventh of its time (page faults on this VM)."""
+
+    radar: str
+    iq: np.ndarray  # int16 I/Q pairs [chirps, rx, samples, 2]
+    frame_time_ns: int
+    receive_ns: int  # when the frame arrived: the map's lag is measured from it
 
 #: How far back from the newest pose the worker keeps poses at least; further back as long as a queued frame
 #: needs them (a frame imaged on poses no longer held would be placed at the first pose held: smeared).
@@ -127,9 +138,7 @@ class StripMapWorker(Worker):
         self.sums_rx = {name: direct and r.waveform.n_rx > 1 for name, r in self.radars.items()}
         self.status = MapStatus()
         self.poses: collections.deque[PoseBatch] = collections.deque()
-        # (name, iq, frame time, receive time); iq is the received message's own buffer, not a copy: a copy
-        # of every frame cost the catching-up map a seventh of its time (page faults on this VM).
-        self.frames: collections.deque = collections.deque()
+        self.frames: collections.deque[QueuedFrame] = collections.deque()
         #: radar -> receive times of its frames in the map's unfinished block ("ffbp"), for the lag
         self.in_block: dict[str, collections.deque] = {name: collections.deque() for name in self.radars}
         #: radar -> its frames taken off the queue while thinning, to keep one in every k
@@ -186,7 +195,7 @@ class StripMapWorker(Worker):
         if not f.valid:
             status.frames_skipped_invalid += 1
             return
-        frames.append((message.radar, f.iq, f.frame_time_ns, f.receive_ns))
+        frames.append(QueuedFrame(message.radar, f.iq, f.frame_time_ns, f.receive_ns))
         # Never fall more than max_queue_s behind: the oldest frames go (counted).
         while live and self._queued_s() > self.config.max_queue_s:
             frames.popleft()
@@ -195,7 +204,7 @@ class StripMapWorker(Worker):
     def _queued_s(self) -> float:
         """Sensor time from the oldest queued frame to the newest, s (0 with none queued)."""
         frames = self.frames
-        return (frames[-1][2] - frames[0][2]) * 1e-9 if frames else 0.0
+        return (frames[-1].frame_time_ns - frames[0].frame_time_ns) * 1e-9 if frames else 0.0
 
     def lost_on_bus(self, missed: dict[str, int]) -> None:
         self.status.frames_lost_on_bus = sum(missed.get(RadarFrameMessage.topic_of(n), 0) for n in self.radars)
@@ -205,7 +214,7 @@ class StripMapWorker(Worker):
         poses = self.poses
         keep_from = int(poses[-1].time_ns[-1]) - POSE_WINDOW_NS
         if self.frames:
-            keep_from = min(keep_from, int(self.frames[0][2]))
+            keep_from = min(keep_from, int(self.frames[0].frame_time_ns))
         while len(poses) > 2 and poses[1].time_ns[0] <= keep_from:
             poses.popleft()
 
@@ -229,11 +238,11 @@ class StripMapWorker(Worker):
             status.waiting_for_poses_s = self._queued_s()
             return
         newest_pose = int(self.poses[-1].time_ns[-1])
-        status.waiting_for_poses_s = max(0.0, (frames[-1][2] - newest_pose) * 1e-9)
+        status.waiting_for_poses_s = max(0.0, (frames[-1].frame_time_ns - newest_pose) * 1e-9)
         traj = None
         until = None if budget_s is None else time.monotonic() + budget_s
         while frames and (until is None or time.monotonic() < until):
-            name, _, t_frame, _ = frames[0]
+            name, t_frame = frames[0].radar, frames[0].frame_time_ns
             if not self._covered(name, t_frame, newest_pose):
                 if not final:
                     return
@@ -251,8 +260,8 @@ class StripMapWorker(Worker):
                 if not batch:
                     continue
             t0 = time.monotonic()
-            footprint = self.map.add_frames(self.radars[name], self.orders[name], [b[1] for b in batch],
-                                            [b[2] for b in batch], traj, presum=self.config.map.presum * factor,
+            footprint = self.map.add_frames(self.radars[name], self.orders[name], [f.iq for f in batch],
+                                            [f.frame_time_ns for f in batch], traj, presum=self.config.map.presum * factor,
                                             weight=float(thinning), sum_rx=sum_rx)
             status.presum_factor = factor
             if not footprint.skipped:
@@ -260,7 +269,7 @@ class StripMapWorker(Worker):
                 status.frames_presummed_more += moving if factor > 1 else 0
                 status.frames_rx_summed += moving if sum_rx else 0
                 status.frames_batched += moving if len(batch) > 1 else 0
-                self.in_block[name].extend(b[3] for b in batch)
+                self.in_block[name].extend(f.receive_ns for f in batch)
             self._account(name, footprint, final)
             status.busy_s += time.monotonic() - t0
 
@@ -268,7 +277,7 @@ class StripMapWorker(Worker):
         """Whether the poses reach to the end of radar ``name``'s frame starting at ``t_frame``."""
         return t_frame + self.frame_ns[name] <= newest_pose
 
-    def _take_batch(self, name: str, newest_pose: int, most: int) -> list:
+    def _take_batch(self, name: str, newest_pose: int, most: int) -> list[QueuedFrame]:
         """Take the oldest queued frame (radar ``name``'s) and the next of the same radar the poses cover, up to
         ``most``, off the queue; the other radars' frames keep their places."""
         frames = self.frames
@@ -279,10 +288,9 @@ class StripMapWorker(Worker):
         horizon = min(len(frames), 2 * most * len(self.radars))
         taken = []
         for i in range(horizon):
-            other, _, t_frame, _ = frames[i]
-            if other != name:
+            if frames[i].radar != name:
                 continue
-            if not self._covered(name, t_frame, newest_pose):
+            if not self._covered(name, frames[i].frame_time_ns, newest_pose):
                 break
             taken.append(i)
             if len(taken) + 1 == most:
@@ -292,7 +300,7 @@ class StripMapWorker(Worker):
             del frames[i]
         return batch
 
-    def _thin(self, name: str, batch: list, thinning: int) -> list:
+    def _thin(self, name: str, batch: list[QueuedFrame], thinning: int) -> list[QueuedFrame]:
         """One of every ``thinning`` frames of radar ``name`` (counting on across batches); the others are
         counted as thinned."""
         kept = [b for i, b in enumerate(batch, self.thinning_count[name]) if i % thinning == 0]

@@ -1,7 +1,7 @@
 """Radar-inertial odometry: accuracy on long simulated drives (evaluated with evo) and speed against the
 knobs that trade it (RANSAC iterations, radars used, IMU rate).
 
-    python benchmarks/rio.py [--quick]
+    python benchmarks/odometry.py [--quick]
 
 Writes docs/results/rio.json and docs/results/rio.png.
 """
@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import logging
 import sys
 import tempfile
@@ -32,6 +31,7 @@ from imaging.sim.simulator import simulate_recording  # noqa: E402
 from rio.ego_velocity import EgoVelocityConfig  # noqa: E402
 from rio.evaluation import drift_report  # noqa: E402
 from rio.odometry import RioOptions, imu_from_recording, run_rio, scans_from_recording  # noqa: E402
+from imaging.core import strict_json  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 
@@ -146,7 +146,7 @@ def main() -> int:
         out["real_bag"] = real_bag(Path(tmp))
     RESULTS.mkdir(parents=True, exist_ok=True)
     name = "rio_quick" if args.quick else "rio"
-    (RESULTS / f"{name}.json").write_text(json.dumps(out, indent=2))
+    (RESULTS / f"{name}.json").write_text(strict_json.dumps(out, indent=2))
     chart(plots, out["knobs"], RESULTS / f"{name}.png")
     print(f"wrote {RESULTS / (name + '.json')} and {name}.png")
     return 0

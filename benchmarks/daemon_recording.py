@@ -1,7 +1,7 @@
 """Acquisition: the rate four radars can stream with zero loss through the drivers, the bus and the HDF5
 recorder on loopback, CPU per process, and latency from a frame's last datagram to the bus.
 
-    python benchmarks/acquisition.py [--quick]
+    python benchmarks/daemon_recording.py [--quick]
 
 `sarbot record` runs as it would on the robot (four SRF1 driver processes, recorder in the supervisor) on
 the default rig (reference waveform: 716,800 bytes per frame every 52 ms per radar, 55 MB/s and about
@@ -15,7 +15,6 @@ Writes docs/results/acquisition.json and docs/results/acquisition.png.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import signal
 import socket
@@ -37,23 +36,15 @@ from acquisition.processes import free_ports, free_tcp_endpoint  # noqa: E402
 from drivers.radar.srf1 import encode_frame, restamp  # noqa: E402
 from imaging.core.rig import default_rig  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
+from imaging.core import strict_json  # noqa: E402
+from process_stats import child_pids, cpu_s  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
-CLK_TCK = os.sysconf("SC_CLK_TCK")
 
 
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK
-
-
-def process_tree(pid: int) -> dict[int, str]:
-    """The daemon and its children, by command line role."""
-    out = {pid: "supervisor + recorder"}
-    for task in Path(f"/proc/{pid}/task").iterdir():
-        for child in (task / "children").read_text().split():
-            out[int(child)] = "driver"
-    return out
+def process_roles(pid: int) -> dict[int, str]:
+    """The daemon and its children, by role."""
+    return {pid: "supervisor + recorder", **dict.fromkeys(child_pids(pid) or [], "driver")}
 
 
 class RadarPlayer:
@@ -137,8 +128,8 @@ def main(argv: list[str]) -> int:
     player = RadarPlayer(ports, shape)
     phases = []
     for m in multiples:
-        tree = process_tree(daemon.pid)
-        cpu0 = {pid: cpu_seconds(pid) for pid in tree}
+        tree = process_roles(daemon.pid)
+        cpu0 = {pid: cpu_s(pid) for pid in tree}
         mine0 = time.process_time()
         t0 = time.monotonic()
         phase = player.play(m, phase_s, wf.frame_interval_s)
@@ -146,10 +137,9 @@ def main(argv: list[str]) -> int:
         dt = time.monotonic() - t0
         cpu = {}
         for pid, role in tree.items():
-            try:
-                cpu.setdefault(role, []).append((cpu_seconds(pid) - cpu0[pid]) / dt)
-            except FileNotFoundError:
-                pass
+            now = cpu_s(pid)
+            if now is not None and cpu0[pid] is not None:  # None: the process has ended
+                cpu.setdefault(role, []).append((now - cpu0[pid]) / dt)
         phase["cpu_fraction"] = {"supervisor + recorder": cpu.get("supervisor + recorder", [0])[0],
                                  "driver (mean of 4)": float(np.mean(cpu.get("driver", [0]))),
                                  "sender (this process)": (time.process_time() - mine0) / dt}
@@ -205,7 +195,7 @@ def main(argv: list[str]) -> int:
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     stem = "acquisition_quick" if args.quick else "acquisition"  # a smoke run keeps the real figures
-    (RESULTS / f"{stem}.json").write_text(json.dumps(summary, indent=2, default=float))
+    (RESULTS / f"{stem}.json").write_text(strict_json.dumps(summary, indent=2))
     plot(phases, RESULTS / f"{stem}.png")
     path.unlink()
     print(f"four radars sustained {best:.2f}x real time with zero loss ({summary['max_lossless_mbytes_per_s']:.0f} MB/s); "

@@ -1,0 +1,78 @@
+"""What autofocus is asked to do and what it gives back: options, the profiles it works on, the result."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from imaging.autofocus.subapertures import TILE
+from imaging.autofocus.registry import METHODS
+from imaging.core.config import require
+from imaging.core.track_error import TrackError
+from imaging.range_compression import RangeProfiles
+
+
+@dataclasses.dataclass
+class AutofocusOptions:
+    """How to estimate the track error.
+
+    ``groups``: slow-time groups (the resolution of the estimate in time); ``max_pixels``: the whole image
+    is used up to this many pixels, else ``scatterers`` patches of ``patch_px`` x ``patch_px`` around the
+    strongest; ``poly_order`` and ``sinusoids``: the entropy model (the polynomial order is chosen up to
+    ``poly_order`` by the Bayesian information criterion on the PGA estimate: no more than the scene needs).
+    """
+
+    method: str = "entropy"
+    groups: int = 256
+    max_pixels: int = 65536
+    scatterers: int = 16
+    patch_px: int = 64
+    pga_iterations: int = 8
+    pga_tolerance_rad: float = 0.01
+    poly_order: int = 6
+    sinusoids: int = 1
+    entropy_iterations: int = 200
+    min_contrast_db: float = 20.0  # brightest pixel over the background (noise median): below it, nothing to focus on
+
+    def __post_init__(self) -> None:
+        require(self.method in METHODS, "method", f"must be one of {', '.join(METHODS)}, got {self.method!r}")
+        require(4 <= self.groups <= 4096, "groups", f"must be 4 to 4096, got {self.groups}")
+        require(self.max_pixels >= TILE, "max_pixels", f"must be at least {TILE}, got {self.max_pixels}")
+        require(1 <= self.scatterers <= 256, "scatterers", f"must be 1 to 256, got {self.scatterers}")
+        require(16 <= self.patch_px <= 256 and self.patch_px % 16 == 0, "patch_px",
+                f"must be a multiple of 16 from 16 to 256, got {self.patch_px}")
+        require(1 <= self.pga_iterations <= 100, "pga_iterations", f"must be 1 to 100, got {self.pga_iterations}")
+        require(1 <= self.poly_order <= 8, "poly_order", f"must be 1 to 8, got {self.poly_order}")
+        require(0 <= self.sinusoids <= 4, "sinusoids", f"must be 0 to 4, got {self.sinusoids}")
+        require(math.isfinite(self.min_contrast_db), "min_contrast_db", f"must be finite, got {self.min_contrast_db}")
+
+
+@dataclasses.dataclass
+class ProfileBlock:
+    """Range profiles and what autofocus needs of each: antennas [P, 3], slow time [P] in seconds (from any
+    origin), the unit direction [P, 3] the track error displaces the antennas along, reference ranges."""
+
+    profiles: RangeProfiles
+    tx_m: np.ndarray
+    rx_m: np.ndarray
+    time_s: np.ndarray
+    direction: np.ndarray
+    reference_range_m: np.ndarray | None = None
+
+
+
+@dataclasses.dataclass
+class AutofocusResult:
+    """The estimate, and the entropy of the estimation pixels before and after (nats)."""
+
+    track_error: TrackError
+    entropy_before: float
+    entropy_after: float
+    applied: bool
+    pixels: int
+    groups: int
+    iterations: int
+    note: str = ""
+

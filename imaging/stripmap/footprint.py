@@ -1,0 +1,83 @@
+"""Where a frame images: the tiles and pixels its range-beam-aperture footprint covers, and what one call
+into the map touched (``FrameFootprint``)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from imaging.stripmap.config import StripMapConfig
+
+
+@dataclasses.dataclass
+class FrameFootprint:
+    """What one call (a frame, or a batch of a radar's frames) touched: tile keys and the profile-pixel
+    pairs evaluated."""
+
+    tiles: list[tuple[int, int]]
+    pixel_profile_pairs: int
+    skipped: str = ""  # why the frame was left out, if it was
+    refocused: list[tuple[int, int]] = dataclasses.field(default_factory=list)  # tiles finished and refocused
+    #: Frames whose data went into the map by this call: 1 for an imaged frame, with "ffbp" 0 while its block
+    #: fills and the block's frames when it is imaged (also when a frame standing still closes a block).
+    frames_imaged: int = 0
+    frames_standing: int = 0  # frames of the call left out standing still
+
+
+
+def merged_footprints(footprints: list[FrameFootprint]) -> FrameFootprint:
+    """One footprint for several calls: the tiles any changed, the sums of the counts; skipped only if every
+    call was, for the last one's reason."""
+    tiles, refocused = [], []
+    for f in footprints:
+        tiles += [k for k in f.tiles if k not in tiles]
+        refocused += [k for k in f.refocused if k not in refocused]
+    skipped = footprints[-1].skipped if all(f.skipped for f in footprints) else ""
+    return FrameFootprint(tiles, sum(f.pixel_profile_pairs for f in footprints), skipped, refocused,
+                          sum(f.frames_imaged for f in footprints), sum(f.frames_standing for f in footprints))
+
+
+
+def footprint_tiles(cfg: StripMapConfig, centre: np.ndarray, look: np.ndarray) -> list[tuple[int, int]]:
+    """Tiles a frame can reach: the box around its phase centres' range-beam-aperture footprints."""
+    half = min(cfg.aperture_m / 2, cfg.range_max_m * math.tan(math.radians(cfg.beam_half_angle_deg)))
+    side = np.stack([-look[:, 1], look[:, 0]], axis=1)
+    corners = []
+    for ahead in (cfg.range_min_m, cfg.range_max_m):
+        for s in (-half, half):
+            corners.append(centre[:, :2] + ahead * look + s * side)
+    pts = np.concatenate(corners)
+    t = cfg.tile_m
+    lo = np.floor(pts.min(axis=0) / t).astype(int)
+    hi = np.floor(pts.max(axis=0) / t).astype(int)
+    return [(ix, iy) for ix in range(lo[0], hi[0] + 1) for iy in range(lo[1], hi[1] + 1)]
+
+
+def footprint_mask(cfg: StripMapConfig, x: np.ndarray, y: np.ndarray, centre_xy: np.ndarray,
+                   look_xy: np.ndarray) -> np.ndarray:
+    """Which pixels (x, y, any shape S) a frame with mean phase centre ``centre_xy`` and horizontal
+    look direction ``look_xy`` (unit) integrates into: [*S]; for frames ``centre_xy``, ``look_xy``
+    [F, 2], one mask per frame [F, *S]."""
+    cx, cy, lx, ly = centre_xy[..., 0], centre_xy[..., 1], look_xy[..., 0], look_xy[..., 1]
+    if np.ndim(cx):  # frames: their axis in front of the pixels'
+        each = (-1,) + (1,) * max(np.ndim(x), np.ndim(y))
+        cx, cy, lx, ly = (a.reshape(each) for a in (cx, cy, lx, ly))
+    dx = x - cx
+    dy = y - cy
+    ahead = dx * lx + dy * ly
+    along = np.abs(dy * lx - dx * ly)
+    return ((ahead >= cfg.range_min_m) & (ahead <= cfg.range_max_m) & (along <= cfg.aperture_m / 2)
+            & (along <= ahead * math.tan(math.radians(cfg.beam_half_angle_deg))))
+
+
+def footprint_outline(cfg: StripMapConfig, c_mean: np.ndarray, l_mean: np.ndarray, per_side: int = 32) -> np.ndarray:
+    """Points [M, 2] around the footprint of a block (the rectangle ``footprint_tiles`` spans)."""
+    half = min(cfg.aperture_m / 2, cfg.range_max_m * math.tan(math.radians(cfg.beam_half_angle_deg)))
+    ahead = np.linspace(cfg.range_min_m, cfg.range_max_m, per_side)
+    along = np.linspace(-half, half, per_side)
+    a = np.concatenate([ahead, ahead, np.full(per_side, cfg.range_min_m), np.full(per_side, cfg.range_max_m)])
+    s = np.concatenate([np.full(per_side, -half), np.full(per_side, half), along, along])
+    side = np.array([-l_mean[1], l_mean[0]])
+    return c_mean + a[:, None] * l_mean + s[:, None] * side
