@@ -157,3 +157,54 @@ def test_the_estimates_go_into_the_trajectory_file_and_info(curvy, tmp_path):
     text = format_info(info(path))
     assert f"calibration {LATE_RADAR}: lever arm" in text
     assert "time offset +5." in text.split(f"calibration {LATE_RADAR}")[1].splitlines()[0]
+
+
+def _recording_of(path, imu, scans, rig):
+    """A recording as a robot would have written it: the rig's (wrong) mounts, the scans' detections."""
+    from imaging.io.recording import RecordingWriter
+
+    with RecordingWriter(path, rig.radars, imu=rig.imu, detections=rig.radar_names) as w:
+        w.append_imu(imu.time_ns, imu.gyro_radps, imu.accel_mps2, np.arange(imu.time_ns.size) % 65536, imu.time_ns)
+        for name in rig.radar_names:
+            mine = [s for s in scans if s.radar == name]
+            w.append_scans(name, [s.time_ns for s in mine], np.arange(len(mine)), [s.time_ns for s in mine])
+            for k, s in enumerate(mine):
+                w.append_detections(name, np.full(len(s.doppler_mps), s.time_ns), np.full(len(s.doppler_mps), k),
+                                    s.xyz_m, s.doppler_mps, np.full(len(s.doppler_mps), 20.0))
+
+
+def test_sarbot_calibrate_and_rio_calibrate(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    def sarbot(*args):
+        return subprocess.run([sys.executable, "-m", "acquisition.cli", *map(str, args)], capture_output=True,
+                              text=True, timeout=300)
+
+    traj = calibration_drive(repeats=5)
+    imu, wrong, _ = simulate_drive(traj, 60.0, seed=21)
+    rig = default_rig()
+    wrong_rig = dataclasses.replace(rig, radars=tuple(dataclasses.replace(r, mount=wrong_mount(r.mount)) for r in rig.radars))
+    rec = tmp_path / "drive.h5"
+    _recording_of(rec, imu, wrong, wrong_rig)
+    out = tmp_path / "rig.toml"
+    res = sarbot("calibrate", rec, "-o", out, "--velocity-floor", "0.008")
+    assert res.returncode == 0, res.stderr
+    assert "radar left_rear:" in res.stdout and "lever arm z" in res.stdout and "NOT taken" in res.stdout
+    refined = load_rig(out)
+    for r in refined.radars:
+        truth = rig.radar(r.name).mount
+        yaw_left = np.degrees((truth.rotation.inv() * r.mount.rotation).as_euler("ZYX"))[0]
+        assert abs(yaw_left) < 0.2, (r.name, yaw_left)  # was 2 deg
+        assert r.mount.translation_m[2] == pytest.approx(wrong_mount(truth).translation_m[2])  # not shown: kept
+    again = sarbot("calibrate", rec, "-o", out)
+    assert again.returncode == 2 and "exists already" in again.stderr and "Traceback" not in again.stderr
+
+    trajectory = tmp_path / "traj.h5"
+    res = sarbot("rio", rec, "-o", trajectory, "--calibrate", "--velocity-floor", "0.008")
+    assert res.returncode == 0, res.stderr
+    summary = json.loads(res.stdout)
+    assert set(summary["calibration"]) == set(rig.radar_names)
+    res = sarbot("info", trajectory)
+    assert res.returncode == 0 and "calibration left_rear: lever arm" in res.stdout
