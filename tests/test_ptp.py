@@ -3,6 +3,7 @@ they go: health, /events, the recording."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 import subprocess
@@ -254,3 +255,50 @@ def test_real_ptp4l_master_and_slave_over_a_veth_pair(veth_namespaces, tmp_path)
                 except subprocess.TimeoutExpired:
                     p.kill()
                     p.wait()
+
+
+def test_recorder_marks_unlocked_frames_follows_receive_delay_and_records_ptp(tmp_path):
+    """The recorder's side: a frame from an unlocked clock is stored and marked (and the loss and return of
+    the lock are events), a receive delay that jumps is an event, the host's PTP readings go to /ptp with
+    their events, and health carries all of it."""
+    from acquisition.daemon import HealthMonitor
+    from acquisition.messages import RadarFrameMessage
+    from acquisition.processes import free_tcp_endpoint
+    from acquisition.ptp import PtpEvent
+    from acquisition.recorder import Recorder
+    from drivers.radar.stream import RadarFrame
+    from imaging.core.rig import AntennaArray, Rig
+    from imaging.core.waveform import Waveform
+
+    wf = Waveform(chirps_per_frame=8)
+    rig = Rig((dataclasses.replace(default_rig().radars[0], waveform=wf, array=AntennaArray.uniform_tdm(wf)),),
+              default_rig().imu)
+    name = rig.radars[0].name
+    path = tmp_path / "rec.h5"
+    recorder = Recorder(path, rig, [free_tcp_endpoint()])
+    try:
+        iq = np.zeros((wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp, 2), np.int16)
+        end = wf.frame_duration_ns
+        for k in range(40):
+            t = k * 52_000_000
+            locked = not 20 <= k < 25
+            delay = 2_000_000 if k < 30 else 12_000_000  # the path or the radar's clock steps by 10 ms at frame 30
+            recorder._store_frame(RadarFrameMessage(name, RadarFrame(k, t, t + end + delay, True, 0, iq, locked)))
+        recorder.record_ptp(PtpStatus("SLAVE", offset_from_master_ns=-12.0, mean_path_delay_ns=2800.0),
+                            [PtpEvent("info", "PTP host: SLAVE offset -12 ns")], time_ns=123)
+        health = HealthMonitor(recorder, {}).sample(0)
+    finally:
+        recorder.close()
+    assert health.ptp.port_state == "SLAVE" and health.unlocked_frames == {name: 5}
+    assert health.receive_delay[name].median_ms == pytest.approx(12.0)
+    with Recording(path) as rec:
+        locked = rec.ptp_locked(name)
+        events = rec.events()
+        ptp = rec.ptp()
+    assert locked.size == 40 and np.flatnonzero(~locked).tolist() == [20, 21, 22, 23, 24]
+    messages = [(source, level, message) for _, source, level, message in events]
+    assert (f"radar.{name}", "warning", f"clock not PTP-locked: frames from 20 marked in /radar/{name}/ptp_locked") in messages
+    assert (f"radar.{name}", "info", "clock PTP-locked again") in messages
+    assert any(s == f"radar.{name}" and "jumped from 2.0 ms to 12.0 ms" in m for s, _, m in messages)
+    assert ("ptp", "info", "PTP host: SLAVE offset -12 ns") in messages
+    assert ptp["time_ns"].tolist() == [123] and list(ptp["port_state"]) == ["SLAVE"]
