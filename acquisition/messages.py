@@ -305,6 +305,9 @@ class WorkerState(HeaderMessage):
     warm: bool
     warm_up_s: float
     counters: dict[str, int]
+    #: The odometry's online calibration, where it runs one: per radar ``mount_translation_m`` [3],
+    #: ``mount_rotation_xyzw`` [4], ``time_offset_s`` and ``sigma`` [7] (docs/formats/trajectory.md's axes).
+    calibration: dict[str, dict] = dataclasses.field(default_factory=dict)
     time_ns: int = 0
 
 
@@ -412,6 +415,8 @@ class Health(HeaderMessage):
             parts.append(f"warming up: {', '.join(cold)}" if cold else "workers warm")
         for role, w in self.workers.items():
             parts += [f"{role} {name} {n}" for name, n in w.counters.items() if n]
+            parts += [f"{role} {name} time offset {c['time_offset_s'] * 1e3:+.1f} ms +- {c['sigma'][6] * 1e3:.1f}, "
+                      f"lever arm +- {max(c['sigma'][3:5]) * 1e3:.1f} mm" for name, c in w.calibration.items()]
         return ", ".join(parts)
 
 

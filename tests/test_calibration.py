@@ -208,3 +208,43 @@ def test_sarbot_calibrate_and_rio_calibrate(tmp_path):
     assert set(summary["calibration"]) == set(rig.radar_names)
     res = sarbot("info", trajectory)
     assert res.returncode == 0 and "calibration left_rear: lever arm" in res.stdout
+
+
+def test_the_live_odometry_calibrates_too_and_says_so_in_health():
+    """rio.streaming (the odometry worker's filter) with calibration on: each radar's states from its first
+    scan; the late radar found; the estimates travel in WorkerState to health's line."""
+    import msgpack
+
+    from acquisition.bus import Message
+    from acquisition.messages import ClockState, Health, WorkerState
+    from rio.streaming import StreamingRio
+
+    traj = calibration_drive(repeats=5)
+    imu, wrong, _ = simulate_drive(traj, 60.0, seed=31)
+    rio = StreamingRio(RioOptions(ekf=SIM_EKF, calibrate_extrinsics=True, calibrate_time_offset=True), imu_rate_hz=400.0)
+    scans = sorted(wrong, key=lambda s: s.time_ns)
+    j = 0
+    for start in range(0, imu.time_ns.size, 40):  # IMU in 0.1 s batches, the scans up to there in between
+        end = min(start + 40, imu.time_ns.size)
+        rio.add_imu(imu.time_ns[start:end], imu.accel_mps2[start:end], imu.gyro_radps[start:end])
+        while j < len(scans) and scans[j].time_ns <= imu.time_ns[end - 1]:
+            rio.add_scan(scans[j])
+            j += 1
+    rio.finish()
+    estimates = rio.ekf.calibration_estimates()
+    assert set(estimates) == set(default_rig().radar_names)
+    late = estimates[LATE_RADAR]
+    assert late.time_offset_s == pytest.approx(LATE_S, abs=3 * late.sigma[6]) and late.sigma[6] < 0.001
+    for name, e in estimates.items():
+        truth = default_rig().radar(name).mount
+        assert abs(np.degrees((truth.rotation.inv() * e.mount.rotation).as_euler("ZYX"))[0]) < 0.2
+
+    state = WorkerState("rio", True, 1.0, {}, {n: {"mount_translation_m": e.mount.translation_m.tolist(),
+                                                   "mount_rotation_xyzw": e.mount.rotation_xyzw.tolist(),
+                                                   "time_offset_s": e.time_offset_s, "sigma": e.sigma.tolist()}
+                                               for n, e in estimates.items()})
+    health = Health({}, 0.0, 0, 0, 0, {}, 0, None, {}, ClockState({}, True, None), workers={"rio": state})
+    parts = health.to_parts()
+    header = msgpack.unpackb(msgpack.packb(parts.fields, use_bin_type=True), raw=False)
+    line = Health.from_message(Message(parts.topic, 0, parts.sensor_time_ns, 0, header, [])).line()
+    assert f"rio {LATE_RADAR} time offset +{late.time_offset_s * 1e3:.1f} ms +- " in line

@@ -54,6 +54,9 @@ def register(sub) -> None:
                         "counted as frames_thinned); 1: every frame, and on a machine short "
                         "of CPU the map falls further behind, up to its 10 s bound, where it drops the oldest")
     s.add_argument("--rio-radars", help="radars the odometry uses (comma-separated; default all)")
+    s.add_argument("--rio-calibrate", action="store_true",
+                   help="the odometry estimates every radar's mount and time offset online (in health and the "
+                        "trajectory's /calibration)")
     opt.view_option(s)
     s.set_defaults(func=cmd_run)
 
@@ -175,7 +178,8 @@ def run_workers(setup, args, out_dir: Path, stamp: str):
         raise SarbotError(f"--map-max-thinning {max_thinning}: must be 1, 2, 4, 8, ... (1: image every frame)")
     return add_pipeline_workers(setup, out_dir, stamp, config, args.max_speed, map_radars,
                                 opt.radar_names(args.rio_radars, "--rio-radars", names), presum,
-                                opt.view_address(args.view), args.map_threads, max_thinning)
+                                opt.view_address(args.view), args.map_threads, max_thinning,
+                                getattr(args, "rio_calibrate", False))
 
 
 def cmd_run(args) -> int:
