@@ -66,6 +66,7 @@ class Setup:
     #: None: not watched.
     ptp4l_socket: str | None = None
     ptp_interval_s: float = 1.0
+    phc2sys_log: str | None = None  # a file phc2sys's -m output goes to: its offset into health and /ptp
 
     @classmethod
     def for_devices(cls, rig_path, links: list[RadarLink], imu_port: str | None = None,
@@ -228,7 +229,8 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
     restart_at: dict[str, float] = {}  # roles waiting out their backoff
     disk_full = None
     devices = DeviceBringUp(setup.controls, setup.control_listen_timeout_s).start()
-    ptp = PtpPoller(PtpMonitor(setup.ptp4l_socket), setup.ptp_interval_s).start() if setup.ptp4l_socket else None
+    ptp = PtpPoller(PtpMonitor(setup.ptp4l_socket), setup.ptp_interval_s, setup.phc2sys_log).start() \
+        if setup.ptp4l_socket else None
     try:
         try:
             while not stopping.is_set() and (t_end is None or time.monotonic() < t_end) and not (until and until.is_set()):

@@ -234,16 +234,45 @@ class ReceiveDelay:
         return ReceiveDelayStats(float(np.median(d)), float(np.percentile(d, 99)), int(d.size))
 
 
+class LogFollower:
+    """The lines appended to a log file since the last call (phc2sys's ``-m`` output redirected to a file):
+    from its end when first opened, again from the start when it was rotated or truncated."""
+
+    def __init__(self, path: str):
+        self.path = path
+        self._offset: int | None = None
+
+    def new_lines(self) -> list[str]:
+        import os
+
+        try:
+            size = os.path.getsize(self.path)
+        except OSError:
+            return []
+        if self._offset is None or size < self._offset:
+            self._offset = size if self._offset is None else 0
+        if size == self._offset:
+            return []
+        with open(self.path, "rb") as fh:
+            fh.seek(self._offset)
+            data = fh.read(size - self._offset)
+        end = data.rfind(b"\n") + 1  # a line still being written waits for the next call
+        self._offset += end
+        return data[:end].decode(errors="replace").splitlines()
+
+
 class PtpPoller:
     """Polls a ``PtpMonitor`` every ``interval_s`` on a thread of its own (pmc takes milliseconds the
-    recorder's loop must not wait for); ``drain`` hands over (time_ns, status, events) in order."""
+    recorder's loop must not wait for), first feeding it the lines phc2sys has logged since (``phc2sys_log``,
+    a file); ``drain`` hands over (time_ns, status, events) in order."""
 
-    def __init__(self, monitor: PtpMonitor, interval_s: float = 1.0):
+    def __init__(self, monitor: PtpMonitor, interval_s: float = 1.0, phc2sys_log: str | None = None):
         import queue
         import threading
 
         self.monitor = monitor
         self.interval_s = interval_s
+        self._phc2sys = LogFollower(phc2sys_log) if phc2sys_log else None
         self._queue: queue.Queue = queue.Queue()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="ptp-poller", daemon=True)
@@ -256,6 +285,8 @@ class PtpPoller:
         import time
 
         while not self._stop.is_set():
+            for line in self._phc2sys.new_lines() if self._phc2sys else ():
+                self.monitor.phc2sys_line(line)
             status, events = self.monitor.poll()
             self._queue.put((time.time_ns(), status, events))
             self._stop.wait(self.interval_s)

@@ -302,3 +302,32 @@ def test_recorder_marks_unlocked_frames_follows_receive_delay_and_records_ptp(tm
     assert any(s == f"radar.{name}" and "jumped from 2.0 ms to 12.0 ms" in m for s, _, m in messages)
     assert ("ptp", "info", "PTP host: SLAVE offset -12 ns") in messages
     assert ptp["time_ns"].tolist() == [123] and list(ptp["port_state"]) == ["SLAVE"]
+
+
+def test_poller_takes_phc2sys_offsets_from_its_log_file(tmp_path):
+    """phc2sys serves no management requests: its -m lines, redirected to a file, are followed (from the
+    end at start, a line half written waits), and its latest offset joins each status."""
+    from acquisition.ptp import PtpPoller
+
+    log_path = tmp_path / "phc2sys.log"
+    log_path.write_text("phc2sys[1.0]: CLOCK_REALTIME phc offset 999999 s2 freq +1 delay 500\n")  # before: not taken
+    monitor = PtpMonitor("/x", query=lambda: PtpStatus("SLAVE", offset_from_master_ns=-5.0))
+    poller = PtpPoller(monitor, interval_s=0.05, phc2sys_log=str(log_path))
+    follower = poller._phc2sys
+    assert follower.new_lines() == []
+    with open(log_path, "a") as fh:
+        fh.write("phc2sys[2.0]: CLOCK_REALTIME phc offset -31 s2 freq +12 delay 480\nphc2sys[3.0]: CLOCK_REAL")
+    poller.start()
+    try:
+        deadline = time.monotonic() + 5.0
+        while time.monotonic() < deadline and not any(s.phc2sys_offset_ns == -31.0 for _, s, _ in poller.drain()):
+            time.sleep(0.05)
+        assert monitor.status.phc2sys_offset_ns == -31.0 and monitor.status.phc2sys_state == "s2"
+        with open(log_path, "a") as fh:
+            fh.write("TIME phc offset 7 s2 freq +12 delay 480\n")  # the half-written line completed
+        deadline = time.monotonic() + 5.0
+        while time.monotonic() < deadline and monitor.status.phc2sys_offset_ns != 7.0:
+            time.sleep(0.05)
+        assert monitor.status.phc2sys_offset_ns == 7.0
+    finally:
+        poller.stop()

@@ -111,7 +111,8 @@ def record_setup(args):
     return Setup.for_devices(args.config, links, args.imu_port, opt.named_paths(args.radar_imu, "--radar-imu"),
                              opt.can_config(args), device_options, split_bytes=opt.size_bytes(args.split_size),
                              split_s=args.split_time, min_free_bytes=opt.size_bytes(args.min_free, "--min-free"),
-                             health_endpoint=args.health_endpoint, ptp4l_socket=getattr(args, "ptp4l", None))
+                             health_endpoint=args.health_endpoint, ptp4l_socket=getattr(args, "ptp4l", None),
+                             phc2sys_log=getattr(args, "phc2sys_log", None))
 
 
 def _record(setup, out: Path, duration_s: float | None, extra_paths=(), **kwargs) -> int:

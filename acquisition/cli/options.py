@@ -158,6 +158,8 @@ def acquisition_options(s: argparse.ArgumentParser) -> None:
     s.add_argument("--ptp4l", metavar="SOCKET", nargs="?", const="/var/run/ptp4l",
                    help="watch the host's linuxptp: ptp4l's port state, offset and path delay (through pmc on this "
                         "management socket, default /var/run/ptp4l) into health, /ptp and /events")
+    s.add_argument("--phc2sys-log", metavar="FILE",
+                   help="with --ptp4l: a file phc2sys's -m output goes to; its offset joins health and /ptp")
 
 
 #: The device-control options of ``acquisition_options``, as the wire formats name them (``control_options``).
