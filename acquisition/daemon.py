@@ -29,6 +29,7 @@ from .devices import DeviceBringUp
 from .driver_loops import can_process, imu_process, imu_role, radar_process
 from .messages import ClockState, Health, Latency, LoggedEvent, WorkerState
 from .processes import ProcessSpec, bus_endpoint, release_free_heap
+from .ptp import PtpMonitor, PtpPoller
 from .recorder import DiskFullError, Recorder
 from .sdnotify import notify, watchdog_interval_s
 from .workers import WorkerSpec, worker_process
@@ -65,6 +66,11 @@ class Setup:
     #: link on port 0 (the system picks the port at bind: nothing can take it between choosing and binding).
     #: Made by ``process_specs`` where not given; a restarted driver binds the same port again.
     bound_ports: dict = dataclasses.field(default_factory=dict)
+    #: linuxptp's ptp4l management socket to watch (the host's PTP state into health, /ptp and /events);
+    #: None: not watched.
+    ptp4l_socket: str | None = None
+    ptp_interval_s: float = 1.0
+    phc2sys_log: str | None = None  # a file phc2sys's -m output goes to: its offset into health and /ptp
 
     @classmethod
     def for_devices(cls, rig_path, links: list[RadarLink], imu_port: str | None = None,
@@ -211,6 +217,9 @@ class HealthMonitor:
             if lat.size else None,
             endpoints=self.endpoints,
             clock=ClockState(dict(rec.ptp_locked), bool(rec.triggers_seen), rec.imu_drift_ppm),
+            ptp=rec.ptp_status,
+            receive_delay={n: d for n, d in ((n, r.stats()) for n, r in rec.receive_delay.items()) if d is not None},
+            unlocked_frames=dict(rec.unlocked_frames),
             workers={role: rec.worker_states.get(role) or WorkerState(role, False, 0.0, {}) for role in self.worker_roles},
             sensors_idle_s=sensors_idle_s,
             conditions=dict(rec.conditions),
@@ -280,11 +289,15 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
     restart_at: dict[str, float] = {}  # roles waiting out their backoff
     disk_full = None
     devices = DeviceBringUp(setup.controls, setup.control_listen_timeout_s).start()
+    ptp = PtpPoller(PtpMonitor(setup.ptp4l_socket), setup.ptp_interval_s, setup.phc2sys_log).start() \
+        if setup.ptp4l_socket else None
     try:
         try:
             while not stopping.is_set() and (t_end is None or time.monotonic() < t_end) and not (until and until.is_set()):
                 recorder.step(timeout_ms=50)
                 devices.drain(recorder.record_event)
+                for t_ns, status, events in ptp.drain() if ptp else ():
+                    recorder.record_ptp(status, events, t_ns)
                 if devices.failed.is_set():
                     break
                 now = time.monotonic()
@@ -359,6 +372,8 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
                 pass
 
         devices.stop(record_event_if_possible)
+        if ptp is not None:
+            ptp.stop()
         stop.set()
         for role, proc in procs.items():
             # Workers finish their products (trajectory, map) after the drivers stop; give them time.

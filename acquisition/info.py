@@ -116,6 +116,9 @@ def recording_info(path: str | Path) -> dict[str, Any]:
                 starts.append(int(t[0]))
                 ends.append(int(t[-1]))
             radar_imu = rec.radar_imu(name)
+            locked = rec.ptp_locked(name)
+            if locked is not None:  # a recorder's file: the frames whose clock was not PTP-locked
+                info["unlocked_frames"] = int(np.sum(~locked))
             if radar_imu is not None:  # the IMU on the radar's own mount
                 attrs = rec.file[f"radar/{name}/imu"].attrs
                 info["imu"] = _imu_info(radar_imu, attrs["rate_hz"], attrs.get("clock_drift_ppm"))
@@ -134,6 +137,13 @@ def recording_info(path: str | Path) -> dict[str, Any]:
         out["events"] = {"count": len(events), "by_level": levels,
                          "first": [f"{source} {level}: {message}" for _, source, level, message in events[:10]]}
         out["truth"] = rec.truth() is not None
+        ptp = rec.ptp()
+        if ptp is not None and ptp["time_ns"].size:
+            offsets = ptp["offset_from_master_ns"]
+            states = list(dict.fromkeys(ptp["port_state"].tolist()))
+            out["ptp"] = {"readings": int(ptp["time_ns"].size), "port_states": states,
+                          "offset_ns_median": float(np.nanmedian(offsets)) if np.isfinite(offsets).any() else None,
+                          "offset_ns_max_abs": float(np.nanmax(np.abs(offsets))) if np.isfinite(offsets).any() else None}
         if starts:
             out["duration_s"] = float((max(ends) - min(starts)) * 1e-9)
     return out
@@ -145,9 +155,18 @@ def trajectory_info(path: str | Path) -> dict[str, Any]:
     traj = read_trajectory(path)
     t = traj.time_ns
     steps = np.linalg.norm(np.diff(traj.position_m, axis=0), axis=1) if t.size > 1 else np.zeros(0)
-    return {"file": str(path), "kind": "trajectory", "source": traj.source, "poses": int(t.size),
-            "rate_hz": _rate_hz(t), "duration_s": float((t[-1] - t[0]) * 1e-9) if t.size else 0.0,
-            "path_length_m": float(steps.sum())}
+    from imaging.io.trajectory_file import read_calibration
+
+    calibration = {name: {"mount_translation_m": np.asarray(c["mount_translation_m"]).tolist(),
+                          "mount_rotation_xyzw": np.asarray(c["mount_rotation_xyzw"]).tolist(),
+                          "time_offset_s": float(c["time_offset_s"]), "sigma": np.asarray(c["sigma"]).tolist()}
+                   for name, c in read_calibration(path).items()}
+    out = {"file": str(path), "kind": "trajectory", "source": traj.source, "poses": int(t.size),
+           "rate_hz": _rate_hz(t), "duration_s": float((t[-1] - t[0]) * 1e-9) if t.size else 0.0,
+           "path_length_m": float(steps.sum())}
+    if calibration:
+        out["calibration"] = calibration
+    return out
 
 
 def image_info(path: str | Path) -> dict[str, Any]:
@@ -173,6 +192,12 @@ def info(path: str | Path) -> dict[str, Any]:
         raise
     except (KeyError, OSError, RuntimeError, ValueError) as exc:  # a group or attribute missing or damaged
         raise FileFormatError(f"{path}: damaged or incomplete {kind} ({type(exc).__name__}: {exc})") from None
+
+
+def _rotation_matrix(xyzw) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_quat(np.asarray(xyzw, float)).as_matrix()
 
 
 def _imu_line(i: dict[str, Any]) -> str:
@@ -201,16 +226,30 @@ def format_info(d: dict[str, Any]) -> str:
                          f"{wf['samples_per_chirp']} samples, {wf['n_tx']} TX x {wf['n_rx']} RX")
             if "imu" in r:
                 lines.append(f"    its own IMU: {_imu_line(r['imu'])}")
+            if r.get("unlocked_frames"):
+                lines.append(f"    {r['unlocked_frames']} frames from a clock not PTP-locked (marked in /radar/{name}/ptp_locked)")
         if "imu" in d:
             lines.append(f"  IMU: {_imu_line(d['imu'])}")
         else:
             lines.append("  IMU: none")
+        if "ptp" in d:
+            p = d["ptp"]
+            offset = "" if p["offset_ns_median"] is None else \
+                f", offset from master median {p['offset_ns_median']:.0f} ns, largest {p['offset_ns_max_abs']:.0f} ns"
+            lines.append(f"  host PTP: {p['readings']} readings, port {' -> '.join(p['port_states'])}{offset}")
         ev = d["events"]
         lines.append(f"  events: {ev['count']} " + (str(ev["by_level"]) if ev["count"] else ""))
         lines += [f"    {e}" for e in ev["first"]]
     elif d["kind"] == "trajectory":
         lines.append(f"  {d['source']}: {d['poses']} poses at {d['rate_hz'] or 0:.1f} Hz over {d['duration_s']:.1f} s, "
                      f"path {d['path_length_m']:.2f} m")
+        for name, c in d.get("calibration", {}).items():
+            sigma = np.asarray(c["sigma"])
+            yaw = float(np.degrees(np.arctan2(*np.asarray(_rotation_matrix(c["mount_rotation_xyzw"]))[[1, 0], 0])))
+            lines.append(f"  calibration {name}: lever arm {np.round(c['mount_translation_m'], 4).tolist()} m "
+                         f"+- {np.round(sigma[3:6] * 1e3, 1).tolist()} mm, boresight yaw {yaw:.2f} deg "
+                         f"+- {np.degrees(sigma[2]):.2f}, time offset {c['time_offset_s'] * 1e3:+.2f} ms "
+                         f"+- {sigma[6] * 1e3:.2f}")
     else:
         lines.append(f"  {' x '.join(map(str, d['shape']))} pixels of {d['pixel_m']} m, x {d['x_m']} m, y {d['y_m']} m")
         for key in ("radar", "frames", "n_frames", "method", "trajectory_source"):

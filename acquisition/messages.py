@@ -21,6 +21,7 @@ import numpy as np
 from drivers.radar.stream import RadarFrame
 
 from .bus import Message
+from .ptp import PtpStatus, ReceiveDelayStats
 
 
 @dataclasses.dataclass
@@ -304,6 +305,9 @@ class WorkerState(HeaderMessage):
     warm: bool
     warm_up_s: float
     counters: dict[str, int]
+    #: The odometry's online calibration, where it runs one: per radar ``mount_translation_m`` [3],
+    #: ``mount_rotation_xyzw`` [4], ``time_offset_s`` and ``sigma`` [7] (docs/formats/trajectory.md's axes).
+    calibration: dict[str, dict] = dataclasses.field(default_factory=dict)
     time_ns: int = 0
 
 
@@ -362,6 +366,12 @@ class Health(HeaderMessage):
     sensors_idle_s: float = 0.0  # since the last radar frame, IMU sample or CAN frame
     conditions: dict[str, str] = dataclasses.field(default_factory=dict)  # lasting ones, by source: what is wrong
     imu_samples_lost: int = 0  # across IMU driver restarts, so far
+    #: The host's PTP state from linuxptp (acquisition.ptp.PtpStatus); None where no ptp4l is watched.
+    ptp: PtpStatus | None = None
+    #: Per radar: host receive time minus frame end over the recent frames (acquisition.ptp.ReceiveDelayStats).
+    receive_delay: dict[str, ReceiveDelayStats] = dataclasses.field(default_factory=dict)
+    #: Per radar: frames recorded while its clock said it was not PTP-locked (marked in /radar/NAME/ptp_locked).
+    unlocked_frames: dict[str, int] = dataclasses.field(default_factory=dict)
     time_ns: int = 0
 
     @property
@@ -375,6 +385,8 @@ class Health(HeaderMessage):
         fields["latency_ms"] = Latency(**fields["latency_ms"]) if fields.get("latency_ms") else None
         fields["clock"] = ClockState(**fields["clock"])
         fields["workers"] = {role: WorkerState(**w) for role, w in fields.get("workers", {}).items()}
+        fields["ptp"] = PtpStatus(**fields["ptp"]) if fields.get("ptp") else None
+        fields["receive_delay"] = {n: ReceiveDelayStats(**d) for n, d in fields.get("receive_delay", {}).items()}
         return cls(**fields, time_ns=int(msg.sensor_time_ns))
 
     def line(self) -> str:
@@ -387,6 +399,10 @@ class Health(HeaderMessage):
         unlocked = [n for n, ok in locks.items() if not ok]
         if locks:
             parts.append("PTP unlocked: " + ", ".join(unlocked) if unlocked else "PTP locked")
+        if self.ptp is not None:
+            parts.append(self.ptp.line())
+        parts += [f"{n} receive-frame end {d.median_ms:.1f} ms (p99 {d.p99_ms:.1f})" for n, d in self.receive_delay.items()]
+        parts += [f"{n} {k} frames unlocked" for n, k in self.unlocked_frames.items() if k]
         if self.latency_ms:
             parts.append(f"latency p50 {self.latency_ms.p50:.1f} ms, p99 {self.latency_ms.p99:.1f} ms")
         parts.append(f"invalid frames {sum(self.invalid_frames.values())}, wire events {self.wire_events}, "
@@ -399,6 +415,8 @@ class Health(HeaderMessage):
             parts.append(f"warming up: {', '.join(cold)}" if cold else "workers warm")
         for role, w in self.workers.items():
             parts += [f"{role} {name} {n}" for name, n in w.counters.items() if n]
+            parts += [f"{role} {name} time offset {c['time_offset_s'] * 1e3:+.1f} ms +- {c['sigma'][6] * 1e3:.1f}, "
+                      f"lever arm +- {max(c['sigma'][3:5]) * 1e3:.1f} mm" for name, c in w.calibration.items()]
         return ", ".join(parts)
 
 

@@ -34,6 +34,7 @@ from .messages import (
     WorkerState,
     decode,
 )
+from .ptp import PtpStatus, ReceiveDelay
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
@@ -115,6 +116,10 @@ class Recorder:
         self.invalid_frames = {r.name: 0 for r in rig.radars}
         self.wire_events = 0
         self.ptp_locked: dict[str, bool] = {}
+        self.unlocked_frames = {r.name: 0 for r in rig.radars}  # recorded and marked in /radar/NAME/ptp_locked
+        self.receive_delay = {r.name: ReceiveDelay() for r in rig.radars}  # host receive minus frame end
+        self._frame_duration_ns = {r.name: r.waveform.frame_duration_ns for r in rig.radars}
+        self.ptp_status: PtpStatus | None = None  # the host's, as the daemon last read it
         self.triggers_seen = 0
         self.imu_drift_ppm: float | None = None
         self.latencies_ns: list[int] = []  # datagram (kernel time stamp) to recorder, per radar frame
@@ -136,7 +141,7 @@ class Recorder:
         path = self.base_path.with_name(f"{self.base_path.stem}_{part:03d}{self.base_path.suffix}") if split else self.base_path
         chain = {"part": part, "previous_part": self.paths[-1].name if self.paths else ""} if split else None
         writer = RecordingWriter(path, self.rig.radars, imu=self.rig.imu, adc_dtype=self.adc_dtype,
-                                 wire_format=self.wire_formats, root_attrs=chain)
+                                 wire_format=self.wire_formats, root_attrs=chain, clock_state=True)
         for t, source in self._triggers:  # each part says how its times were tied to the first chirp
             writer.append_trigger(t, source)
         self.paths.append(path)
@@ -183,7 +188,18 @@ class Recorder:
         if f.receive_ns > 0:  # a frame of which no datagram came (lost whole) has no receive time
             self.latencies_ns.append(time.time_ns() - f.receive_ns)
         self.invalid_frames[m.radar] += 0 if f.valid else 1
+        # A frame from an unlocked clock is kept, and marked: never mixed in silently.
+        self.writer.append_frame_clock(m.radar, f.ptp_locked)
+        self.unlocked_frames[m.radar] += 0 if f.ptp_locked else 1
+        was = self.ptp_locked.get(m.radar)
+        if was is not None and was != f.ptp_locked:
+            self._write_event(f.frame_time_ns, f"radar.{m.radar}", "info" if f.ptp_locked else "warning",
+                              "clock PTP-locked again" if f.ptp_locked else
+                              f"clock not PTP-locked: frames from {f.frame_counter} marked in /radar/{m.radar}/ptp_locked")
         self.ptp_locked[m.radar] = f.ptp_locked
+        jump = self.receive_delay[m.radar].add(f.receive_ns, f.frame_time_ns + self._frame_duration_ns[m.radar])
+        if jump:
+            self._write_event(f.frame_time_ns, f"radar.{m.radar}", "warning", jump)
 
     def _check_imu_continuity(self, topic: str, b: ImuBatch) -> None:
         """Samples lost where one IMU driver process ended and the next began (killed, restarted).
@@ -278,6 +294,15 @@ class Recorder:
     def bus_lost(self) -> int:
         """Messages lost on the way to the recorder so far (each also written to /events)."""
         return self.sub.missed
+
+    def record_ptp(self, status: PtpStatus, events=(), time_ns: int | None = None) -> None:
+        """The host's PTP state (``acquisition.ptp.PtpMonitor.poll``) into /ptp, its events into /events."""
+        time_ns = time.time_ns() if time_ns is None else int(time_ns)
+        self.ptp_status = status
+        self.writer.append_ptp(time_ns, status.port_state, status.offset_from_master_ns, status.mean_path_delay_ns,
+                               status.phc2sys_offset_ns)
+        for e in events:
+            self._write_event(time_ns, "ptp", e.level, e.message)
 
     def record_event(self, time_ns: int, source: str, level: str, message: str) -> None:
         """An event of the supervisor's own (a restart) into /events."""

@@ -5,6 +5,13 @@ accelerometer bias b_a and gyro bias b_g. Error state (15): dp, dv, dtheta (body
 db_a, db_g. Strapdown propagation at IMU rate; radar ego-velocity updates (sensor frame, lever arm and
 angular rate included) with chi-square gating and the Joseph form; zero-velocity and zero-rate updates at
 standstill; static initialisation of roll, pitch and gyro bias. Pure computation: arrays in, states out.
+
+Online calibration (switchable, ``add_radar_calibration``): each radar added gets 7 more error states after
+the 15 -- its mount rotation (3, sensor frame: R_m = R_m_hat Exp(dtheta_m)), its lever arm (3, body frame)
+and its time offset (1, seconds: the radar's stamp minus the IMU time of the same instant), as in ekf_rio's
+extrinsic states and EKF-RIO-TC's time offset. They are constants (no process noise); the ego-velocity
+updates observe them while the robot turns (lever arm, the boresight's pitch) and accelerates (rotation,
+time offset). A state left out (sigma 0) never moves.
 """
 
 from __future__ import annotations
@@ -46,6 +53,21 @@ class EkfConfig:
     init_gyro_bias_sigma: float = 0.01
     zero_velocity_sigma_mps: float = 0.02  # the radar's zero-velocity threshold: creeping below it looks still
     zero_rate_sigma_radps: float = 2e-3
+    #: Zero-velocity update when the radar calls a standstill and the IMU has not moved since the last radar
+    #: update (``imu_was_still``), in a stop after driving: then the robot stands, it does not creep into or
+    #: out of a stop, and the velocity the drive left is pulled to zero at once (0.02 m/s would leave it
+    #: crawling there over seconds). Not at the start, which the static initialisation gives zero velocity
+    #: already, and where the tighter update would lean harder on a tilt the IMU cannot tell from its bias.
+    still_zero_velocity_sigma_mps: float = 0.002
+    still_gyro_radps: float = 0.01  # the mean rate between two radar scans this far from the bias ...
+    still_accel_std_mps2: float = 0.1  # ... or the specific force scattered this much ...
+    #: ... or its mean this far from gravity (world frame) is motion: a robot creeping out of a stop below
+    #: the radar's threshold accelerates (0.4 m/s^2), a bias step not yet learned (0.1 m/s^2) is no motion
+    still_accel_mps2: float = 0.15
+    still_window_s: float = 0.1  # over the IMU samples of this long before the radar's verdict
+    #: The tighter zero-velocity update wants the mean specific force this close to gravity: a robot
+    #: creeping out of a stop on a gentle (jerk-limited) ramp has reached 0.01 m/s before 0.15 m/s^2.
+    standing_accel_mps2: float = 0.08
     gate_chi2: float = CHI2_999[3]
     #: Added to every radar velocity covariance: what the Doppler fit does not see (time-stamp jitter,
     #: velocity change within a frame, Doppler quantisation).
@@ -54,12 +76,17 @@ class EkfConfig:
     recovery_velocity_sigma_mps: float = 1.0
     standstill_trim_s: float = 0.5  # gyro samples left out at both ends of a standstill (creeping in and out)
     standstill_min_samples: int = 50
+    standstill_update_s: float = 2.0  # a zero-rate update from every this much of a long standstill
     planar: bool = False  # pseudo-measurement: no vertical velocity (robots on flat floors)
     #: Let radar velocity updates correct the gyro bias through the lever arm (w x l). The coupling is weak
     #: (0.2 m lever arms) and small systematic ego-velocity errors that differ between radars then leak
     #: into the yaw-rate bias; off by default, the bias is learned at standstill (zero-rate update).
     radar_observes_gyro_bias: bool = False
     planar_sigma_mps: float = 0.05
+    #: Priors of the online calibration (``RadarInertialEkf.add_radar_calibration``) where the rig gives none.
+    calibration_rotation_sigma_rad: float = math.radians(3.0)
+    calibration_translation_sigma_m: float = 0.05
+    calibration_time_offset_sigma_s: float = 0.01
 
 
 @dataclasses.dataclass
@@ -75,6 +102,55 @@ class EkfState:
     @property
     def quaternion_xyzw(self) -> np.ndarray:
         return Rotation.from_matrix(self.R).as_quat()
+
+
+#: Error states of the core filter (p, v, theta, b_a, b_g) and of each calibrated radar (theta_m, l, t_d).
+N_CORE = 15
+N_CALIBRATION = 7
+
+
+@dataclasses.dataclass
+class RadarCalibration:
+    """One radar's calibration estimate inside the filter: the nominal values and where its error states are.
+
+    ``rotation_matrix`` rotates sensor to body, ``translation_m`` is the lever arm (body frame),
+    ``time_offset_s`` the radar's stamp minus the IMU time of the same instant (a radar 5 ms late: +0.005).
+    """
+
+    name: str
+    index: int  # first of its 7 error states in P
+    rotation_matrix: np.ndarray
+    translation_m: np.ndarray
+    time_offset_s: float
+
+    @property
+    def mount(self):
+        from imaging.core.rig import Mount
+
+        return Mount(self.translation_m.copy(), Rotation.from_matrix(self.rotation_matrix).as_quat())
+
+
+@dataclasses.dataclass(frozen=True)
+class CalibrationEstimate:
+    """A radar's calibration as the filter has it: the mount (sensor -> body), the time offset (s, radar
+    stamp minus IMU time) and the standard deviations of the 7 error states: rotation about the sensor's
+    x, y, z (rad), lever arm along body x, y, z (m), time offset (s)."""
+
+    mount: object  # imaging.core.rig.Mount
+    time_offset_s: float
+    sigma: np.ndarray  # [7]
+
+    @property
+    def rotation_sigma_rad(self) -> np.ndarray:
+        return self.sigma[0:3]
+
+    @property
+    def translation_sigma_m(self) -> np.ndarray:
+        return self.sigma[3:6]
+
+    @property
+    def time_offset_sigma_s(self) -> float:
+        return float(self.sigma[6])
 
 
 @dataclasses.dataclass
@@ -109,8 +185,18 @@ def _strapdown(p, v, R, P, f, w, dt, q_density):
     F[3:6, 9:12] = -R * dt
     F[6:9, 6:9] = E
     F[6:9, 12:15] = -np.eye(3) * dt
-    out = F @ P @ F.T
-    for i in range(15):
+    n = P.shape[0]
+    if n == 15:
+        out = F @ P @ F.T
+    else:
+        # Calibration states are constants: their transition is the identity, so only the core block and
+        # its correlations with them change.
+        out = P.copy()
+        out[:15, :15] = F @ P[:15, :15] @ F.T
+        cross = F @ P[:15, 15:]
+        out[:15, 15:] = cross
+        out[15:, :15] = cross.T
+    for i in range(n):
         out[i, i] += q_density[i] * dt
     return p_new, v_new, R_new, 0.5 * (out + out.T)
 
@@ -176,14 +262,21 @@ class RadarInertialEkf:
                                           np.full(3, config.gyro_noise_density ** 2), np.full(3, config.accel_bias_random_walk ** 2),
                                           np.full(3, config.gyro_bias_random_walk ** 2)])
         self.state: EkfState | None = None
-        # Gyro samples of the current standstill (time ns, rate), for one zero-rate update when it ends.
-        # Chunks of (times [k], gyro [k, 3]) of the current standstill.
+        # Chunks of (times [k], gyro [k, 3]) of the current standstill, for its zero-rate updates.
         self._standstill: list[tuple[np.ndarray, np.ndarray]] = []
         self._in_standstill = False
+        self._standstill_started = True  # whether the gathered samples begin with the standstill (trim them)
         self.bias_resets = 0
         self.bias_log: list[tuple[int, np.ndarray, np.ndarray]] = []
         self._last_gyro = np.zeros(3)
         self._last_accel = np.zeros(3)
+        #: The calibrated radars by name (empty: the 15-state filter of before).
+        self.calibration: dict[str, RadarCalibration] = {}
+        # The IMU samples (time ns, rate, specific force) of the last ``still_window_s`` (at least 50 ms):
+        # whether the IMU stands still, and the gyro's slope, the angular acceleration the time-offset
+        # update needs (d/dt of w x l).
+        self._recent_imu = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+        self._has_moved = False  # a radar velocity update has been taken: the robot has driven
 
     # -- initialisation -----------------------------------------------------------------------------
     def initialise_static(self, time_ns: int, accel_mps2: np.ndarray, gyro_radps: np.ndarray,
@@ -206,12 +299,59 @@ class RadarInertialEkf:
         n = len(gyro_radps)
         bg_var = np.maximum(np.var(gyro_radps, axis=0) / max(n, 1), (1e-5) ** 2)
         P[12:15, 12:15] = np.diag(bg_var)
-        self.state = EkfState(int(time_ns), np.asarray(position_m, float).copy(), np.zeros(3), R, np.zeros(3),
+        # What the mean specific force has beyond gravity's magnitude is accelerometer bias along gravity:
+        # left to the zero-velocity updates, it would first show as a vertical velocity of mm/s growing
+        # each IMU sample (the horizontal bias cannot be told from tilt, and stays with the attitude).
+        ba = (np.linalg.norm(f) - GRAVITY_MPS2) * f / np.linalg.norm(f)
+        self.state = EkfState(int(time_ns), np.asarray(position_m, float).copy(), np.zeros(3), R, ba,
                               np.mean(gyro_radps, axis=0), P)
         self._last_gyro = np.mean(gyro_radps, axis=0)
         self._last_accel = f
         self.bias_log = [(int(time_ns), self.state.bg.copy(), self.state.ba.copy())]
         return self.state
+
+    def add_radar_calibration(self, name: str, mount, time_offset_s: float = 0.0, *,
+                              rotation_sigma_rad: float | None = None, translation_sigma_m: float | None = None,
+                              time_offset_sigma_s: float | None = None) -> RadarCalibration:
+        """Estimate radar ``name``'s mount and time offset online, starting from ``mount`` and
+        ``time_offset_s`` (the rig's values) with these prior standard deviations (None: the config's;
+        0: that part stays fixed). Call after ``initialise_static``."""
+        if name in self.calibration:
+            return self.calibration[name]
+        c = self.config
+        sig = [c.calibration_rotation_sigma_rad if rotation_sigma_rad is None else rotation_sigma_rad,
+               c.calibration_translation_sigma_m if translation_sigma_m is None else translation_sigma_m,
+               c.calibration_time_offset_sigma_s if time_offset_sigma_s is None else time_offset_sigma_s]
+        s = self.state
+        n = s.P.shape[0]
+        P = np.zeros((n + N_CALIBRATION, n + N_CALIBRATION))
+        P[:n, :n] = s.P
+        P[n:, n:] = np.diag(np.repeat(np.square(sig), [3, 3, 1]))
+        s.P = P
+        self._q_density = np.concatenate([self._q_density, np.zeros(N_CALIBRATION)])
+        cal = RadarCalibration(name, n, np.array(mount.rotation_matrix, float), np.array(mount.translation_m, float),
+                               float(time_offset_s))
+        self.calibration[name] = cal
+        return cal
+
+    def calibration_sigma(self, name: str) -> np.ndarray:
+        """Standard deviations of radar ``name``'s 7 calibration error states (rad, m, s)."""
+        return np.sqrt(np.clip(np.diag(self.state.P)[self.calibration[name].index:][:N_CALIBRATION], 0.0, None))
+
+    def calibration_estimates(self) -> dict[str, CalibrationEstimate]:
+        """Every calibrated radar's current estimate and standard deviations."""
+        return {name: CalibrationEstimate(cal.mount, cal.time_offset_s, self.calibration_sigma(name))
+                for name, cal in self.calibration.items()}
+
+    def angular_acceleration_radps2(self) -> np.ndarray:
+        """Slope of the latest gyro samples (rad/s^2); zero before there are enough."""
+        t, g, _ = self._recent_imu
+        keep = t >= t[-1] - 50_000_000 if t.size else t.astype(bool)
+        t, g = t[keep], g[keep]  # 50 ms: a slope through the gyro noise, short against a turn's onset
+        if t.size < 4:
+            return np.zeros(3)
+        x = (t - t.mean()) * 1e-9
+        return (x @ (g - g.mean(axis=0))) / (x @ x)
 
     @property
     def last_gyro_radps(self) -> np.ndarray:
@@ -249,6 +389,11 @@ class RadarInertialEkf:
             return None
         if self._in_standstill:
             self._standstill.append((times_ns, gyro_radps))
+        # The latest IMU samples, for the standstill test and the angular acceleration.
+        t, g, a = self._recent_imu
+        t = np.concatenate([t, times_ns])[-512:]
+        keep = t >= t[-1] - int(max(self.config.still_window_s, 0.05) * 1e9)
+        self._recent_imu = (t[keep], np.concatenate([g, gyro_radps])[-512:][keep], np.concatenate([a, accel_mps2])[-512:][keep])
         (s.p, s.v, s.R, s.P, t_ns, self._last_accel, self._last_gyro,
          *recorded) = _strapdown_batch(s.p, s.v, s.R, s.P, s.time_ns, self._last_accel, self._last_gyro, s.ba, s.bg,
                                        times_ns, accel_mps2, gyro_radps, record, self._q_density)
@@ -258,7 +403,8 @@ class RadarInertialEkf:
         return recorded
 
     # -- updates ------------------------------------------------------------------------------------------
-    def _update(self, residual: np.ndarray, H: np.ndarray, R_meas: np.ndarray, gate: float | None) -> UpdateResult:
+    def _update(self, residual: np.ndarray, H: np.ndarray, R_meas: np.ndarray, gate: float | None,
+                kind: str = "") -> UpdateResult:
         s = self.state
         ok, chi2, dx, P = _joseph_update(s.P, np.ascontiguousarray(H, dtype=np.float64),
                                          np.ascontiguousarray(R_meas, dtype=np.float64),
@@ -267,10 +413,17 @@ class RadarInertialEkf:
             return UpdateResult(False, chi2)
         s.P = P
         s.p = s.p + dx[0:3]
+        if kind == "velocity":
+            self._has_moved = True
         s.v = s.v + dx[3:6]
         s.R = s.R @ _exp_so3_nb(dx[6:9])
         s.ba = s.ba + dx[9:12]
         s.bg = s.bg + dx[12:15]
+        for cal in self.calibration.values():
+            i = cal.index
+            cal.rotation_matrix = cal.rotation_matrix @ _exp_so3_nb(dx[i:i + 3])
+            cal.translation_m = cal.translation_m + dx[i + 3:i + 6]
+            cal.time_offset_s += float(dx[i + 6])
         entry = (s.time_ns, s.bg.copy(), s.ba.copy())
         if self.keep_bias_log:
             self.bias_log.append(entry)
@@ -278,33 +431,63 @@ class RadarInertialEkf:
             self.bias_log[-1:] = [entry]
         return UpdateResult(True, chi2)
 
-    def update_radar_velocity(self, velocity_sensor_mps: np.ndarray, covariance: np.ndarray, mount) -> UpdateResult:
-        """Sensor-frame ego velocity from one radar: v_s = R_m^T (R^T v + w x l), w = gyro - b_g."""
+    def _zeros(self, rows: int) -> np.ndarray:  # a measurement Jacobian's rows, as wide as the error state
+        return np.zeros((rows, self.state.P.shape[0]))
+
+    def measurement_time_ns(self, radar: str, stamp_ns: int) -> int:
+        """The IMU time a radar stamp stands for: the stamp less the radar's estimated time offset."""
+        cal = self.calibration.get(radar)
+        return int(stamp_ns) if cal is None else int(stamp_ns) - int(round(cal.time_offset_s * 1e9))
+
+    def update_radar_velocity(self, velocity_sensor_mps: np.ndarray, covariance: np.ndarray, mount,
+                              radar: str | None = None, stamp_ns: int | None = None) -> UpdateResult:
+        """Sensor-frame ego velocity from one radar: v_s = R_m^T (R^T v + w x l), w = gyro - b_g.
+
+        A radar under calibration (``radar`` named in ``add_radar_calibration``) uses the filter's mount
+        instead of ``mount`` and its time offset: the scan stamped ``stamp_ns`` was measured at
+        stamp - t_d, which may differ from the filter's time by what the state's time offset says; the
+        prediction is moved by that difference along dh/dt, and dh/dt is the time offset's Jacobian.
+        """
         self.end_standstill()
         s = self.state
-        Rm = mount.rotation_matrix
-        lever = mount.translation_m
+        cal = self.calibration.get(radar) if radar is not None else None
+        Rm = mount.rotation_matrix if cal is None else cal.rotation_matrix
+        lever = mount.translation_m if cal is None else cal.translation_m
         w = self._last_gyro - s.bg
         v_body = s.R.T @ s.v
         predicted = Rm.T @ (v_body + cross3(w, lever))
-        H = np.zeros((3, 15))
+        H = self._zeros(3)
         H[:, 3:6] = Rm.T @ s.R.T
         H[:, 6:9] = Rm.T @ skew(v_body)
         covariance = covariance + np.eye(3) * self.config.radar_velocity_sigma_floor_mps ** 2
         if self.config.radar_observes_gyro_bias:
             H[:, 12:15] = Rm.T @ skew(lever)
-        return self._update(np.asarray(velocity_sensor_mps) - predicted, H, covariance, self.config.gate_chi2)
+        if cal is not None:
+            i = cal.index
+            H[:, i:i + 3] = skew(predicted)  # R_m^T = Exp(-dtheta) R_m_hat^T
+            H[:, i + 3:i + 6] = Rm.T @ skew(w)
+            # d/dt of the body velocity (specific force + gravity - w x v) and of the lever arm's w x l
+            accel_body = (self._last_accel - s.ba) + s.R.T @ GRAVITY - cross3(w, v_body)
+            rate = Rm.T @ (accel_body + cross3(self.angular_acceleration_radps2(), lever))
+            H[:, i + 6] = -rate
+            if stamp_ns is not None:
+                # The strapdown holds each IMU sample over the interval after it, so the velocity it gives
+                # lags by half an interval: the state stands for half an interval before its time.
+                t_hist = self._recent_imu[0]
+                half_interval_s = 0.5e-9 * (t_hist[-1] - t_hist[-2]) if t_hist.size > 1 else 0.0
+                predicted = predicted + rate * ((int(stamp_ns) - s.time_ns) * 1e-9 + half_interval_s - cal.time_offset_s)
+        return self._update(np.asarray(velocity_sensor_mps) - predicted, H, covariance, self.config.gate_chi2, "velocity")
 
     def update_body_velocity(self, velocity_body_mps: np.ndarray, covariance: np.ndarray) -> UpdateResult:
         """Body-frame velocity (several radars solved together)."""
         self.end_standstill()
         s = self.state
         v_body = s.R.T @ s.v
-        H = np.zeros((3, 15))
+        H = self._zeros(3)
         H[:, 3:6] = s.R.T
         H[:, 6:9] = skew(v_body)
         covariance = covariance + np.eye(3) * self.config.radar_velocity_sigma_floor_mps ** 2
-        return self._update(np.asarray(velocity_body_mps) - v_body, H, covariance, self.config.gate_chi2)
+        return self._update(np.asarray(velocity_body_mps) - v_body, H, covariance, self.config.gate_chi2, "velocity")
 
     def inflate_velocity_uncertainty(self) -> None:
         """Reset the velocity block of P (and its correlations) to a wide prior."""
@@ -313,6 +496,29 @@ class RadarInertialEkf:
         P[:, 3:6] = 0.0
         P[3:6, 3:6] = np.eye(3) * self.config.recovery_velocity_sigma_mps ** 2
 
+    def imu_was_still(self, accel_limit_mps2: float | None = None) -> bool | None:
+        """Whether the IMU samples of the last ``still_window_s`` show no motion: their mean rate is the bias,
+        their mean specific force is gravity and does not scatter beyond noise (a test of single samples
+        trips on a real IMU's noise: an ADIS16448 at rest shows 0.015 rad/s and 0.15 m/s^2 in single
+        samples). ``accel_limit_mps2``: how far from gravity the mean may be (None: ``still_accel_mps2``).
+        None with fewer than 3 samples."""
+        c = self.config
+        limit = c.still_accel_mps2 if accel_limit_mps2 is None else accel_limit_mps2
+        t, gyro, accel = self._recent_imu
+        keep = t >= t[-1] - int(c.still_window_s * 1e9) if t.size else t.astype(bool)
+        if keep.sum() < 3:
+            return None
+        t, gyro, accel = t[keep], gyro[keep], accel[keep]
+        s = self.state
+        # The specific force's mean over the window and over its last 25 ms: a robot that has just started
+        # to creep out of a stop has accelerated for a fraction of the window only.
+        latest = t >= t[-1] - 25_000_000
+        latest[-3:] = True
+        return bool(np.linalg.norm(gyro.mean(axis=0) - s.bg) < c.still_gyro_radps
+                    and np.linalg.norm(s.R @ (accel.mean(axis=0) - s.ba) + GRAVITY) < limit
+                    and np.linalg.norm(s.R @ (accel[latest].mean(axis=0) - s.ba) + GRAVITY) < limit
+                    and accel.std(axis=0).max() < c.still_accel_std_mps2)
+
     def update_zero_velocity(self) -> UpdateResult:
         """Standstill: world velocity zero now; the angular rate is used once the standstill ends.
 
@@ -320,11 +526,36 @@ class RadarInertialEkf:
         an arc already turns. So the gyro samples of the standstill are gathered and, when it ends, their
         mean without the first and last ``standstill_trim_s`` becomes one zero-rate update (the gyro bias).
         """
+        standing = self._has_moved and bool(self.imu_was_still(self.config.standing_accel_mps2))
+        if not self._in_standstill:
+            self._standstill_started = True
         self._in_standstill = True
+        self._zero_rate_during_standstill()
         s = self.state
-        H = np.zeros((3, 15))
+        H = self._zeros(3)
         H[:, 3:6] = np.eye(3)
-        return self._update(-s.v, H, np.eye(3) * self.config.zero_velocity_sigma_mps ** 2, None)
+        c = self.config
+        sigma = c.still_zero_velocity_sigma_mps if standing else c.zero_velocity_sigma_mps
+        return self._update(-s.v, H, np.eye(3) * sigma ** 2, None)
+
+    def _zero_rate_during_standstill(self) -> None:
+        """A long standstill gives its zero-rate update every ``standstill_update_s``, not only when it ends:
+        a robot standing for minutes learns its gyro bias meanwhile. The last ``standstill_trim_s`` of
+        samples are kept back (the end may yet be creeping) and start the next piece."""
+        c = self.config
+        if not self._standstill:
+            return
+        t_first, t_last = self._standstill[0][0][0], self._standstill[-1][0][-1]
+        trim = c.standstill_trim_s * 1e9
+        if t_last - t_first < c.standstill_update_s * 1e9 + trim * (2 if self._standstill_started else 1):
+            return
+        samples = self._standstill
+        t = np.concatenate([ts for ts, _ in samples])
+        gyro = np.concatenate([g for _, g in samples])
+        held = t > t[-1] - trim
+        self._zero_rate_update(samples, self._standstill_started)
+        self._standstill = [(t[held], gyro[held])]
+        self._standstill_started = False
 
     def end_standstill(self) -> UpdateResult | None:
         """Close the current standstill: one zero-rate update from its trimmed mean gyro rate.
@@ -333,13 +564,19 @@ class RadarInertialEkf:
         knock): its uncertainty is re-opened first, so the update learns the new value.
         """
         samples, self._standstill, self._in_standstill = self._standstill, [], False
+        trim_start, self._standstill_started = self._standstill_started, True
+        return self._zero_rate_update(samples, trim_start)
+
+    def _zero_rate_update(self, samples, trim_start: bool) -> UpdateResult | None:
+        """One zero-rate update from the standstill's gyro ``samples`` without their last
+        ``standstill_trim_s`` (and their first, with ``trim_start``)."""
         c = self.config
         if not samples:
             return None
         t = np.concatenate([ts for ts, _ in samples])
         gyro = np.concatenate([g for _, g in samples])
         trim = int(c.standstill_trim_s * 1e9)
-        keep = (t >= t[0] + trim) & (t <= t[-1] - trim)
+        keep = (t >= t[0] + (trim if trim_start else 0)) & (t <= t[-1] - trim)
         n = int(keep.sum())
         if n < c.standstill_min_samples:
             return None
@@ -351,13 +588,13 @@ class RadarInertialEkf:
             s.P[:, 12:15] = 0.0
             s.P[12:15, 12:15] = np.eye(3) * c.init_gyro_bias_sigma ** 2
             self.bias_resets += 1
-        H = np.zeros((3, 15))
+        H = self._zeros(3)
         H[:, 12:15] = -np.eye(3)  # measured rate - b_g = 0
         return self._update(-rate, H, rate_cov, None)
 
     def update_planar(self) -> UpdateResult:
         """No vertical velocity in the world frame (a robot on a flat floor)."""
         s = self.state
-        H = np.zeros((1, 15))
+        H = self._zeros(1)
         H[0, 5] = 1.0
         return self._update(np.array([-s.v[2]]), H, np.array([[self.config.planar_sigma_mps ** 2]]), CHI2_999[1])

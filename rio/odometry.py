@@ -15,7 +15,7 @@ from imaging.core.trajectory import SampledTrajectory
 from imaging.io.recording import Recording
 
 from .ego_velocity import EgoStatus, EgoVelocityConfig, body_velocity, sensor_velocity
-from .ekf import EkfConfig, RadarInertialEkf
+from .ekf import CalibrationEstimate, EkfConfig, RadarInertialEkf
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
@@ -53,6 +53,13 @@ class RioOptions:
     #: defaults are zero; a simulation whose truth starts elsewhere can start from its first true pose.
     initial_position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     initial_yaw_rad: float = 0.0
+    #: Online calibration (rio.ekf): every radar's mount and/or time offset as filter states, starting from
+    #: the mounts the scans carry. Needs per-radar updates (not ``joint_radars``).
+    calibrate_extrinsics: bool = False
+    calibrate_time_offset: bool = False
+    #: Per radar name, the rig's calibration prior (imaging.core.rig.CalibrationPrior): the time offset to
+    #: start from and the standard deviations; radars not named start at offset 0 with the EkfConfig's.
+    calibration_priors: dict = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass
@@ -64,6 +71,11 @@ class RioResult:
     scan_status: list[tuple[int, str, str]]
     gyro_bias_radps: np.ndarray | None = None  # [N, 3] at the trajectory's times
     accel_bias_mps2: np.ndarray | None = None
+    #: Online calibration: each calibrated radar's final estimate, and after every one of its updates
+    #: (time_ns, radar, rotation vector from the start mount [3] rad (sensor frame), lever arm [3] m,
+    #: time offset s, standard deviations [7]).
+    calibration: dict[str, CalibrationEstimate] = dataclasses.field(default_factory=dict)
+    calibration_log: list = dataclasses.field(default_factory=list)
 
     @property
     def zero_velocity_times_ns(self) -> np.ndarray:
@@ -88,6 +100,8 @@ def run_rio(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOptio
     k0 = int(np.argmax(~still)) if (~still).any() else t_imu.size - 1
     ekf.initialise_static(t_imu[k0], acc[still], gyr[still], options.initial_position_m, options.initial_yaw_rad)
     ekf.propagate(t_imu[k0], acc[k0], gyr[k0])
+    start_mounts = add_calibration_states(ekf, scans, options)
+    calibration_log: list = []
     out_every = max(1, int(round((1e9 / np.median(np.diff(t_imu))) / options.output_rate_hz)))
     record = (np.arange(t_imu.size) - k0) % out_every == 0
     acc = np.ascontiguousarray(acc, dtype=np.float64)
@@ -104,7 +118,8 @@ def run_rio(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOptio
     k = k0 + 1
     while k < t_imu.size:
         # IMU samples up to the next radar scan in one compiled run, then the scan itself.
-        k_end = t_imu.size if j >= len(scans) else int(np.searchsorted(t_imu, scans[j].time_ns, side="left"))
+        k_end = t_imu.size if j >= len(scans) else \
+            int(np.searchsorted(t_imu, ekf.measurement_time_ns(scans[j].radar, scans[j].time_ns), side="left"))
         k_end = max(k_end, k)
         if k_end > k:
             chunks.append(ekf.propagate_samples(t_imu[k:k_end], acc[k:k_end], gyr[k:k_end], record[k:k_end]))
@@ -121,9 +136,11 @@ def run_rio(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOptio
             while j < len(scans) and scans[j].time_ns - group[0].time_ns < 5_000_000:
                 group.append(scans[j])
                 j += 1
-        ekf.propagate(group[-1].time_ns)
+        ekf.propagate(max(ekf.state.time_ns, ekf.measurement_time_ns(group[-1].radar, group[-1].time_ns)))
         helped, reason = radar_update(ekf, group, options, rng, stats)
         status_log.extend((g.time_ns, g.radar, reason) for g in group)
+        if start_mounts:
+            calibration_log.extend(calibration_entry(ekf, g.radar, start_mounts) for g in group if g.radar in start_mounts)
         if options.ekf.planar:
             ekf.update_planar()
         if helped:
@@ -154,7 +171,38 @@ def run_rio(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOptio
         stats["gyro_bias_resets"] = ekf.bias_resets
     stats["scans"] = len(scans)
     stats["imu_samples"] = int(t_imu.size)
-    return RioResult(traj, cov, dict(stats), status_log, bgs, bas)
+    return RioResult(traj, cov, dict(stats), status_log, bgs, bas, ekf.calibration_estimates(), calibration_log)
+
+
+def add_calibration_states(ekf: RadarInertialEkf, scans: list[RadarScan], options: RioOptions) -> dict:
+    """Give the filter every scanned radar's calibration states, as ``options`` ask; returns the start
+    mount of each (empty when not calibrating)."""
+    if not (options.calibrate_extrinsics or options.calibrate_time_offset):
+        return {}
+    if options.joint_radars:
+        raise ValueError("online calibration needs per-radar updates: joint_radars must be off")
+    mounts = {}
+    for scan in scans:
+        mounts.setdefault(scan.radar, scan.mount)
+    for name, mount in mounts.items():
+        prior = options.calibration_priors.get(name)
+        rot = trans = offset_sigma = None
+        offset = 0.0
+        if prior is not None:
+            rot = None if prior.rotation_sigma_deg is None else np.radians(prior.rotation_sigma_deg)
+            trans, offset_sigma, offset = prior.translation_sigma_m, prior.time_offset_sigma_s, prior.time_offset_s
+        ekf.add_radar_calibration(name, mount, offset,
+                                  rotation_sigma_rad=rot if options.calibrate_extrinsics else 0.0,
+                                  translation_sigma_m=trans if options.calibrate_extrinsics else 0.0,
+                                  time_offset_sigma_s=offset_sigma if options.calibrate_time_offset else 0.0)
+    return mounts
+
+
+def calibration_entry(ekf: RadarInertialEkf, radar: str, start_mounts: dict) -> tuple:
+    """One row of ``RioResult.calibration_log``."""
+    cal = ekf.calibration[radar]
+    rotvec = Rotation.from_matrix(start_mounts[radar].rotation_matrix.T @ cal.rotation_matrix).as_rotvec()
+    return (ekf.state.time_ns, radar, rotvec, cal.translation_m.copy(), cal.time_offset_s, ekf.calibration_sigma(radar))
 
 
 def _bias_history(ekf: RadarInertialEkf, times: np.ndarray):
@@ -176,19 +224,24 @@ def radar_update(ekf: RadarInertialEkf, group: list[RadarScan], options: RioOpti
     helped, reason = False, ""
     for g in group:
         est = sensor_velocity(g.xyz_m, g.doppler_mps, options.ego, rng)
-        h, reason = _apply(ekf, est, g.mount, stats, options.ego)
+        h, reason = _apply(ekf, est, g.mount, stats, options.ego, g.radar, g.time_ns)
         helped |= h
     return helped, reason
 
 
 def _imu_still(ekf: RadarInertialEkf) -> bool:
-    """The IMU agrees the robot stands still: no rotation beyond noise, specific force of gravity alone."""
+    """The IMU agrees the robot stands still: no rotation beyond noise, specific force of gravity alone
+    (over the IMU samples of the last ``still_window_s``; the latest sample where there are too few)."""
+    still = ekf.imu_was_still()
+    if still is not None:
+        return still
     w = ekf.last_gyro_radps - ekf.state.bg
     f = ekf.last_accel_mps2 - ekf.state.ba
     return bool(np.linalg.norm(w) < 0.01 and abs(np.linalg.norm(f) - GRAVITY_MPS2) < 0.15)
 
 
-def _apply(ekf: RadarInertialEkf, est, mount, stats: Counter, ego: EgoVelocityConfig):
+def _apply(ekf: RadarInertialEkf, est, mount, stats: Counter, ego: EgoVelocityConfig, radar: str | None = None,
+           stamp_ns: int | None = None):
     """Turn one ego-velocity estimate into a filter update; returns (radar helped, reason)."""
     stats[f"ego_{est.status.value}"] += 1
     if est.status is EgoStatus.ZERO_VELOCITY:
@@ -200,16 +253,17 @@ def _apply(ekf: RadarInertialEkf, est, mount, stats: Counter, ego: EgoVelocityCo
         # the near-zero velocity measured, as uncertain as the zero-velocity threshold.
         stats["zero_velocity_vetoed_by_imu"] += 1
         est = dataclasses.replace(est, covariance=np.eye(3) * ego.zero_velocity_threshold_mps ** 2)
-        return _velocity_update(ekf, est, mount, stats), "zero_velocity_vetoed_by_imu"
+        return _velocity_update(ekf, est, mount, stats, radar, stamp_ns), "zero_velocity_vetoed_by_imu"
     ekf.end_standstill()
     if est.status is not EgoStatus.OK:
         return False, est.status.value
-    accepted = _velocity_update(ekf, est, mount, stats)
+    accepted = _velocity_update(ekf, est, mount, stats, radar, stamp_ns)
     return accepted, est.status.value if accepted else "rejected_by_gate"
 
 
-def _velocity_update(ekf: RadarInertialEkf, est, mount, stats: Counter) -> bool:
-    res = ekf.update_radar_velocity(est.velocity_mps, est.covariance, mount) if mount is not None else \
+def _velocity_update(ekf: RadarInertialEkf, est, mount, stats: Counter, radar: str | None = None,
+                     stamp_ns: int | None = None) -> bool:
+    res = ekf.update_radar_velocity(est.velocity_mps, est.covariance, mount, radar, stamp_ns) if mount is not None else \
         ekf.update_body_velocity(est.velocity_mps, est.covariance)
     stats["radar_updates" if res.accepted else "radar_rejected_by_gate"] += 1
     if res.accepted:

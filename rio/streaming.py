@@ -26,7 +26,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .ekf import RadarInertialEkf
-from .odometry import RadarScan, RioOptions, radar_update
+from .odometry import RadarScan, RioOptions, add_calibration_states, radar_update
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
@@ -166,6 +166,9 @@ class StreamingRio:
             if scan.time_ns < self.ekf.state.time_ns:
                 self.stats["scans_late"] += 1
                 continue
+            if (self.options.calibrate_extrinsics or self.options.calibrate_time_offset) \
+                    and scan.radar not in self.ekf.calibration:
+                add_calibration_states(self.ekf, [scan], self.options)  # each radar's states from its first scan
             self._propagate_to(int(np.searchsorted(self._imu_t, scan.time_ns, side="left")), chunks)
             self.ekf.propagate(scan.time_ns)
             helped, _ = radar_update(self.ekf, [scan], self.options, self._rng, self.stats)

@@ -113,3 +113,22 @@ def test_the_same_drive_as_a_ros2_bag_imports_the_same(imported, tmp_path, stora
         for key in ("time_ns", "scan", "xyz_m", "doppler_mps"):
             np.testing.assert_array_equal(da[key], db[key])
         np.testing.assert_array_equal(a.triggers(), b.triggers())
+
+
+def test_standstill_speed_below_a_centimetre_per_second_at_both_ends(imported):
+    """The rig stands still for the first seconds and again once set down for the last half second: the
+    odometry's speed there stays below 0.01 m/s (zero-velocity updates to the IMU's noise once the radar and
+    the IMU's mean rate and specific force agree it stands; 0.02 m/s before left it crawling to zero)."""
+    with Recording(imported) as rec:
+        imu = imu_from_recording(rec)
+        scans = scans_from_recording(rec)
+    res = run_rio(imu, scans, RioOptions(static_init_s=1.0))
+    t = (res.trajectory.time_ns - imu.time_ns[0]) * 1e-9
+    speed = np.linalg.norm(res.trajectory.velocity_mps, axis=1)
+    start, end = t < 4.0, t > t[-1] - 0.4
+    assert start.sum() > 250 and end.sum() > 35
+    assert speed[start].max() < 0.01, f"{speed[start].max():.4f} m/s at the start"
+    assert speed[end].max() < 0.01, f"{speed[end].max():.4f} m/s at the end"
+    # and the radar's verdict agrees these are standstills
+    zv = [s for tt, _, s in res.scan_status if (tt - imu.time_ns[0]) * 1e-9 > t[-1] - 0.4]
+    assert zv and all(s == EgoStatus.ZERO_VELOCITY.value for s in zv)

@@ -55,6 +55,9 @@ def register(sub) -> None:
                         "counted as frames_thinned); 1: every frame, and on a machine short "
                         "of CPU the map falls further behind, up to its 10 s bound, where it drops the oldest")
     s.add_argument("--rio-radars", help="radars the odometry uses (comma-separated; default all)")
+    s.add_argument("--rio-calibrate", action="store_true",
+                   help="the odometry estimates every radar's mount and time offset online (in health and the "
+                        "trajectory's /calibration)")
     opt.view_option(s)
     s.set_defaults(func=cmd_run)
 
@@ -126,7 +129,8 @@ def record_setup(args):
     return Setup.for_devices(args.config, links, args.imu_port, opt.named_paths(args.radar_imu, "--radar-imu"),
                              opt.can_config(args), device_options, split_bytes=opt.size_bytes(args.split_size),
                              split_s=args.split_time, min_free_bytes=opt.size_bytes(args.min_free, "--min-free"),
-                             health_endpoint=opt.bus_endpoint(args.health_endpoint))
+                             health_endpoint=opt.bus_endpoint(args.health_endpoint), ptp4l_socket=getattr(args, "ptp4l", None),
+                             phc2sys_log=getattr(args, "phc2sys_log", None))
 
 
 def _record(setup, out: Path, duration_s: float | None, extra_paths=(), **kwargs) -> int:
@@ -195,7 +199,8 @@ def run_workers(setup, args, out_dir: Path, stamp: str):
         raise SarbotError(f"--map-max-thinning {max_thinning}: must be 1, 2, 4, 8, ... (1: image every frame)")
     return add_pipeline_workers(setup, out_dir, stamp, config, args.max_speed, map_radars,
                                 opt.radar_names(args.rio_radars, "--rio-radars", names), presum,
-                                opt.view_address(args.view), args.map_threads, max_thinning)
+                                opt.view_address(args.view), args.map_threads, max_thinning,
+                                getattr(args, "rio_calibrate", False))
 
 
 def cmd_run(args) -> int:

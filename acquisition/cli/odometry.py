@@ -1,4 +1,6 @@
-"""``sarbot rio``: radar-inertial odometry of a recording into a trajectory (see docs/formats/trajectory.md)."""
+"""``sarbot rio``: radar-inertial odometry of a recording into a trajectory (see docs/formats/trajectory.md);
+``sarbot calibrate``: every radar's mount and time offset from a calibration drive, into a rig file (see
+docs/config/rig.md)."""
 
 from __future__ import annotations
 
@@ -29,7 +31,25 @@ def register(sub) -> None:
     s.add_argument("--velocity-floor", type=float, default=0.05,
                    help="m/s added to every radar velocity's uncertainty: timing jitter, Doppler quantisation, "
                         "motion within a frame (default 0.05; 0.1 for a hand-held rig)")
+    s.add_argument("--calibrate", action="store_true",
+                   help="estimate every radar's mount and time offset online; the estimates and their standard "
+                        "deviations go into the trajectory file's /calibration")
     s.set_defaults(func=cmd_rio)
+
+    c = sub.add_parser("calibrate", help="every radar's mount and time offset from a calibration drive, into a rig file",
+                       epilog="example: sarbot calibrate drive.h5 -o rig.toml   (drive with turns both ways, starts "
+                              "and stops; axes the drive did not show keep the rig's values, and it says why)")
+    c.add_argument("recording")
+    c.add_argument("-o", "--output", required=True, help="rig file to write (.toml)")
+    c.add_argument("--rig", help="rig file to start from (default: the mounts the recording holds)")
+    c.add_argument("--no-time-offset", action="store_true", help="leave the radars' time offsets as they are")
+    c.add_argument("--iterations", type=int, default=1,
+                   help="run the filter again from its last estimate (default 1: once)")
+    c.add_argument("--static-init", type=float, default=1.0, help="seconds of standstill at the start (default 1)")
+    c.add_argument("--velocity-floor", type=float, default=0.05,
+                   help="m/s added to every radar velocity's uncertainty (default 0.05)")
+    c.add_argument("--force", action="store_true", help="overwrite the output file")
+    c.set_defaults(func=cmd_calibrate)
 
 
 def check_rio_options(args) -> None:
@@ -75,8 +95,11 @@ def cmd_rio(args) -> int:
         first = truth.sample(imu.time_ns[:1])
         start = {"initial_position_m": tuple(first.position_m[0]),
                  "initial_yaw_rad": float(first.rotation.as_euler("ZYX")[0, 0])}
+    if args.calibrate and args.joint:
+        raise SarbotError("--calibrate needs each radar's own updates: leave out --joint")
     options = RioOptions(ekf=EkfConfig(planar=args.planar, radar_velocity_sigma_floor_mps=args.velocity_floor),
-                         joint_radars=args.joint, static_init_s=args.static_init, **start)
+                         joint_radars=args.joint, static_init_s=args.static_init, calibrate_extrinsics=args.calibrate,
+                         calibrate_time_offset=args.calibrate, **start)
     try:
         result = run_rio(imu, scans, options, progress=Progress("rio"))
     except FloatingPointError as exc:
@@ -87,9 +110,45 @@ def cmd_rio(args) -> int:
     if args.tum:
         opt.write_output(Path(args.tum), lambda p: write_tum(p, result.trajectory), "--tum ")
     summary = {"trajectory": str(path), "poses": int(result.trajectory.time_ns.size), **result.stats}
+    if result.calibration:
+        from imaging.io.trajectory_file import write_calibration
+        from rio.calibration import calibration_for_file
+
+        radars, history = calibration_for_file(result)
+        write_calibration(path, radars, history)
+        summary["calibration"] = radars
     if truth is not None:
         from rio.evaluation import drift_report
 
         summary["against_truth"] = drift_report(result.trajectory, truth)
     print(strict_json.dumps(summary, indent=2))
+    return EXIT_OK
+
+
+def cmd_calibrate(args) -> int:
+    from pathlib import Path
+
+    from imaging.core.rig import load_rig
+    from rio.calibration import calibrate_recording
+    from rio.ekf import EkfConfig
+    from rio.odometry import RioOptions
+
+    out = Path(args.output)
+    if out.exists() and not args.force:
+        raise SarbotError(f"{out}: exists already (--force to overwrite)")
+    if args.iterations < 1:
+        raise SarbotError(f"--iterations must be 1 or more, got {args.iterations}")
+    rig = load_rig(args.rig) if args.rig else None
+    options = RioOptions(ekf=EkfConfig(radar_velocity_sigma_floor_mps=args.velocity_floor), static_init_s=args.static_init)
+    try:
+        result = calibrate_recording(args.recording, out, rig, options, time_offset=not args.no_time_offset,
+                                     iterations=args.iterations)
+    except FloatingPointError as exc:
+        print(f"sarbot: calibration failed: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    except KeyError as exc:
+        raise SarbotError(f"{args.recording}: radar {exc} is not in the rig {args.rig}") from None
+    print(result.report())
+    taken = sum(int(r.accepted.sum()) for r in result.radars.values())
+    print(f"wrote {out}: {taken} of {7 * len(result.radars)} axes refined, the others as the rig had them")
     return EXIT_OK

@@ -157,6 +157,11 @@ def acquisition_options(s: argparse.ArgumentParser) -> None:
     s.add_argument("--split-time", type=float, help="start a new file after this many seconds")
     s.add_argument("--min-free", default="64M", help="stop recording cleanly when less disk space than this is left (default 64M)")
     s.add_argument("--health-endpoint", help="ZeroMQ endpoint to publish health on (tcp://HOST:PORT or ipc://PATH; default: loopback TCP on a port the system picks at bind, logged)")
+    s.add_argument("--ptp4l", metavar="SOCKET", nargs="?", const="/var/run/ptp4l",
+                   help="watch the host's linuxptp: ptp4l's port state, offset and path delay (through pmc on this "
+                        "management socket, default /var/run/ptp4l) into health, /ptp and /events")
+    s.add_argument("--phc2sys-log", metavar="FILE",
+                   help="with --ptp4l: a file phc2sys's -m output goes to; its offset joins health and /ptp")
 
 
 #: The device-control options of ``acquisition_options``, as the wire formats name them (``control_options``).

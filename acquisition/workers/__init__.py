@@ -44,6 +44,10 @@ class Worker:
         """What the worker counts for health (e.g. scans it had to leave out); published every second."""
         return {}
 
+    def calibration(self) -> dict[str, dict]:
+        """What the worker has calibrated, for health (``WorkerState.calibration``); published every second."""
+        return {}
+
     def handle(self, message: BusMessage, live: bool) -> None:
         """One message. ``live`` False while draining: nothing may be dropped then."""
 
@@ -134,7 +138,7 @@ def worker_process(spec: WorkerSpec, driver_endpoints: list[str], stop, frame_en
 
     def state(warm: bool = True) -> None:
         counters = {**worker.counters(), "bus_lost": sub.missed}
-        pub.send(WorkerState(spec.role, warm, warm_up_s[0], counters, time.time_ns()))
+        pub.send(WorkerState(spec.role, warm, warm_up_s[0], counters, worker.calibration(), time.time_ns()))
 
     try:
         state(warm=False)

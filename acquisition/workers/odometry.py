@@ -45,6 +45,9 @@ class OdometryWorkerConfig:
     max_thinning: int = 8
     radar_silence_s: float = 2.0
     publish_points: bool = False  # each scan's detections on points/<radar> (for the live view)
+    #: Estimate every radar's mount and time offset online (rio.ekf's calibration states): in health every
+    #: second and in the trajectory file's /calibration at the end.
+    calibrate: bool = False
 
 
 class OdometryWorker(Worker):
@@ -66,7 +69,9 @@ class OdometryWorker(Worker):
         self.half_frame_ns = {name: r.waveform.frame_duration_ns // 2 for name, r in self.radars.items()}
         self.every = {name: max(1, int(round(1.0 / (r.waveform.frame_interval_s * config.scan_rate_hz))))
                       for name, r in self.radars.items()}
-        self.rio = StreamingRio(RioOptions(), imu_rate_hz=rig.imu.rate_hz)
+        options = RioOptions(calibrate_extrinsics=config.calibrate, calibrate_time_offset=config.calibrate,
+                             calibration_priors={n: r.calibration for n, r in self.radars.items() if r.calibration})
+        self.rio = StreamingRio(options, imu_rate_hz=rig.imu.rate_hz)
         self.pc_config = PointCloudConfig()
         self.trajectory = None  # a TrajectoryWriter once the first poses come: poses go to disk, not memory
         self.poses_written = 0
@@ -192,6 +197,13 @@ class OdometryWorker(Worker):
         counted = {k: int(self.rio.stats[k]) for k in ("scans_thinned_behind", "scans_late") if k in self.rio.stats}
         return {**counted, "lag_ms": self.lag_ms}
 
+    def calibration(self) -> dict[str, dict]:
+        if self.rio.ekf is None:
+            return {}
+        return {name: {"mount_translation_m": e.mount.translation_m.tolist(),
+                       "mount_rotation_xyzw": e.mount.rotation_xyzw.tolist(), "time_offset_s": float(e.time_offset_s),
+                       "sigma": e.sigma.tolist()} for name, e in self.rio.ekf.calibration_estimates().items()}
+
     def finish(self) -> None:
         self._publish(self.rio.finish())
         self.pub.send(PoseEnd(time.time_ns()))
@@ -200,4 +212,9 @@ class OdometryWorker(Worker):
         if self.trajectory is None:
             return
         self.trajectory.close()
+        calibration = self.calibration()
+        if calibration:
+            from imaging.io.trajectory_file import write_calibration
+
+            write_calibration(self.config.trajectory_path, calibration)
         log.info("RIO: %d poses, %s; wrote %s", self.poses_written, dict(self.rio.stats), self.config.trajectory_path)

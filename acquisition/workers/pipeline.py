@@ -37,6 +37,7 @@ class PipelineOptions:
     view: tuple[str, int] | None = None
     map_threads: int = 1
     map_max_thinning: int = MAX_THINNING
+    rio_calibrate: bool = False  # the odometry estimates every radar's mount and time offset online
 
 
 def trajectory_path(run: WorkerRun) -> Path:
@@ -51,7 +52,7 @@ def odometry_workers(setup, run: WorkerRun) -> list[WorkerSpec]:
     # The map waits for the odometry's poses: the odometry is the upstream worker (niced less).
     options = run.options
     config = OdometryWorkerConfig(setup.rig, options.rio_radars, str(trajectory_path(run)),
-                                  publish_points=options.view is not None)
+                                  publish_points=options.view is not None, calibrate=options.rio_calibrate)
     return [WorkerSpec("rio", OdometryWorker, config, upstream=True)]
 
 
@@ -111,7 +112,7 @@ def check_pipeline_setup(setup, map_radars: list[str], imu_aided: bool) -> None:
 def add_pipeline_workers(setup, out_dir: Path, stamp: str, config, max_speed_mps: float = 0.5,
                          map_radars: list[str] | None = None, rio_radars: list[str] | None = None,
                          presum: int | None = None, view: tuple[str, int] | None = None, map_threads: int = 1,
-                         map_max_thinning: int = MAX_THINNING):
+                         map_max_thinning: int = MAX_THINNING, rio_calibrate: bool = False):
     """Give ``setup`` (``acquisition.daemon.Setup``) the workers of every registered factory: the odometry,
     the strip map, the live view if asked, and any registered besides (``registry.register``).
 
@@ -125,7 +126,7 @@ def add_pipeline_workers(setup, out_dir: Path, stamp: str, config, max_speed_mps
     map_radars = map_radars or names
     check_pipeline_setup(setup, map_radars, config.refocus_imu_aided)
     config = resolve_map_config(setup, config, map_radars, max_speed_mps, presum)
-    options = PipelineOptions(config, map_radars, rio_radars or names, view, map_threads, map_max_thinning)
+    options = PipelineOptions(config, map_radars, rio_radars or names, view, map_threads, map_max_thinning, rio_calibrate)
     out_dir.mkdir(parents=True, exist_ok=True)
     run = WorkerRun(out_dir, stamp, options)
     setup.workers = registry.assemble(setup, run)

@@ -109,6 +109,29 @@ RADAR_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]{0,63}")
 
 
 @dataclasses.dataclass(frozen=True)
+class CalibrationPrior:
+    """What is known of a radar's mount and clock beyond its nominal values (rig: ``[radar.NAME.calibration]``,
+    written by ``sarbot calibrate``): the time offset (radar stamp minus IMU time, s) and the standard
+    deviations of the mount's rotation (about the sensor's x, y, z, degrees), lever arm (body x, y, z, m) and
+    time offset. The odometry's online calibration starts from them; None: its defaults."""
+
+    rotation_sigma_deg: tuple[float, float, float] | None = None
+    translation_sigma_m: tuple[float, float, float] | None = None
+    time_offset_s: float = 0.0
+    time_offset_sigma_s: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("rotation_sigma_deg", "translation_sigma_m"):
+            value = getattr(self, name)
+            if value is not None:
+                value = tuple(float(x) for x in as_vector(value, 3, name))
+                require(all(x >= 0 for x in value), name, "must not be negative")
+                object.__setattr__(self, name, value)
+        require(self.time_offset_sigma_s is None or self.time_offset_sigma_s >= 0, "time_offset_sigma_s",
+                "must not be negative")
+
+
+@dataclasses.dataclass(frozen=True)
 class RadarConfig:
     """One radar of the rig: its name, waveform, array and mount."""
 
@@ -119,6 +142,8 @@ class RadarConfig:
     #: An IMU fixed to the radar itself (its axes the radar's: x along the boresight), for the vibration
     #: the robot's IMU cannot see; None where the rig declares none.
     imu: "ImuConfig | None" = None
+    #: The mount's and clock's uncertainty and time offset, where a calibration gave them.
+    calibration: CalibrationPrior | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not RADAR_NAME.fullmatch(self.name):
@@ -240,13 +265,18 @@ def rig_from_dict(table: dict[str, Any], source: str | None = None) -> Rig:
                     if key in radar_imu:
                         raise ConfigError(f"{prefix}.imu.{key}", "a radar's IMU sits on the radar's mount, with the radar's axes")
                 radar_imu = from_dict(ImuConfig, radar_imu, prefix=f"{prefix}.imu")
+            calibration = rt.pop("calibration", None)
+            if calibration is not None:
+                if not isinstance(calibration, dict):
+                    raise ConfigError(f"{prefix}.calibration", "expected a table")
+                calibration = from_dict(CalibrationPrior, calibration, prefix=f"{prefix}.calibration")
             if rt:
                 raise ConfigError(f"{prefix}.{sorted(rt)[0]}", "unknown setting")
             try:
                 array = AntennaArray(np.asarray(tx, float), np.asarray(rx, float))
             except (ConfigError, ValueError) as exc:
                 raise ConfigError(f"{prefix}.array", str(exc)) from None
-            radars.append(RadarConfig(name, wf, array, mount, radar_imu))
+            radars.append(RadarConfig(name, wf, array, mount, radar_imu, calibration))
         imu_mount = _mount_from_table(imu_table, "imu")
         imu = from_dict(ImuConfig, imu_table, prefix="imu")
         imu = dataclasses.replace(imu, mount=imu_mount)

@@ -74,6 +74,10 @@ class RecordingWriter:
         ``int16`` stores [F, chirps, rx, samples, 2] (I, Q) as received from the wire.
     root_attrs : dict, optional
         Extra attributes of ``/`` (set before SWMR starts, which forbids new attributes).
+    clock_state : bool
+        Also hold the clocks' state as the recorder sees it: ``/radar/NAME/ptp_locked`` [F] uint8 (the
+        frame's clock said it was PTP-locked) and ``/ptp/`` (the host's linuxptp state over time: time_ns,
+        port_state, offset_from_master_ns, mean_path_delay_ns, phc2sys_offset_ns; NaN where unknown).
     """
 
     def __init__(
@@ -87,6 +91,7 @@ class RecordingWriter:
         overwrite: bool = False,
         detections: Iterable[str] = (),
         root_attrs: dict | None = None,
+        clock_state: bool = False,
     ):
         self.path = Path(path)
         if self.path.exists() and not overwrite:
@@ -123,6 +128,8 @@ class RecordingWriter:
             for name, dtype in (("frame_time_ns", np.int64), ("frame_counter", np.uint32),
                                 ("host_time_ns", np.int64), ("valid", np.uint8)):
                 g.create_dataset(name, (0,), dtype, maxshape=(None,), chunks=(1024,), fletcher32=True)
+            if clock_state:
+                g.create_dataset("ptp_locked", (0,), np.uint8, maxshape=(None,), chunks=(1024,), fletcher32=True)
             if r.imu is not None:
                 _create_imu_group(g.create_group("imu"), r.imu)
             if r.name in set(detections):
@@ -150,6 +157,12 @@ class RecordingWriter:
             for name, tail in (("time_ns", ()), ("position_m", (3,)), ("orientation_xyzw", (4,)), ("velocity_mps", (3,))):
                 g.create_dataset(name, (0, *tail), np.int64 if name == "time_ns" else np.float64,
                                  maxshape=(None, *tail), chunks=(4096, *tail), fletcher32=True)
+        if clock_state:
+            g = f.create_group("ptp")
+            g.create_dataset("time_ns", (0,), np.int64, maxshape=(None,), chunks=(256,), fletcher32=True)
+            g.create_dataset("port_state", (0,), _str_dtype(), maxshape=(None,), chunks=(256,))
+            for name in ("offset_from_master_ns", "mean_path_delay_ns", "phc2sys_offset_ns"):
+                g.create_dataset(name, (0,), np.float64, maxshape=(None,), chunks=(256,), fletcher32=True)
         g = f.create_group("events")
         g.create_dataset("time_ns", (0,), np.int64, maxshape=(None,), chunks=(256,), fletcher32=True)
         for name in ("source", "level", "message"):
@@ -235,6 +248,20 @@ class RecordingWriter:
         self._append(g["arbitration_id"], np.atleast_1d(arbitration_id).astype(np.uint32))
         self._append(g["dlc"], np.atleast_1d(dlc).astype(np.uint8))
         self._append(g["data"], data[:, :64])
+
+    def append_frame_clock(self, radar: str, ptp_locked) -> None:
+        """Whether each frame just appended came from a PTP-locked clock (a writer with ``clock_state``)."""
+        self._append(self._f[f"radar/{radar}/ptp_locked"], np.atleast_1d(ptp_locked).astype(np.uint8))
+
+    def append_ptp(self, time_ns: int, port_state: str, offset_from_master_ns=None, mean_path_delay_ns=None,
+                   phc2sys_offset_ns=None) -> None:
+        """One reading of the host's PTP state (a writer with ``clock_state``); None is stored as NaN."""
+        g = self._f["ptp"]
+        self._append(g["time_ns"], [int(time_ns)])
+        self._append(g["port_state"], [port_state])
+        for name, value in (("offset_from_master_ns", offset_from_master_ns), ("mean_path_delay_ns", mean_path_delay_ns),
+                            ("phc2sys_offset_ns", phc2sys_offset_ns)):
+            self._append(g[name], [np.nan if value is None else float(value)])
 
     def append_event(self, time_ns: int, source: str, level: str, message: str) -> None:
         g = self._f["events"]
@@ -401,6 +428,20 @@ class Recording:
             return {"time_ns": np.zeros(0, np.int64), "arbitration_id": np.zeros(0, np.uint32),
                     "dlc": np.zeros(0, np.uint8), "data": np.zeros((0, 64), np.uint8)}
         return {k: read(g[k]) for k in ("time_ns", "arbitration_id", "dlc", "data")}
+
+    def ptp_locked(self, name: str) -> np.ndarray | None:
+        """Per frame, whether the radar's clock said it was PTP-locked; None where the file does not say."""
+        g = self._radar_group(name)
+        return np.asarray(g["ptp_locked"][()], bool) if "ptp_locked" in g else None
+
+    def ptp(self) -> dict[str, np.ndarray] | None:
+        """/ptp (the host's linuxptp state over time) as arrays; None where the file has none."""
+        if "ptp" not in self._f:
+            return None
+        g = self._f["ptp"]
+        out = {k: g[k][()] for k in g}
+        out["port_state"] = np.array([v.decode() if isinstance(v, bytes) else v for v in out["port_state"]], dtype=object)
+        return out
 
     def events(self) -> list[tuple[int, str, str, str]]:
         """/events as (time_ns, source, level, message) rows."""

@@ -112,3 +112,35 @@ def write_tum(path: str | Path, traj: SampledTrajectory) -> Path:
             p, q = traj.position_m[i], traj.orientation_xyzw[i]
             fh.write(f"{t[i]}.{frac[i]:09d} {p[0]:.9f} {p[1]:.9f} {p[2]:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}\n")
     return path
+
+
+#: The calibration axes of /calibration/NAME's ``sigma`` (rio.calibration.AXIS_KEYS): rotation about the
+#: sensor's x, y, z (rad), lever arm along body x, y, z (m), time offset (s).
+CALIBRATION_AXES = ("roll", "pitch", "yaw", "lever_x", "lever_y", "lever_z", "time_offset")
+
+
+def write_calibration(path: str | Path, radars: dict[str, dict], history: dict[str, dict] | None = None) -> None:
+    """Add the odometry's online calibration to a trajectory file: ``/calibration/NAME`` per radar with attrs
+    mount_translation_m [3], mount_rotation_xyzw [4], time_offset_s, sigma [7] (CALIBRATION_AXES) and,
+    given ``history`` (per radar: time_ns [K], rotation_change_rad [K, 3] from the rig's mount, lever_arm_m
+    [K, 3], time_offset_s [K], sigma [K, 7]), those datasets: how the estimate converged."""
+    with h5py.File(path, "a") as f:
+        top = f.require_group("calibration")
+        top.attrs["axes"] = list(CALIBRATION_AXES)
+        for name, values in radars.items():
+            g = top.require_group(name)
+            for key in ("mount_translation_m", "mount_rotation_xyzw", "time_offset_s", "sigma"):
+                g.attrs[key] = np.asarray(values[key], float)
+            for key, array in (history or {}).get(name, {}).items():
+                if key in g:
+                    del g[key]
+                g.create_dataset(key, data=np.asarray(array))
+
+
+def read_calibration(path: str | Path) -> dict[str, dict]:
+    """``/calibration`` of a trajectory file: per radar its attrs (and no history); {} where there is none."""
+    with open_checked(Path(path), SCHEMA, SCHEMA_VERSION, "trajectory") as f:
+        if "calibration" not in f:
+            return {}
+        return {name: {k: (v.item() if np.ndim(v) == 0 else np.asarray(v)) for k, v in g.attrs.items()}
+                for name, g in f["calibration"].items()}
