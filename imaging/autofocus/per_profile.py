@@ -91,7 +91,9 @@ def per_profile_estimate(g: GroupImages, options: AutofocusOptions) -> tuple[np.
 def combined_estimate(g: GroupImages, options: AutofocusOptions) -> tuple[np.ndarray, dict, int]:
     """The "combined" method: the entropy model for the smooth part, then every group refined from it to the
     sharpest image for the rest. The model holds the smooth model (None where the entropy method kept
-    PGA's values) and the spectrum of the residual (the estimate less the smooth part)."""
+    PGA's values) and the spectrum of the residual (the estimate less the smooth part). Where the entropy
+    method keeps PGA's values (its model did not beat them), the result is "per-profile"'s: so on Gotcha
+    with a random walk (docs/results/autofocus_per_profile.json)."""
     smooth, model, it = entropy_estimate(g, options)
     delta, it_np = per_group_sharpening(g, smooth, options.per_profile_iterations)
     spectrum = residual_spectrum(g.time_s, delta - smooth)
