@@ -23,6 +23,10 @@ estimators:
              polar-format original); the phase gradient ``arg sum_s h_s[q] conj(h_s[q-1])`` is integrated,
              its linear part dropped, and the window follows the blur that is left (its -10 dB extent).
              Non-parametric: one value per group.
+``per-profile`` PGA's values refined group by group to the sharpest image (``sum |I|^4``): one free value
+             per group, what a pulse-to-pulse random walk needs (``imaging.autofocus.per_profile``).
+``combined`` the entropy model for the smooth part, then ``per-profile``'s refinement for the rest; the
+             residual's spectrum is reported in the track error's model.
 ``entropy``  minimum image entropy over a low-order model of the track error: Legendre polynomials of
              order 2 and up (orders 0 and 1 only move the image) plus sinusoids whose frequencies are free
              parameters, started from a PGA estimate. The gradient is exact and costs one product of the
@@ -44,7 +48,7 @@ pixels, a point target tens of dB.
 
 Modules, one idea each: ``subapertures`` (the group images and their entropy), ``pga``, ``track_model``
 (the minimum-entropy model), ``registry`` (the methods by name: ``METHODS``, ``register_method``),
-``estimate`` (``estimate_track_error`` and what every method shares), ``vibration`` (``fit_vibration``),
+``per_profile`` (the per-group sharpening and the combination), ``estimate`` (``estimate_track_error`` and what every method shares), ``vibration`` (``fit_vibration``),
 ``options``; the track error itself is ``imaging.core.track_error``. Another method is one estimator
 function and one ``register_method`` line (see ``registry``); it is then a choice wherever a method is
 chosen. Every public name is importable from ``imaging.autofocus``. See docs/signal-model.md.
@@ -59,6 +63,7 @@ from imaging.autofocus.estimate import (
     select_pixels,
 )
 from imaging.autofocus.options import AutofocusOptions, AutofocusResult, ProfileBlock
+from imaging.autofocus.per_profile import per_group_sharpening, residual_spectrum
 from imaging.autofocus.pga import phase_gradient_autofocus
 from imaging.autofocus.registry import METHODS, Estimator, register_method
 from imaging.autofocus.subapertures import (
@@ -79,6 +84,6 @@ __all__ = [
     "ProfileBlock", "TrackError", "VibrationFit", "assemble_group_images", "backproject_blocks",
     "corrected_block", "entropy_and_gradient", "estimate_on_group_images", "estimate_track_error",
     "evaluate_model", "fit_track_model", "fit_vibration", "group_images", "image_entropy", "minimum_entropy",
-    "nothing_to_focus_on", "phase_gradient_autofocus", "register_method", "remove_line", "resolution_m",
+    "nothing_to_focus_on", "per_group_sharpening", "phase_gradient_autofocus", "register_method", "remove_line", "residual_spectrum", "resolution_m",
     "select_pixels",
 ]

@@ -21,7 +21,9 @@ class AutofocusOptions:
     ``groups``: slow-time groups (the resolution of the estimate in time); ``max_pixels``: the whole image
     is used up to this many pixels, else ``scatterers`` patches of ``patch_px`` x ``patch_px`` around the
     strongest; ``poly_order`` and ``sinusoids``: the entropy model (the polynomial order is chosen up to
-    ``poly_order`` by the Bayesian information criterion on the PGA estimate: no more than the scene needs).
+    ``poly_order`` by the Bayesian information criterion on the PGA estimate: no more than the scene needs);
+    ``per_profile_iterations``: the per-group sharpening of the "per-profile" and "combined" methods
+    (``imaging.autofocus.per_profile``).
     """
 
     method: str = "entropy"
@@ -34,6 +36,7 @@ class AutofocusOptions:
     poly_order: int = 6
     sinusoids: int = 1
     entropy_iterations: int = 200
+    per_profile_iterations: int = 100  # the per-group sharpening of "per-profile" and "combined"
     min_contrast_db: float = 20.0  # brightest pixel over the background (noise median): below it, nothing to focus on
 
     def __post_init__(self) -> None:
@@ -45,6 +48,8 @@ class AutofocusOptions:
                 f"must be a multiple of 16 from 16 to 256, got {self.patch_px}")
         require(1 <= self.pga_iterations <= 100, "pga_iterations", f"must be 1 to 100, got {self.pga_iterations}")
         require(1 <= self.poly_order <= 8, "poly_order", f"must be 1 to 8, got {self.poly_order}")
+        require(1 <= self.per_profile_iterations <= 10000, "per_profile_iterations",
+                f"must be 1 to 10000, got {self.per_profile_iterations}")
         require(0 <= self.sinusoids <= 4, "sinusoids", f"must be 0 to 4, got {self.sinusoids}")
         require(math.isfinite(self.min_contrast_db), "min_contrast_db", f"must be finite, got {self.min_contrast_db}")
 

@@ -18,6 +18,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from imaging.autofocus.per_profile import combined_estimate, per_profile_estimate
 from imaging.autofocus.pga import pga_estimate
 from imaging.autofocus.track_model import entropy_estimate
 
@@ -56,3 +57,5 @@ def no_estimate(g, options) -> tuple[np.ndarray, None, int]:
 register_method("none", no_estimate)
 register_method("pga", pga_estimate)
 register_method("entropy", entropy_estimate)
+register_method("per-profile", per_profile_estimate)
+register_method("combined", combined_estimate)
