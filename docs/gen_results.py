@@ -57,6 +57,10 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
     "autofocus": ("Autofocus",
                   "Time per autofocused image against the plain backprojection, and the image quality it buys.",
                   ".venv/bin/python benchmarks/autofocus.py"),
+    "autofocus_per_profile": ("Autofocus pulse by pulse (Gotcha)",
+                              "The real Gotcha pass with a 0.3 rad/pulse random walk and an 11 rad polynomial added: "
+                              "each method's peak against the clean image and the pulse-to-pulse steps it leaves.",
+                              ".venv/bin/python benchmarks/autofocus_per_profile.py"),
     "rio": ("Radar-inertial odometry",
             "Accuracy on long simulated drives (evaluated with evo), the filter's settings against speed, and a "
             "real ROS bag.",
