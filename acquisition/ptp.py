@@ -197,40 +197,52 @@ class ReceiveDelayStats:
 
 class ReceiveDelay:
     """A radar's host receive time minus the end of its frame (its own clock): the distribution over the last
-    ``window`` frames, and a jump -- ``confirm`` frames in a row more than ``jump_ms`` from the median --
-    reported once, after which the new level is the reference."""
+    ``window`` frames, and a jump -- ``confirm`` frames in a row more than ``jump_ms`` off the line the recent
+    delays follow -- reported once, after which the new level is the reference.
+
+    A line, not a level: where the two clocks run at different rates (a replay at 0.5x, an unlocked radar
+    clock drifting) the delay grows steadily, which is a rate and no jump.
+    """
 
     def __init__(self, window: int = 200, jump_ms: float = 5.0, confirm: int = 3):
         self.window = window
         self.jump_ms = jump_ms
         self.confirm = confirm
-        self._delays: collections.deque[float] = collections.deque(maxlen=window)
-        self._outliers: list[float] = []
+        self._delays: collections.deque[tuple[float, float]] = collections.deque(maxlen=window)  # (frame end s, ms)
+        self._outliers: list[tuple[float, float]] = []
+
+    def _expected_ms(self, t_s: float) -> float:
+        t, d = np.asarray(self._delays).T
+        if np.ptp(t) <= 0:
+            return float(np.median(d))
+        slope, intercept = np.polyfit(t - t[0], d, 1)
+        return float(intercept + slope * (t_s - t[0]))
 
     def add(self, receive_ns: int, frame_end_ns: int) -> str | None:
         """Take one frame; returns the jump's message when this frame confirms one."""
         if receive_ns <= 0:
             return None  # a frame of which no datagram came has no receive time
         d = (receive_ns - frame_end_ns) * 1e-6
+        t = frame_end_ns * 1e-9
         if len(self._delays) >= 10:
-            median = float(np.median(self._delays))
-            if abs(d - median) > self.jump_ms:
-                self._outliers.append(d)
+            expected = self._expected_ms(t)
+            if abs(d - expected) > self.jump_ms:
+                self._outliers.append((t, d))
                 if len(self._outliers) < self.confirm:
                     return None
-                new = float(np.median(self._outliers))
+                new = float(np.median([o[1] for o in self._outliers]))
                 self._delays.clear()
                 self._delays.extend(self._outliers)
                 self._outliers = []
-                return f"receive time minus frame end jumped from {median:.1f} ms to {new:.1f} ms"
+                return f"receive time minus frame end jumped from {expected:.1f} ms to {new:.1f} ms"
         self._outliers = []
-        self._delays.append(d)
+        self._delays.append((t, d))
         return None
 
     def stats(self) -> ReceiveDelayStats | None:
         if not self._delays:
             return None
-        d = np.asarray(self._delays)
+        d = np.asarray([delay for _, delay in self._delays])
         return ReceiveDelayStats(float(np.median(d)), float(np.percentile(d, 99)), int(d.size))
 
 

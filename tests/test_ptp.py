@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 import shutil
 import subprocess
 import time
@@ -102,10 +103,26 @@ def test_receive_delay_distribution_and_jump():
         msgs.append(rd.add(int(t + delay_ms * 1e6), int(t)))
     jumps = [(k, m) for k, m in enumerate(msgs) if m]
     assert len(jumps) == 1 and jumps[0][0] == 62  # confirmed by the third frame
-    assert "jumped from 1.5 ms to 9.5 ms" in jumps[0][1]
+    before, after = map(float, re.search(r"jumped from ([-\d.]+) ms to ([-\d.]+) ms", jumps[0][1]).groups())
+    assert before == pytest.approx(1.5, abs=0.15) and after == pytest.approx(9.5, abs=0.15)
     stats = rd.stats()
     assert stats.median_ms == pytest.approx(9.5, abs=0.1) and stats.frames == 40
     assert rd.add(0, 5) is None  # a frame lost whole has no receive time
+
+
+@pytest.mark.parametrize("rate", [0.5, 1.0 + 200e-6])
+def test_clocks_at_another_rate_are_no_jump_but_a_step_on_top_is(rate):
+    """A replay at 0.5x (the delay grows 52 ms a frame) or a radar clock 200 ppm off: a steady rate, no event;
+    an 8 ms step on top of it is still one jump."""
+    rd = ReceiveDelay(window=50, jump_ms=5.0, confirm=3)
+    rng = np.random.default_rng(1)
+    frame_end = np.arange(150) * 52_000_000
+    msgs = []
+    for k, t in enumerate(frame_end):
+        host = t / rate + 1.5e6 + rng.normal(0, 0.1e6) + (8e6 if k >= 100 else 0.0)
+        msgs.append(rd.add(int(host), int(t)))
+    jumps = [k for k, m in enumerate(msgs) if m]
+    assert jumps == [102]
 
 
 def test_recording_holds_the_clock_state(tmp_path):
