@@ -198,13 +198,16 @@ class ReceiveDelayStats:
 class ReceiveDelay:
     """A radar's host receive time minus the end of its frame (its own clock): the distribution over the last
     ``window`` frames, and a jump -- ``confirm`` frames in a row more than ``jump_ms`` off the line the recent
-    delays follow -- reported once, after which the new level is the reference.
+    delays follow, and within ``jump_ms`` of each other -- reported once, after which the new level is the
+    reference.
 
     A line, not a level: where the two clocks run at different rates (a replay at 0.5x, an unlocked radar
-    clock drifting) the delay grows steadily, which is a rate and no jump.
+    clock drifting) the delay grows steadily, which is a rate and no jump. A new level held, not frames
+    off the line: a host too busy to read its sockets for a moment delivers a few frames late by different
+    amounts, which is latency (health has it) and no step of a clock.
     """
 
-    def __init__(self, window: int = 200, jump_ms: float = 5.0, confirm: int = 3):
+    def __init__(self, window: int = 200, jump_ms: float = 5.0, confirm: int = 8):
         self.window = window
         self.jump_ms = jump_ms
         self.confirm = confirm
@@ -218,6 +221,10 @@ class ReceiveDelay:
         slope, intercept = np.polyfit(t - t[0], d, 1)
         return float(intercept + slope * (t_s - t[0]))
 
+    def _outlier_level(self) -> float:
+        """The median offset from the line of the frames that left it."""
+        return float(np.median([d - self._expected_ms(t) for t, d in self._outliers]))
+
     def add(self, receive_ns: int, frame_end_ns: int) -> str | None:
         """Take one frame; returns the jump's message when this frame confirms one."""
         if receive_ns <= 0:
@@ -227,6 +234,9 @@ class ReceiveDelay:
         if len(self._delays) >= 10:
             expected = self._expected_ms(t)
             if abs(d - expected) > self.jump_ms:
+                level = d - expected
+                if self._outliers and abs(level - self._outlier_level()) > self.jump_ms:
+                    self._outliers = []  # off the line, but not at the level the ones before it were: jitter
                 self._outliers.append((t, d))
                 if len(self._outliers) < self.confirm:
                     return None

@@ -125,6 +125,20 @@ def test_clocks_at_another_rate_are_no_jump_but_a_step_on_top_is(rate):
     assert jumps == [102]
 
 
+def test_frames_late_by_different_amounts_are_latency_not_a_jump():
+    """A host too busy to read its sockets for a moment: frames 20-60 ms late for a few frames at a time,
+    then on time again. No event; a step of 8 ms held for the confirming frames still is one."""
+    rd = ReceiveDelay(window=100, jump_ms=5.0)
+    rng = np.random.default_rng(2)
+    frame_end = np.arange(300) * 52_000_000
+    msgs = []
+    for k, t in enumerate(frame_end):
+        late = rng.uniform(20, 60) if k % 40 in (10, 11, 12, 13, 14, 15) else 0.0
+        step = 8.0 if k >= 270 else 0.0
+        msgs.append(rd.add(int(t + (1.5 + rng.normal(0, 0.1) + late + step) * 1e6), int(t)))
+    assert [k for k, m in enumerate(msgs) if m] == [270 + rd.confirm - 1]
+
+
 def test_recording_holds_the_clock_state(tmp_path):
     rig = default_rig()
     path = tmp_path / "clock.h5"
