@@ -356,6 +356,14 @@ def _bp_exact(samples, f0, fstep, tx, rx, r_ref, gx, gy, gz, out):
         out[g] += acc
 
 
+# The same kernels on the calling thread alone, for callers that spread coarser work over the cores
+# themselves (FFBP's leaves): one parallel region per small call waits on every core at its end, and on a
+# machine where another process holds a core that wait is a scheduler time slice per call.
+_bp_interp_blocks_serial = numba.njit(fastmath=True, cache=True, nogil=True)(_bp_interp_blocks.py_func)
+_bp_interp_serial = numba.njit(fastmath=True, cache=True, nogil=True)(_bp_interp.py_func)
+_bp_exact_serial = numba.njit(fastmath=False, cache=True, nogil=True)(_bp_exact.py_func)
+
+
 def _guarded(data: np.ndarray) -> np.ndarray:
     """Profiles as complex64 [P, bins + 3] with zero guard bins (one before, two after).
 
@@ -414,6 +422,7 @@ def backproject(
     reference_range_m: np.ndarray | None = None,
     mode: str = "linear",
     out: np.ndarray | None = None,
+    parallel: bool = True,
 ) -> np.ndarray:
     """Backproject range profiles onto grid points.
 
@@ -430,6 +439,9 @@ def backproject(
     mode : {"nearest", "linear", "exact"}
     out : ndarray, complex128, shape grid_m.shape[:-1], optional
         Accumulate into this image (streaming use); a new one otherwise.
+    parallel : bool
+        False: run on the calling thread only (numba's threads untouched), for callers that run many such
+        calls side by side in threads of their own (``imaging.factorized_backprojection``).
 
     Returns
     -------
@@ -456,7 +468,7 @@ def backproject(
         if profiles.samples is None:
             raise ValueError("mode 'exact' needs the raw samples: range_compress(..., keep_samples=True)")
         samples = np.ascontiguousarray(profiles.samples.reshape(n_p, -1), dtype=np.complex128)
-        _bp_exact(samples, profiles.f0_hz, profiles.frequency_step_hz, tx, rx, r_ref, gx, gy, gz, flat_out)
+        (_bp_exact if parallel else _bp_exact_serial)(samples, profiles.f0_hz, profiles.frequency_step_hz, tx, rx, r_ref, gx, gy, gz, flat_out)
     else:
         k = 2.0 * math.pi * profiles.carrier_hz / SPEED_OF_LIGHT_MPS
         rows = profiles.rows
@@ -466,7 +478,10 @@ def backproject(
         if order is not None:
             gx, gy, gz = gx[order], gy[order], gz[order]
         fast = max_block_extent_m(gx, gy, gz) * k * 2.0 ** -24 <= PHASE_ROUNDING_RAD
-        kernel = _bp_interp_blocks if fast else _bp_interp
+        if parallel:
+            kernel = _bp_interp_blocks if fast else _bp_interp
+        else:
+            kernel = _bp_interp_blocks_serial if fast else _bp_interp_serial
         acc = flat_out if order is None else np.zeros(flat_out.size, np.complex128)
         # Profiles in chunks, all grid blocks per chunk: the chunk's rows stay in cache while every block
         # reads them, instead of every block streaming all profiles from memory.
