@@ -195,3 +195,34 @@ def test_out_accumulates_also_into_a_non_contiguous_view(mode):
     np.testing.assert_array_equal(big[:, 1::2], 1.0 + 2.0j)
     with pytest.raises(ValueError, match="complex128 of shape"):
         backproject(prof, tx, rx, grid, mode=mode, out=np.zeros((6, 10), np.complex64))
+
+
+@pytest.mark.parametrize("parallel", [True, False], ids=["parallel", "calling-thread"])
+@pytest.mark.parametrize("far", [0.0, 5000.0])
+@pytest.mark.parametrize("mode", ["nearest", "linear"])
+def test_shared_tx_profiles_match_numpy_reference(mode, far, parallel):
+    """Profiles in runs that share a TX (the RX channels of one chirp), as the float32 block kernel ranges
+    that TX once per run: the same image as the numpy reference, on the parallel kernels and on the
+    calling thread alone (``parallel=False``, FFBP's leaves)."""
+    prof, tx, rx, grid = grid_case((40, 70), far)
+    n_rx = 4
+    tx = np.repeat(tx[::n_rx], n_rx, axis=0)[: tx.shape[0]]  # runs of 4 profiles with one TX, the RX apart
+    assert np.array_equal(tx[1], tx[0]) and not np.array_equal(tx[n_rx], tx[0])
+    got = backproject(prof, tx, rx, grid, mode=mode, parallel=parallel)
+    want = backproject_reference(prof, tx, rx, grid, mode=mode)
+    scale = np.abs(want).max()
+    assert np.abs(got - want).max() < 2e-5 * scale
+    # the same numbers either way: the block kernel's arithmetic does not depend on the threads
+    other = backproject(prof, tx, rx, grid, mode=mode, parallel=not parallel)
+    np.testing.assert_allclose(got, other, rtol=0, atol=1e-6 * scale)
+
+
+def test_scattered_points_and_exact_mode_on_the_calling_thread():
+    """The float64 kernel and the matched filter, on the calling thread: the same as the parallel ones."""
+    prof, tx, rx, points, _ = synthetic_case(np.random.default_rng(5))
+    for mode in ("linear", "exact"):
+        a = backproject(prof, tx, rx, points, mode=mode, parallel=False)
+        b = backproject(prof, tx, rx, points, mode=mode)
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * np.abs(b).max())
+        want = backproject_reference(prof, tx, rx, points, mode=mode)
+        assert np.abs(a - want).max() < 2e-5 * np.abs(want).max()
