@@ -7,6 +7,8 @@
     python3 dev.py bench --peers [--bench-venv DIR] [--torch SPEC] [ARGS...]
                                    # sarbot beside the real torchbp (benchmarks/peers.py), built from
                                    # ../shared/bench/ into a benchmark-only environment (.bench-venv/)
+    python3 dev.py results         # docs/results.md from the figures in docs/results/*.json
+    python3 dev.py docs            # the documentation site (MkDocs, --strict) into site/
     python3 dev.py sarbot ARGS...  # any sarbot command
     python3 dev.py constraints     # pin the run-time dependencies as tested (constraints.txt)
 
@@ -151,8 +153,10 @@ def main(argv: list[str]) -> int:
     if not argv or argv[0] in {"-h", "--help"}:
         print(__doc__)
         return 0 if argv else 2
-    ensure_environment()
     command, rest = argv[0], argv[1:]
+    if command == "results":  # the standard library only: no environment needed
+        return subprocess.run([sys.executable, str(ROOT / "docs" / "gen_results.py"), *rest], cwd=ROOT).returncode
+    ensure_environment()
     if command == "test":
         cmd = [str(BIN / "python"), "-m", "pytest", *rest]
     elif command == "bench" and "--peers" in rest:
@@ -163,14 +167,16 @@ def main(argv: list[str]) -> int:
         cmd = [str(BIN / "sarbot"), "demo", *rest]
     elif command == "sarbot":
         cmd = [str(BIN / "sarbot"), *rest]
+    elif command == "docs":
+        cmd = [str(BIN / "python"), "-m", "mkdocs", "build", "--strict", "--site-dir", str(ROOT / "site"), *rest]
     elif command == "constraints":
         return subprocess.run([str(BIN / "python"), "-c", CONSTRAINTS], cwd=ROOT).returncode
     else:
-        print(f"dev.py: unknown command {command!r} (use demo, test, bench, sarbot or constraints)", file=sys.stderr)
+        print(f"dev.py: unknown command {command!r} (use demo, test, bench, results, docs, sarbot or constraints)", file=sys.stderr)
         return 2
     # The tests and benchmarks run from the project; sarbot and the demo where the caller is, so that
     # relative paths (recordings, -o) mean what the caller meant.
-    return subprocess.run(cmd, cwd=ROOT if command in ("test", "bench") else None).returncode
+    return subprocess.run(cmd, cwd=ROOT if command in ("test", "bench", "docs") else None).returncode
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""The message bus: ZeroMQ multipart ``[topic, msgpack header, raw array buffers...]`` (DESIGN.md).
+"""The message bus: ZeroMQ multipart ``[topic, msgpack header, raw array buffers...]`` (see docs/bus.md).
 
 Every header carries a per-topic sequence number, the sensor time and the host time, plus the dtype and
 shape of each array, so arrays travel without copies or pickling and every consumer can count what it
@@ -31,6 +31,11 @@ class Message:
     arrays: list[np.ndarray]
 
 
+#: A topic the recorder subscribes to and nobody publishes: a driver that sees this subscription knows the
+#: recorder listens to it (see ``BusPublisher.wait_for_subscriber``). ZeroMQ drops what a publisher sends
+#: before a subscriber's subscription has reached it, without a trace.
+RECORDER_LISTENING = "recorder/listening"
+
 #: Radar frames (0.7 MB each at the reference waveform) queued per slow subscriber on either side of a
 #: connection to a worker before ZeroMQ drops them (counted as bus loss by the worker): a worker that
 #: cannot keep up loses frames, not the machine's memory. The recorder's side keeps the default.
@@ -41,9 +46,12 @@ class BusPublisher:
     """Publishes on one endpoint; numbers messages per topic."""
 
     def __init__(self, endpoint: str = DEFAULT_ENDPOINT, context: zmq.Context | None = None, bind: bool = True,
-                 high_water_mark: int = 10_000):
+                 high_water_mark: int = 10_000, watch_subscriptions: bool = False):
+        """``watch_subscriptions``: an XPUB socket (a PUB that hears its subscribers' subscriptions), for
+        ``wait_for_subscriber``."""
         self.context = context or zmq.Context.instance()
-        self.socket = self.context.socket(zmq.PUB)
+        self.socket = self.context.socket(zmq.XPUB if watch_subscriptions else zmq.PUB)
+        self.subscriptions: set[str] = set()
         self.socket.setsockopt(zmq.SNDHWM, high_water_mark)
         self.socket.setsockopt(zmq.LINGER, 1000)
         (self.socket.bind if bind else self.socket.connect)(endpoint)
@@ -64,6 +72,24 @@ class BusPublisher:
                  *[memoryview(a).cast("B") if a.size else b"" for a in arrays]]
         self.socket.send_multipart(parts, copy=False)
         return seq
+
+    def wait_for_subscriber(self, topic: str, timeout_s: float, stop=None) -> bool:
+        """Wait until a subscriber has subscribed to ``topic`` (or ``timeout_s`` passes, or ``stop`` is set);
+        True if one has. Needs ``watch_subscriptions``. A driver waits so for the recorder
+        (``RECORDER_LISTENING``) before it publishes: its socket buffer (a radar's UDP socket, the serial
+        port) keeps what arrives meanwhile, where messages published before would be dropped unseen."""
+        deadline = time.monotonic() + timeout_s
+        while topic not in self.subscriptions:
+            left_ms = int((deadline - time.monotonic()) * 1e3)
+            if left_ms <= 0 or (stop is not None and stop.is_set()):
+                return False
+            if self.socket.poll(min(left_ms, 100), zmq.POLLIN):
+                note = self.socket.recv()
+                if note[:1] == b"\x01":
+                    self.subscriptions.add(note[1:].decode(errors="replace"))
+                elif note[:1] == b"\x00":
+                    self.subscriptions.discard(note[1:].decode(errors="replace"))
+        return True
 
     def send(self, message) -> int:
         """Publish a typed message (``acquisition.messages``); returns its sequence number."""
@@ -87,9 +113,14 @@ class BusSubscriber:
 
     def __init__(self, endpoints: str | list[str] = DEFAULT_ENDPOINT, topics: list[str] = ("",),
                  context: zmq.Context | None = None, high_water_mark: int = 10_000,
-                 high_water_marks: dict[str, int] | None = None):
+                 high_water_marks: dict[str, int] | None = None, counted_from_start: tuple[str, ...] = ()):
         """``high_water_marks``: a queue length of its own for some endpoints (messages; beyond it ZeroMQ
         drops, and the sequence gap is counted).
+
+        ``counted_from_start``: topic prefixes whose publishers this subscriber must hear from their first
+        message (the recorder's sensor data: the drivers wait for it): a first sequence number above 0 is
+        counted as that many messages missed. Others (a subscriber that joins a running bus) start counting
+        at the first message they get.
 
         Endpoints with different queue lengths get sockets of their own: ZeroMQ (since 4.2) applies a
         socket's ZMQ_RCVHWM to every connection it has, so a length set for one endpoint and another set
@@ -112,6 +143,7 @@ class BusSubscriber:
                 sock.connect(e)
             self.sockets.append(sock)
             self.poller.register(sock, zmq.POLLIN)
+        self.counted_from_start = tuple(counted_from_start)
         self._next = 0  # the socket to look at first, in turn: none starves the others
         self.stats: dict[str, TopicStats] = defaultdict(TopicStats)
         self._expected: dict[tuple[str, str], int] = {}  # (publisher, topic) -> next sequence number
@@ -161,6 +193,8 @@ class BusSubscriber:
         expected = self._expected.get(key)
         if expected is None and seq == 0 and any(t == topic for _, t in self._expected):
             st.restarts += 1  # a new publisher of a topic already heard: a restarted driver
+        if expected is None and seq > 0 and topic.startswith(self.counted_from_start):
+            expected = 0  # what it sent before this subscriber heard it is lost to it
         if expected is not None and seq > expected:
             st.gaps += 1
             st.missed += seq - expected

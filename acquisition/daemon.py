@@ -21,6 +21,7 @@ import numpy as np
 
 from drivers.can_driver import CanConfig
 from drivers.radar.link import RadarLink
+from imaging.core.errors import SarbotError
 from imaging.core.rig import Rig
 
 from .bus import BusPublisher
@@ -60,6 +61,42 @@ class Setup:
     #: Devices to bring up once the drivers listen, and down before they stop (``TiRadarControl``).
     controls: list = dataclasses.field(default_factory=list)
     control_listen_timeout_s: float = 30.0
+
+    @classmethod
+    def for_devices(cls, rig_path, links: list[RadarLink], imu_port: str | None = None,
+                    radar_imu_ports: dict[str, str] | None = None, can: CanConfig | None = None,
+                    device_options: dict[str, list[str]] | None = None, **settings) -> "Setup":
+        """The setup of ``sarbot record`` and ``run`` from plain values: the rig from ``rig_path`` with each
+        linked radar's waveform as its link says (a TI .cfg fixes what the radar sends; the rig, where it
+        sits), the devices checked against the rig, and the devices to bring up from ``device_options``
+        (option -> values, ``acquisition.devices.device_controls``). ``settings``: the other fields
+        (``split_bytes``, ``health_endpoint``, ...). SarbotError naming what is wrong.
+        """
+        from imaging.core.rig import AntennaArray, load_rig
+
+        from .devices import device_controls
+
+        radar_imu_ports = dict(radar_imu_ports or {})
+        rig = load_rig(rig_path)
+        radars = {r.name: r for r in rig.radars}
+        for link in links:
+            if link.name not in radars:
+                raise SarbotError(f"radar {link.name}: no such radar in {rig_path} (radars: {', '.join(rig.radar_names)})")
+            wf = link.waveform(radars[link.name].waveform)
+            if wf != radars[link.name].waveform:
+                radars[link.name] = dataclasses.replace(radars[link.name], waveform=wf, array=AntennaArray.uniform_tdm(wf))
+        rig = Rig(tuple(radars.values()), rig.imu)
+        for name, port in radar_imu_ports.items():
+            if name not in radars:
+                raise SarbotError(f"--radar-imu {name}={port}: no such radar in {rig_path} (radars: {', '.join(rig.radar_names)})")
+            if radars[name].imu is None:
+                raise SarbotError(f"--radar-imu {name}={port}: {rig_path} declares no IMU on radar {name}; add a "
+                                  f"[radar.{name}.imu] table with its rate_hz (its axes are the radar's)")
+        if not links and not imu_port and not radar_imu_ports and can is None:
+            raise SarbotError("nothing to record: give --radar NAME=[HOST:]PORT, --dca1000 NAME=PORT:CFG, --imu-port DEVICE, "
+                              "--radar-imu NAME=DEVICE and/or --can")
+        return cls(rig, list(links), imu_port, can, radar_imu_ports=radar_imu_ports,
+                   controls=device_controls(links, device_options or {}), **settings)
 
 
 def process_specs(setup: Setup, stop) -> list[ProcessSpec]:
@@ -120,6 +157,8 @@ class HealthMonitor:
             clock=ClockState(dict(rec.ptp_locked), bool(rec.triggers_seen), rec.imu_drift_ppm),
             workers={role: rec.worker_states.get(role) or WorkerState(role, False, 0.0, {}) for role in self.worker_roles},
             sensors_idle_s=sensors_idle_s,
+            conditions=dict(rec.conditions),
+            imu_samples_lost=rec.imu_samples_lost,
             time_ns=time.time_ns(),
         )
         self._last = (now, dict(rec.frames), rec.imu_samples)

@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import logging
 import queue
+import re
 import threading
 import time
 from pathlib import Path
 
-from imaging.core.errors import HardwareError
+from imaging.core.errors import HardwareError, SarbotError
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
@@ -27,6 +28,32 @@ def udp_port_listening(port: int) -> bool | None:
         if any(int(line.split()[1].rsplit(":", 1)[1], 16) == port for line in lines if len(line.split()) > 1):
             return True
     return False if readable else None
+
+
+def device_controls(links, given: dict[str, list[str]]) -> list:
+    """The devices to bring up for ``links`` (``RadarLink``): ``given`` maps each device-control option
+    (``--radar-cli``) to the values given, each for one radar (its name first: ``NAME=...`` or
+    ``NAME,...``). The radar's wire format reads them (``WireFormat.control_options``) and says what to
+    drive (``WireFormat.controls``); nothing here knows a format. SarbotError naming the option otherwise."""
+    from drivers.radar import registry
+
+    by_name = {link.name: link for link in links}
+    settings: dict[str, dict] = {}
+    for option, items in given.items():
+        for item in items:
+            name = re.split("[=,]", item, maxsplit=1)[0]
+            link = by_name.get(name)
+            if link is None or option not in link.format.control_options:
+                formats = registry.taking_control_option(option)
+                taking = [n for n, lk in by_name.items() if option in lk.format.control_options]
+                raise SarbotError(f"{option} {name}: not a {' or '.join(formats)} radar of this recording (give it "
+                                  f"with --radar {name}=PORT,format={formats[0] if formats else 'FORMAT'},..."
+                                  f"{'; ' + ' or '.join(formats) + ' radars: ' + ', '.join(taking) if taking else ''})")
+            try:
+                settings.setdefault(name, {}).update(link.format.control_options[option](item))
+            except ValueError as exc:
+                raise SarbotError(f"{option} {item!r}: {exc}") from None
+    return [control for name, values in settings.items() for control in by_name[name].format.controls(by_name[name], values)]
 
 
 class DeviceBringUp:

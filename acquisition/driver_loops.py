@@ -20,7 +20,7 @@ from drivers.radar.stream import RadarStream, trouble
 from drivers.radar.udp import UdpReceiver
 from imaging.core.waveform import Waveform
 
-from .bus import FRAME_QUEUE, BusPublisher, BusSubscriber
+from .bus import FRAME_QUEUE, RECORDER_LISTENING, BusPublisher, BusSubscriber
 from .messages import CanBatch, Event, ImuBatch, RadarFrameMessage, RadarImuBatch, Trigger
 from .processes import become_child
 
@@ -49,6 +49,8 @@ def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pu
     changes = CounterChanges(counted())
     last_report = time.monotonic()
     kernel_drops = 0
+    if getattr(receiver, "rcvbuf_short", None):  # said once; health repeats it
+        pub.send(Event(time.time_ns(), f"radar.{radar}", "warning", receiver.rcvbuf_short, condition="receive_buffer"))
 
     def report(now_ns: int) -> None:
         if text := changes.since_last(counted()):
@@ -103,6 +105,10 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
 
     With ``radar``, the IMU is the one on that radar's own mount: its batches go out as ``RadarImuBatch``,
     and it does not publish the trigger (its SyncIn marks the same trigger as the robot's IMU).
+
+    With no radar to take the trigger's time from (an IMU-only run), the samples are timed on the host clock
+    (``ImuDriver.use_host_clock``), the trigger so made is published as ``host_clock`` and an event says so:
+    held back for a trigger time that never comes, they were all lost.
     """
     import serial
 
@@ -114,6 +120,7 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
     sub = BusSubscriber(list(radar_endpoints), topics=[RadarFrameMessage.TOPIC]) \
         if radar_endpoints and trigger_time_ns is None else None
     trigger_sent = trigger_ticks is not None
+    host_clock = trigger_time_ns is None and trigger_ticks is None and not radar_endpoints
     driver = None
     waiting_since, said_missing = time.monotonic(), False
     parser_changes, last_report = CounterChanges(), time.monotonic()
@@ -144,6 +151,8 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
                     time.sleep(1.0)
                     continue
                 parser_changes = CounterChanges()  # a new parser counts from zero
+                if host_clock and not trigger_sent:
+                    driver.use_host_clock()
                 said_missing = True  # it existed: a later loss is said as such ("serial port lost")
             if sub is not None and trigger_time_ns is None:
                 msg = sub.receive(timeout_ms=0 if driver.serial.in_waiting else 20)
@@ -168,8 +177,13 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
                 if driver.trigger_estimated:
                     warn(f"no SyncIn mark {driver.syncin_grace_s:g} s after the trigger (its packet lost?): the trigger's "
                          "IMU tick is estimated from the receive times; IMU times are good to a few ms, not to a tick")
+                if driver.host_clock:
+                    warn("no radar to take the trigger's time from: IMU samples are timed on the host clock (the first "
+                         "sample's receive time, CLOCK_REALTIME + TAI-UTC), good to a few ms, not on PTP time")
                 if radar is None:
-                    pub.send(Trigger(clock.trigger_time_ns, "imu_receive_time" if driver.trigger_estimated else "imu_syncin"))
+                    source = "host_clock" if driver.host_clock else (
+                        "imu_receive_time" if driver.trigger_estimated else "imu_syncin")
+                    pub.send(Trigger(clock.trigger_time_ns, source))
                 trigger_sent = True
                 trigger_ticks = clock.trigger_ticks
                 if clock_reference is not None:
@@ -206,6 +220,22 @@ def can_driver_loop(driver: CanDriver, pub: BusPublisher, stop: threading.Event)
 
 
 # -- the processes ------------------------------------------------------------------------------------
+#: How long a driver process waits for the recorder to listen before it publishes anyway.
+RECORDER_WAIT_S = 10.0
+
+
+def publisher_heard_by_recorder(endpoint: str, role: str, stop, **kwargs) -> BusPublisher:
+    """The driver's publisher, once the recorder has subscribed to it (or after ``RECORDER_WAIT_S``).
+
+    A ZeroMQ publisher drops, unseen, what it sends before a subscriber's subscription has reached it: a radar
+    already streaming when ``record`` started lost its first frames (0-3) and nobody counted them. Waiting
+    here, the device's own buffer (the UDP socket's, already bound; the serial port's) keeps them."""
+    pub = BusPublisher(endpoint, watch_subscriptions=True, **kwargs)
+    if not pub.wait_for_subscriber(RECORDER_LISTENING, RECORDER_WAIT_S, stop) and not stop.is_set():
+        log.warning("%s: no recorder listening after %.0f s; publishing anyway", role, RECORDER_WAIT_S)
+    return pub
+
+
 def radar_process(link: RadarLink, waveform: Waveform, endpoint: str, stop) -> None:
     """A radar's driver process: listens on the link, publishes its frames on ``endpoint``."""
     become_child(link.name, realtime=True)
@@ -215,7 +245,8 @@ def radar_process(link: RadarLink, waveform: Waveform, endpoint: str, stop) -> N
     except OSError as exc:  # the port taken, the address not this machine's: say so in one line, and exit
         log.error("radar %s: %s", link.name, exc.strerror or exc)
         raise SystemExit(1) from None
-    pub = BusPublisher(endpoint, high_water_mark=FRAME_QUEUE)
+    # Bound first: what the radar sends from now on waits in the socket until the recorder listens.
+    pub = publisher_heard_by_recorder(endpoint, f"radar {link.name}", stop, high_water_mark=FRAME_QUEUE)
     log.info("radar %s: %s on %s:%d", link.name, link.wire_format, link.host, rx.address[1])
     try:
         radar_driver_loop(rx, link.name, stream, pub, stop)
@@ -228,7 +259,7 @@ def imu_process(port: str, endpoint: str, radar_endpoints: list[str], stop, cloc
                 frame_duration_ns: dict[str, int] | None = None, radar: str | None = None) -> None:
     """An IMU's driver process: the robot's, or with ``radar`` the one on that radar's mount."""
     become_child(imu_role(radar), realtime=True)
-    pub = BusPublisher(endpoint)
+    pub = publisher_heard_by_recorder(endpoint, imu_role(radar), stop)
     log.info("IMU%s on %s", "" if radar is None else f" of radar {radar}", port)
     try:
         imu_driver_loop(port, pub, stop, radar_endpoints=radar_endpoints, clock_reference=clock_reference,
@@ -239,8 +270,8 @@ def imu_process(port: str, endpoint: str, radar_endpoints: list[str], stop, cloc
 
 def can_process(config: CanConfig, endpoint: str, stop) -> None:
     become_child("can", realtime=True)
-    pub = BusPublisher(endpoint)
-    driver = CanDriver(config.open(), trigger_id=config.trigger_id)
+    driver = CanDriver(config.open(), trigger_id=config.trigger_id)  # open first: its queue keeps frames meanwhile
+    pub = publisher_heard_by_recorder(endpoint, "can", stop)
     log.info("CAN on %s %s", config.interface, config.channel or "")
     try:
         can_driver_loop(driver, pub, stop)

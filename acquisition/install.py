@@ -10,7 +10,10 @@ Under ``root`` (``/`` on the robot; a staging folder for a package or an image) 
    (the command, ``record`` or ``run``, and the robot's ``--radar``/``--imu-port``/``--can`` options), and
    keeps both when they are there already: they are the robot's, not ours;
 4. installs ``sarbot.target`` and ``sarbot-record.service`` into ``/etc/systemd/system`` with the paths
-   and the user set to these, and checks them with ``systemd-analyze verify``.
+   and the user set to these, and checks them with ``systemd-analyze verify``;
+5. stages ``/etc/sysctl.d/60-sarbot.conf``, which lets a radar socket have the 32 MB receive buffer its
+   driver asks for (``net.core.rmem_max``; without it Linux caps the buffer, a few hundred kB by default,
+   and a burst of frames overflows it). It applies at the next boot or ``sysctl --system``.
 
 It enables and starts nothing: it prints the ``systemctl`` commands that do.
 """
@@ -32,6 +35,9 @@ from imaging.core.errors import SarbotError
 log = logging.getLogger(f"sarbot.{__name__}")
 
 UNITS = ("sarbot.target", "sarbot-record.service")
+SYSCTL_DROP_IN = "/etc/sysctl.d/60-sarbot.conf"
+#: The receive buffer a radar driver asks for (drivers.radar.udp.UdpReceiver's default), 32 MB.
+RMEM_MAX_BYTES = 32 << 20
 DEFAULT_VENV = "/opt/sarbot/.venv"
 
 
@@ -183,6 +189,17 @@ def install_units(plan: InstallPlan) -> list[Path]:
     return paths
 
 
+def write_sysctl(plan: InstallPlan) -> Path:
+    """The sysctl.d drop-in that allows the radar sockets their receive buffer (ours: written every time)."""
+    path = plan.at(SYSCTL_DROP_IN)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("# sarbot: a radar driver asks for a 32 MB UDP receive buffer (a burst of frames at 55 MB/s);\n"
+                    "# Linux caps SO_RCVBUF at net.core.rmem_max. Applied at boot, or now with: sysctl --system\n"
+                    f"net.core.rmem_max = {RMEM_MAX_BYTES}\n")
+    path.chmod(0o644)
+    return path
+
+
 def verify_units(plan: InstallPlan, units: list[Path]) -> None:
     """``systemd-analyze verify`` on the installed units. For a staging root, on copies whose executable
     path points into the staging root (``verify --root`` would look for the whole of systemd's own units
@@ -216,4 +233,5 @@ def install_unit(plan: InstallPlan) -> dict[str, list[str]]:
     units = install_units(plan)
     done["units"] = [str(p) for p in units]
     verify_units(plan, units)
+    done["sysctl"] = [str(write_sysctl(plan))]
     return done

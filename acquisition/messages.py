@@ -205,13 +205,17 @@ class Trigger(HeaderMessage):
 
 @dataclasses.dataclass
 class Event(HeaderMessage):
-    """Something for /events: packet loss, checksum errors, resyncs, restarts."""
+    """Something for /events: packet loss, checksum errors, resyncs, restarts.
+
+    ``condition`` names a state that lasts (``"receive_buffer"``: a socket got less buffer than asked): health
+    then repeats the message for the rest of the run, where other events are said once."""
 
     TOPIC: ClassVar[str] = "event"
     time_ns: int
     source: str
     level: str
     message: str
+    condition: str = ""
 
 
 @dataclasses.dataclass
@@ -356,6 +360,8 @@ class Health(HeaderMessage):
     clock: ClockState
     workers: dict[str, WorkerState] = dataclasses.field(default_factory=dict)
     sensors_idle_s: float = 0.0  # since the last radar frame, IMU sample or CAN frame
+    conditions: dict[str, str] = dataclasses.field(default_factory=dict)  # lasting ones, by source: what is wrong
+    imu_samples_lost: int = 0  # across IMU driver restarts, so far
     time_ns: int = 0
 
     @property
@@ -385,6 +391,9 @@ class Health(HeaderMessage):
             parts.append(f"latency p50 {self.latency_ms.p50:.1f} ms, p99 {self.latency_ms.p99:.1f} ms")
         parts.append(f"invalid frames {sum(self.invalid_frames.values())}, wire events {self.wire_events}, "
                      f"bus lost {self.bus_lost}, restarts {self.restarts}")
+        if self.imu_samples_lost:
+            parts.append(f"IMU samples lost {self.imu_samples_lost}")
+        parts += [f"{source}: {text}" for source, text in self.conditions.items()]
         cold = [role for role, w in self.workers.items() if not w.warm]
         if self.workers:
             parts.append(f"warming up: {', '.join(cold)}" if cold else "workers warm")

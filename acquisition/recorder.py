@@ -16,11 +16,14 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
+
+from drivers.imu import NO_COUNTER
 from drivers.radar import registry
 from imaging.core.rig import Rig
 from imaging.io.recording import RecordingWriter
 
-from .bus import BusSubscriber
+from .bus import RECORDER_LISTENING, BusSubscriber
 from .messages import (
     CanBatch,
     Event,
@@ -93,8 +96,12 @@ class Recorder:
         self._handlers = {RadarFrameMessage: self._store_frame, ImuBatch: self._store_imu, CanBatch: self._store_can,
                           Trigger: self._store_trigger, Event: self._store_event, WorkerState: self._note_worker,
                           RadarImuBatch: self._store_radar_imu}
-        self.sub = BusSubscriber(endpoints, topics=[cls.TOPIC for cls in self._handlers], context=context,
-                                 high_water_marks=dict.fromkeys(frame_endpoints, RECORDER_FRAME_QUEUE))
+        # RECORDER_LISTENING last: a driver that sees it knows the subscriptions before it have arrived too.
+        # The drivers wait for it, so their sensor data is counted from its first message (none goes unseen).
+        self.sub = BusSubscriber(endpoints, topics=[*(cls.TOPIC for cls in self._handlers), RECORDER_LISTENING],
+                                 context=context, high_water_marks=dict.fromkeys(frame_endpoints, RECORDER_FRAME_QUEUE),
+                                 counted_from_start=(RadarFrameMessage.TOPIC, ImuBatch.TOPIC, RadarImuBatch.TOPIC,
+                                                     CanBatch.TOPIC, Trigger.TOPIC))
         self.flush_interval_s = flush_interval_s
         self._last_flush = time.monotonic()
         self._reported_missed: dict[str, int] = {}
@@ -112,6 +119,11 @@ class Recorder:
         self.imu_drift_ppm: float | None = None
         self.latencies_ns: list[int] = []  # datagram (kernel time stamp) to recorder, per radar frame
         self.worker_states: dict[str, WorkerState] = {}
+        self.conditions: dict[str, str] = {}  # lasting trouble a driver said (Event.condition), by source
+        # By IMU topic: the publisher of the last batch, its last sample (counter, time) and sample period.
+        self._imu_last: dict[str, tuple[str, int, int, int | None]] = {}
+        self._publisher = ""  # of the message being stored
+        self.imu_samples_lost = 0  # across driver restarts (each also written to /events)
 
     @property
     def path(self) -> Path:
@@ -156,6 +168,7 @@ class Recorder:
 
     def _store(self, msg) -> None:
         message = decode(msg)
+        self._publisher = msg.header.get("pub", "")
         try:
             self._handlers[type(message)](message)
         except OSError as exc:
@@ -172,7 +185,43 @@ class Recorder:
         self.invalid_frames[m.radar] += 0 if f.valid else 1
         self.ptp_locked[m.radar] = f.ptp_locked
 
+    def _check_imu_continuity(self, topic: str, b: ImuBatch) -> None:
+        """Samples lost where one IMU driver process ended and the next began (killed, restarted).
+
+        Within a driver's run its Xbus parser counts packet-counter gaps (its events); across a restart
+        nobody did: the first batch of a new publisher is compared with the last sample recorded, by the
+        IMU's packet counter (16 bits) and, where that is missing or wrapped, by the sample times."""
+        if not len(b):
+            return
+        last = self._imu_last.get(topic)
+        t = np.asarray(b.time_ns, np.int64)
+        counter = np.asarray(b.counter, np.int64)
+        period = int(np.median(np.diff(t))) if t.size > 1 else (last[3] if last else None)
+        self._imu_last[topic] = (self._publisher, int(counter[-1]), int(t[-1]), period)
+        if last is None or last[0] == self._publisher:
+            return
+        _, last_counter, last_t, last_period = last
+        period = period or last_period
+        gap_ns = int(t[0]) - last_t
+        by_time = round(gap_ns / period) - 1 if period else None
+        if last_counter != NO_COUNTER and counter[0] != NO_COUNTER:
+            lost = (int(counter[0]) - last_counter - 1) & 0xFFFF
+            if by_time is not None and by_time > lost + 0xFFFF // 2:  # the 16-bit counter wrapped on the way
+                lost = by_time
+        elif by_time is not None:
+            lost = by_time
+        else:
+            return
+        if lost <= 0:
+            return
+        self.imu_samples_lost += lost
+        text = (f"{topic}: {lost} sample(s) lost ({(gap_ns - (period or 0)) / 1e9:.3f} s) across a restart of its "
+                f"driver (counter {last_counter} to {int(counter[0])})")
+        log.warning("%s", text)
+        self._write_event(int(t[0]), "recorder", "error", text)
+
     def _store_imu(self, m: ImuBatch) -> None:
+        self._check_imu_continuity(m.TOPIC, m)
         self.writer.append_imu(m.time_ns, m.gyro_radps, m.accel_mps2, m.counter, m.host_time_ns)
         self.imu_samples += len(m)
         if m.clock_drift_ppm is not None:
@@ -190,6 +239,7 @@ class Recorder:
             self.radar_imu_unrecorded[m.radar] = self.radar_imu_unrecorded.get(m.radar, 0) + len(m)
             return
         b = m.batch
+        self._check_imu_continuity(RadarImuBatch.topic_of(m.radar), b)
         self.writer.append_radar_imu(m.radar, b.time_ns, b.gyro_radps, b.accel_mps2, b.counter, b.host_time_ns)
         self.radar_imu_samples[m.radar] = self.radar_imu_samples.get(m.radar, 0) + len(m)
         if b.clock_drift_ppm is not None:
@@ -211,6 +261,8 @@ class Recorder:
     def _store_event(self, m: Event) -> None:
         self.wire_events += 1
         self._write_event(m.time_ns, m.source, m.level, m.message)
+        if m.condition:
+            self.conditions[m.source] = m.message
 
     def _write_event(self, time_ns: int, source: str, level: str, message: str) -> None:
         """Into /events, and to ``on_event`` (the daemon publishes every event for viewers)."""

@@ -24,6 +24,8 @@ import time
 
 import numpy as np
 
+from imaging.core.constants import TAI_MINUS_UTC_NS
+
 from .xbus import SAMPLE_TIME_FINE_HZ, ImuPacket, XbusParser
 
 log = logging.getLogger(f"sarbot.{__name__}")
@@ -128,6 +130,7 @@ class ImuDriver:
         self.trigger_host_ns = trigger_host_ns
         self.syncin_grace_s = syncin_grace_s
         self.trigger_estimated = False
+        self.host_clock = False  # see use_host_clock
 
     def read(self) -> list[ImuSample]:
         """Whatever has arrived (waits up to the port timeout for the first byte)."""
@@ -139,6 +142,9 @@ class ImuDriver:
                 continue
             ticks = self.clock.unwrap(packet.sample_time_fine)
             self.clock.observe(ticks, host)
+            if self.host_clock and self.clock.trigger_ticks is None:
+                self.clock.trigger_ticks = ticks
+                self.clock.trigger_time_ns = host + TAI_MINUS_UTC_NS
             if packet.sync_in and self.clock.trigger_ticks is None:
                 self.clock.trigger_ticks = ticks
                 log.info("IMU: trigger seen at tick %d; %d samples before it are dropped", ticks, len(self._pending))
@@ -170,6 +176,12 @@ class ImuDriver:
         self.trigger_estimated = True
         log.warning("IMU: no SyncIn mark %.1f s after the trigger (its packet lost?): trigger tick %d estimated "
                     "from the receive times", self.syncin_grace_s, ticks)
+
+    def use_host_clock(self) -> None:
+        """Time the samples on the host clock: with no radar there is no first chirp, so no trigger time to
+        tie the IMU to. The first sample read is put at its receive time (CLOCK_REALTIME + TAI-UTC, so the
+        times stay on the PTP scale, good to the serial latency); the others follow it by their ticks."""
+        self.host_clock = True
 
     def set_trigger_time(self, trigger_time_ns: int, host_time_ns: int | None = None) -> None:
         """The PTP time of the trigger, when it becomes known after the IMU started (first radar frame), and

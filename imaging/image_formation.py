@@ -8,7 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from imaging.backprojection import backproject
+from imaging.backprojection import MODES, backproject
 from imaging.core.errors import SarbotError
 from imaging.core.geometry import antenna_track, chirp_times_ns, principal_axis
 from imaging.core.grid import Grid
@@ -19,6 +19,10 @@ from imaging.io.recording import Recording
 from imaging.range_compression import range_compress
 
 log = logging.getLogger(f"sarbot.{__name__}")
+
+#: How an image is formed: "direct" (every profile onto every pixel) or "ffbp" (fast factorized
+#: backprojection, a horizontal plane only; holds all the profiles in memory; imaging.factorized_backprojection).
+ALGORITHMS = ("direct", "ffbp")
 
 
 @dataclasses.dataclass
@@ -31,9 +35,7 @@ class ImagingOptions:
     tx: tuple[int, ...] | None = None
     rx: tuple[int, ...] | None = None
     frames_per_block: int = 8  # range compression of the next block overlaps the backprojection of this one
-    #: "direct" (every profile onto every pixel) or "ffbp" (fast factorized backprojection, a horizontal
-    #: plane only; holds all the profiles in memory; imaging.factorized_backprojection)
-    algorithm: str = "direct"
+    algorithm: str = "direct"  # one of ALGORITHMS
     #: Slow-time taper: each profile weighted by this window at its bistatic phase centre's place along the
     #: aperture (imaging.core.windows.window_at). "rectangular" (no taper) keeps the sinc's -13.3 dB side
     #: lobes; a taper lowers them and widens the main lobe by the window's width factor.
@@ -43,13 +45,14 @@ class ImagingOptions:
         from imaging.core.config import require
         from imaging.core.windows import WINDOWS
 
-        require(self.mode in ("nearest", "linear", "exact"), "mode", f"must be nearest, linear or exact, got {self.mode!r}")
+        require(self.mode in MODES, "mode", f"must be {', '.join(MODES[:-1])} or {MODES[-1]}, got {self.mode!r}")
         require(self.window in WINDOWS, "window", f"must be one of {', '.join(WINDOWS)}, got {self.window!r}")
         require(self.aperture_window in WINDOWS, "aperture_window",
                 f"must be one of {', '.join(WINDOWS)}, got {self.aperture_window!r}")
         require(1 <= self.oversample <= 1024, "oversample", f"must be 1 to 1024, got {self.oversample}")
         require(self.frames_per_block >= 1, "frames_per_block", f"must be at least 1, got {self.frames_per_block}")
-        require(self.algorithm in ("direct", "ffbp"), "algorithm", f"must be direct or ffbp, got {self.algorithm!r}")
+        require(self.algorithm in ALGORITHMS, "algorithm",
+                f"must be {', '.join(ALGORITHMS[:-1])} or {ALGORITHMS[-1]}, got {self.algorithm!r}")
 
 
 def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajectory, tx_order, options: ImagingOptions,

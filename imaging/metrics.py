@@ -1,6 +1,6 @@
 """Image quality: peak, cuts, half-power widths, side lobes, SNR, integration gain, vibration inverse.
 
-Plain functions on arrays. Widths are half-power widths at -3.0 dB (DESIGN.md). Cuts are taken along
+Plain functions on arrays. Widths are half-power widths at -3.0 dB (see docs/conventions.md). Cuts are taken along
 the radar's look direction (range) and across it (cross-range) through the peak.
 """
 
@@ -113,7 +113,7 @@ def image_snr_db(image: np.ndarray, peak_index, exclude_px: tuple[int, int]) -> 
 def fit_integration_gain(n_frames, snr_db) -> tuple[float, float]:
     """Fit SNR = g0 * N^alpha over numbers of integrated frames; returns (alpha, g0 in dB).
 
-    alpha = 1 is perfectly coherent integration, 0.5 non-coherent (DESIGN.md).
+    alpha = 1 is perfectly coherent integration, 0.5 non-coherent (see docs/signal-model.md).
     """
     n = np.log10(np.asarray(n_frames, float))
     s = np.asarray(snr_db, float) / 10.0

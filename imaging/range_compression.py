@@ -19,7 +19,7 @@ class RangeProfiles:
     range difference) ``range_start_m + i * range_step_m``. Backprojection samples a profile at the
     two-way range r of a pixel and multiplies by ``exp(-j 2 pi carrier_hz r / c)``.
 
-    ``carrier_hz`` is f0 for a profile exactly as DESIGN.md defines it; with ``centred`` compression the
+    ``carrier_hz`` is f0 for a profile exactly as docs/signal-model.md defines it; with ``centred`` compression the
     linear phase of the fast-time origin is removed and the carrier is the frequency of the middle sample
     (the lower of the two for an even count), which makes the profile vary slowly with range so that
     interpolating it is accurate (same result, exactly).

@@ -49,7 +49,7 @@ class RioOptions:
     coast_warning_s: float = 0.5
     imu_decimation: int = 1  # use every n-th IMU sample (speed against accuracy)
     seed: int = 0
-    #: Start pose in the world frame. The world frame's origin is the start pose (DESIGN.md), so the
+    #: Start pose in the world frame. The world frame's origin is the start pose (see docs/conventions.md), so the
     #: defaults are zero; a simulation whose truth starts elsewhere can start from its first true pose.
     initial_position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     initial_yaw_rad: float = 0.0

@@ -201,3 +201,36 @@ def test_rio_from_the_command_line(tmp_path):
     adc = tmp_path / "adc.h5"
     assert sarbot("simulate", "point_target", "-o", adc).returncode == 0
     assert_user_error(sarbot("rio", adc, "-o", tmp_path / "t2.h5"), "no /imu")
+
+
+def _subparser(parser, command):
+    import argparse
+
+    return next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[command]
+
+
+def test_choice_lists_are_read_from_their_sources_when_needed(monkeypatch):
+    """Autofocus methods, windows and wire formats are not written out in the command line: a method added to
+    the autofocus registry at run time (a tuple or a dict) is taken and listed by a parser built before."""
+    import imaging.autofocus
+    import imaging.core.windows
+    from acquisition.cli import build_parser
+    from drivers.radar import registry
+
+    parser = build_parser()
+    image = ["image", "rec.h5", "-o", "img.h5", "--grid", "0:1:0.1,1:2:0.1"]
+    run = ["run", "--config", "rig.toml", "-o", "out"]
+    with pytest.raises(SystemExit):
+        parser.parse_args([*image, "--autofocus", "toy"])
+    methods = imaging.autofocus.METHODS
+    for grown in ((*methods, "toy"), {**{m: None for m in methods}, "toy": None}):
+        monkeypatch.setattr(imaging.autofocus, "METHODS", grown)
+        assert parser.parse_args([*image, "--autofocus", "toy"]).autofocus == "toy"
+        assert parser.parse_args(["batch", "a.h5", "-o", "out", "--grid", "g", "--autofocus", "toy"]).autofocus == "toy"
+        assert parser.parse_args([*run, "--map-refocus", "toy"]).map_refocus == "toy"
+        assert "{" + ",".join([*methods, "toy"]) + "}" in _subparser(parser, "image").format_help()
+    monkeypatch.setattr(imaging.core.windows, "WINDOWS", (*imaging.core.windows.WINDOWS, "kaiser"))
+    args = parser.parse_args([*image, "--window", "kaiser", "--aperture-window", "kaiser"])
+    assert (args.window, args.aperture_window) == ("kaiser", "kaiser")
+    record_help = " ".join(_subparser(parser, "record").format_help().split())
+    assert all(name in record_help for name in registry.names()) and f"default {registry.DEFAULT}" in record_help

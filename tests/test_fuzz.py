@@ -20,6 +20,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from acquisition import cli
+from acquisition.cli.daemon import check_replay, record_setup, run_workers
+from acquisition.cli.options import check_duration, join_negative_values
 from imaging.core.errors import SarbotError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -53,14 +55,14 @@ def check_setup(argv: list[str], tmp_path: Path) -> tuple[int, str]:
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
         try:
-            args = cli.build_parser().parse_args(cli._join_negative_values(argv))
+            args = cli.build_parser().parse_args(join_negative_values(argv))
             if args.command in ("record", "run"):
-                setup = cli.record_setup(args)
-                cli.check_duration(args.duration)
+                setup = record_setup(args)
+                check_duration(args.duration)
                 if args.command == "run":
-                    cli.run_workers(setup, args, tmp_path, "fuzz")
+                    run_workers(setup, args, tmp_path, "fuzz")
             else:
-                cli.check_replay(args)
+                check_replay(args)
             return 0, ""
         except SystemExit as exc:
             return exc.code, err.getvalue()

@@ -192,3 +192,86 @@ def test_the_driver_loop_says_when_the_trigger_is_estimated_and_sends_samples_in
     (trig,) = [m for m in got if isinstance(m, Trigger)]
     assert trig.source == "imu_receive_time" and trig.time_ns == T_TRIGGER
     assert any(isinstance(m, Event) and "no SyncIn mark" in m.message for m in got)
+
+
+def _record_imu_only(tmp_path, emu, duration_s, on_health=None, start_after_s=2.0):
+    """`record` (the daemon, its IMU driver a real child process) with the robot's IMU and no radar; the
+    emulator starts ``start_after_s`` into the run."""
+    import threading
+
+    from acquisition.daemon import Setup, record
+    from imaging.core.rig import default_rig
+
+    setup = Setup(default_rig(), [], imu_port=emu.port, health_interval_s=0.5, flush_interval_s=0.2)
+    threading.Timer(start_after_s, emu.start).start()
+    reports = []
+
+    def health(report):
+        reports.append(report)
+        if on_health is not None:
+            on_health(report)
+
+    (path,) = record(setup, tmp_path, duration_s=duration_s, path=tmp_path / "imu_only.h5", on_health=health)
+    emu.close()
+    return path, reports
+
+
+def test_an_imu_only_recording_records_the_imu_on_the_host_clock_and_says_so(tmp_path):
+    """No radar, so no first chirp to take the trigger's time from: the samples were held back for a time
+    that never came (2,401 packets sent, none recorded, no event, exit 0). Now they are timed on the host
+    clock (+ TAI-UTC, the PTP scale) by their ticks, the trigger says host_clock and an event says so."""
+    from imaging.core.constants import TAI_MINUS_UTC_NS
+    from imaging.io.recording import Recording
+
+    n = 1200  # 3 s at 400 Hz
+    emu = XbusPty(np.zeros((n, 3)), np.tile([0.0, 0.0, 9.81], (n, 1)), rate_hz=400.0, speed=1.0, stall_timeout_s=20.0)
+    path, _ = _record_imu_only(tmp_path, emu, duration_s=7.0)
+    with Recording(path) as rec:
+        imu = rec.imu()
+        assert imu is not None
+        counters, times = imu["counter"], imu["time_ns"]
+        assert counters.size == n and counters.tolist() == list(range(n))  # all of it, nothing held back
+        np.testing.assert_array_equal(np.diff(times), 2_500_000)  # timed by the IMU's ticks
+        # On the PTP scale by the host clock: within the serial and scheduling latency of the receive times.
+        late_ms = (imu["host_time_ns"] + TAI_MINUS_UTC_NS - times) * 1e-6
+        assert np.all(late_ms > -20) and np.median(late_ms) < 50, late_ms[:5]
+        assert rec.trigger_sources() == ["host_clock"] and rec.triggers().tolist() == [times[0]]
+        assert any(e[1] == "imu" and "timed on the host clock" in e[3] for e in rec.events())
+
+
+def test_the_samples_a_killed_imu_driver_loses_are_counted_from_its_counter_and_times(tmp_path):
+    """The IMU driver killed (SIGKILL) mid-run and restarted by the supervisor: the samples lost across the
+    restart (some 0.5 s on a robot) were in no event and health said "bus lost 0". Now the recorder compares
+    the new driver's first sample with the last one recorded: an event says how many and how long, and
+    health counts them; the number is exactly the counters missing from the file."""
+    import multiprocessing as mp
+    import os
+    import signal
+
+    from imaging.io.recording import Recording
+
+    n = 4000  # 10 s at 400 Hz
+    emu = XbusPty(np.zeros((n, 3)), np.tile([0.0, 0.0, 9.81], (n, 1)), rate_hz=400.0, speed=1.0, stall_timeout_s=30.0)
+    killed = []
+
+    def kill_the_imu_driver(report):
+        if not killed and report.imu_hz > 300:
+            (proc,) = [p for p in mp.active_children() if p.name == "imu"]
+            os.kill(proc.pid, signal.SIGKILL)
+            killed.append(proc.pid)
+
+    path, reports = _record_imu_only(tmp_path, emu, duration_s=14.0, on_health=kill_the_imu_driver)
+    assert killed
+    with Recording(path) as rec:
+        counters = rec.imu()["counter"].astype(np.int64)
+        times = rec.imu()["time_ns"]
+        events = rec.events()
+    steps = np.diff(counters)
+    assert np.all(steps >= 1) and np.count_nonzero(steps > 1) == 1  # one gap, at the restart
+    (at,) = np.nonzero(steps > 1)[0]
+    missing = int(steps[at] - 1)
+    assert missing > 0 and times[at + 1] - times[at] == (missing + 1) * 2_500_000  # the same time base after it
+    assert any(e[1] == "imu" and "exited with code -9" in e[3] for e in events)
+    (gap,) = [e[3] for e in events if e[1] == "recorder" and "lost" in e[3]]
+    assert gap.startswith(f"imu: {missing} sample(s) lost ({missing * 2_500_000 / 1e9:.3f} s) across a restart of its driver")
+    assert reports[-1].imu_samples_lost == missing and f"IMU samples lost {missing}" in reports[-1].line()

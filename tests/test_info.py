@@ -107,3 +107,23 @@ def test_info_on_an_image(tmp_path):
     d = json.loads(res.stdout)
     assert d["shape"] == [y.size, x.size] and np.allclose(d["pixel_m"], [0.01, 0.02])
     assert d["attrs"]["radar"] == "left_front" and d["attrs"]["n_frames"] == 30
+
+
+def test_info_on_a_recording_with_a_damaged_chunk_is_a_one_line_error(tmp_path):
+    """A byte flipped on the disk in `valid`: the chunk's checksum fails, and `sarbot info` says which file and
+    dataset in one line (exit 2), not h5py's traceback."""
+    import h5py
+
+    path = tmp_path / "r.h5"
+    make_recording(path)
+    with h5py.File(path, "r") as f:
+        info = f["radar/left/valid"].id.get_chunk_info(0)
+    with open(path, "r+b") as fh:
+        fh.seek(info.byte_offset + 3)
+        byte = fh.read(1)[0]
+        fh.seek(info.byte_offset + 3)
+        fh.write(bytes([byte ^ 0x01]))
+    res = sarbot("info", str(path))
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    (line,) = res.stderr.strip().splitlines()
+    assert f"{path}: /radar/left/valid: damaged data, a chunk's checksum fails" in line

@@ -55,6 +55,9 @@ def test_install_unit_stages_user_venv_config_and_units_that_verify(tmp_path):
     service = (root / "etc/systemd/system/sarbot-record.service").read_text()
     assert "ExecStart=/opt/sarbot/.venv/bin/sarbot $SARBOT_COMMAND --config /etc/sarbot/rig.toml" in service
     assert_staged_units_verify(root, tmp_path / "verify")
+    # The sysctl drop-in that lets the radar sockets have their 32 MB receive buffer.
+    assert f"sysctl: {root}/etc/sysctl.d/60-sarbot.conf" in res.stdout
+    assert "net.core.rmem_max = 33554432\n" in (root / "etc/sysctl.d/60-sarbot.conf").read_text()
 
     # Run again (an update): the robot's own configuration is kept, the units are renewed.
     (root / "etc/sarbot/sarbot.env").write_text("SARBOT_COMMAND=record\nSARBOT_DEVICES=--imu-port /dev/ttyS1\n")
@@ -125,3 +128,19 @@ def test_the_wheel_carries_the_units_of_the_top_level_systemd_folder_and_install
         staged = (root / "etc/systemd/system" / unit).read_text()
         assert staged == (ROOT / "systemd" / unit).read_text()  # the defaults: same venv path and user
     assert_staged_units_verify(root, tmp_path / "verify")
+
+
+def test_the_sysctl_drop_in_allows_the_receive_buffer_the_radar_driver_asks_for(tmp_path):
+    """Linux caps SO_RCVBUF at net.core.rmem_max (208 kB by default): the drop-in raises it to what
+    UdpReceiver asks for, in sysctl.d's "key = value" form, readable by everyone."""
+    import inspect
+
+    from acquisition.install import InstallPlan, write_sysctl
+    from drivers.radar.udp import UdpReceiver
+
+    path = write_sysctl(InstallPlan(root=tmp_path / "robot"))
+    assert path == tmp_path / "robot/etc/sysctl.d/60-sarbot.conf"
+    settings = dict(line.split(" = ") for line in path.read_text().splitlines() if line and not line.startswith("#"))
+    asked = inspect.signature(UdpReceiver).parameters["rcvbuf_bytes"].default
+    assert settings == {"net.core.rmem_max": str(asked)} and asked == 33554432
+    assert path.stat().st_mode & 0o777 == 0o644

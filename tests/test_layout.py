@@ -3,6 +3,7 @@ the daemon, replay or the command line."""
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
 import sys
@@ -13,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from acquisition.workers import Worker, WorkerSpec
 
 ROOT = Path(__file__).resolve().parents[1]
 CFG = ROOT.parent / "shared" / "data" / "dca1000_iwr1843_one_frame" / "xwr18xx_profile.cfg"
@@ -166,3 +169,94 @@ def test_an_unknown_wire_format_is_a_clear_error(tmp_path, capsys):
     assert code == 2
     assert "format=NOPE" in err and "'NOPE' is not a known wire format" in err and "SRF1" in err
     assert "Traceback" not in err
+
+
+# -- device control: a hook of the wire format, not a branch on its name --------------------------------------
+class ToyControl:
+    """What a made-up format's device control would bring up (``acquisition.devices.DeviceBringUp`` takes it)."""
+
+    def __init__(self, radar: str, port: int, device: str):
+        self.radar, self.data_port, self.device = radar, port, device
+
+
+def toy_cli_option(text: str) -> dict:
+    name, _, device = text.partition("=")
+    if not device.startswith("/dev/"):
+        raise ValueError("expected NAME=/dev/DEVICE")
+    return {"device": device}
+
+
+def toy_controls(link, settings: dict) -> list:
+    return [ToyControl(link.name, link.port, settings["device"])]
+
+
+def test_a_wire_format_brings_its_own_devices_up(tmp_path, monkeypatch):
+    """``--radar-cli`` on a radar of a format registered here: the format reads the option and says what to drive;
+    on a format without device control it is a clear error naming the formats that take it."""
+    from acquisition.cli import build_parser
+    from acquisition.cli.daemon import record_setup
+    from drivers.radar import registry
+    from imaging.core.errors import SarbotError
+
+    toy = registry.WireFormat("TOY2", "a test's format with a device", toy_open_stream, toy_open_encoder,
+                              control_options={"--radar-cli": toy_cli_option}, controls=toy_controls)
+    monkeypatch.setitem(registry._registered, "TOY2", toy)  # registered for this test only
+    rig = tmp_path / "rig.toml"
+    rig.write_text("[radar.toy]\n[radar.plain]\n")
+
+    def setup_of(*extra):
+        return record_setup(build_parser().parse_args(["record", "--config", str(rig), "-o", str(tmp_path),
+                                                       "--radar", "toy=50001,format=TOY2", "--radar", "plain=50002",
+                                                       *extra]))
+
+    assert setup_of().controls == []
+    (control,) = setup_of("--radar-cli", "toy=/dev/ttyTOY").controls
+    assert (control.radar, control.data_port, control.device) == ("toy", 50001, "/dev/ttyTOY")
+    with pytest.raises(SarbotError, match=r"--radar-cli 'toy=COM3': expected NAME=/dev/DEVICE"):
+        setup_of("--radar-cli", "toy=COM3")
+    with pytest.raises(SarbotError, match=r"--radar-cli plain: not a DCA1000 or TOY2 radar of this recording.*TOY2 radars: toy"):
+        setup_of("--radar-cli", "plain=/dev/ttyTOY")
+
+
+# -- a worker of one's own, started by `sarbot run` ------------------------------------------------------------
+class ToyWorker(Worker):
+    """Made up here: says, as its product, which process it ran in and how many messages it handled."""
+
+    topics = ["imu"]
+
+    def __init__(self, config, publisher):
+        self.path = Path(config)
+        self.handled = 0
+
+    def handle(self, message, live):
+        self.handled += 1
+
+    def write_products(self):
+        self.path.write_text(f"{os.getpid()} {self.handled}")
+
+
+def toy_workers(setup, run) -> list:
+    """The factory: one toy worker whose product goes beside the run's trajectory and map."""
+    return [WorkerSpec("toy", ToyWorker, str(run.out_dir / f"toy_{run.stamp}.txt"))]
+
+
+def test_a_worker_registered_here_is_started_by_sarbot_run(tmp_path):
+    """A Worker subclass and its factory, defined in this test and registered: `sarbot run` starts it in a process
+    of its own beside the odometry and the map, with no change to the pipeline or the command line; unregistered,
+    the run's own factories are left."""
+    from acquisition import cli
+    from acquisition.processes import free_port
+    from acquisition.workers import registry
+
+    registry.register("toy", toy_workers)
+    try:
+        code = cli.main(["-q", "run", "--config", str(ROOT / "imaging/rigs/default.toml"), "-o", str(tmp_path),
+                         "--radar", f"left_front={free_port(socket.SOCK_DGRAM)}", "--imu-port", str(tmp_path / "no_imu"),
+                         "--duration", "3"])
+    finally:
+        registry.unregister("toy")
+    assert code == 0
+    assert registry.names() == ["rio", "stripmap", "view"]
+    (product,) = tmp_path.glob("toy_*.txt")
+    pid, handled = map(int, product.read_text().split())
+    assert pid != os.getpid() and handled >= 0  # a process of its own, which ran to its end

@@ -31,7 +31,7 @@ def test_centring_is_the_phase_of_the_middle_sample(n, signed):
 def test_a_tone_peaks_at_its_range_with_unit_amplitude():
     n, r_two_way = 128, 3.7
     f = F0 + FSTEP * np.arange(n)
-    x = np.exp(2j * np.pi * f * r_two_way / C).astype(np.complex64)  # DESIGN.md's signal model
+    x = np.exp(2j * np.pi * f * r_two_way / C).astype(np.complex64)  # the signal model of docs/signal-model.md
     prof = range_compress(x[None], F0, FSTEP, oversample=16, window="rectangular")
     k = np.argmax(np.abs(prof.data[0]))
     assert prof.range_axis_m[k] == pytest.approx(r_two_way, abs=prof.range_step_m)

@@ -132,6 +132,7 @@ def test_a_radar_imu_the_rig_or_the_recording_lacks_is_one_line(tmp_path):
 def test_ffbp_blocks_long_against_the_aperture_are_warned_of(tmp_path, caplog):
     """A block's travel at --max-speed beyond 1/8 of the aperture: said before the run starts; within it, not."""
     from acquisition import cli
+    from acquisition.cli.daemon import record_setup, run_workers
 
     rig = tmp_path / "rig.toml"
     rig.write_text(RIG_TOML)
@@ -141,7 +142,7 @@ def test_ffbp_blocks_long_against_the_aperture_are_warned_of(tmp_path, caplog):
                                               "--imu-port", str(tmp_path / "imu"), "--map-algorithm", "ffbp",
                                               "--map-aperture", aperture, "--map-ffbp-block", "8", "--max-speed", "0.5"])
         with caplog.at_level("WARNING", logger="sarbot"):
-            _, _, config = cli.run_workers(cli.record_setup(args), args, tmp_path / "out", "t")
+            _, _, config = run_workers(record_setup(args), args, tmp_path / "out", "t")
         assert config.algorithm == "ffbp" and config.ffbp_block_frames == 8
         said = [r.getMessage() for r in caplog.records if "FFBP block" in r.getMessage()]
         assert bool(said) == warned, said
@@ -151,6 +152,7 @@ def test_ffbp_blocks_long_against_the_aperture_are_warned_of(tmp_path, caplog):
 
 def test_map_max_thinning_reaches_the_map_worker(tmp_path):
     from acquisition import cli
+    from acquisition.cli.daemon import record_setup, run_workers
     from acquisition.workers.stripmap import MAX_THINNING
 
     rig = tmp_path / "rig.toml"
@@ -158,8 +160,8 @@ def test_map_max_thinning_reaches_the_map_worker(tmp_path):
     for options, thinning in (([], MAX_THINNING), (["--map-max-thinning", "1"], 1), (["--map-max-thinning", "8"], 8)):
         args = cli.build_parser().parse_args(["run", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar",
                                               "left=50001", "--imu-port", str(tmp_path / "imu"), *options])
-        setup = cli.record_setup(args)
-        cli.run_workers(setup, args, tmp_path / "out", "t")
+        setup = record_setup(args)
+        run_workers(setup, args, tmp_path / "out", "t")
         assert [w.config.max_thinning for w in setup.workers if w.role == "stripmap"] == [thinning]
 
 

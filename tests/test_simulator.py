@@ -12,7 +12,7 @@ C = 299_792_458.0
 
 
 def model_samples(radar, trajectory, target_xyz, frame_time_ns, chirps, vibration=None):
-    """DESIGN.md's signal model evaluated literally: positions at every sample time t + n/fs."""
+    """The signal model of docs/signal-model.md evaluated literally: positions at every sample time t + n/fs."""
     wf = radar.waveform
     n = np.arange(wf.samples_per_chirp)
     out = []

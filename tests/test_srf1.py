@@ -248,3 +248,66 @@ def test_chunks_in_any_order_size_and_content_match_a_byte_by_byte_model(data):
     assert bytes(frame.data) == got.tobytes()
     assert frame.bytes_missing == size - int(have.sum())
     assert frame.valid == (bool(have.all()) and not contradicted)
+
+
+def test_a_late_duplicate_of_a_finished_frame_is_dropped_and_touches_nothing():
+    """One datagram of frame k sent again while frame k+6..k+10 is arriving (a resend or a route that held it
+    up): it was taken for a restart, so the frames being assembled came out as invalid partial rows and the
+    counters in between were passed on a second time. Now it is counted and dropped; nothing else changes."""
+    iqs = frames(24, seed=4)
+    dgs = datagrams(iqs)
+    asm = FrameAssembler(FRAME_BYTES, radar_id=7)
+    out = []
+    late = 0
+    for k, group in enumerate(dgs):
+        for j, d in enumerate(group):
+            out += asm.feed(d)
+            if j == 1 and k >= 10:  # mid-frame: a datagram of a frame 6 to 10 back comes again
+                back = 6 + k % 5
+                out += asm.feed(dgs[k - back][k % len(dgs[k - back])])
+                late += 1
+    out += asm.flush()
+    assert [f.frame_counter for f in out] == list(range(100, 124))  # each once, in order
+    assert all(f.valid for f in out)
+    for f, iq in zip(out, iqs):
+        np.testing.assert_array_equal(f.iq(SHAPE), iq)
+    c = asm.counters
+    assert c.late_datagrams == late == 14
+    assert c.resyncs == 0 and c.bytes_lost == 0 and c.frames_incomplete == 0 and c.frames_skipped == 0
+
+
+def test_the_counter_wraps_from_2_32_minus_1_to_0_without_a_resync():
+    iqs = frames(8, seed=5)
+    start = 2**32 - 4
+    dgs = [encode_frame(7, start + k, 1_000_000_000 + k * 52_000_000, iq, version=1) for k, iq in enumerate(iqs)]
+    asm = FrameAssembler(FRAME_BYTES)
+    out = []
+    for k, group in enumerate(dgs):
+        for d in group:
+            out += asm.feed(d)
+        if k == 7:  # frame 2^32 - 2 again, 6 frames back across the wrap: late, not a restart
+            out += asm.feed(dgs[1][0])
+    out += asm.flush()
+    assert [f.frame_counter for f in out] == [2**32 - 4, 2**32 - 3, 2**32 - 2, 2**32 - 1, 0, 1, 2, 3]
+    assert all(f.valid for f in out)
+    for f, iq in zip(out, iqs):
+        np.testing.assert_array_equal(f.iq(SHAPE), iq)
+    assert asm.counters.resyncs == 0 and asm.counters.late_datagrams == 1 and asm.counters.frames_skipped == 0
+
+
+def test_a_sender_restarted_a_few_frames_back_is_told_from_a_late_datagram_by_its_newer_time():
+    """A radar restarted (counter back to 0, its PTP clock going on): counters 0.. behind the next frame due
+    but with frame times newer than any seen are its new frames, not late datagrams."""
+    iqs = frames(6, seed=6)
+    asm = FrameAssembler(FRAME_BYTES)
+    out = []
+    for k in range(4):
+        for d in encode_frame(7, k, 1_000_000_000 + k * 52_000_000, iqs[k], version=1):
+            out += asm.feed(d)
+    for k in range(2):
+        for d in encode_frame(7, k, 2_000_000_000 + k * 52_000_000, iqs[4 + k], version=1):
+            out += asm.feed(d)
+    out += asm.flush()
+    assert [f.frame_counter for f in out] == [0, 1, 2, 3, 0, 1]
+    assert all(f.valid for f in out) and asm.counters.resyncs == 1 and asm.counters.late_datagrams == 0
+    np.testing.assert_array_equal(out[-1].iq(SHAPE), iqs[5])

@@ -245,7 +245,8 @@ def test_record_arms_the_board_and_starts_the_radar(tmp_path):
         assert rec.valid("left_front").all()
         np.testing.assert_array_equal(rec.adc_iq("left_front"), np.broadcast_to(frame, (n, *frame.shape)))
         messages = [m for _, src, level, m in rec.events() if src == "radar.left_front"]
-    assert any("sensorStart Done" in m and "FPGA 2.8 (record mode)" in m and "28 commands, each Done" in m for m in messages)
+    assert any("sensorStart Done" in m and "FPGA 2.8 (record mode)" in m and f"{len(commands)} commands, each Done" in m
+               for m in messages), messages
 
 
 def test_a_radar_that_refuses_its_cfg_stops_the_run_with_exit_code_4(tmp_path):
@@ -260,7 +261,7 @@ def test_a_radar_that_refuses_its_cfg_stops_the_run_with_exit_code_4(tmp_path):
         radar.close()
     assert run.returncode == 4
     error = run.stderr.strip().splitlines()[-1]
-    assert error.startswith("sarbot: error: radar CLI") and "iwr1843.cfg line 32): 'frameCfg 0 1 2 0 100 1 0' answered 'Error -1'" in error
+    assert error.startswith("sarbot: error: radar CLI") and "iwr1843_one_frame.cfg line 17): 'frameCfg 0 1 2 0 100 1 0' answered 'Error -1'" in error
     assert not board.transcript  # the board is never armed for a radar that is not configured
     (path,) = (tmp_path / "out").glob("recording_*.h5")
     with Recording(path) as rec:

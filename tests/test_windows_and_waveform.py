@@ -15,7 +15,7 @@ from imaging.core.windows import (
 
 @pytest.mark.parametrize("name", ["rectangular", "hann"])
 def test_window_width_factors_match_design(name):
-    # DESIGN.md: -3.0 dB widths of 0.88448 (rectangular) and 1.4381 (Hann) bins.
+    # docs/conventions.md: -3.0 dB widths of 0.88448 (rectangular) and 1.4381 (Hann) bins.
     assert window_width_factor(name) == pytest.approx(NOMINAL_WIDTH_FACTOR[name], rel=2e-4)
 
 
@@ -43,7 +43,7 @@ def test_reference_waveform_derived_quantities():
     assert wf.samples_per_chirp == 175  # 977 kHz * 180 us = 175.86
     assert wf.sampled_bandwidth_hz == pytest.approx(175 * wf.slope_hz_per_s / 977e3)
     assert wf.wavelength_m == pytest.approx(299_792_458 / (76e9 + 87 * wf.frequency_step_hz))
-    # DESIGN.md: bin k holds two-way range k * c * fs / (Nfft * slope)
+    # docs/signal-model.md: bin k holds two-way range k * c * fs / (Nfft * slope)
     assert wf.range_bin_m(1024) == pytest.approx(299_792_458 * 977e3 / (1024 * wf.slope_hz_per_s))
     assert wf.max_range_m == pytest.approx(0.5 * 299_792_458 * 977e3 / wf.slope_hz_per_s)
     assert wf.max_unambiguous_velocity_mps == pytest.approx(wf.wavelength_m / (4 * 4 * 200e-6))

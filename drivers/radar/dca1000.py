@@ -264,5 +264,31 @@ def _open_encoder(radar_id: int) -> Dca1000Encoder:
     return Dca1000Encoder()
 
 
+def _arm_option(text: str) -> dict:
+    """``--dca1000-arm NAME[=HOST[:PORT]][,listen=...][,lanes=...][,delay_us=...]``: sarbot arms the card."""
+    from .ti_arming import parse_arm_option
+
+    return parse_arm_option(text)[1]
+
+
+def _radar_cli_option(text: str) -> dict:
+    """``--radar-cli NAME=DEVICE``: sarbot configures and starts the radar over its CLI serial port."""
+    name, sep, device = text.partition("=")
+    if not (name and sep and device):
+        raise ValueError("expected NAME=DEVICE")
+    if not Path(device).exists():
+        raise ValueError(f"no such device {device}")
+    return {"cli_port": device}
+
+
+def _controls(link, settings: dict) -> list:
+    """One ``TiRadarControl`` driving what the options asked for: the card, the radar's CLI, or both."""
+    from .ti_arming import TiRadarControl
+
+    return [TiRadarControl(link.name, str(link.options["cfg"]), link.port, **settings)]
+
+
 WIRE_FORMAT = WireFormat("DCA1000", "TI DCA1000EVM raw ADC stream, laid out by the radar's TI .cfg", _open_stream,
-                         _open_encoder, configure=_configure, waveform=_waveform, options=("cfg",))
+                         _open_encoder, configure=_configure, waveform=_waveform, options=("cfg",),
+                         control_options={"--dca1000-arm": _arm_option, "--radar-cli": _radar_cli_option},
+                         controls=_controls)

@@ -48,3 +48,18 @@ def read_udp(path: str | Path) -> Iterator[UdpDatagram]:
         udp = pkt[14 + ihl:]
         sport, dport, ulen = struct.unpack_from(">HHH", udp)
         yield UdpDatagram(sec * 1_000_000_000 + frac * (1 if nano else 1000), sport, dport, bytes(udp[8:ulen]))
+
+
+def write_udp(path: str | Path, datagrams, src_port: int = 1024, time_step_ns: int = 10_000) -> None:
+    """A classic pcap file of UDP datagrams (``(dst_port, payload)`` pairs, in order), as a capture of the
+    DCA1000's link would hold them: Ethernet, IPv4 (192.168.33.180 to 192.168.33.30, TI's defaults; the
+    addresses are only written into the file), UDP, checksums zero. For tests and for making captures."""
+    out = [struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 65535, 1)]
+    src, dst = bytes([192, 168, 33, 180]), bytes([192, 168, 33, 30])
+    for k, (dst_port, payload) in enumerate(datagrams):
+        udp = struct.pack(">HHHH", src_port, dst_port, 8 + len(payload), 0) + payload
+        ip = struct.pack(">BBHHHBBH4s4s", 0x45, 0, 20 + len(udp), k & 0xFFFF, 0, 64, 17, 0, src, dst)
+        frame = bytes(12) + b"\x08\x00" + ip + udp
+        t = k * time_step_ns
+        out.append(struct.pack("<IIII", t // 1_000_000_000, t % 1_000_000_000 // 1000, len(frame), len(frame)) + frame)
+    Path(path).write_bytes(b"".join(out))

@@ -47,6 +47,11 @@ def no_waveform(settings: Any) -> None:
     return None
 
 
+def no_controls(link: Any, settings: dict) -> list:
+    """``controls`` of a format whose radars nobody brings up: they send once powered."""
+    return []
+
+
 @dataclasses.dataclass(frozen=True)
 class WireFormat:
     """One wire format.
@@ -69,6 +74,14 @@ class WireFormat:
         ``.cfg``); it replaces the rig's. None: the rig's waveform holds.
     options : tuple of str
         The option names ``configure`` takes (for help texts).
+    control_options : dict of str to callable(text) -> dict
+        The command-line options that bring this format's devices up (``--radar-cli``), each with the parser
+        of one value given (``NAME=DEVICE``, the radar's name first) into settings for ``controls``; a
+        ValueError saying what is wrong. Empty: the format has no device to bring up.
+    controls : callable(link, settings) -> list
+        The devices to bring up for ``link`` (a ``RadarLink``) once its driver listens, and down before it
+        stops (objects as ``acquisition.devices.DeviceBringUp`` takes them), from the settings its
+        ``control_options`` gave, merged.
     """
 
     name: str
@@ -78,6 +91,8 @@ class WireFormat:
     configure: Callable[[dict, str], Any] = no_settings
     waveform: Callable[[Any], "Waveform | None"] = no_waveform
     options: tuple[str, ...] = ()
+    control_options: dict[str, Callable[[str], dict]] = dataclasses.field(default_factory=dict, hash=False)
+    controls: Callable[[Any, dict], list] = no_controls
 
 
 _registered: dict[str, WireFormat] = {}
@@ -102,6 +117,11 @@ def get(name: str, where: str = "wire_format") -> WireFormat:
         return _registered[name]
     except KeyError:
         raise ConfigError(where, f"{name!r} is not a known wire format (known: {', '.join(names())})") from None
+
+
+def taking_control_option(option: str) -> list[str]:
+    """The formats whose devices ``option`` brings up (e.g. ``--radar-cli``: DCA1000)."""
+    return [name for name in names() if option in get(name).control_options]
 
 
 def for_replay(recorded: str | None, where: str = "wire_format") -> WireFormat:

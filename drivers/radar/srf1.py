@@ -5,7 +5,7 @@ One UDP datagram per chunk, little-endian::
     magic "SRF1" | u8 version | u8 flags (bit0: PTP locked) | u16 radar_id | u32 frame_counter
     | u64 frame_time_ns | u32 frame_bytes | u32 offset | [u32 crc32c, version 2] | payload
 
-The payload is int16 I,Q interleaved, ordered [chirp][rx][sample]; ``offset`` is the chunk's byte offset
+The payload is int16 I,Q interleaved, ordered ``[chirp][rx][sample]``; ``offset`` is the chunk's byte offset
 within the frame. Version 2 adds a CRC32C (Castagnoli) over the 28 header bytes before it and the
 payload, so a flipped bit is caught; version 1 (no CRC) stays readable. The assembler puts chunks in place
 by offset, so reordering is harmless; bytes already received are never overwritten, and a chunk that
@@ -13,6 +13,12 @@ contradicts them (other bytes, another frame time) makes the frame invalid. Dupl
 malformed and corrupt datagrams are counted; a frame touched by loss is zero-filled and marked invalid,
 never passed on as if complete; a jump in the frame counter (a restart, a forged or corrupt counter)
 larger than ``resync_jump`` resynchronises instead of filling the gap with placeholder frames.
+
+A datagram of a frame already passed on (a late duplicate or a chunk delayed on the way) is counted as
+``late_datagrams`` and dropped: it never touches a frame, and no counter is passed on twice. A sender
+that restarted with a smaller counter is told from that by its frame time (newer than any seen) or by a
+counter more than ``late_horizon`` behind. Counters are compared modulo 2^32, so the wrap from 2^32 - 1
+to 0 is the next frame, not a restart. See docs/wire/srf1.md.
 """
 
 from __future__ import annotations
@@ -133,6 +139,7 @@ class Srf1Counters:
     frames_complete: int = 0
     frames_incomplete: int = 0
     frames_skipped: int = 0  # frame counters never seen at all
+    late_datagrams: int = 0  # datagrams of frames already passed on: dropped
     bytes_lost: int = 0
     resyncs: int = 0
     crc_errors: int = 0  # version 2 datagrams whose CRC32C failed: dropped
@@ -185,18 +192,41 @@ class FrameAssembler:
         Datagrams of other radars are counted and ignored.
     """
 
-    def __init__(self, frame_bytes: int, radar_id: int | None = None, window: int = 2, resync_jump: int = 16):
-        """A counter more than ``resync_jump`` ahead, or behind everything recently emitted, is a restart (or a
-        corrupt counter): a resync, not that many placeholder frames. Up to ``resync_jump`` frames lost in
-        a row are recorded as invalid placeholders, so the file shows the loss where it happened."""
+    def __init__(self, frame_bytes: int, radar_id: int | None = None, window: int = 2, resync_jump: int = 16,
+                 late_horizon: int = 64):
+        """A counter more than ``resync_jump`` ahead is a restart (or a corrupt counter): a resync, not that
+        many placeholder frames. Up to ``resync_jump`` frames lost in a row are recorded as invalid
+        placeholders, so the file shows the loss where it happened. A counter of a frame already emitted,
+        up to ``late_horizon`` behind, is a late datagram (dropped) unless its frame time is newer than
+        every frame time seen (the sender restarted); further behind it is a restart."""
         self.frame_bytes = frame_bytes
         self.radar_id = radar_id
         self.window = window
         self.resync_jump = resync_jump
+        self.late_horizon = late_horizon
         self.counters = Srf1Counters()
+        # Keyed by the counter unwrapped (it goes on past 2^32); frames carry it modulo 2^32 again.
         self._partial: dict[int, _Partial] = {}
         self._next_emit: int | None = None
+        self._newest_time_ns: int | None = None  # the newest frame time of any datagram taken
         self._chunk = 0  # the largest payload seen: the sender's chunk size
+
+    def _unwrap(self, counter: int) -> int:
+        """The wire's u32 counter as the nearest integer to the next frame due (so 0 follows 2^32 - 1)."""
+        if self._next_emit is None:
+            return counter
+        delta = ((counter - self._next_emit + 2**31) & 0xFFFFFFFF) - 2**31
+        return self._next_emit + delta
+
+    def _is_restart(self, n: int, frame_time_ns: int) -> bool:
+        """For a counter behind the next frame due: did the sender start again (True), or is this a late
+        datagram of a frame already passed on (False)?"""
+        behind = self._next_emit - n
+        if behind > self.late_horizon:
+            return True
+        # The frames just passed on (within ``window``) take a chunk with another time as a late one too: it
+        # can no longer change them, and a sender that starts again at the counter it just sent is not likely.
+        return behind > self.window and self._newest_time_ns is not None and frame_time_ns > self._newest_time_ns
 
     def feed(self, datagram: bytes, recv_ns: int = 0) -> list[Frame]:
         c = self.counters
@@ -226,18 +256,24 @@ class FrameAssembler:
         elif header.offset + len(payload) != header.frame_bytes and len(payload) < self._chunk:
             c.truncated += 1
         self._chunk = max(self._chunk, len(payload))
-        n = header.frame_counter
+        n = self._unwrap(header.frame_counter)
         out: list[Frame] = []
         if self._next_emit is None:
             self._next_emit = n
-        elif n - self._next_emit > self.resync_jump or n < self._next_emit - 2 * self.window - 1:
+        elif n < self._next_emit and not self._is_restart(n, header.frame_time_ns):
+            # A frame already passed on: a late duplicate or a chunk held up on the way. Resynchronising on
+            # it (as before) turned the frames being assembled into invalid partial ones and wrote the
+            # counters in between a second time.
+            c.late_datagrams += 1
+            return out
+        elif n - self._next_emit > self.resync_jump or n < self._next_emit:
             # The sender restarted or jumped: flush what is pending as incomplete and start again here.
             c.resyncs += 1
             out += self._flush_all()
-            self._next_emit = n
-        if n < self._next_emit:
-            c.duplicates += 1  # a frame already emitted: late duplicate or very late chunk
-            return out
+            self._next_emit = n = header.frame_counter
+            self._newest_time_ns = None
+        if self._newest_time_ns is None or header.frame_time_ns > self._newest_time_ns:
+            self._newest_time_ns = header.frame_time_ns
         part = self._partial.get(n)
         if part is None:
             part = self._partial[n] = _Partial(header, recv_ns)
@@ -299,7 +335,7 @@ class FrameAssembler:
         if part is None:
             c.frames_skipped += 1
             c.bytes_lost += self.frame_bytes
-            return Frame(k, 0, bytearray(self.frame_bytes), False, self.frame_bytes, False, 0)
+            return Frame(k & 0xFFFFFFFF, 0, bytearray(self.frame_bytes), False, self.frame_bytes, False, 0)
         missing = self.frame_bytes - part.received
         if missing:
             c.frames_incomplete += 1
@@ -307,7 +343,7 @@ class FrameAssembler:
         elif not part.contradicted:
             c.frames_complete += 1
         valid = missing == 0 and not part.contradicted
-        return Frame(k, part.header.frame_time_ns, part.data, valid, missing, part.header.ptp_locked, part.last_recv)
+        return Frame(k & 0xFFFFFFFF, part.header.frame_time_ns, part.data, valid, missing, part.header.ptp_locked, part.last_recv)
 
     def _flush_all(self) -> list[Frame]:
         out = []

@@ -14,7 +14,7 @@ import numpy as np
 
 #: Counters that describe trouble (the others count normal traffic).
 TROUBLE_COUNTERS = ("malformed", "truncated", "duplicates", "reordered", "wrong_radar", "sequence_gaps",
-                    "frames_incomplete", "frames_skipped", "bytes_lost", "resyncs", "crc_errors", "contradictions",
+                    "frames_incomplete", "frames_skipped", "late_datagrams", "bytes_lost", "resyncs", "crc_errors", "contradictions",
                     "foreign_source")
 
 

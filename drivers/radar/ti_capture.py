@@ -16,10 +16,21 @@ sample, I/Q) depends on the radar family and its ``adcbufCfg``:
 Samples are two's complement, or offset binary (0x8000 is zero) as some capture paths write them.
 
 A file says none of this, so :func:`rank_layouts` scores each reading by its sideband ratio: a complex
-FMCW beat signal read the right way has its targets at positive beat frequencies only (DESIGN.md's signal
-model, and TI's complex-1x output: both reference captures in ``../shared/data`` put 12 and 22 dB more
-power above zero than below). A wrong layout or a swapped I/Q pairs samples that do not belong together,
-which spreads the power evenly over both sides or mirrors it.
+FMCW beat signal read the right way has its targets at positive beat frequencies only (the beat-signal sign
+convention of docs/signal-model.md). A wrong layout or a swapped I/Q pairs samples that do not belong
+together, which spreads the power evenly over both sides or mirrors it.
+
+Which part of the spectrum is "negative" depends on the ADC mode (``adcCfg``'s adcOutputFmt). In complex 1x
+the IF band reaches about 0.9 fs: a reflector beyond c fs / (4 slope) lies in the upper half of the FFT and
+is no mirror image, and only the tenth of the band just below DC (0.9-1 fs) is empty. So the ratio
+compares the band just above DC with the band of the same width just below it, whose width is what the
+mode leaves empty (:data:`IMAGE_BAND`): 0.1 fs in complex 1x, 0.45 fs in complex 2x. The strongest echoes
+near DC (the TX-RX coupling, the mount, the nearest clutter) then decide, wherever the far reflectors are.
+
+Real-only captures (adcOutputFmt 0) have no I/Q order: :func:`rank_real_layouts` scores their two sample
+orders by how peaky the spectrum is (a scrambled order smears it; the other order of real samples
+smears it less, so it needs a wider margin), and :func:`real_to_analytic`
+turns them into the complex beat signal sarbot images (the analytic signal: positive frequencies only).
 """
 
 from __future__ import annotations
@@ -29,7 +40,13 @@ import dataclasses
 import numpy as np
 
 LAYOUTS = ("lvds2", "lvds4", "interleaved")
+#: Real samples have two orders: per chirp, per RX, the samples (lvds2); or per chirp, per sample, the RX
+#: (lvds4 and interleaved, which are the same for real samples).
+REAL_LAYOUTS = ("lvds2", "interleaved")
 SAMPLE_FORMATS = ("twos", "offset")
+ADC_OUTPUTS = ("real", "complex1x", "complex2x")
+#: Complex ADC modes: the fraction of the sample rate just below DC that holds no beat signal.
+IMAGE_BAND = {"complex1x": 0.1, "complex2x": 0.45}
 
 
 class CaptureLayoutError(ValueError):
@@ -115,38 +132,63 @@ def guess_sample_format(words: np.ndarray) -> str:
 
 @dataclasses.dataclass(frozen=True)
 class LayoutFit:
-    """How well one reading of a capture fits a complex FMCW beat signal."""
+    """How well one reading of a capture fits an FMCW beat signal."""
 
     layout: str
     iq_swap: bool
-    sideband_db: float  # median over (chirp, RX) of power at positive over negative beat frequencies
+    #: complex: median over (chirp, RX) of the power just above over just below DC (:func:`sideband_db`);
+    #: real: the spectrum's peak over its median (:func:`spectral_peak_db`)
+    score_db: float
+    measure: str = "sideband ratio"
 
     def describe(self) -> str:
-        return f"{self.layout}{' (Q before I)' if self.iq_swap else ''}: sideband ratio {self.sideband_db:+.1f} dB"
+        return f"{self.layout}{' (Q before I)' if self.iq_swap else ''}: {self.measure} {self.score_db:+.1f} dB"
+
+    @property
+    def name(self) -> str:
+        return f"{self.layout}{'/swap' if self.iq_swap else ''}"
 
 
-def sideband_db(samples: np.ndarray) -> float:
-    """Median over profiles of 10 log10(power at positive / power at negative frequencies) along the last
-    axis (mean removed, DC and Nyquist bins left out); nan when no profile has power on either side."""
+def sideband_db(samples: np.ndarray, image_band: float = 0.5) -> float:
+    """Median over profiles of 10 log10(power just above / power just below DC) along the last axis.
+
+    Both bands are ``image_band`` of the sample rate wide (at most half of it: 0.5 compares the whole
+    positive half with the whole negative half); the mean is removed and DC and Nyquist are left out.
+    nan when no profile has power on either side.
+    """
     x = np.asarray(samples, np.complex64)
     x = x - x.mean(axis=-1, keepdims=True)
     n = x.shape[-1]
+    m = max(1, min(int(image_band * n), (n - 1) // 2))
     power = np.abs(np.fft.fft(x, axis=-1)) ** 2
-    upper, lower = power[..., 1:(n + 1) // 2].sum(-1), power[..., n // 2 + 1:].sum(-1)
+    upper, lower = power[..., 1:m + 1].sum(-1), power[..., n - m:].sum(-1)
     live = (upper > 0) & (lower > 0)
     if not live.any():
         return float("nan")
     return float(np.median(10 * np.log10(upper[live] / lower[live])))
 
 
-def rank_layouts(words: np.ndarray, chirps: int, n_rx: int, samples: int, max_frames: int = 4) -> list[LayoutFit]:
-    """Every layout and I/Q order that can hold these dimensions, best fit first (two's-complement words,
-    at least one whole frame; the first ``max_frames`` frames are scored)."""
-    per_frame = 2 * chirps * n_rx * samples
+def _best_first(fits: list[LayoutFit]) -> list[LayoutFit]:
+    return sorted(fits, key=lambda f: -np.nan_to_num(f.score_db, nan=-np.inf))
+
+
+def _head(words: np.ndarray, per_frame: int, max_frames: int) -> np.ndarray:
     frames = min(words.size // per_frame, max_frames)
     if frames < 1:
         raise CaptureLayoutError(f"{words.size} words hold no whole frame of {per_frame}")
-    head = np.asarray(words[: frames * per_frame], np.int16)
+    return np.asarray(words[: frames * per_frame], np.int16)
+
+
+def rank_layouts(words: np.ndarray, chirps: int, n_rx: int, samples: int, max_frames: int = 4,
+                 adc_output: str = "complex1x") -> list[LayoutFit]:
+    """Every layout and I/Q order that can hold these dimensions, best fit first (two's-complement words of a
+    complex capture, at least one whole frame; the first ``max_frames`` frames are scored).
+
+    ``adc_output`` ("complex1x" or "complex2x") sets the bands the sideband ratio compares (:data:`IMAGE_BAND`).
+    """
+    if adc_output not in IMAGE_BAND:
+        raise CaptureLayoutError(f"ADC output {adc_output!r}: expected one of {', '.join(IMAGE_BAND)}")
+    head = _head(words, 2 * chirps * n_rx * samples, max_frames)
     fits = []
     for layout in LAYOUTS:
         for swap in (False, True):
@@ -155,5 +197,47 @@ def rank_layouts(words: np.ndarray, chirps: int, n_rx: int, samples: int, max_fr
             except CaptureLayoutError:
                 continue
             z = iq[..., 0].astype(np.float32) + 1j * iq[..., 1].astype(np.float32)
-            fits.append(LayoutFit(layout, swap, sideband_db(z)))
-    return sorted(fits, key=lambda f: -np.nan_to_num(f.sideband_db, nan=-np.inf))
+            fits.append(LayoutFit(layout, swap, sideband_db(z, IMAGE_BAND[adc_output])))
+    return _best_first(fits)
+
+
+def capture_to_real(words: np.ndarray, layout: str, chirps: int, n_rx: int, samples: int) -> np.ndarray:
+    """int16 [frames, chirps, n_rx, samples] from a real-only capture's words (:data:`REAL_LAYOUTS`;
+    "lvds4" reads as "interleaved", the same order for real samples)."""
+    words = np.asarray(words, np.int16).reshape(-1)
+    if layout not in LAYOUTS:
+        raise CaptureLayoutError(f"layout {layout!r}: expected one of {', '.join(REAL_LAYOUTS)}")
+    per_frame = chirps * n_rx * samples
+    if words.size % per_frame:
+        raise CaptureLayoutError(f"{words.size} words are not whole frames of {per_frame} ({chirps} chirps x {n_rx} RX x "
+                                 f"{samples} real samples)")
+    if layout == "lvds2":
+        return words.reshape(-1, chirps, n_rx, samples)
+    return words.reshape(-1, chirps, samples, n_rx).transpose(0, 1, 3, 2)
+
+
+def spectral_peak_db(samples: np.ndarray) -> float:
+    """10 log10 of the largest over the median of the mean magnitude spectrum of real profiles (last axis;
+    mean removed, DC and the negative half left out): high when each profile holds its own samples."""
+    x = np.asarray(samples, np.float32)
+    x = x - x.mean(axis=-1, keepdims=True)
+    n = x.shape[-1]
+    mag = np.abs(np.fft.rfft(x * np.hanning(n), axis=-1)).reshape(-1, n // 2 + 1).mean(0)[1:]
+    med = float(np.median(mag))
+    return float(20 * np.log10(mag.max() / med)) if med > 0 else float("nan")
+
+
+def rank_real_layouts(words: np.ndarray, chirps: int, n_rx: int, samples: int, max_frames: int = 4) -> list[LayoutFit]:
+    """The two sample orders of a real-only capture, best fit first (by :func:`spectral_peak_db`)."""
+    head = _head(words, chirps * n_rx * samples, max_frames)
+    return _best_first([LayoutFit(layout, False, spectral_peak_db(capture_to_real(head, layout, chirps, n_rx, samples)),
+                                  "spectral peak") for layout in REAL_LAYOUTS])
+
+
+def real_to_analytic(samples: np.ndarray) -> np.ndarray:
+    """complex64 analytic signal of real profiles along the last axis (mean removed): the beat signal with
+    its positive frequencies only, at the same amplitude, as complex ADC output would give it."""
+    from scipy.signal import hilbert
+
+    x = np.asarray(samples, np.float32)
+    return hilbert(x - x.mean(axis=-1, keepdims=True), axis=-1).astype(np.complex64)

@@ -23,8 +23,13 @@ class TiRadarConfig:
     tx_order: tuple[int, ...]  # TX index of each chirp of a loop
     loops: int
     frame_periodicity_ms: float
-    complex_output: bool
+    #: adcCfg's adcOutputFmt: "real" (0), "complex1x" (1, the IF band up to about 0.9 fs) or "complex2x" (2)
+    adc_output: str = "complex1x"
     iq_swap: bool = True  # adcbufCfg SampleSwap: Q in the first (least significant) half of each pair
+
+    @property
+    def complex_output(self) -> bool:
+        return self.adc_output != "real"
 
     @property
     def n_rx(self) -> int:
@@ -100,11 +105,15 @@ def parse_ti_cfg(text: str, source: str = "<cfg>") -> TiRadarConfig:
     missing = [k for k in range(first, last + 1) if k not in chirps]
     if missing:
         raise ConfigError(f"frameCfg (line {lf})", f"uses chirps {missing} that no chirpCfg defines", source=source)
-    complex_output = True
+    adc_output = "complex1x"
     if "adcCfg" in cmds:
         la, adc = cmds["adcCfg"][0]
         if len(adc) >= 2:
-            complex_output = num(adc[1], "adcCfg", la, int) != 0
+            fmt = num(adc[1], "adcCfg", la, int)
+            if fmt not in (0, 1, 2):
+                raise ConfigError(f"adcCfg (line {la})", f"adcOutputFmt {fmt}: expected 0 (real), 1 (complex 1x) "
+                                  "or 2 (complex 2x)", source=source)
+            adc_output = ("real", "complex1x", "complex2x")[fmt]
     iq_swap = True
     if "adcbufCfg" in cmds:
         lb, buf = cmds["adcbufCfg"][0]
@@ -117,7 +126,7 @@ def parse_ti_cfg(text: str, source: str = "<cfg>") -> TiRadarConfig:
         adc_samples=num(profile[9], "profileCfg", ln, int), sample_rate_ksps=num(profile[10], "profileCfg", ln),
         rx_mask=num(channel[0], "channelCfg", lc, int), tx_order=tuple(chirps[k] for k in range(first, last + 1)),
         loops=num(frame[2], "frameCfg", lf, int), frame_periodicity_ms=num(frame[4], "frameCfg", lf),
-        complex_output=complex_output, iq_swap=iq_swap)
+        adc_output=adc_output, iq_swap=iq_swap)
 
 
 def load_ti_cfg(path: str | Path) -> TiRadarConfig:

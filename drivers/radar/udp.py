@@ -11,15 +11,25 @@ most ``coalesce_s`` later.
 
 from __future__ import annotations
 
+import logging
 import select
 import socket
 import struct
+import sys
 import time
 
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 SCM_TIMESTAMPNS = SO_TIMESTAMPNS
 SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
 SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
+
+log = logging.getLogger(f"sarbot.{__name__}")
+
+
+def usable_rcvbuf_bytes(reported_bytes: int) -> int:
+    """The receive buffer for data that getsockopt's SO_RCVBUF stands for: Linux reports twice what was
+    granted (the other half is its bookkeeping), other systems what was granted."""
+    return reported_bytes // 2 if sys.platform.startswith("linux") else reported_bytes
 
 
 class UdpReceiver:
@@ -38,6 +48,15 @@ class UdpReceiver:
         except OSError:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf_bytes)
         self.rcvbuf_bytes = self.sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+        self.rcvbuf_asked_bytes = rcvbuf_bytes
+        #: What to say when the kernel granted less buffer than asked (None when it granted all).
+        self.rcvbuf_short: str | None = None
+        granted = usable_rcvbuf_bytes(self.rcvbuf_bytes)
+        if granted < rcvbuf_bytes:
+            self.rcvbuf_short = (f"UDP receive buffer {granted / 1e6:.1f} MB of {rcvbuf_bytes / 1e6:.1f} MB asked "
+                                 "(net.core.rmem_max caps it; sarbot install-unit stages /etc/sysctl.d/60-sarbot.conf): "
+                                 "a burst of frames may overflow it")
+            log.warning("%s", self.rcvbuf_short)
         self.sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
         self.sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
         try:

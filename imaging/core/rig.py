@@ -46,7 +46,7 @@ class AntennaArray:
 
     @classmethod
     def uniform_tdm(cls, waveform: Waveform) -> "AntennaArray":
-        """DESIGN.md's default: RX at y = j*lambda0/2, TX at y = n_rx*i*lambda0/2 (a filled virtual array)."""
+        """docs/signal-model.md's default: RX at y = j*lambda0/2, TX at y = n_rx*i*lambda0/2 (a filled virtual array)."""
         half = waveform.wavelength_f0_m / 2.0
         rx = np.zeros((waveform.n_rx, 3))
         rx[:, 1] = np.arange(waveform.n_rx) * half

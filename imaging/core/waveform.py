@@ -12,7 +12,7 @@ from imaging.core.windows import window_width_factor
 
 @dataclasses.dataclass(frozen=True)
 class Waveform:
-    """One radar's chirp sequence. Defaults are the reference radar of DESIGN.md.
+    """One radar's chirp sequence. Defaults are the reference radar of docs/signal-model.md.
 
     A frame is ``chirps_per_frame`` chirps, one every ``chirp_interval_s``; chirp k is sent by TX
     ``k mod n_tx`` (TDM). Each chirp is sampled ``samples_per_chirp`` times at ``sample_rate_hz``

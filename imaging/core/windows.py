@@ -9,7 +9,7 @@ import numpy as np
 #: Windows sarbot knows, by the name used in configuration and on the command line.
 WINDOWS = ("rectangular", "hann", "hamming", "taylor")
 
-#: The half-power widths DESIGN.md fixes as convention (in bins of 1/duration).
+#: The half-power widths docs/conventions.md fixes as convention (in bins of 1/duration).
 NOMINAL_WIDTH_FACTOR = {"rectangular": 0.88448, "hann": 1.4381}
 
 
@@ -17,7 +17,7 @@ def get_window(name: str, n: int) -> np.ndarray:
     """Periodic window of ``n`` samples, float64, shape (n,).
 
     Periodic (DFT-even) windows are used so that an n-sample window spans exactly n samples of
-    bandwidth: the half-power width is then factor / (n * step) with the factors of DESIGN.md.
+    bandwidth: the half-power width is then factor / (n * step) with the factors of docs/conventions.md.
     Taylor: 4 nearly constant side lobes at -35 dB.
     """
     if name == "rectangular":
@@ -95,7 +95,7 @@ def _symmetric_table(name: str) -> np.ndarray:
 def window_width_factor(name: str) -> float:
     """Half-power width of the window's spectrum in units of 1/(n * step), computed numerically.
 
-    For "rectangular" and "hann" this reproduces DESIGN.md's 0.88448 and 1.4381 (checked in the tests).
+    For "rectangular" and "hann" this reproduces docs/conventions.md's 0.88448 and 1.4381 (checked in the tests).
     """
     n = 1024
     spectrum = np.fft.fft(get_window(name, n), 64 * n)

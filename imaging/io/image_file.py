@@ -1,4 +1,4 @@
-"""The image file: HDF5 schema "sarbot.image" version 1 (DESIGN.md)."""
+"""The image file: HDF5 schema "sarbot.image" version 1 (see docs/formats/image.md)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import numpy as np
 
 from imaging.core import strict_json
 from imaging.core.errors import FileFormatError
-from imaging.io.schema import open_checked
+from imaging.io.schema import open_checked, read
 
 SCHEMA = "sarbot.image"
 SCHEMA_VERSION = 1
@@ -35,6 +35,13 @@ class SarImage:
         return float(self.attrs["wavelength_m"])
 
 
+def _dataset(group: h5py.Group, name: str, data) -> None:
+    """A dataset chunked (as HDF5 chooses) with each chunk's Fletcher-32 checksum: a byte changed on the
+    disk is then a read error. An empty one cannot be chunked, and has nothing to check."""
+    data = np.asarray(data)
+    group.create_dataset(name, data=data, fletcher32=data.size > 0)
+
+
 def write_image(path: str | Path, img: SarImage) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -43,19 +50,19 @@ def write_image(path: str | Path, img: SarImage) -> Path:
         f.attrs["schema_version"] = SCHEMA_VERSION
         for key, value in img.attrs.items():
             f.attrs[key] = value
-        f.create_dataset("image", data=img.image.astype(np.complex64))
-        f.create_dataset("x_m", data=img.x_m)
-        f.create_dataset("y_m", data=img.y_m)
+        _dataset(f, "image", img.image.astype(np.complex64))
+        _dataset(f, "x_m", img.x_m)
+        _dataset(f, "y_m", img.y_m)
         if img.z_m is not None:
-            f.create_dataset("z_m", data=np.atleast_1d(img.z_m))
+            _dataset(f, "z_m", np.atleast_1d(img.z_m))
         te = img.track_error
         if te is not None:
             g = f.create_group("autofocus")
             g.attrs["method"] = te.method
             g.attrs["time_origin_ns"] = np.int64(te.time_origin_ns)
             g.attrs["model"] = strict_json.dumps(te.model) if te.model is not None else ""
-            g.create_dataset("time_ns", data=np.int64(te.time_origin_ns) + np.round(te.time_s * 1e9).astype(np.int64))
-            g.create_dataset("track_error_m", data=te.displacement_m)
+            _dataset(g, "time_ns", np.int64(te.time_origin_ns) + np.round(te.time_s * 1e9).astype(np.int64))
+            _dataset(g, "track_error_m", te.displacement_m)
     return path
 
 
@@ -75,9 +82,9 @@ def read_image(path: str | Path) -> SarImage:
                 origin = int(g.attrs["time_origin_ns"])
                 model = g.attrs.get("model", "")
                 model = model.decode() if isinstance(model, bytes) else model
-                track_error = TrackError((g["time_ns"][()] - origin) * 1e-9, g["track_error_m"][()], str(g.attrs["method"]),
+                track_error = TrackError((read(g["time_ns"]) - origin) * 1e-9, read(g["track_error_m"]), str(g.attrs["method"]),
                                          json.loads(model) if model else None, origin)
             except (KeyError, ValueError) as exc:
                 raise FileFormatError(f"{path}: /autofocus is damaged ({exc})") from None
-        return SarImage(f["image"][()], f["x_m"][()], f["y_m"][()], f["z_m"][()] if "z_m" in f else None, attrs,
+        return SarImage(read(f["image"]), read(f["x_m"]), read(f["y_m"]), read(f["z_m"]) if "z_m" in f else None, attrs,
                         track_error)

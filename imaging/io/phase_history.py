@@ -1,6 +1,6 @@
 """Stepped-frequency phase histories from other SAR systems, in sarbot's sign convention.
 
-sarbot's signal model (DESIGN.md) has a point at two-way range r contribute exp(+j 2 pi f r / c); a phase
+sarbot's signal model (docs/signal-model.md) has a point at two-way range r contribute exp(+j 2 pi f r / c); a phase
 history motion-compensated to a scene centre holds the same with r replaced by the two-way range
 difference r - r_ref. Backprojection takes such data directly with ``reference_range_m``.
 """

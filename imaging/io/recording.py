@@ -1,4 +1,4 @@
-"""The recording file: HDF5 schema "sarbot.recording" version 1 (DESIGN.md), writer and reader.
+"""The recording file: HDF5 schema "sarbot.recording" version 1 (see docs/formats/recording.md), writer and reader.
 
 Written by the recorder, the simulator and the bag importer; read by replay, RIO and imaging. The writer
 creates every group and dataset up front and then switches to SWMR, so a reader (or a crash) always sees
@@ -21,7 +21,7 @@ from imaging.core.rig import AntennaArray, ImuConfig, Mount, RadarConfig
 from imaging.core.samples import complex_to_iq, iq_to_complex
 from imaging.core.trajectory import SampledTrajectory, TrajectorySample
 from imaging.core.waveform import Waveform
-from imaging.io.schema import open_checked
+from imaging.io.schema import checksummed, open_checked, read
 
 SCHEMA = "sarbot.recording"
 SCHEMA_VERSION = 1
@@ -51,7 +51,7 @@ def _create_imu_group(g: h5py.Group, imu: ImuConfig) -> None:
     for name, dtype, tail in (("time_ns", np.int64, ()), ("gyro_radps", np.float64, (3,)),
                               ("accel_mps2", np.float64, (3,)), ("counter", np.uint32, ()),
                               ("host_time_ns", np.int64, ())):
-        g.create_dataset(name, (0, *tail), dtype, maxshape=(None, *tail), chunks=(4096, *tail))
+        g.create_dataset(name, (0, *tail), dtype, maxshape=(None, *tail), chunks=(4096, *tail), **checksummed(dtype))
 
 
 class RecordingWriter:
@@ -113,21 +113,24 @@ class RecordingWriter:
             g.attrs["wire_format"] = wire_format if isinstance(wire_format, str) else wire_format.get(r.name, "simulated")
             shape = (wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)
             if adc_dtype == "complex64":
-                g.create_dataset("adc", (0, *shape), np.complex64, maxshape=(None, *shape), chunks=(1, *shape))
+                g.create_dataset("adc", (0, *shape), np.complex64, maxshape=(None, *shape), chunks=(1, *shape),
+                                 fletcher32=True)
             elif adc_dtype == "int16":
-                g.create_dataset("adc", (0, *shape, 2), np.int16, maxshape=(None, *shape, 2), chunks=(1, *shape, 2))
+                g.create_dataset("adc", (0, *shape, 2), np.int16, maxshape=(None, *shape, 2), chunks=(1, *shape, 2),
+                                 fletcher32=True)
             else:
                 raise ValueError(f"adc_dtype must be complex64 or int16, got {adc_dtype!r}")
             for name, dtype in (("frame_time_ns", np.int64), ("frame_counter", np.uint32),
                                 ("host_time_ns", np.int64), ("valid", np.uint8)):
-                g.create_dataset(name, (0,), dtype, maxshape=(None,), chunks=(1024,))
+                g.create_dataset(name, (0,), dtype, maxshape=(None,), chunks=(1024,), fletcher32=True)
             if r.imu is not None:
                 _create_imu_group(g.create_group("imu"), r.imu)
             if r.name in set(detections):
                 d = g.create_group("detections")
                 for name, dtype, tail in (("time_ns", np.int64, ()), ("scan", np.uint32, ()), ("xyz_m", np.float32, (3,)),
                                           ("doppler_mps", np.float32, ()), ("snr_db", np.float32, ())):
-                    d.create_dataset(name, (0, *tail), dtype, maxshape=(None, *tail), chunks=(4096, *tail))
+                    d.create_dataset(name, (0, *tail), dtype, maxshape=(None, *tail), chunks=(4096, *tail),
+                                     fletcher32=True)
         if imu is not None:
             g = f.create_group("imu")
             g.attrs["mount_translation_m"] = imu.mount.translation_m
@@ -135,20 +138,20 @@ class RecordingWriter:
             g.attrs["clock_drift_ppm"] = np.nan  # the IMU clock against the host clock, once the driver knows it
             _create_imu_group(g, imu)
         g = f.create_group("trigger")
-        g.create_dataset("time_ns", (0,), np.int64, maxshape=(None,), chunks=(256,))
-        g.create_dataset("source", (0,), _str_dtype(), maxshape=(None,), chunks=(256,))
+        g.create_dataset("time_ns", (0,), np.int64, maxshape=(None,), chunks=(256,), fletcher32=True)
+        g.create_dataset("source", (0,), _str_dtype(), maxshape=(None,), chunks=(256,))  # vlen: no checksum (see checksummed)
         g = f.create_group("can")
-        g.create_dataset("time_ns", (0,), np.int64, maxshape=(None,), chunks=(1024,))
-        g.create_dataset("arbitration_id", (0,), np.uint32, maxshape=(None,), chunks=(1024,))
-        g.create_dataset("dlc", (0,), np.uint8, maxshape=(None,), chunks=(1024,))
-        g.create_dataset("data", (0, 64), np.uint8, maxshape=(None, 64), chunks=(1024, 64))
+        g.create_dataset("time_ns", (0,), np.int64, maxshape=(None,), chunks=(1024,), fletcher32=True)
+        g.create_dataset("arbitration_id", (0,), np.uint32, maxshape=(None,), chunks=(1024,), fletcher32=True)
+        g.create_dataset("dlc", (0,), np.uint8, maxshape=(None,), chunks=(1024,), fletcher32=True)
+        g.create_dataset("data", (0, 64), np.uint8, maxshape=(None, 64), chunks=(1024, 64), fletcher32=True)
         if truth:
             g = f.create_group("truth")
             for name, tail in (("time_ns", ()), ("position_m", (3,)), ("orientation_xyzw", (4,)), ("velocity_mps", (3,))):
                 g.create_dataset(name, (0, *tail), np.int64 if name == "time_ns" else np.float64,
-                                 maxshape=(None, *tail), chunks=(4096, *tail))
+                                 maxshape=(None, *tail), chunks=(4096, *tail), fletcher32=True)
         g = f.create_group("events")
-        g.create_dataset("time_ns", (0,), np.int64, maxshape=(None,), chunks=(256,))
+        g.create_dataset("time_ns", (0,), np.int64, maxshape=(None,), chunks=(256,), fletcher32=True)
         for name in ("source", "level", "message"):
             g.create_dataset(name, (0,), _str_dtype(), maxshape=(None,), chunks=(256,))
         f.swmr_mode = True
@@ -328,7 +331,7 @@ class Recording:
         g = self._radar_group(name)
         if "imu" not in g or g["imu/time_ns"].shape[0] == 0:
             return None
-        return {k: g["imu"][k][()] for k in ("time_ns", "gyro_radps", "accel_mps2", "counter", "host_time_ns")}
+        return {k: read(g["imu"][k]) for k in ("time_ns", "gyro_radps", "accel_mps2", "counter", "host_time_ns")}
 
     def tdm_tx_order(self, name: str) -> np.ndarray:
         g = self._radar_group(name)
@@ -338,15 +341,15 @@ class Recording:
         return int(self._radar_group(name)["frame_time_ns"].shape[0])
 
     def frame_time_ns(self, name: str, frames: slice = slice(None)) -> np.ndarray:
-        return np.asarray(self._radar_group(name)["frame_time_ns"][frames], np.int64)
+        return np.asarray(read(self._radar_group(name)["frame_time_ns"], frames), np.int64)
 
     def host_time_ns(self, name: str, frames: slice = slice(None)) -> np.ndarray:
         """Kernel receive times (CLOCK_REALTIME, UTC) of the frames' last datagrams."""
-        return np.asarray(self._radar_group(name)["host_time_ns"][frames], np.int64)
+        return np.asarray(read(self._radar_group(name)["host_time_ns"], frames), np.int64)
 
     def frame_counter(self, name: str, frames: slice = slice(None)) -> np.ndarray:
         """The sensor's own frame counters, uint32."""
-        return np.asarray(self._radar_group(name)["frame_counter"][frames], np.uint32)
+        return np.asarray(read(self._radar_group(name)["frame_counter"], frames), np.uint32)
 
     def wire_format(self, name: str) -> str | None:
         """The wire format the radar's frames arrived in ("SRF1", "DCA1000", ...; "simulated"), or None."""
@@ -354,7 +357,7 @@ class Recording:
         return value.decode() if isinstance(value, bytes) else value
 
     def valid(self, name: str, frames: slice = slice(None)) -> np.ndarray:
-        return np.asarray(self._radar_group(name)["valid"][frames], bool)
+        return np.asarray(read(self._radar_group(name)["valid"], frames), bool)
 
     def has_adc(self, name: str) -> bool:
         return self._radar_group(name)["adc"].shape[0] > 0
@@ -367,7 +370,7 @@ class Recording:
         g = self._radar_group(name)
         if "detections" not in g:
             raise FileFormatError(f"{self.path}: radar {name} has no /detections")
-        return {k: g["detections"][k][()] for k in ("time_ns", "scan", "xyz_m", "doppler_mps", "snr_db")}
+        return {k: read(g["detections"][k]) for k in ("time_ns", "scan", "xyz_m", "doppler_mps", "snr_db")}
 
     def imu_sample_count(self, radar: str | None = None) -> int:
         """How many samples ``/imu`` holds (with ``radar``: ``/radar/<radar>/imu``), without reading them."""
@@ -378,18 +381,18 @@ class Recording:
         if "imu" not in self._f or self._f["imu/time_ns"].shape[0] == 0:
             return None
         g = self._f["imu"]
-        out = {k: g[k][()] for k in ("time_ns", "gyro_radps", "accel_mps2", "counter", "host_time_ns")}
+        out = {k: read(g[k]) for k in ("time_ns", "gyro_radps", "accel_mps2", "counter", "host_time_ns")}
         out.update({k: v for k, v in g.attrs.items()})
         return out
 
     def triggers(self) -> np.ndarray:
-        return self._f["trigger/time_ns"][()] if "trigger" in self._f else np.zeros(0, np.int64)
+        return read(self._f["trigger/time_ns"]) if "trigger" in self._f else np.zeros(0, np.int64)
 
     def trigger_sources(self) -> list[str]:
         """Who saw each trigger (``/trigger/source``), in the order of ``triggers()``."""
         if "trigger" not in self._f:
             return []
-        return [v.decode() if isinstance(v, bytes) else str(v) for v in self._f["trigger/source"][()]]
+        return [v.decode() if isinstance(v, bytes) else str(v) for v in read(self._f["trigger/source"])]
 
     def can(self) -> dict[str, np.ndarray]:
         """/can as arrays (empty when the run had no CAN traffic or the file predates it)."""
@@ -397,31 +400,31 @@ class Recording:
         if g is None:
             return {"time_ns": np.zeros(0, np.int64), "arbitration_id": np.zeros(0, np.uint32),
                     "dlc": np.zeros(0, np.uint8), "data": np.zeros((0, 64), np.uint8)}
-        return {k: g[k][()] for k in ("time_ns", "arbitration_id", "dlc", "data")}
+        return {k: read(g[k]) for k in ("time_ns", "arbitration_id", "dlc", "data")}
 
     def events(self) -> list[tuple[int, str, str, str]]:
         """/events as (time_ns, source, level, message) rows."""
         g = self._f["events"]
-        dec = [[v.decode() if isinstance(v, bytes) else v for v in g[k][()]] for k in ("source", "level", "message")]
-        return list(zip(g["time_ns"][()].tolist(), *dec))
+        dec = [[v.decode() if isinstance(v, bytes) else v for v in read(g[k])] for k in ("source", "level", "message")]
+        return list(zip(read(g["time_ns"]).tolist(), *dec))
 
     def adc(self, name: str, frames: slice = slice(None)) -> np.ndarray:
         """ADC samples as complex64 [F, chirps, rx, samples] (int16 I/Q is converted)."""
         ds = self._radar_group(name)["adc"]
         if ds.shape[0] == 0 and self.n_frames(name) > 0:
             raise FileFormatError(f"{self.path}: radar {name} delivers point clouds only (no ADC frames to image)")
-        data = ds[frames]
+        data = read(ds, frames)
         return iq_to_complex(data) if ds.dtype == np.int16 else np.asarray(data, dtype=np.complex64)
 
     def adc_iq(self, name: str, frames: slice = slice(None)) -> np.ndarray:
         """ADC samples as int16 [F, chirps, rx, samples, 2] (I, Q), as the wire carries them; complex
         recordings are rounded and clipped to int16."""
         ds = self._radar_group(name)["adc"]
-        data = ds[frames]
+        data = read(ds, frames)
         return data if ds.dtype == np.int16 else complex_to_iq(data)
 
     def truth(self) -> SampledTrajectory | None:
         if "truth" not in self._f or self._f["truth/time_ns"].shape[0] < 2:
             return None
         g = self._f["truth"]
-        return SampledTrajectory(g["time_ns"][:], g["position_m"][:], g["orientation_xyzw"][:], g["velocity_mps"][:], source="truth")
+        return SampledTrajectory(*(read(g[k]) for k in ("time_ns", "position_m", "orientation_xyzw", "velocity_mps")), source="truth")

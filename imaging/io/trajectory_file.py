@@ -9,7 +9,7 @@ import numpy as np
 
 from imaging.core.errors import FileFormatError
 from imaging.core.trajectory import SampledTrajectory
-from imaging.io.schema import open_checked
+from imaging.io.schema import open_checked, read
 
 SCHEMA = "sarbot.trajectory"
 SCHEMA_VERSION = 1
@@ -38,7 +38,8 @@ class TrajectoryWriter:
         g = self._f.create_group("trajectory")
         fields = list(_FIELDS) + ([("covariance_diag", np.float64, (covariance_width,))] if covariance_width else [])
         for name, dtype, tail in fields:
-            g.create_dataset(name, (0, *tail), dtype, maxshape=(None, *tail), chunks=(WRITE_EVERY_POSES, *tail))
+            g.create_dataset(name, (0, *tail), dtype, maxshape=(None, *tail), chunks=(WRITE_EVERY_POSES, *tail),
+                             fletcher32=True)
         self.n = 0  # poses appended (written or gathered)
         self._written = 0
         self._pending: list[dict] = []
@@ -94,8 +95,8 @@ def read_trajectory(path: str | Path) -> SampledTrajectory:
     with open_checked(path, SCHEMA, SCHEMA_VERSION, "trajectory") as f:
         g = f["trajectory"]
         try:
-            return SampledTrajectory(g["time_ns"][()], g["position_m"][()], g["orientation_xyzw"][()],
-                                     g["velocity_mps"][()] if "velocity_mps" in g else None,
+            return SampledTrajectory(read(g["time_ns"]), read(g["position_m"]), read(g["orientation_xyzw"]),
+                                     read(g["velocity_mps"]) if "velocity_mps" in g else None,
                                      source=str(f.attrs.get("source", path.name)))
         except (KeyError, ValueError) as exc:
             raise FileFormatError(f"{path}: {exc}") from None

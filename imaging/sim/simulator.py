@@ -1,4 +1,4 @@
-"""Raw complex-baseband FMCW TDM-MIMO frames from a scene, per DESIGN.md's signal model.
+"""Raw complex-baseband FMCW TDM-MIMO frames from a scene, per the signal model in docs/signal-model.md.
 
     s = A exp(j 2 pi / c (f0 + slope n / fs) r_ij(t + n / fs)),  r_ij = |p_tx - p| + |p_rx - p|
 

@@ -1,0 +1,51 @@
+"""The ``sarbot`` command line (see docs/cli.md).
+
+One module per command family, each with a ``register(subparsers)`` that adds its commands beside their
+handlers; a new family is one module and one line in ``FAMILIES``. Options several commands share, and
+the parsers of option values, are in ``options``; exit codes in ``exit_codes``.
+
+Every user mistake (a missing file, a wrong schema, a bad grid, frames out of range, an unknown radar,
+an invalid configuration value) ends with one line ``sarbot: error: ...`` naming it, and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from ..processes import configure_logging, ensure_jit_cache_dir
+from .exit_codes import run_command
+from .options import ArgumentParser, join_negative_values
+
+#: The command families, in the order their commands are listed.
+FAMILIES = ("imaging", "odometry", "files", "daemon", "system")
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("sarbot")
+    except PackageNotFoundError:  # run from a checkout that is not installed
+        return "unknown (not installed)"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = ArgumentParser(prog="sarbot", description="SAR imaging and radar-inertial odometry for mobile robots.")
+    p.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    p.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only (no progress, no info lines)")
+    p.add_argument("--version", action="version", version=f"sarbot {_version()}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for family in FAMILIES:
+        importlib.import_module(f"{__name__}.{family}").register(sub)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    # Before anything imports numba: a choice list read from its module (autofocus methods) may import it.
+    ensure_jit_cache_dir()
+    parser = build_parser()
+    args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else list(argv)))
+    configure_logging(-1 if args.quiet else args.verbose)  # also every process the command starts (environment)
+    return run_command(args.func, args)

@@ -1,0 +1,236 @@
+"""Write docs/results.md, the results page, from the measured figures in docs/results/*.json.
+
+    python3 dev.py results                 # what the project runs
+    python docs/gen_results.py [--output PATH] [--results DIR]
+
+The page is generated, never edited by hand: each benchmark or evaluation gets a section that says what it
+measures, the command that reproduces it, its chart where there is one, and tables of its figures read from
+its JSON (scalars as a figure/value table, lists of rows as tables). A JSON file without an entry in
+``SECTIONS`` still gets a section, so a new benchmark shows up at once. The output depends on the JSON files
+only (no dates, no machine), so tests/test_docs.py can regenerate it and compare.
+
+Only the standard library: this runs before anything is installed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+DOCS = Path(__file__).resolve().parent
+RESULTS = DOCS / "results"
+OUTPUT = DOCS / "results.md"
+
+#: Longest list of rows tabulated; longer ones (time series of the soaks) are only counted.
+MAX_ROWS = 40
+#: Most columns of a table of rows (the rest are in the JSON).
+MAX_COLUMNS = 12
+#: Longest string shown in a cell.
+MAX_TEXT = 90
+
+#: stem -> (title, what it measures, command that reproduces it). Order of the page.
+SECTIONS: dict[str, tuple[str, str, str]] = {
+    "backprojection": ("Backprojection kernel",
+                       "Throughput of the time-domain backprojection kernel per interpolation mode and oversampling, "
+                       "against its signal-to-error ratio to the exact matched filter; the numpy reference; torchbp "
+                       "where installed.",
+                       ".venv/bin/python benchmarks/backprojection.py"),
+    "image_command": ("`sarbot image` as a whole command",
+                      "The command against its kernel alone, with the time of every stage.",
+                      ".venv/bin/python benchmarks/image_command.py"),
+    "ffbp": ("Fast factorized backprojection",
+             "FFBP against the direct kernel on the same profiles: speed-up against error energy and aperture.",
+             ".venv/bin/python benchmarks/ffbp.py"),
+    "stripmap": ("Live strip map",
+                 "The streaming strip map: frames per second against the sensor rate, and map error against an "
+                 "offline full-resolution map, per setting.",
+                 ".venv/bin/python benchmarks/stripmap.py"),
+    "stripmap_ffbp": ("Live strip map with long apertures",
+                      "The direct kernel against FFBP blocks in the live map: speed and the reflector's width.",
+                      ".venv/bin/python benchmarks/stripmap_ffbp.py"),
+    "stripmap_thinning": ("What the live map's catch-up costs",
+                          "Pre-summing, RX sums and thinning: CPU saved against image error.",
+                          ".venv/bin/python benchmarks/stripmap_thinning.py"),
+    "autofocus": ("Autofocus",
+                  "Time per autofocused image against the plain backprojection, and the image quality it buys.",
+                  ".venv/bin/python benchmarks/autofocus.py"),
+    "rio": ("Radar-inertial odometry",
+            "Accuracy on long simulated drives (evaluated with evo), the filter's settings against speed, and a "
+            "real ROS bag.",
+            ".venv/bin/python benchmarks/rio.py"),
+    "pointcloud": ("Point clouds from raw frames",
+                   "What each live odometry scan costs before the filter sees it, stage by stage.",
+                   ".venv/bin/python benchmarks/pointcloud.py"),
+    "acquisition": ("Acquisition throughput",
+                    "The rate four radars can stream with zero loss through the drivers, the bus and the HDF5 "
+                    "recorder, as a multiple of real time.",
+                    ".venv/bin/python benchmarks/acquisition.py"),
+    "batch": ("`sarbot batch` on Dask",
+              "A Dask LocalCluster against the same images made one after another in one process.",
+              ".venv/bin/python benchmarks/batch.py"),
+    "soak": ("Soak: two radars, 30 minutes",
+             "The whole daemon (`sarbot run`) at 1x for half an hour on the left pair of radars: loss, memory, lag.",
+             ".venv/bin/python benchmarks/soak.py"),
+    "soak_4radars": ("Soak: four radars, 30 minutes",
+                     "The same with all four radars.",
+                     ".venv/bin/python benchmarks/soak.py --radars left_front,left_rear,right_front,right_rear"),
+    "soak_quick": ("Soak: two radars, 3 minutes (quick)",
+                   "The soak's smoke run.",
+                   ".venv/bin/python benchmarks/soak.py --quick"),
+    "soak_4radars_quick": ("Soak: four radars, 3 minutes (quick)",
+                           "The four-radar soak's smoke run.",
+                           ".venv/bin/python benchmarks/soak.py --quick --radars left_front,left_rear,right_front,right_rear"),
+    "soak_direct_2m": ("Soak: 2 m aperture, direct kernel",
+                       "The live map at a 2 m aperture with the direct kernel.",
+                       ".venv/bin/python benchmarks/soak.py --minutes 3 --map-args \"--map-aperture 2\" --name direct_2m"),
+    "soak_ffbp_2m": ("Soak: 2 m aperture, FFBP blocks",
+                     "The live map at a 2 m aperture with FFBP blocks.",
+                     ".venv/bin/python benchmarks/soak.py --minutes 8 --map-args \"--map-algorithm ffbp --map-aperture 2\" "
+                     "--name ffbp_2m"),
+    "paper/report": ("The reference study (evaluation on simulated data)",
+                     "Range and cross-range resolution against theory with the true and the odometry's trajectory, "
+                     "vibration side lobes and their inverse, coherent integration gain, where imaging fails, and "
+                     "autofocus; the full write-up is [its report](results/paper/report.md).",
+                     "sarbot experiment paper"),
+}
+
+
+def fmt(value) -> str:
+    """A value for a table cell: floats to 4 significant digits, long text cut, lists inline if short."""
+    if isinstance(value, bool) or value is None:
+        return str(value)
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if math.isnan(value) or math.isinf(value):
+            return str(value)
+        return f"{value:.4g}"
+    if isinstance(value, list):
+        if len(value) <= 6 and all(not isinstance(v, (list, dict)) for v in value):
+            return "[" + ", ".join(fmt(v) for v in value) + "]"
+        return f"({len(value)} values)"
+    if isinstance(value, dict):
+        return f"({len(value)} entries)"
+    text = str(value).replace("|", "/").replace("\n", " ")
+    return text if len(text) <= MAX_TEXT else text[:MAX_TEXT - 3] + "..."
+
+
+def _is_scalar(value) -> bool:
+    return not isinstance(value, (dict, list)) or isinstance(value, list) and len(value) <= 6 and all(
+        not isinstance(v, (list, dict)) for v in value)
+
+
+def _figures(data: dict, prefix: str = "", depth: int = 0) -> list[tuple[str, str]]:
+    """Scalars of ``data`` as (dotted name, value), nested dicts to depth 2."""
+    out = []
+    for key, value in data.items():
+        name = f"{prefix}{key}"
+        if _is_scalar(value):
+            out.append((name, fmt(value)))
+        elif isinstance(value, dict) and depth < 2:
+            out += _figures(value, f"{name}.", depth + 1)
+    return out
+
+
+def _row_tables(data: dict, prefix: str = "", depth: int = 0) -> list[tuple[str, list]]:
+    """Lists of rows (dicts) in ``data``, with their dotted names."""
+    out = []
+    for key, value in data.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+            out.append((name, value))
+        elif isinstance(value, dict) and depth < 2:
+            out += _row_tables(value, f"{name}.", depth + 1)
+    return out
+
+
+def _table(header: list[str], rows: list[list[str]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return lines
+
+
+def _rows_table(rows: list[dict]) -> list[str]:
+    columns: list[str] = []
+    for row in rows:
+        for key, value in row.items():
+            if key not in columns and _is_scalar(value):
+                columns.append(key)
+    nested = sorted({k for row in rows for k, v in row.items() if not _is_scalar(v)})
+    shown = columns[:MAX_COLUMNS]
+    lines = _table(shown, [[fmt(row[c]) if c in row else "" for c in shown] for row in rows])
+    left = columns[MAX_COLUMNS:] + nested
+    if left:
+        lines += ["", f"Also in the JSON per row: {', '.join(f'`{c}`' for c in left)}."]
+    return lines
+
+
+def section(stem: str, data, results_dir: Path) -> list[str]:
+    title, what, command = SECTIONS.get(stem, (stem, "", f"python3 dev.py bench (writes {stem}.json)"))
+    lines = [f"## {title}", ""]
+    if what:
+        lines += [what, ""]
+    lines += [f"Reproduce: `{command}` (source: [`results/{stem}.json`](results/{stem}.json)).", ""]
+    if (results_dir / f"{stem}.png").exists():
+        lines += [f"![{title}](results/{stem}.png)", ""]
+    elif "/" in stem:  # an evaluation with a folder of its own: every chart in it, linked
+        folder = stem.rsplit("/", 1)[0]
+        charts = sorted(p.name for p in (results_dir / folder).glob("*.png"))
+        if charts:
+            lines += ["Charts: " + ", ".join(f"[{c[:-4]}](results/{folder}/{c})" for c in charts) + ".", ""]
+    if not isinstance(data, dict):
+        return lines + [f"(a JSON {type(data).__name__}, not tabulated)", ""]
+    figures = _figures(data)
+    if figures:
+        lines += _table(["figure", "value"], [[f"`{n}`", v] for n, v in figures]) + [""]
+    for name, rows in _row_tables(data):
+        lines += [f"**`{name}`**", ""]
+        if len(rows) > MAX_ROWS:
+            lines += [f"{len(rows)} rows (a series over the run; see the JSON and the chart).", ""]
+        else:
+            lines += _rows_table(rows) + [""]
+    return lines
+
+
+def render(results_dir: Path = RESULTS) -> str:
+    stems = sorted(p.stem for p in results_dir.glob("*.json"))
+    stems += sorted(f"{p.parent.name}/report" for p in results_dir.glob("*/report.json"))
+    ordered = [s for s in SECTIONS if s in stems] + [s for s in stems if s not in SECTIONS]
+    lines = ["# Results", "",
+             "<!-- Generated by `python3 dev.py results` (docs/gen_results.py) from docs/results/*.json: "
+             "do not edit by hand. -->", "",
+             "Every figure sarbot's documentation quotes, as measured by the benchmarks (`python3 dev.py bench` "
+             "runs them all; `--quick` makes each a smoke run) on the project's 2-core development machine. Each "
+             "benchmark reports ratios against a baseline run in the same process, so a slower machine changes the "
+             "absolute numbers, not the comparisons. The reference study on simulated data is "
+             "[its own report](results/paper/report.md) (`sarbot experiment paper`). What the numbers mean and "
+             "how they came about: [benchmark notes](benchmark-notes.md).", "",
+             "Contents: " + ", ".join(f"[{SECTIONS.get(s, (s,))[0]}](#{_anchor(SECTIONS.get(s, (s,))[0])})"
+                                      for s in ordered), ""]
+    for stem in ordered:
+        data = json.loads((results_dir / f"{stem}.json").read_text())
+        lines += section(stem, data, results_dir)
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def _anchor(title: str) -> str:
+    """The heading's id as MkDocs (Python-Markdown's toc) makes it."""
+    text = "".join(ch for ch in title.lower() if ch.isalnum() or ch in " -_")
+    return "-".join(text.split())
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--output", type=Path, default=OUTPUT, help="the page to write (default docs/results.md)")
+    ap.add_argument("--results", type=Path, default=RESULTS, help="where the JSON files are (default docs/results)")
+    args = ap.parse_args(argv)
+    args.output.write_text(render(args.results))
+    print(f"wrote {args.output}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
