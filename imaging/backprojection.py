@@ -244,17 +244,17 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
             ibase = np.int64(base)
             # A TX shared with the previous profile (the RX channels of one chirp) has the same offsets.
             if p == p0 or tx[p, 0] != tx[p - 1, 0] or tx[p, 1] != tx[p - 1, 1] or tx[p, 2] != tx[p - 1, 2]:
-                a0, a1, a2, a_n = np.float32(ua0), np.float32(ua1), np.float32(ua2), np.float32(ua)
+                a0, a1, a2 = np.float32(2.0 * ua0), np.float32(2.0 * ua1), np.float32(2.0 * ua2)
+                a_n, a_n2 = np.float32(ua), np.float32(ua * ua)
                 for i in range(nb):
-                    va0, va1, va2 = a0 + dx[i], a1 + dy[i], a2 + dz[i]
-                    da[i] = (np.float32(2.0) * (a0 * dx[i] + a1 * dy[i] + a2 * dz[i]) + dd[i]) / (
-                        math.sqrt(va0 * va0 + va1 * va1 + va2 * va2) + a_n)
-            b0, b1, b2, b_n = np.float32(ub0), np.float32(ub1), np.float32(ub2), np.float32(ub)
+                    # |u + d|^2 = |u|^2 + (2 u.d + d.d): the sum's rounding only touches the denominator.
+                    num = a0 * dx[i] + a1 * dy[i] + a2 * dz[i] + dd[i]
+                    da[i] = num / (math.sqrt(a_n2 + num) + a_n)
+            b0, b1, b2 = np.float32(2.0 * ub0), np.float32(2.0 * ub1), np.float32(2.0 * ub2)
+            b_n, b_n2 = np.float32(ub), np.float32(ub * ub)
             for i in range(nb):
-                vb0, vb1, vb2 = b0 + dx[i], b1 + dy[i], b2 + dz[i]
-                db = (np.float32(2.0) * (b0 * dx[i] + b1 * dy[i] + b2 * dz[i]) + dd[i]) / (
-                    math.sqrt(vb0 * vb0 + vb1 * vb1 + vb2 * vb2) + b_n)
-                ddr = da[i] + db
+                num = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
+                ddr = da[i] + num / (math.sqrt(b_n2 + num) + b_n)
                 # Position relative to the centre's bin (+1 guard bin in base); clamped onto the guard bins.
                 lp = frac_c + ddr * inv32
                 lp = lp if lp > lo else lo
