@@ -3,7 +3,8 @@
 torchbp (built from ``../shared/bench/``, its newest public source, by ``python3 dev.py bench --peers`` into
 a benchmark-only environment: never a dependency of sarbot or its tests) runs its Cartesian CPU kernel
 (``backprojection_cart_2d``) and its polar one (``backprojection_polar_2d``) beside sarbot's kernel
-(``imaging.backprojection.backproject``, linear, 16x oversampled profiles) on two cases:
+(``imaging.backprojection.backproject``, linear, 16x oversampled profiles) on two cases, and the two FFBPs
+(``ops.ffbp`` and ``imaging.factorized_backprojection``) on the second, each against its own direct kernel:
 
 ``benchmark``    the backprojection benchmark's case: 16 frames of the left-front radar, all 16 bistatic
                  channels (16,384 profiles), onto 256 x 256 pixels (1 m x 1 m, 2 m away).
@@ -185,6 +186,55 @@ def run_case(name: str, samples, wf, tx, rx, grid, rounds: int) -> dict:
     return result
 
 
+def ffbp_case(samples, wf, tx, rx, grid, rounds: int, stages: int = 8) -> dict:
+    """Each FFBP beside its own direct kernel on the one-antenna pass: sarbot's (Cartesian pixels, default
+    options, 8x oversampled profiles) and torchbp's (``ops.ffbp`` onto its polar grid over the same pixels,
+    ``stages`` recursions, its default interpolation; both of its images range-dealiased, as its FFBP
+    documents for comparison with the direct kernel). Time alternating; error = energy of FFBP's image minus
+    the same tool's direct image, over the direct image's, dB."""
+    from imaging.factorized_backprojection import backproject_factorized
+
+    numba.set_num_threads(min(THREADS, numba.config.NUMBA_NUM_THREADS))
+    prof8 = range_compress(samples, wf.f0_hz, wf.frequency_step_hz, oversample=8, guarded=True)
+    prof16 = range_compress(samples, wf.f0_hz, wf.frequency_step_hz, oversample=16, guarded=True)
+    tb = Torchbp(prof16, tx, rx, grid)
+    x, y, z = grid[0, :, 0], grid[:, 0, 1], float(grid[0, 0, 2])
+
+    def tb_direct():
+        return tb.ops.backprojection_polar_2d(tb.data, tb.polar, pos=tb.pos_polar, dealias=True, **tb.kw)
+
+    def tb_ffbp():
+        return tb.ops.ffbp(tb.data, tb.polar, pos=tb.pos_polar, stages=stages, dealias=True, **tb.kw)
+
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        times = alternate({"sarbot_ffbp": lambda: backproject_factorized(prof8, tx, rx, x, y, z),
+                           "sarbot_direct": lambda: backproject(prof8, tx, rx, grid),
+                           "torchbp_ffbp": tb_ffbp, "torchbp_direct_polar": tb_direct}, rounds)
+        s_ffbp, s_direct = backproject_factorized(prof8, tx, rx, x, y, z), backproject(prof8, tx, rx, grid)
+        t_ffbp, t_direct = tb_ffbp().numpy(), tb_direct().numpy()
+    med = {k: statistics.median(v) for k, v in times.items()}
+
+    def err(a, b):
+        return float(20 * np.log10(np.linalg.norm(a - b) / np.linalg.norm(b)))
+
+    out = {"aperture_m": float(np.ptp(tb.mid[:, 0])), "profiles": int(tx.shape[0]), "pixels": int(x.size * y.size),
+           "torchbp_stages": stages, "seconds_median": med,
+           "sarbot_ffbp_over_torchbp_ffbp": ratio_stats(times["sarbot_ffbp"], times["torchbp_ffbp"]),
+           "speedup_over_own_direct": {"sarbot": med["sarbot_direct"] / med["sarbot_ffbp"],
+                                       "torchbp": med["torchbp_direct_polar"] / med["torchbp_ffbp"]},
+           "error_vs_own_direct_db": {"sarbot": err(s_ffbp, s_direct), "torchbp": err(t_ffbp, t_direct)},
+           "torchbp_warnings": sorted({str(w.message)[:200] for w in caught})}
+    print(f"FFBP, one-antenna pass ({out['aperture_m']:.2f} m): sarbot {med['sarbot_ffbp']:.2f} s "
+          f"({out['speedup_over_own_direct']['sarbot']:.1f}x its direct kernel, {out['error_vs_own_direct_db']['sarbot']:.1f} dB), "
+          f"torchbp {med['torchbp_ffbp']:.2f} s ({out['speedup_over_own_direct']['torchbp']:.1f}x its direct polar kernel, "
+          f"{out['error_vs_own_direct_db']['torchbp']:.1f} dB); sarbot/torchbp "
+          f"{out['sarbot_ffbp_over_torchbp_ffbp']['median']:.2f}x", flush=True)
+    return out
+
+
 def far_from_origin(n_profiles: int) -> dict:
     """Both kernels on the one-antenna case 5 km from the world origin: SER against the same scene's exact
     image at the origin (sarbot's positions are float64; torchbp's are float32)."""
@@ -229,8 +279,10 @@ def main() -> int:
     rounds = args.rounds or (2 if args.quick else 7)
     frames, one, px = (4, 1024, 128) if args.quick else (16, 4096, 256)
     load_before = load_average()
+    one_antenna = one_antenna_case(one, px, px)
     cases = {"benchmark": run_case("benchmark", *make_case(frames, px, px), rounds),
-             "one_antenna": run_case("one_antenna", *one_antenna_case(one, px, px), rounds)}
+             "one_antenna": run_case("one_antenna", *one_antenna, rounds)}
+    ffbp = ffbp_case(*one_antenna, max(2, rounds // 2))
     far = far_from_origin(512 if args.quick else 1024)
     result = {
         "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(), "numba": numba.__version__,
@@ -241,6 +293,7 @@ def main() -> int:
                   "2 threads; ratios per round, median over rounds; SER against sarbot's exact matched filter on each "
                   "one's own geometry (torchbp: monostatic midpoints, plane at z = 0)",
         "cases": cases,
+        "ffbp_one_antenna": ffbp,
         "far_from_origin_5km": far,
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
