@@ -84,7 +84,8 @@ def compiled_target() -> dict:
 
     codegen = cpu_target.target_context.codegen()
     features = codegen._tm_features  # noqa: SLF001 - what the JIT really uses, not what the config says
-    return {"cpu": codegen._get_host_cpu_name(), "vector_bits": 512 if "-prefer-256-bit" in features and "+avx512f" in features else 256,  # noqa: SLF001
+    wide = "-prefer-256-bit" in features and "+avx512f" in features
+    return {"cpu": codegen._get_host_cpu_name(), "vector_bits": 512 if wide else 256 if "+avx" in features else 128,  # noqa: SLF001
             "prefer_256_bit_off": "-prefer-256-bit" in features}
 
 

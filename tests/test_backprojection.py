@@ -226,3 +226,29 @@ def test_scattered_points_and_exact_mode_on_the_calling_thread():
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * np.abs(b).max())
         want = backproject_reference(prof, tx, rx, points, mode=mode)
         assert np.abs(a - want).max() < 2e-5 * np.abs(want).max()
+
+
+def test_full_width_vectors_where_the_cpu_has_avx512():
+    """A fresh process that imports the kernels compiles for 512-bit vectors on an AVX-512 CPU (LLVM's
+    prefer-256-bit tuning off), for numba's default elsewhere; an explicit NUMBA_CPU_FEATURES is kept."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    import llvmlite.binding as llvm
+
+    code = ("import json, os; import imaging.backprojection as b; "
+            "print(json.dumps([os.environ.get('NUMBA_CPU_FEATURES'), b.compiled_target()]))")
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CPU_FEATURES", "NUMBA_CPU_NAME")}
+    features, target = json.loads(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                                                  check=True).stdout)
+    host = llvm.get_host_cpu_features()
+    if host.get("avx512f"):
+        assert features.endswith(",-prefer-256-bit") and target["prefer_256_bit_off"] and target["vector_bits"] == 512
+    else:
+        assert features is None and not target["prefer_256_bit_off"]
+    mine = host.flatten()
+    features, target = json.loads(subprocess.run([sys.executable, "-c", code], env={**env, "NUMBA_CPU_FEATURES": mine},
+                                                 capture_output=True, text=True, check=True).stdout)
+    assert features == mine and not target["prefer_256_bit_off"]
