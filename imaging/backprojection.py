@@ -143,9 +143,11 @@ def _cos_sin_turns(t):
 
 
 @numba.njit(inline="always", fastmath=True)
-def _gather_pairs_accumulate(row, idx, frac, cos_, sin_, pairs, acc_re, acc_im, linear):
-    """As ``_gather_accumulate``, with each pixel's two neighbouring bins gathered side by side into
-    ``pairs`` [nb, 2]: one 16-byte load and store per pixel instead of two of each."""
+def _gather_pairs_accumulate(row, idx, frac, turns, pairs, acc_re, acc_im, linear):
+    """The second and third passes of a (block, profile) of the float32 kernel: gather each pixel's two
+    neighbouring bins side by side into ``pairs`` [nb, 2] (one 16-byte load and store per pixel; scalar,
+    LLVM will not vectorise a gather here), then interpolate and accumulate value * exp(-j 2 pi turns)
+    (vectorised; the sin and cos are made here, from one stored phase, rather than stored and loaded)."""
     nb = idx.size
     if linear:
         for i in range(nb):
@@ -153,20 +155,22 @@ def _gather_pairs_accumulate(row, idx, frac, cos_, sin_, pairs, acc_re, acc_im, 
             pairs[i, 0] = row[j]
             pairs[i, 1] = row[j + np.uint32(1)]
         for i in range(nb):
+            c, s = _cos_sin_turns(turns[i])
             t = frac[i]
             a = pairs[i, 0]
             b = pairs[i, 1]
             vr = a.real + t * (b.real - a.real)
             vi = a.imag + t * (b.imag - a.imag)
-            acc_re[i] += vr * cos_[i] + vi * sin_[i]
-            acc_im[i] += vi * cos_[i] - vr * sin_[i]
+            acc_re[i] += vr * c + vi * s
+            acc_im[i] += vi * c - vr * s
     else:
         for i in range(nb):
             pairs[i, 0] = row[idx[i]]
         for i in range(nb):
+            c, s = _cos_sin_turns(turns[i])
             a = pairs[i, 0]
-            acc_re[i] += a.real * cos_[i] + a.imag * sin_[i]
-            acc_im[i] += a.imag * cos_[i] - a.real * sin_[i]
+            acc_re[i] += a.real * c + a.imag * s
+            acc_im[i] += a.imag * c - a.real * s
 
 
 @numba.njit(inline="always", fastmath=True)
@@ -212,8 +216,7 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
         acc_im = np.zeros(nb, np.float32)
         idx = np.empty(nb, np.uint32)
         frac = np.empty(nb, np.float32)
-        cos_ = np.empty(nb, np.float32)
-        sin_ = np.empty(nb, np.float32)
+        pixel_turns = np.empty(nb, np.float32)  # each pixel's phase, in turns
         pairs = np.empty((nb, 2), np.complex64)
         da = np.empty(nb, np.float32)
         cx = 0.5 * (gx[g0:g0 + nb].min() + gx[g0:g0 + nb].max())
@@ -266,10 +269,8 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
                     frac[i] = lp - fl
                 else:
                     idx[i] = np.uint32(ibase + np.int64(np.floor(lp + np.float32(0.5))))
-                c, s = _cos_sin_turns(turns_c + k_turns32 * ddr)
-                cos_[i] = c
-                sin_[i] = s
-            _gather_pairs_accumulate(rows[p], idx, frac, cos_, sin_, pairs, acc_re, acc_im, linear)
+                pixel_turns[i] = turns_c + k_turns32 * ddr
+            _gather_pairs_accumulate(rows[p], idx, frac, pixel_turns, pairs, acc_re, acc_im, linear)
         for i in range(nb):
             out[g0 + i] += complex(acc_re[i], acc_im[i])
 
