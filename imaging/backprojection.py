@@ -29,8 +29,9 @@ one 16-byte pair; and on a CPU with AVX-512 numba is told to use all 512 bits (s
 ``exact``    the matched filter evaluated at the exact range (a DTFT over the raw samples): the gold standard,
              cost proportional to the samples per chirp.
 
-The kernels run in parallel over blocks of grid points; inside a block the loop runs over profiles
-(one profile row stays in L1 cache) and then over the block's points (vectorised by LLVM).
+The kernels run in parallel over blocks of grid points (or all on the calling thread: ``parallel=False``,
+for callers that spread coarser work over the cores themselves); inside a block the loop runs over
+profiles (one profile row stays in L1 cache) and then over the block's points (vectorised by LLVM).
 """
 
 from __future__ import annotations
