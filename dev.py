@@ -4,6 +4,9 @@
     python3 dev.py demo            # sarbot demo on the built-in scene
     python3 dev.py test            # the test suite (what CI runs)
     python3 dev.py bench           # the benchmarks, figures to docs/results/
+    python3 dev.py bench --peers [--bench-venv DIR] [--torch SPEC] [ARGS...]
+                                   # sarbot beside the real torchbp (benchmarks/peers.py), built from
+                                   # ../shared/bench/ into a benchmark-only environment (.bench-venv/)
     python3 dev.py results         # docs/results.md from the figures in docs/results/*.json
     python3 dev.py docs            # the documentation site (MkDocs, --strict) into site/
     python3 dev.py sarbot ARGS...  # any sarbot command
@@ -75,6 +78,77 @@ print(f"wrote constraints.txt ({len(seen)} packages)")
 """
 
 
+#: torchbp's source snapshots (see shared/bench/README.md): benchmark-only, never a dependency of sarbot.
+PEER_SOURCES = ROOT.parent / "shared" / "bench"
+#: The torch the peer is built against: a CPU build (a plain ``torch`` takes a CUDA build of several GB).
+DEFAULT_TORCH = "torch==2.13.0"
+
+
+def ensure_peer_environment(venv_dir: Path, torch_spec: str) -> Path:
+    """A virtual environment with torch, torchbp built from ``PEER_SOURCES`` and sarbot (editable), for
+    benchmarks/peers.py alone; made once, remade when the torchbp snapshot or the torch asked for changes.
+    Returns the path of the JSON that records the build (source, commit, compiler flags)."""
+    import json
+    import re
+    import shutil
+    import tarfile
+
+    tarballs = sorted(PEER_SOURCES.glob("torchbp-*.tar.gz"))
+    if not tarballs:
+        sys.exit(f"dev.py: no torchbp-*.tar.gz in {PEER_SOURCES} (the peers benchmark builds torchbp from there)")
+    tarball = tarballs[-1]
+    digest = hashlib.sha256(tarball.read_bytes()).hexdigest()
+    stamp = venv_dir / "torchbp-build.json"
+    py = venv_dir / ("Scripts" if os.name == "nt" else "bin") / "python"
+    if stamp.exists():
+        built = json.loads(stamp.read_text())
+        if built.get("source_sha256") == digest and built.get("torch_requested") == torch_spec and py.exists():
+            return stamp
+    print(f"dev.py: building the peers' environment in {venv_dir} ({torch_spec}, torchbp from {tarball.name}; minutes)",
+          flush=True)
+    if not py.exists():
+        venv.EnvBuilder(with_pip=True).create(venv_dir)
+    pip = [str(py), "-m", "pip", "install", "--quiet", "--disable-pip-version-check"]
+    subprocess.run([*pip, torch_spec, "numpy", "setuptools", "wheel", "packaging"], check=True)
+    src = venv_dir / "src"
+    shutil.rmtree(src, ignore_errors=True)
+    src.mkdir(parents=True)
+    with tarfile.open(tarball) as tar:
+        tar.extractall(src, filter="data")
+    (tree,) = [d for d in src.iterdir() if d.is_dir()]
+    # Its own build: CPU only, its setup.py's flags (recorded below), against the torch just installed.
+    subprocess.run([*pip, "--no-build-isolation", str(tree)], check=True, env={**os.environ, "USE_CUDA": "0"})
+    subprocess.run([*pip, "-e", str(ROOT)], check=True)
+    setup = (tree / "setup.py").read_text()
+    flags = list(dict.fromkeys(re.findall(r"\"(-O3|-march=[^\"]+|-f[a-z-]+)\"", setup.split("\"nvcc\"")[0])))
+    readme = (PEER_SOURCES / "README.md").read_text() if (PEER_SOURCES / "README.md").exists() else ""
+    commit = re.search(r"commit ([0-9a-f]{40})", readme)
+    torch_version = subprocess.run([str(py), "-c", "import torch; print(torch.__version__)"], capture_output=True,
+                                   text=True, check=True).stdout.strip()
+    stamp.write_text(json.dumps({
+        "source": tarball.name, "source_sha256": digest, "commit": commit.group(1) if commit else None,
+        "build_flags": flags, "build_env": {"USE_CUDA": "0"}, "torch_requested": torch_spec, "torch": torch_version,
+    }, indent=2))
+    return stamp
+
+
+def bench_peers(rest: list[str]) -> int:
+    """``bench --peers``: set up the peers' environment, then run benchmarks/peers.py in it."""
+    venv_dir, torch_spec, args = ROOT / ".bench-venv", DEFAULT_TORCH, []
+    it = iter(rest)
+    for arg in it:
+        if arg == "--bench-venv":
+            venv_dir = Path(next(it, "")).resolve()
+        elif arg == "--torch":
+            torch_spec = next(it, DEFAULT_TORCH)
+        else:
+            args.append(arg)
+    stamp = ensure_peer_environment(venv_dir, torch_spec)
+    py = venv_dir / ("Scripts" if os.name == "nt" else "bin") / "python"
+    return subprocess.run([str(py), str(ROOT / "benchmarks" / "peers.py"), *args], cwd=ROOT,
+                          env={**os.environ, "SARBOT_TORCHBP_BUILD": str(stamp)}).returncode
+
+
 def main(argv: list[str]) -> int:
     if not argv or argv[0] in {"-h", "--help"}:
         print(__doc__)
@@ -85,6 +159,8 @@ def main(argv: list[str]) -> int:
     ensure_environment()
     if command == "test":
         cmd = [str(BIN / "python"), "-m", "pytest", *rest]
+    elif command == "bench" and "--peers" in rest:
+        return bench_peers([a for a in rest if a != "--peers"])
     elif command == "bench":
         cmd = [str(BIN / "python"), str(ROOT / "benchmarks" / "run_all.py"), *rest]
     elif command == "demo":

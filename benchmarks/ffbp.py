@@ -4,7 +4,9 @@ The case: the left-front radar (all 16 channels, 1024 profiles a frame) driving 
 targets at about 2 m; the image 1 m x 0.6 m at 2 mm pixels (the cross-range resolution of a 2 m aperture
 at 2 m is about 2 mm). The direct kernel (``imaging.backprojection.backproject``, linear, 8x oversampled
 profiles) is the baseline, run in the same process on the same profiles; the error is FFBP's image
-against it (energy of the difference over the image's, dB), beside the plan's bound and estimate.
+against it (energy of the difference over the image's, dB), beside the plan's bound and estimate. On the
+longest aperture, FFBP's run on 1 and on 2 threads, with the machine as it is and with another process
+keeping one core busy.
 
     python benchmarks/ffbp.py [--quick]
 
@@ -16,6 +18,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -50,7 +53,38 @@ def error_db(image, reference) -> float:
     return float(20 * np.log10(np.linalg.norm(image - reference) / np.linalg.norm(reference)))
 
 
-def run_case(n_frames: int, x, y, configs, repeats: int) -> dict:
+def busy_core():
+    """Another process keeping one core busy (as the robot's drivers, recorder and odometry do)."""
+    return subprocess.Popen([sys.executable, "-c", "while True: pass"])
+
+
+def threads_study(plan, prof, tx, rx, t_direct_2: float, repeats: int) -> dict:
+    """FFBP's run on 1 and 2 threads, with the machine as it is and with another process keeping one core
+    busy; runs alternate between the thread counts. The direct kernel's 2-thread time is the baseline of
+    the speed-ups (measured with the machine as it is)."""
+    out = {}
+    for label, busy in (("as_is", False), ("one_core_busy", True)):
+        spinner = busy_core() if busy else None
+        try:
+            times = {1: [], 2: []}
+            for _ in range(repeats):
+                for threads in (1, 2):
+                    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+                    times[threads].append(timed(lambda: run_factorized(plan, prof, tx, rx), 1)[0])
+        finally:
+            numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+            if spinner is not None:
+                spinner.kill()
+                spinner.wait()
+        best = {t: min(v) for t, v in times.items()}
+        out[label] = {"run_s_1_thread": best[1], "run_s_2_threads": best[2], "two_over_one_thread_speed": best[1] / best[2],
+                      "speedup_over_direct_2_threads": {t: t_direct_2 / v for t, v in best.items()}}
+        print(f"  {label.replace('_', ' ')}: FFBP run {best[1]:.2f} s on 1 thread, {best[2]:.2f} s on 2 "
+              f"({best[1] / best[2]:.2f}x); {t_direct_2 / best[2]:.1f}x the direct kernel on 2 threads", flush=True)
+    return out
+
+
+def run_case(n_frames: int, x, y, configs, repeats: int, study_threads: bool = False) -> dict:
     samples, wf, tx, rx, _ = make_case(n_frames, 2, 2)
     prof = range_compress(samples, wf.f0_hz, wf.frequency_step_hz, oversample=8, guarded=True)
     del samples
@@ -75,6 +109,8 @@ def run_case(n_frames: int, x, y, configs, repeats: int) -> dict:
               f"plan {t_plan:.2f} s + run {t_run:.2f} s -> {row['speedup']:.1f}x the direct kernel, error "
               f"{row['error_db']:.1f} dB (estimate {row['error_estimate_db']:.1f}, bound {row['error_bound_db']:.1f}), "
               f"{plan.levels} levels, {len(plan.roots)} roots", flush=True)
+        if study_threads and options == configs[0]:
+            row["threads"] = threads_study(plan, prof, tx, rx, t_direct, max(2, repeats))
     return case
 
 
@@ -130,9 +166,9 @@ def main() -> int:
     cases = []
     for aperture in apertures:
         configs = sweep if aperture == apertures[-1] else [default]
-        cases.append(run_case(int(round(aperture / frame_m)), x, y, configs, repeats))
+        cases.append(run_case(int(round(aperture / frame_m)), x, y, configs, repeats, study_threads=aperture == apertures[-1]))
     result = {"machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(), "numba": numba.__version__,
-                          "python": platform.python_version()},
+                          "python": platform.python_version(), "load_average": os.getloadavg()},
               "case": {"speed_mps": SPEED_MPS, "range_m": 2.0, "pixel_m": float(x[1] - x[0]), "image_m": [float(np.ptp(x)), float(np.ptp(y))],
                        "profile_oversample": 8, "direct_mode": "linear", "quick": args.quick},
               "cases": cases}

@@ -38,8 +38,16 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                        "against its signal-to-error ratio to the exact matched filter; the numpy reference; torchbp "
                        "where installed.",
                        ".venv/bin/python benchmarks/backprojection.py"),
+    "kernel_versions": ("Backprojection kernel against its previous version",
+                        "The kernel against the one before issue 34 (each in a worker process of its own), timed "
+                        "alternately in one run: speed-up on 1 and 2 threads, cycles per backprojection, SER of both.",
+                        ".venv/bin/python benchmarks/kernel_versions.py"),
+    "peers": ("sarbot beside torchbp",
+              "sarbot's kernel against the real torchbp (built from ../shared/bench/) in one process, alternating: its "
+              "Cartesian and polar CPU kernels, two cases, each image's SER against the exact matched filter, 5 km out.",
+              "python3 dev.py bench --peers"),
     "image_command": ("`sarbot image` as a whole command",
-                      "The command against its kernel alone, with the time of every stage.",
+                      "The command as a new process against its kernel alone, with the time of every stage.",
                       ".venv/bin/python benchmarks/image_command.py"),
     "ffbp": ("Fast factorized backprojection",
              "FFBP against the direct kernel on the same profiles: speed-up against error energy and aperture.",

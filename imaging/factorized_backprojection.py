@@ -33,6 +33,7 @@ tone anywhere in that band; :attr:`FactorizedPlan.error_bound_db` adds it up alo
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import functools
 import math
@@ -161,12 +162,14 @@ def _sample(d, geom, gx, gy, gz, tab_r, tab_a):
     return acc, rc
 
 
-@numba.njit(parallel=True, fastmath=True, cache=True, nogil=True)
-def _merge_child(out, pg, child, cg, z, k, tab_r, tab_a):
-    """Add one child's contribution to the parent's demodulated polar image ``out`` [nr, na]."""
-    nr, na = out.shape
+@numba.njit(fastmath=True, cache=True, nogil=True)
+def _merge_rows(out, i0, i1, pg, child, cg, z, k, tab_r, tab_a):
+    """Add one child's contribution to rows i0..i1-1 of the parent's demodulated polar image ``out`` [nr, na].
+
+    Serial: ``run_factorized`` hands row ranges of every merge of a level to its own threads."""
+    na = out.shape[1]
     h = z - pg[2]
-    for i in numba.prange(nr):
+    for i in range(i0, i1):
         r = pg[7] + i * pg[8]
         for j in range(na):
             along = (pg[9] + j * pg[10]) * r
@@ -180,14 +183,20 @@ def _merge_child(out, pg, child, cg, z, k, tab_r, tab_a):
             out[i, j] += v * np.complex64(complex(math.cos(ph), math.sin(ph)))
 
 
-@numba.njit(parallel=True, fastmath=True, cache=True, nogil=True)
-def _to_plane(out, x, y, z, d, g, k, tab_r, tab_a):
-    """Add the root's image at the pixels (x[j], y[i], z) to ``out`` [ny, nx], its phase restored."""
-    for i in numba.prange(y.size):
+@numba.njit(fastmath=True, cache=True, nogil=True)
+def _to_plane_rows(out, i0, i1, x, y, z, d, g, k, tab_r, tab_a):
+    """Add the root's image at the pixels (x[j], y[i], z), rows i0..i1-1, to ``out`` [ny, nx], its phase
+    restored."""
+    for i in range(i0, i1):
         for j in range(x.size):
             v, rc = _sample(d, g, x[j], y[i], z, tab_r, tab_a)
             ph = -2.0 * k * rc
             out[i, j] += v * complex(math.cos(ph), math.sin(ph))
+
+
+def _to_plane(out, x, y, z, d, g, k, tab_r, tab_a):
+    """Add the root's image at all pixels (x[j], y[i], z) to ``out`` [ny, nx], its phase restored."""
+    _to_plane_rows(out, 0, y.size, x, y, z, d, g, k, tab_r, tab_a)
 
 
 # -- the plan: the tree, each subaperture's polar grid -------------------------------------------------------
@@ -521,38 +530,105 @@ def run_factorized(plan: FactorizedPlan, profiles: RangeProfiles, tx_m: np.ndarr
     tab_r = interpolation_table(o.taps, o.oversample_range)
     tab_a = interpolation_table(o.taps, o.oversample_angle)
     k, z = plan.wavenumber, plan.z_m
-
-    def direct(node: Subaperture, points: np.ndarray, out=None) -> np.ndarray:
-        """The direct kernel: the node's profiles onto ``points``."""
-        a, b = node.start, node.stop
-        ref = None if reference_range_m is None else reference_range_m[a:b]
-        return backproject(_slice(profiles, a, b), tx[a:b], rx[a:b], points, reference_range_m=ref, mode=o.mode, out=out)
-
-    def evaluate(node: Subaperture) -> np.ndarray:
-        if not node.children:
-            img = direct(node, node.polar_points(z))
-            r = node.r0_m + node.dr_m * np.arange(node.nr)
-            return (img * np.exp(2j * k * r)[:, None]).astype(np.complex64)
-        d = np.zeros((node.nr, node.na), np.complex64)
-        g = node.geometry
-        for child in node.children:
-            _merge_child(d, g, evaluate(child), child.geometry, z, k, tab_r, tab_a)
-        return d
-
     shape = (plan.y_m.size, plan.x_m.size)
     if out is None:
         out = np.zeros(shape, np.complex128)
     elif out.shape != shape or out.dtype != np.complex128:
         raise ValueError(f"out must be complex128 of shape {shape}, got {out.dtype} {out.shape}")
-    pixels = None
-    for root in plan.roots:
-        if root.direct:
-            if pixels is None:
-                pixels = Grid(plan.x_m, plan.y_m, np.array([z])).points()
-            direct(root, pixels, out=out)
-        else:
-            _to_plane(out, plan.x_m, plan.y_m, z, evaluate(root), root.geometry, k, tab_r, tab_a)
+
+    def direct(node: Subaperture, points: np.ndarray, out=None, parallel: bool = False) -> np.ndarray:
+        """The direct kernel (on this thread unless ``parallel``): the node's profiles onto ``points``."""
+        a, b = node.start, node.stop
+        ref = None if reference_range_m is None else reference_range_m[a:b]
+        return backproject(_slice(profiles, a, b), tx[a:b], rx[a:b], points, reference_range_m=ref, mode=o.mode,
+                           out=out, parallel=parallel)
+
+    images: dict[int, np.ndarray] = {}  # id(node) -> its demodulated polar image, until its parent has it
+
+    def leaf(node: Subaperture) -> None:
+        img = direct(node, node.polar_points(z))
+        r = node.r0_m + node.dr_m * np.arange(node.nr)
+        images[id(node)] = (img * np.exp(2j * k * r)[:, None]).astype(np.complex64)
+
+    def merge(node: Subaperture, i0: int, i1: int) -> None:
+        d, g = images[id(node)], node.geometry
+        for child in node.children:
+            _merge_rows(d, i0, i1, g, images[id(child)], child.geometry, z, k, tab_r, tab_a)
+
+    roots = [r for r in plan.roots if not r.direct]
+
+    def to_pixels(i0: int, i1: int) -> None:
+        for root in roots:
+            _to_plane_rows(out, i0, i1, plan.x_m, plan.y_m, z, images[id(root)], root.geometry, k, tab_r, tab_a)
+
+    # Coarse work, level by level: every leaf is one task, every merge and the pixels are cut into row
+    # ranges; the tasks of a level go to a pool of numba's thread count, each run on one thread. A core taken
+    # by another process then only takes fewer tasks: nothing waits for it but the level's last task.
+    # (Parallel regions inside each small step, as before, made every step wait for the slowest core.)
+    threads = max(1, numba.get_num_threads())
+    nodes = [n for root in roots for n in _subtree(root)]
+    levels = sorted({n.level for n in nodes})
+    with _Pool(threads) as pool:
+        for level in levels:
+            at = [n for n in nodes if n.level == level]
+            if level == 0:
+                pool.run([functools.partial(leaf, n) for n in at])
+                continue
+            for n in at:
+                images[id(n)] = np.zeros((n.nr, n.na), np.complex64)
+            pool.run([functools.partial(merge, n, i0, i1) for n in at for i0, i1 in _row_ranges(n.nr, n.na, threads)])
+            for n in at:
+                for child in n.children:
+                    del images[id(child)]
+        pool.run([functools.partial(to_pixels, i0, i1) for i0, i1 in _row_ranges(shape[0], shape[1], threads)])
+    # Profiles that go straight onto the pixels: one call of the direct kernel, itself parallel.
+    direct_roots = [r for r in plan.roots if r.direct]
+    if direct_roots:
+        pixels = Grid(plan.x_m, plan.y_m, np.array([z])).points()
+        for root in direct_roots:
+            direct(root, pixels, out=out, parallel=True)
     return out
+
+
+#: Samples per task of a merge or of the pixels: large enough that a task is milliseconds, not microseconds.
+TASK_SAMPLES = 16384
+
+
+def _row_ranges(rows: int, columns: int, threads: int) -> list:
+    """Row ranges of a [rows, columns] image, each about TASK_SAMPLES (at least 4 per thread when it is
+    large enough, so that an uneven split evens out)."""
+    n = max(1, min(rows, max(rows * columns // TASK_SAMPLES, 4 * threads if rows * columns >= 4 * threads * 1024 else 1)))
+    edges = np.linspace(0, rows, n + 1).astype(int)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
+def _subtree(node: Subaperture):
+    yield node
+    for child in node.children:
+        yield from _subtree(child)
+
+
+class _Pool:
+    """Run lists of tasks on ``threads`` threads, each taking the next task when it is free (on the calling
+    thread alone for one thread)."""
+
+    def __init__(self, threads: int):
+        self.executor = concurrent.futures.ThreadPoolExecutor(threads) if threads > 1 else None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if self.executor is not None:
+            self.executor.shutdown()
+
+    def run(self, tasks: list) -> None:
+        if self.executor is None or len(tasks) == 1:
+            for task in tasks:
+                task()
+            return
+        for future in [self.executor.submit(task) for task in tasks]:
+            future.result()  # re-raises a task's error here
 
 
 def backproject_factorized(profiles: RangeProfiles, tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray,

@@ -7,7 +7,7 @@ from imaging.backprojection import (
     PATCH,
     PHASE_ROUNDING_RAD,
     _cos_sin,
-    _cos_sin_half_turns,
+    _cos_sin_turns,
     backproject,
     max_block_extent_m,
     patch_order,
@@ -125,13 +125,17 @@ def test_patch_order_walks_squares():
     assert patch_order((5, 3)) is None and patch_order((100,)) is None
 
 
-def test_half_turn_sin_cos_against_numpy():
-    phase = np.concatenate([np.linspace(-50, 50, 10001), np.linspace(-2000, 2000, 4001)]).astype(np.float32)
-    got = np.array([_cos_sin_half_turns(p) for p in phase])
-    # float32 polynomials plus the float32 reduction of |x| up to 2000 rad (2^-24 x 2000 = 1.2e-4)
-    tol = 3e-7 + np.abs(phase.astype(np.float64)) * 2.0 ** -23
-    assert np.all(np.abs(got[:, 0] - np.cos(phase.astype(np.float64))) < tol)
-    assert np.all(np.abs(got[:, 1] - np.sin(phase.astype(np.float64))) < tol)
+def test_turns_sin_cos_against_numpy():
+    """The float32 block kernel's (cos, sin) of 2 pi t, t in turns: polynomial error 3e-6 (100 dB under the
+    image; it replaced the half-turn version, 3e-7), plus t's own float32 rounding, whole turns exact."""
+    turns = np.concatenate([np.linspace(-8, 8, 10001), np.linspace(-320, 320, 4001)]).astype(np.float32)
+    got = np.array([_cos_sin_turns(t) for t in turns])
+    angle = 2 * np.pi * turns.astype(np.float64)
+    tol = 3e-6 + np.abs(angle) * 2.0 ** -23
+    assert np.all(np.abs(got[:, 0] - np.cos(angle)) < tol)
+    assert np.all(np.abs(got[:, 1] - np.sin(angle)) < tol)
+    small = np.abs(turns) < 8
+    assert np.abs(got[small, 1] - np.sin(angle[small])).max() > 1e-7  # a polynomial, not numpy's sin
 
 
 def test_far_from_origin_kernel_stays_exact():
@@ -191,3 +195,60 @@ def test_out_accumulates_also_into_a_non_contiguous_view(mode):
     np.testing.assert_array_equal(big[:, 1::2], 1.0 + 2.0j)
     with pytest.raises(ValueError, match="complex128 of shape"):
         backproject(prof, tx, rx, grid, mode=mode, out=np.zeros((6, 10), np.complex64))
+
+
+@pytest.mark.parametrize("parallel", [True, False], ids=["parallel", "calling-thread"])
+@pytest.mark.parametrize("far", [0.0, 5000.0])
+@pytest.mark.parametrize("mode", ["nearest", "linear"])
+def test_shared_tx_profiles_match_numpy_reference(mode, far, parallel):
+    """Profiles in runs that share a TX (the RX channels of one chirp), as the float32 block kernel ranges
+    that TX once per run: the same image as the numpy reference, on the parallel kernels and on the
+    calling thread alone (``parallel=False``, FFBP's leaves)."""
+    prof, tx, rx, grid = grid_case((40, 70), far)
+    n_rx = 4
+    tx = np.repeat(tx[::n_rx], n_rx, axis=0)[: tx.shape[0]]  # runs of 4 profiles with one TX, the RX apart
+    assert np.array_equal(tx[1], tx[0]) and not np.array_equal(tx[n_rx], tx[0])
+    got = backproject(prof, tx, rx, grid, mode=mode, parallel=parallel)
+    want = backproject_reference(prof, tx, rx, grid, mode=mode)
+    scale = np.abs(want).max()
+    assert np.abs(got - want).max() < 2e-5 * scale
+    # the same numbers either way: the block kernel's arithmetic does not depend on the threads
+    other = backproject(prof, tx, rx, grid, mode=mode, parallel=not parallel)
+    np.testing.assert_allclose(got, other, rtol=0, atol=1e-6 * scale)
+
+
+def test_scattered_points_and_exact_mode_on_the_calling_thread():
+    """The float64 kernel and the matched filter, on the calling thread: the same as the parallel ones."""
+    prof, tx, rx, points, _ = synthetic_case(np.random.default_rng(5))
+    for mode in ("linear", "exact"):
+        a = backproject(prof, tx, rx, points, mode=mode, parallel=False)
+        b = backproject(prof, tx, rx, points, mode=mode)
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * np.abs(b).max())
+        want = backproject_reference(prof, tx, rx, points, mode=mode)
+        assert np.abs(a - want).max() < 2e-5 * np.abs(want).max()
+
+
+def test_full_width_vectors_where_the_cpu_has_avx512():
+    """A fresh process that imports the kernels compiles for 512-bit vectors on an AVX-512 CPU (LLVM's
+    prefer-256-bit tuning off), for numba's default elsewhere; an explicit NUMBA_CPU_FEATURES is kept."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    import llvmlite.binding as llvm
+
+    code = ("import json, os; import imaging.backprojection as b; "
+            "print(json.dumps([os.environ.get('NUMBA_CPU_FEATURES'), b.compiled_target()]))")
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CPU_FEATURES", "NUMBA_CPU_NAME")}
+    features, target = json.loads(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                                                  check=True).stdout)
+    host = llvm.get_host_cpu_features()
+    if host.get("avx512f"):
+        assert features.endswith(",-prefer-256-bit") and target["prefer_256_bit_off"] and target["vector_bits"] == 512
+    else:
+        assert features is None and not target["prefer_256_bit_off"]
+    mine = host.flatten()
+    features, target = json.loads(subprocess.run([sys.executable, "-c", code], env={**env, "NUMBA_CPU_FEATURES": mine},
+                                                 capture_output=True, text=True, check=True).stdout)
+    assert features == mine and not target["prefer_256_bit_off"]

@@ -47,6 +47,23 @@ def test_simulate_image_analyze(recording, tmp_path):
     assert report["cross_range"]["ratio_to_theory"] == pytest.approx(1.0, abs=0.05)
 
 
+def test_image_imports_autofocus_only_when_asked(recording, tmp_path):
+    """``sarbot image`` without --autofocus does not import imaging.autofocus (scipy.optimize: 0.6 s of a
+    whole process); with it, it does."""
+    code = ("import sys; from acquisition.cli import main; code = main(sys.argv[1:]); "
+            "print('imported' if 'imaging.autofocus' in sys.modules else 'not imported'); sys.exit(code)")
+    args = [recording, "-o", tmp_path / "a.h5", "--frames", "10:20", "--grid", "-0.05:0.05:0.005,1.9:2.1:0.005",
+            "--tx", "0", "--rx", "0"]
+    res = subprocess.run([sys.executable, "-c", code, "image", *map(str, args)], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip().endswith("not imported")
+    args[2] = tmp_path / "b.h5"
+    res = subprocess.run([sys.executable, "-c", code, "image", *map(str, args), "--autofocus", "pga"], capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip().endswith("imported") and "not imported" not in res.stdout
+
+
 def test_image_with_ffbp_equals_the_direct_image(recording, tmp_path):
     """``--algorithm ffbp``: the same image as the direct kernel within -40 dB (all channels, the whole
     pass), the plan's error figures in the file; a volume grid is a one-line error."""

@@ -110,7 +110,6 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_image(args) -> int:
-    from imaging.autofocus import AutofocusOptions
     from imaging.image_formation import ImagingOptions, image_recording, image_title
     from imaging.io.image_file import write_image
     from imaging.io.recording import Recording
@@ -128,7 +127,11 @@ def cmd_image(args) -> int:
     options = ImagingOptions(mode=args.mode, window=args.window, oversample=args.oversample,
                              tx=opt.parse_channels(args.tx, "tx"), rx=opt.parse_channels(args.rx, "rx"),
                              algorithm=args.algorithm, aperture_window=args.aperture_window)
-    autofocus = AutofocusOptions(method=args.autofocus, sinusoids=args.autofocus_sinusoids)
+    autofocus = None
+    if args.autofocus != "none":  # imaging.autofocus (scipy.optimize) costs 0.6 s to import: only when asked
+        from imaging.autofocus import AutofocusOptions
+
+        autofocus = AutofocusOptions(method=args.autofocus, sinusoids=args.autofocus_sinusoids)
     with Recording(args.recording) as rec:
         img = image_recording(rec, args.radar, args.grid, args.trajectory, opt.parse_frames(args.frames), options,
                               progress=Progress("backproject"), autofocus=autofocus, imu_aided=args.imu_aided,

@@ -1,0 +1,154 @@
+"""The backprojection kernel against an earlier version of itself, timed alternately in one run.
+
+Each version runs in a worker process of its own (numba compiles for one target per process, and the
+earlier kernel ran with numba's default one), built from ``git show COMMIT:imaging/backprojection.py``, on
+the same case (the backprojection benchmark's: 16 frames of the left-front radar, 16 channels, 256 x 256
+pixels, linear, 16x oversampled profiles). The parent asks each worker in turn to backproject once and
+report its wall time and the CPU time its threads used; the ratio is taken per round, the median over
+rounds reported, for 1 and 2 threads. Cycles per backprojection are CPU seconds x the CPU's clock
+(/proc/cpuinfo) / backprojections: what the kernel costs a core, whatever else the machine runs.
+
+    python benchmarks/kernel_versions.py [--quick] [--baseline COMMIT] [--rounds N]
+
+Writes docs/results/kernel_versions.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "docs" / "results"
+#: The kernel before issue 34 (the last commit before its branch).
+BASELINE = "9dd63ca"
+
+WORKER = r"""
+import importlib.util, json, os, sys, time
+sys.path[:0] = [{root!r}, {benchmarks!r}]
+spec = importlib.util.spec_from_file_location("kernel_under_test", {module!r})
+bp = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(bp)
+import numba
+import numpy as np
+from backprojection import make_case, ser_db
+from imaging.range_compression import range_compress
+frames, px = {frames}, {px}
+samples, wf, tx, rx, grid = make_case(frames, px, px)
+prof = range_compress(samples, wf.f0_hz, wf.frequency_step_hz, oversample=16, guarded=True)
+sub = grid[::8, ::8]
+exact = bp.backproject(prof, tx, rx, sub, mode="exact")
+ser = ser_db(bp.backproject(prof, tx, rx, grid)[::8, ::8], exact)
+from numba.core.registry import cpu_target
+features = cpu_target.target_context.codegen()._tm_features
+print(json.dumps({{"ready": True, "ser_db": ser, "work": int(tx.shape[0] * px * px),
+                  "prefer_256_bit_off": "-prefer-256-bit" in features}}), flush=True)
+for line in sys.stdin:
+    numba.set_num_threads(int(line))
+    c, t = time.process_time(), time.perf_counter()
+    bp.backproject(prof, tx, rx, grid)
+    print(json.dumps({{"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}}), flush=True)
+"""
+
+
+def cpu_hz() -> float | None:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("cpu MHz"):
+                return float(line.split(":")[1]) * 1e6
+    except OSError:
+        pass
+    return None
+
+
+def start_worker(module: Path, frames: int, px: int, env: dict) -> tuple[subprocess.Popen, dict]:
+    code = WORKER.format(root=str(ROOT), benchmarks=str(ROOT / "benchmarks"), module=str(module), frames=frames, px=px)
+    proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                            env=env, cwd=ROOT)
+    return proc, json.loads(proc.stdout.readline())
+
+
+def ask(proc: subprocess.Popen, threads: int) -> dict:
+    proc.stdin.write(f"{threads}\n")
+    proc.stdin.flush()
+    return json.loads(proc.stdout.readline())
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--baseline", default=BASELINE, help=f"the earlier kernel's commit (default {BASELINE})")
+    ap.add_argument("--rounds", type=int, default=None)
+    args = ap.parse_args()
+    frames, px = (4, 128) if args.quick else (16, 256)
+    rounds = args.rounds or (2 if args.quick else 6)
+    with tempfile.TemporaryDirectory() as tmp:
+        old_module = Path(tmp) / "backprojection_baseline.py"
+        old_module.write_text(subprocess.run(["git", "show", f"{args.baseline}:imaging/backprojection.py"], cwd=ROOT,
+                                             capture_output=True, text=True, check=True).stdout)
+        base_env = {k: v for k, v in os.environ.items() if k != "NUMBA_CPU_FEATURES"}
+        # The earlier kernel with numba's own target, the host's features as LLVM tunes them (set explicitly,
+        # so that importing the current imaging.backprojection for the case leaves them alone); a cache of
+        # its own, apart from the project's.
+        import llvmlite.binding as llvm
+
+        host = llvm.get_host_cpu_features().flatten()
+        old, old_info = start_worker(old_module, frames, px, {**base_env, "NUMBA_CPU_FEATURES": host,
+                                                              "NUMBA_CACHE_DIR": str(Path(tmp) / "cache")})
+        new, new_info = start_worker(ROOT / "imaging" / "backprojection.py", frames, px, base_env)
+        work = new_info["work"]
+        hz = cpu_hz()
+        per_threads = {}
+        try:
+            for threads in (1, 2):
+                ask(old, threads), ask(new, threads)  # warm
+                rows = [(ask(old, threads), ask(new, threads)) for _ in range(rounds)]
+                speedups = [o["wall_s"] / n["wall_s"] for o, n in rows]
+                cpu_ratio = [o["cpu_s"] / n["cpu_s"] for o, n in rows]
+                best_old = min(o["cpu_s"] for o, _ in rows)
+                best_new = min(n["cpu_s"] for _, n in rows)
+                per_threads[threads] = {
+                    "speedup_wall_median": statistics.median(speedups), "speedup_wall_min": min(speedups),
+                    "speedup_wall_max": max(speedups), "speedup_cpu_time_median": statistics.median(cpu_ratio),
+                    "backprojections_per_s": {"baseline": work / statistics.median(o["wall_s"] for o, _ in rows),
+                                              "current": work / statistics.median(n["wall_s"] for _, n in rows)},
+                    "cycles_per_backprojection": None if hz is None else {"baseline": best_old * hz / work,
+                                                                          "current": best_new * hz / work},
+                }
+                r = per_threads[threads]
+                cyc = r["cycles_per_backprojection"]
+                print(f"{threads} thread(s): current kernel {r['speedup_wall_median']:.2f}x the baseline's speed "
+                      f"({r['speedup_wall_min']:.2f}-{r['speedup_wall_max']:.2f}; CPU time {r['speedup_cpu_time_median']:.2f}x)"
+                      + (f", {cyc['current']:.2f} cycles per backprojection against {cyc['baseline']:.2f}" if cyc else ""),
+                      flush=True)
+        finally:
+            for proc in (old, new):
+                proc.stdin.close()
+                proc.wait(timeout=60)
+    load = os.getloadavg()
+    result = {
+        "baseline_commit": args.baseline, "case": {"frames": frames, "pixels": px * px, "backprojections": work, "quick": args.quick},
+        "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(), "cpu_hz": hz,
+                    "load_average": load},
+        "ser_db": {"baseline": old_info["ser_db"], "current": new_info["ser_db"]},
+        "full_width_vectors": {"baseline": old_info["prefer_256_bit_off"], "current": new_info["prefer_256_bit_off"]},
+        "rounds": rounds, "threads": per_threads,
+    }
+    print(f"SER against the exact matched filter: baseline {old_info['ser_db']:.2f} dB, current {new_info['ser_db']:.2f} dB; "
+          f"load average {load[0]:.2f}")
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    name = "kernel_versions_quick" if args.quick else "kernel_versions"
+    (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2))
+    print(f"wrote {RESULTS / (name + '.json')}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
