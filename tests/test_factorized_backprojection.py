@@ -11,14 +11,11 @@ from imaging.core.trajectory import PathWithTurns, StraightLine
 from imaging.factorized_backprojection import (
     FactorizedOptions,
     _to_plane,
-    _tap_offsets,
     backproject_factorized,
-    interpolation_error,
-    interpolation_rms_error,
-    interpolation_table,
     plan_factorized,
     run_factorized,
 )
+from imaging.ffbp_interpolation import _tap_offsets, interpolation_error, interpolation_rms_error, interpolation_table
 from imaging.range_compression import range_compress
 from imaging.sim.simulator import simulate_frames
 from imaging.sim.targets import PointTarget
