@@ -197,33 +197,32 @@ class ReceiveDelayStats:
 
 class ReceiveDelay:
     """A radar's host receive time minus the end of its frame (its own clock): the distribution over the last
-    ``window`` frames, and a jump -- ``confirm`` frames in a row more than ``jump_ms`` off the line the recent
-    delays follow, and within ``jump_ms`` of each other -- reported once, after which the new level is the
-    reference.
+    ``window`` frames, and a jump -- ``confirm`` frames in a row off the line the recent delays follow, by
+    more than ``jump_ms`` and more than ``scatter_factor`` times the delays' own scatter about that line, and
+    within that of each other -- reported once, after which the new level is the reference.
 
     A line, not a level: where the two clocks run at different rates (a replay at 0.5x, an unlocked radar
-    clock drifting) the delay grows steadily, which is a rate and no jump. A new level held, not frames
-    off the line: a host too busy to read its sockets for a moment delivers a few frames late by different
-    amounts, which is latency (health has it) and no step of a clock.
+    clock drifting) the delay grows steadily, which is a rate and no jump. Against the scatter: a host whose
+    sockets are read late by varying amounts (an emulator on a loaded machine: +-15 ms) has latency (health
+    shows it), not a step of a clock. A new level held: a few frames late by different amounts are no step.
     """
 
-    def __init__(self, window: int = 200, jump_ms: float = 5.0, confirm: int = 8):
+    def __init__(self, window: int = 200, jump_ms: float = 5.0, confirm: int = 8, scatter_factor: float = 6.0):
         self.window = window
         self.jump_ms = jump_ms
         self.confirm = confirm
+        self.scatter_factor = scatter_factor
         self._delays: collections.deque[tuple[float, float]] = collections.deque(maxlen=window)  # (frame end s, ms)
-        self._outliers: list[tuple[float, float]] = []
+        self._outliers: list[tuple[float, float, float]] = []  # (frame end s, ms, off the line ms)
 
-    def _expected_ms(self, t_s: float) -> float:
+    def _line(self, t_s: float) -> tuple[float, float]:
+        """The delay the recent frames' line expects at ``t_s``, ms, and their scatter about it (robust sigma)."""
         t, d = np.asarray(self._delays).T
         if np.ptp(t) <= 0:
-            return float(np.median(d))
+            return float(np.median(d)), float(1.4826 * np.median(np.abs(d - np.median(d))))
         slope, intercept = np.polyfit(t - t[0], d, 1)
-        return float(intercept + slope * (t_s - t[0]))
-
-    def _outlier_level(self) -> float:
-        """The median offset from the line of the frames that left it."""
-        return float(np.median([d - self._expected_ms(t) for t, d in self._outliers]))
+        residual = d - (intercept + slope * (t - t[0]))
+        return float(intercept + slope * (t_s - t[0])), float(1.4826 * np.median(np.abs(residual)))
 
     def add(self, receive_ns: int, frame_end_ns: int) -> str | None:
         """Take one frame; returns the jump's message when this frame confirms one."""
@@ -232,17 +231,18 @@ class ReceiveDelay:
         d = (receive_ns - frame_end_ns) * 1e-6
         t = frame_end_ns * 1e-9
         if len(self._delays) >= 10:
-            expected = self._expected_ms(t)
-            if abs(d - expected) > self.jump_ms:
-                level = d - expected
-                if self._outliers and abs(level - self._outlier_level()) > self.jump_ms:
+            expected, scatter = self._line(t)
+            threshold = max(self.jump_ms, self.scatter_factor * scatter)
+            off = d - expected
+            if abs(off) > threshold:
+                if self._outliers and abs(off - float(np.median([o[2] for o in self._outliers]))) > threshold:
                     self._outliers = []  # off the line, but not at the level the ones before it were: jitter
-                self._outliers.append((t, d))
+                self._outliers.append((t, d, off))
                 if len(self._outliers) < self.confirm:
                     return None
                 new = float(np.median([o[1] for o in self._outliers]))
                 self._delays.clear()
-                self._delays.extend(self._outliers)
+                self._delays.extend((o[0], o[1]) for o in self._outliers)
                 self._outliers = []
                 return f"receive time minus frame end jumped from {expected:.1f} ms to {new:.1f} ms"
         self._outliers = []

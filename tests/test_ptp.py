@@ -125,6 +125,19 @@ def test_clocks_at_another_rate_are_no_jump_but_a_step_on_top_is(rate):
     assert jumps == [102]
 
 
+def test_a_replay_on_a_loaded_machine_is_no_jump():
+    """The demo's emulator at 0.5x on a busy machine: frames 52 ms apart in radar time, 104 ms at the host
+    with +-15 ms of scatter (measured in a demo run). No event; a 150 ms step on top still is one."""
+    rd = ReceiveDelay()
+    rng = np.random.default_rng(3)
+    frame_end = 1_700_000_000_000_000_000 + np.arange(400) * 52_000_000
+    msgs = []
+    for k, t in enumerate(frame_end):
+        host = 1_795_643_000_000_000_000 + (t - frame_end[0]) * 2 + rng.uniform(-15e6, 15e6) + (150e6 if k >= 300 else 0)
+        msgs.append(rd.add(int(host), int(t)))
+    assert [k for k, m in enumerate(msgs) if m] == [300 + rd.confirm - 1]
+
+
 def test_frames_late_by_different_amounts_are_latency_not_a_jump():
     """A host too busy to read its sockets for a moment: frames 20-60 ms late for a few frames at a time,
     then on time again. No event; a step of 8 ms held for the confirming frames still is one."""
