@@ -81,10 +81,26 @@ def node_client() -> list[str]:
     return [node, str(NODE_DIR / "foxglove_client.mjs")]
 
 
-def _lines(proc: subprocess.Popen) -> queue.Queue:
-    out: queue.Queue = queue.Queue()
-    threading.Thread(target=lambda: [out.put(line) for line in proc.stdout], daemon=True).start()
-    return out
+class _Lines(queue.Queue):
+    """The client's stdout, line by line, read by a thread of its own. ``rest`` waits for the end of the
+    output: when the client has exited, its last lines may still be in the pipe, not yet in the queue (on a
+    loaded CI machine the one line that ends the client, the one the test wants, was read too late)."""
+
+    def __init__(self, proc: subprocess.Popen):
+        super().__init__()
+        self.reader = threading.Thread(target=lambda: [self.put(line) for line in proc.stdout], daemon=True)
+        self.reader.start()
+
+    def rest(self, timeout_s: float = 10.0) -> list[str]:
+        self.reader.join(timeout_s)
+        out = []
+        while not self.empty():
+            out.append(self.get())
+        return out
+
+
+def _lines(proc: subprocess.Popen) -> _Lines:
+    return _Lines(proc)
 
 
 def test_the_official_foxglove_ws_protocol_client_decodes_map_pose_points_and_events(node_client):
@@ -114,8 +130,7 @@ def test_the_official_foxglove_ws_protocol_client_decodes_map_pose_points_and_ev
                       live=True)
         worker.step()
         proc.wait(timeout=25)
-        while not lines.empty():
-            got.append(json.loads(lines.get()))
+        got.extend(json.loads(line) for line in lines.rest())
     finally:
         proc.kill()
         worker.write_products()
@@ -210,7 +225,7 @@ def test_a_killed_driver_reaches_the_official_client_as_an_event_and_the_file_al
             os.kill(driver, signal.SIGKILL)
             proc.wait(timeout=45)
             outcome["returncode"] = proc.returncode
-            outcome["lines"] = [json.loads(line) for line in list(lines.queue)]
+            outcome["lines"] = [json.loads(line) for line in lines.rest()]
         except BaseException as e:  # noqa: BLE001 - reported by the test below
             outcome["error"] = e
         finally:
