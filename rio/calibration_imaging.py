@@ -131,7 +131,8 @@ def form_aperture_image(aperture: Aperture, adc: np.ndarray, stamp_offset_s: flo
     if presum > 1:  # the TDM order repeats every n_tx chirps: sum each TX's `presum` consecutive chirps
         n = samples.shape[0] // (wf.n_tx * presum) * wf.n_tx * presum
         shape = (-1, presum, wf.n_tx)
-        samples = samples[:n].reshape(*shape, wf.n_rx, wf.samples_per_chirp).sum(axis=1).reshape(-1, wf.n_rx, wf.samples_per_chirp)
+        per_chirp = (wf.n_rx, wf.samples_per_chirp)
+        samples = samples[:n].reshape(*shape, *per_chirp).sum(axis=1).reshape(-1, *per_chirp)
         times = times[:n].reshape(shape)[:, presum // 2].ravel()
         tx_order = tx_order[:n].reshape(shape)[:, 0].ravel()
     cp = chirp_profiles(samples, times, tx_order, radar, believed.trajectory, window="hann", oversample=8,
@@ -142,7 +143,7 @@ def form_aperture_image(aperture: Aperture, adc: np.ndarray, stamp_offset_s: flo
     patches = []
     for target in aperture.targets:
         expected = _to_believed(target.position_m, truth, believed.trajectory, middle)
-        # coarse, wide enough for a wrong rig's offset; then fine about the peak, for its shape
+        # coarse and wide (a wrong rig's offset) for the response's shape; fine about its highest pixel for the peak
         coarse = _patch(cp, expected[:2], expected[2], half_size_m, coarse_pixel_m)
         (iy, ix), _ = find_peak(coarse["image"], coarse["x_m"], coarse["y_m"])
         fine = _patch(cp, (coarse["x_m"][ix], coarse["y_m"][iy]), expected[2], fine_half_size_m, fine_pixel_m)
@@ -160,8 +161,9 @@ def _patch(cp, centre_xy, z_m: float, half_size_m: float, pixel_m: float) -> dic
 def target_quality(patch: dict, look_xy) -> dict:
     """How sharp one target's image is: its peak amplitude, the width of its main lobe (the diameter of a
     disc of the area above -3 dB about the peak: a turning aperture's response is no ellipse along range and
-    cross range), its half-power widths along range and cross range and the PSLR of those cuts, and the peak's
-    distance from where the run expects the target (m, in the run's own frame)."""
+    cross range), its half-power widths along range and cross range and the PSLR of those cuts (None where a
+    cut has no side lobe), and the peak's distance from where the run expects the target (m, in the run's own
+    frame)."""
     from scipy import ndimage
 
     x, y = patch["x_m"], patch["y_m"]
@@ -176,7 +178,8 @@ def target_quality(patch: dict, look_xy) -> dict:
     for name, d in (("range", look), ("cross_range", np.array([-look[1], look[0]]))):
         s, v = cut(amplitude, x, y, (px, py), d, max(half, 0.01), 801)
         out[f"{name}_width_m"] = half_power_width(v, spacing=s[1] - s[0])
-        out[f"{name}_pslr_db"] = sidelobe_levels(v)[0]
+        pslr = sidelobe_levels(v)[0]
+        out[f"{name}_pslr_db"] = float(pslr) if np.isfinite(pslr) else None  # None: no side lobe along the cut
     return out
 
 
@@ -188,6 +191,9 @@ def runs_of(radar_name: str, truth: Trajectory, true_rig: Trajectory, wrong_rig:
     - "wrong_rig": the odometry on the wrong rig file, its mounts, the late clock taken as on time,
     - "calibrated": the odometry with calibration on (``calibrated``, a rio.calibration.CalibrationResult)
       on the wrong rig file's scans, the refined mount and time offset,
+    - "calibrated_clock_ignored": as "calibrated" but the radar's frames placed at their stamps (the
+      refined mount, the time offset not applied: sarbot's imaging does not apply a rig's time offset yet;
+      only for the late radar),
     - "wrong_mount_true_odometry": the true rig's odometry imaged with the wrong mount and clock (what the
       wrong rig file costs the image by itself, without what it costs the odometry).
 
@@ -205,7 +211,9 @@ def runs_of(radar_name: str, truth: Trajectory, true_rig: Trajectory, wrong_rig:
             "wrong_rig": (late, BelievedRig(wrong_rig, wrong_mount(radar.mount), 0.0)),
             "calibrated": (late, BelievedRig(calibrated.rio.trajectory, refined.refined_mount(),
                                              refined.refined_time_offset_s())),
-            "wrong_mount_true_odometry": (late, BelievedRig(true_rig, wrong_mount(radar.mount), 0.0))}
+            "wrong_mount_true_odometry": (late, BelievedRig(true_rig, wrong_mount(radar.mount), 0.0)),
+            **({"calibrated_clock_ignored": (late, BelievedRig(calibrated.rio.trajectory, refined.refined_mount()))}
+               if late else {})}
 
 
 def compare_runs(aperture: Aperture, truth: Trajectory, runs: dict, seed: int = 0, keep_images: bool = False) -> dict:
