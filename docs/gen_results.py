@@ -79,6 +79,13 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                     "(pitch and the lever arm along z are not taken: a floor robot cannot show them), and the "
                     "odometry's drift with the true rig, the wrong rig and the wrong rig calibrated online.",
                     ".venv/bin/python benchmarks/calibration.py"),
+    "calibration_stripmap": ("What calibration buys the image",
+                             "Point targets seen by each radar of the miscalibrated rig while the robot sets off into a "
+                             "turn (raw frames along the true track), imaged by backprojection on what each odometry run "
+                             "believes: the true rig, the wrong rig file, the wrong rig calibrated online (trajectory, "
+                             "refined mounts and time offset), and the true rig's odometry with the wrong mounts and "
+                             "clock. Peak and main-lobe width against the image on the true rig's odometry.",
+                             ".venv/bin/python benchmarks/calibration_stripmap.py"),
     "pointcloud": ("Point clouds from raw frames",
                    "What each live odometry scan costs before the filter sees it, stage by stage.",
                    ".venv/bin/python benchmarks/pointcloud.py"),
