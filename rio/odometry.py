@@ -101,6 +101,8 @@ def run_rio(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOptio
     ekf.initialise_static(t_imu[k0], acc[still], gyr[still], options.initial_position_m, options.initial_yaw_rad)
     ekf.propagate(t_imu[k0], acc[k0], gyr[k0])
     start_mounts = add_calibration_states(ekf, scans, options)
+    if not start_mounts:  # the rig's known clock offsets, where the filter does not estimate them
+        scans = shift_by_known_offsets(scans, options.calibration_priors)
     calibration_log: list = []
     out_every = max(1, int(round((1e9 / np.median(np.diff(t_imu))) / options.output_rate_hz)))
     record = (np.arange(t_imu.size) - k0) % out_every == 0
@@ -172,6 +174,16 @@ def run_rio(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOptio
     stats["scans"] = len(scans)
     stats["imu_samples"] = int(t_imu.size)
     return RioResult(traj, cov, dict(stats), status_log, bgs, bas, ekf.calibration_estimates(), calibration_log)
+
+
+def shift_by_known_offsets(scans: list[RadarScan], priors: dict) -> list[RadarScan]:
+    """Each scan at the IMU time its stamp stands for: the stamp less its radar's time offset (radar stamp
+    minus IMU time) as ``priors`` (name -> CalibrationPrior, a rig's ``[radar.NAME.calibration]``) give it."""
+    offsets_ns = {name: int(round(p.time_offset_s * 1e9)) for name, p in priors.items() if p is not None}
+    if not any(offsets_ns.values()):
+        return scans
+    return sorted((dataclasses.replace(s, time_ns=s.time_ns - offsets_ns.get(s.radar, 0)) for s in scans),
+                  key=lambda s: s.time_ns)
 
 
 def add_calibration_states(ekf: RadarInertialEkf, scans: list[RadarScan], options: RioOptions) -> dict:

@@ -26,7 +26,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .ekf import RadarInertialEkf
-from .odometry import RadarScan, RioOptions, add_calibration_states, radar_update
+from .odometry import RadarScan, RioOptions, add_calibration_states, radar_update, shift_by_known_offsets
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
@@ -95,6 +95,8 @@ class StreamingRio:
         return _NO_RADAR_YET if self._wait_for_first_radar else None
 
     def add_scan(self, scan: RadarScan) -> PoseBatch:
+        if not (self.options.calibrate_extrinsics or self.options.calibrate_time_offset):
+            (scan,) = shift_by_known_offsets([scan], self.options.calibration_priors)
         self.radar_seen(scan.radar, scan.time_ns)
         if self.ekf is not None and scan.time_ns < self.ekf.state.time_ns:
             # Scans of the standstill the filter started from are not late: the batch filter leaves them out too.

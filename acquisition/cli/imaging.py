@@ -37,6 +37,7 @@ def register(sub) -> None:
     s.add_argument("recording")
     s.add_argument("-o", "--output", required=True, help="image file to write (.h5); a PNG goes beside it")
     opt.imaging_options(s)
+    opt.rig_override_option(s)
     s.add_argument("--tx", help="TX channels, e.g. 0,2 (default all)")
     s.add_argument("--rx", help="RX channels, e.g. 0 (default all)")
     s.add_argument("--png", help="where to write the PNG (default: beside the image)")
@@ -133,9 +134,12 @@ def cmd_image(args) -> int:
 
         autofocus = AutofocusOptions(method=args.autofocus, sinusoids=args.autofocus_sinusoids)
     with Recording(args.recording) as rec:
+        opt.use_rig_file(rec, args.rig)
         img = image_recording(rec, args.radar, args.grid, args.trajectory, opt.parse_frames(args.frames), options,
                               progress=Progress("backproject"), autofocus=autofocus, imu_aided=args.imu_aided,
                               aperture_m=args.aperture)
+    if args.rig:  # the image says whose mounts placed its antennas
+        img.attrs["rig"] = str(args.rig)
     path = opt.write_output(out, lambda p: write_image(p, img), "-o ")
     # Not laid out beside the backprojection: its kernel has every core, and the figure's Python then holds
     # the GIL the kernel's calls need (0.15 s slower than after it, benchmarks/image_command.py).

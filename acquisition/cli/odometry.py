@@ -34,6 +34,7 @@ def register(sub) -> None:
     s.add_argument("--calibrate", action="store_true",
                    help="estimate every radar's mount and time offset online; the estimates and their standard "
                         "deviations go into the trajectory file's /calibration")
+    opt.rig_override_option(s)
     s.set_defaults(func=cmd_rio)
 
     c = sub.add_parser("calibrate", help="every radar's mount and time offset from a calibration drive, into a rig file",
@@ -80,6 +81,7 @@ def cmd_rio(args) -> int:
 
     check_rio_options(args)
     with Recording(args.recording) as rec:
+        opt.use_rig_file(rec, args.rig)
         radars = tuple(args.radar) if args.radar else None
         for name in radars or ():
             rec.radar(name)  # a clear error for an unknown name
@@ -88,6 +90,8 @@ def cmd_rio(args) -> int:
         if not scans:
             raise SarbotError(f"{args.recording}: no radar detections to run odometry on")
         truth = rec.truth()
+        # The rig's clock offsets (and, calibrating, its uncertainties) as the filter's starting point.
+        priors = {n: rec.radar(n).calibration for n in rec.radar_names if rec.radar(n).calibration is not None}
     start = {}
     if args.start_from_truth:
         if truth is None:
@@ -99,7 +103,7 @@ def cmd_rio(args) -> int:
         raise SarbotError("--calibrate needs each radar's own updates: leave out --joint")
     options = RioOptions(ekf=EkfConfig(planar=args.planar, radar_velocity_sigma_floor_mps=args.velocity_floor),
                          joint_radars=args.joint, static_init_s=args.static_init, calibrate_extrinsics=args.calibrate,
-                         calibrate_time_offset=args.calibrate, **start)
+                         calibrate_time_offset=args.calibrate, calibration_priors=priors, **start)
     try:
         result = run_rio(imu, scans, options, progress=Progress("rio"))
     except FloatingPointError as exc:

@@ -121,6 +121,20 @@ def imaging_values(args) -> dict:
             "aperture_window": args.aperture_window, "autofocus": args.autofocus, "aperture_m": args.aperture}
 
 
+def rig_override_option(s: argparse.ArgumentParser) -> None:
+    s.add_argument("--rig", metavar="TOML",
+                   help="each radar's mount and clock offset from this rig file (one sarbot calibrate wrote) instead "
+                        "of what the recording holds")
+
+
+def use_rig_file(rec, path: str | None) -> None:
+    """``--rig``: the recording's radars with the mounts and time offsets of the rig file at ``path``."""
+    if path:
+        from imaging.core.rig import load_rig
+
+        rec.use_mounts_of(load_rig(path), f"--rig {path}")
+
+
 def can_options(s: argparse.ArgumentParser) -> None:
     s.add_argument("--can", help="python-can INTERFACE[:CHANNEL], e.g. socketcan:can0 or udp_multicast:239.74.163.2")
     s.add_argument("--can-arg", action="append", help="KEY=VALUE passed to python-can's Bus (repeat), e.g. port=43113")

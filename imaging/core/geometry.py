@@ -72,11 +72,12 @@ def antenna_track(
     Parameters
     ----------
     radar : RadarConfig
-        Array (sensor frame) and mount (sensor -> body).
+        Array (sensor frame), mount (sensor -> body) and, in ``calibration``, the radar clock's offset from
+        the IMU's (radar stamp minus IMU time, s).
     trajectory : Trajectory
-        Body pose in the world frame.
+        Body pose in the world frame, in the IMU's time.
     time_ns : ndarray, shape (P,)
-        Chirp start times, int64 ns.
+        Chirp start times on the radar's clock, int64 ns.
     tx_index : ndarray, shape (P,)
         TX that sent each chirp.
     vibration : Vibration, optional
@@ -84,7 +85,10 @@ def antenna_track(
     """
     time_ns = np.asarray(time_ns, np.int64).ravel()
     tx_index = np.asarray(tx_index).ravel()
-    s = trajectory.sample(time_ns)
+    # A radar whose clock runs ahead of the IMU's by the rig's time offset (``[radar.NAME.calibration]``)
+    # measured at stamp - offset: that is where the trajectory, in the IMU's time, has it.
+    offset_ns = 0 if radar.calibration is None else int(round(radar.calibration.time_offset_s * 1e9))
+    s = trajectory.sample(time_ns - np.int64(offset_ns))
     rot = s.rotation.as_matrix()  # [P, 3, 3] body -> world
     mount = radar.mount
     # Lever arms of each antenna in the body frame.

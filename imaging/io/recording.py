@@ -17,7 +17,7 @@ import h5py
 import numpy as np
 
 from imaging.core.errors import FileFormatError
-from imaging.core.rig import AntennaArray, ImuConfig, Mount, RadarConfig
+from imaging.core.rig import AntennaArray, CalibrationPrior, ImuConfig, Mount, RadarConfig, Rig
 from imaging.core.samples import complex_to_iq, iq_to_complex
 from imaging.core.trajectory import SampledTrajectory, TrajectorySample
 from imaging.core.waveform import Waveform
@@ -114,6 +114,9 @@ class RecordingWriter:
             g.attrs["rx_positions_m"] = r.array.rx_positions_m
             g.attrs["mount_translation_m"] = r.mount.translation_m
             g.attrs["mount_rotation_xyzw"] = r.mount.rotation_xyzw
+            if r.calibration is not None:  # the rig's clock offset and uncertainties go with the mount
+                for key, value in _calibration_attrs(r.calibration).items():
+                    g.attrs[key] = value
             g.attrs["tdm_tx_order"] = np.asarray(wf.tdm_tx_order(), dtype=np.int32)
             g.attrs["wire_format"] = wire_format if isinstance(wire_format, str) else wire_format.get(r.name, "simulated")
             shape = (wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)
@@ -301,6 +304,24 @@ class RecordingWriter:
         self.close()
 
 
+_CALIBRATION_ATTRS = {"time_offset_s": "time_offset_s", "calibration_rotation_sigma_deg": "rotation_sigma_deg",
+                      "calibration_translation_sigma_m": "translation_sigma_m",
+                      "calibration_time_offset_sigma_s": "time_offset_sigma_s"}
+
+
+def _calibration_attrs(prior: CalibrationPrior) -> dict:
+    return {attr: np.asarray(getattr(prior, field), float) for attr, field in _CALIBRATION_ATTRS.items()
+            if getattr(prior, field) is not None}
+
+
+def _calibration_from_attrs(attrs) -> CalibrationPrior | None:
+    """A radar's CalibrationPrior from its /radar/NAME attributes; None where the rig had none."""
+    if "time_offset_s" not in attrs:
+        return None
+    return CalibrationPrior(**{field: (float(attrs[attr]) if np.ndim(attrs[attr]) == 0 else tuple(attrs[attr]))
+                               for attr, field in _CALIBRATION_ATTRS.items() if attr in attrs})
+
+
 class Recording:
     """Read access to a recording; checks the schema on open.
 
@@ -310,6 +331,17 @@ class Recording:
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self._f = open_checked(self.path, SCHEMA, SCHEMA_VERSION, "recording", libver="latest", swmr=True)
+        self._mounts_from: tuple[Rig, str] | None = None
+
+    def use_mounts_of(self, rig: Rig, source: str) -> None:
+        """From now on ``radar`` gives each radar's mount and calibration (time offset) as ``rig`` has them
+        (a rig ``sarbot calibrate`` refined), not as recorded; ``source`` names the rig in errors. The
+        waveform and array stay the file's: they are what the samples were taken with."""
+        missing = [n for n in self.radar_names if n not in {r.name for r in rig.radars}]
+        if missing:
+            raise FileFormatError(f"{source}: has no radar {missing[0]!r} of {self.path} "
+                                  f"(its radars: {', '.join(r.name for r in rig.radars) or 'none'})")
+        self._mounts_from = (rig, source)
 
     def close(self) -> None:
         self._f.close()
@@ -348,9 +380,13 @@ class Recording:
                 attrs = g["imu"].attrs
                 imu = ImuConfig(rate_hz=float(attrs["rate_hz"]), **{f.name: float(attrs[f.name]) for f in dataclasses.fields(ImuConfig)
                                                                     if f.name.endswith("sqrt_hz") and f.name in attrs})
+            calibration = _calibration_from_attrs(g.attrs)
         except KeyError as exc:
             raise FileFormatError(f"{self.path}: /radar/{name} lacks attribute {exc.args[0]}") from None
-        return RadarConfig(name, wf, array, mount, imu)
+        if self._mounts_from is not None:
+            other = self._mounts_from[0].radar(name)
+            mount, calibration = other.mount, other.calibration
+        return RadarConfig(name, wf, array, mount, imu, calibration)
 
     def radar_imu(self, name: str) -> dict[str, np.ndarray] | None:
         """Samples of the IMU on the radar's own mount (time_ns, gyro_radps, accel_mps2 in the radar's
