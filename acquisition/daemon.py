@@ -290,9 +290,12 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
                         split_bytes=setup.split_bytes, split_s=setup.split_s, min_free_bytes=setup.min_free_bytes,
                         frame_endpoints=[s.endpoint for role, s in specs.items() if role.startswith("radar.")],
                         on_event=lambda e: health_pub.send(LoggedEvent(e.time_ns, e.source, e.level, e.message)),
-                        receive_stamps={name: c.source for name, c in stamp_choices.items()})
+                        receive_stamps={name: c.source for name, c in stamp_choices.items()},
+                        receive_stamp_notes={name: c.line() for name, c in stamp_choices.items()})
     for name, choice in stamp_choices.items():
-        recorder.record_event(time.time_ns(), f"radar.{name}", "info", choice.line())
+        log.info("radar %s: %s", name, choice.line())
+        if choice.source == "hardware":  # the receive delay is now on the card's clock: said where it is read
+            recorder.record_event(time.time_ns(), f"radar.{name}", "info", choice.line())
     stopping = threading.Event()
 
     def on_signal(signum, frame):

@@ -122,6 +122,9 @@ def recording_info(path: str | Path) -> dict[str, Any]:
             stamp = rec.receive_stamp(name)
             if stamp is not None:  # which receive stamps timed the frames (hardware: the card's, beside the host's)
                 info["receive_stamp"] = stamp
+                note = rec.file[f"radar/{name}"].attrs.get("receive_stamp_note")
+                if note is not None:
+                    info["receive_stamp_note"] = note.decode() if isinstance(note, bytes) else str(note)
                 nic = rec.nic_time_ns(name)
                 if stamp == "hardware" and nic is not None:
                     info["nic_unstamped_frames"] = int(np.sum(nic == 0))
@@ -238,6 +241,8 @@ def format_info(d: dict[str, Any]) -> str:
                 lines.append(f"    receive stamps: {_STAMP_TEXT.get(r['receive_stamp'], r['receive_stamp'])}"
                              + (f"; {r['nic_unstamped_frames']} frames without one (host stamp only)"
                                 if r.get("nic_unstamped_frames") else ""))
+                if r.get("receive_stamp_note") and r["receive_stamp"] == "software":
+                    lines.append(f"      why: {r['receive_stamp_note'].partition('): ')[2] or r['receive_stamp_note']}")
             if "imu" in r:
                 lines.append(f"    its own IMU: {_imu_line(r['imu'])}")
             if r.get("unlocked_frames"):

@@ -80,17 +80,23 @@ class Recorder:
         Radar name -> which receive stamps its driver takes, "hardware" or "software"
         (``drivers.radar.timestamping``): each radar group's ``receive_stamp`` attribute, and with "hardware"
         the receive delay is measured with the card's stamps (``nic_time_ns``). A radar not named is not said.
+    receive_stamp_notes : dict, optional
+        Radar name -> how its stamps were chosen (``StampChoice.line``): its ``receive_stamp_note`` attribute.
     """
 
     def __init__(self, path: str | Path, rig: Rig, endpoints, flush_interval_s: float = 0.5, adc_dtype: str = "int16",
                  context=None, wire_formats: dict[str, str] | None = None, split_bytes: int | None = None,
                  split_s: float | None = None, min_free_bytes: int = 64_000_000, frame_endpoints=(), on_event=None,
-                 receive_stamps: dict[str, str] | None = None):
+                 receive_stamps: dict[str, str] | None = None, receive_stamp_notes: dict[str, str] | None = None):
         self.base_path = Path(path)
         self.rig = rig
         self.adc_dtype = adc_dtype
         self.wire_formats = {r.name: (wire_formats or {}).get(r.name, registry.DEFAULT) for r in rig.radars}
         self.receive_stamps = {n: s for n, s in (receive_stamps or {}).items() if n in self.wire_formats}
+        self._radar_attrs = {n: {"receive_stamp": s} for n, s in self.receive_stamps.items()}
+        for n, note in (receive_stamp_notes or {}).items():
+            if n in self._radar_attrs:
+                self._radar_attrs[n]["receive_stamp_note"] = note
         self.split_bytes = split_bytes
         self.split_s = split_s
         self.min_free_bytes = min_free_bytes
@@ -151,7 +157,7 @@ class Recorder:
         chain = {"part": part, "previous_part": self.paths[-1].name if self.paths else ""} if split else None
         writer = RecordingWriter(path, self.rig.radars, imu=self.rig.imu, adc_dtype=self.adc_dtype,
                                  wire_format=self.wire_formats, root_attrs=chain, clock_state=True,
-                                 radar_attrs={n: {"receive_stamp": s} for n, s in self.receive_stamps.items()})
+                                 radar_attrs=self._radar_attrs)
         for t, source in self._triggers:  # each part says how its times were tied to the first chirp
             writer.append_trigger(t, source)
         self.paths.append(path)
