@@ -17,6 +17,7 @@ import threading
 import time
 from pathlib import Path
 
+import msgpack
 import numpy as np
 import pytest
 import zmq
@@ -293,8 +294,10 @@ def test_card_stamps_go_with_their_frames_through_driver_and_recorder_and_are_sa
 
 
 def test_record_on_lo_with_auto_stamps_says_software_in_health_recording_and_info(tmp_path):
+    from acquisition.bus import Message
     from acquisition.daemon import Setup, record
     from acquisition.info import format_info, recording_info
+    from acquisition.messages import Health
     from acquisition.processes import free_port
     from drivers.radar.link import RadarLink
     from imaging.core.rig import rig_from_dict
@@ -327,6 +330,10 @@ def test_record_on_lo_with_auto_stamps_says_software_in_health_recording_and_inf
         sender.join(5)
     assert reports and all(h.receive_stamp == {"left": "software"} and h.nic_unstamped == {} for h in reports)
     assert "software receive stamps: left" in reports[-1].line()
+    parts = reports[-1].to_parts()  # as a health subscriber gets it
+    back = Health.from_message(Message(parts.topic, 0, parts.sensor_time_ns, 0,
+                                       msgpack.unpackb(msgpack.packb(parts.fields)), []))
+    assert back.receive_stamp == {"left": "software"} and back.nic_unstamped == {}
     with Recording(path) as r:
         assert r.receive_stamp("left") == "software" and r.n_frames("left") > 50
         assert not r.nic_time_ns("left").any()  # no card stamps at all

@@ -164,7 +164,7 @@ def acquisition_options(s: argparse.ArgumentParser) -> None:
                    help="radar receive time stamps: the network card's (its PTP hardware clock; the interface must stamp "
                         "every packet, and setting that needs CAP_NET_ADMIN), the kernel's (software), or auto: the card's "
                         "where it can, else the kernel's (default); a link's stamps=MODE overrides it. Said in health, "
-                        "/events and each radar's receive_stamp in the recording")
+                        "sarbot info and each radar's receive_stamp in the recording (hardware also in /events)")
     s.add_argument("--phc2sys-log", metavar="FILE",
                    help="with --ptp4l: a file phc2sys's -m output goes to; its offset joins health and /ptp")
 
