@@ -164,7 +164,7 @@ def test_ts_info_of_a_veth_in_a_namespace_is_what_ethtool_prints():
                 pytest.skip(f"cannot make a veth pair between namespaces: {' '.join(cmd)}: {res.stderr.strip()}")
         probe = ("import json, dataclasses; from drivers.radar.timestamping import timestamping_info, interface_of, "
                  "choose_receive_stamps as c; i = timestamping_info('{iface}'); print(json.dumps([i.capabilities, "
-                 "i.phc_index, i.tx_modes, i.rx_filter_modes, interface_of('10.99.36.1'), "
+                 "i.phc_index, i.tx_modes, i.rx_filter_modes, interface_of('10.99.36.1'), interface_of('0.0.0.0', '10.99.36.2'), "
                  "dataclasses.asdict(c('10.99.36.1', mode='auto'))]))")
         ns, iface = a, f"{a}v"
         printed = _ethtool_t(subprocess.run(["ip", "netns", "exec", ns, ethtool, "-T", iface], capture_output=True,
@@ -172,9 +172,10 @@ def test_ts_info_of_a_veth_in_a_namespace_is_what_ethtool_prints():
         res = subprocess.run(["ip", "netns", "exec", ns, sys.executable, "-c", probe.format(iface=iface)],
                              capture_output=True, text=True, cwd=REPO, timeout=60)
         assert res.returncode == 0, res.stderr
-        caps, phc, tx, rx, found, choice = json.loads(res.stdout)
+        caps, phc, tx, rx, found, routed, choice = json.loads(res.stdout)
         assert {"capabilities": caps, "phc_index": phc, "tx_modes": tx, "rx_filter_modes": rx} == printed
         assert found[0] == iface  # the interface that holds the link's address
+        assert routed[0] == iface and "routes to the radar's source 10.99.36.2" in routed[1]  # a wildcard bind
         assert choice["source"] == "software" and choice["interface"] == iface and "PTP hardware clock" in choice["reason"]
     finally:
         for ns in made:
