@@ -98,6 +98,8 @@ def test_scm_timestamping_as_the_kernel_writes_it_and_the_hardware_slot():
     # The card's stamp is the third timespec (struct scm_timestamping ts[2]): seconds, then nanoseconds.
     with_card = value[:32] + struct.pack("qq", 1_700_000_037, 123_456_789)
     assert parse_scm_timestamping(with_card) == (software, 0, 1_700_000_037_123_456_789)
+    # Where time_t is 32 bits, each timespec is 8 bytes.
+    assert parse_scm_timestamping(struct.pack("iiiiii", 5, 6, 0, 0, 7, 8)) == (5_000_000_006, 0, 7_000_000_008)
 
 
 def _ethtool_t(output: str) -> dict:

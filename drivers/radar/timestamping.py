@@ -71,7 +71,10 @@ RX_FILTER_NAMES = ("none", "all", "some", "ptpv1-l4-event", "ptpv1-l4-sync", "pt
 #: The choices of ``--receive-stamps``.
 MODES = ("auto", "hardware", "software")
 
-_SCM_TIMESTAMPING = struct.Struct("qqqqqq")  # struct scm_timestamping: struct timespec ts[3]
+_SCM_TIMESTAMPING = struct.Struct("qqqqqq")  # struct scm_timestamping: struct timespec ts[3], 64-bit time_t
+_SCM_TIMESTAMPING_32 = struct.Struct("iiiiii")  # the same where time_t is 32 bits (SO_TIMESTAMPING_OLD on armhf)
+#: The smallest SCM_TIMESTAMPING payload: three 8-byte timespecs.
+SCM_TIMESTAMPING_MIN_BYTES = _SCM_TIMESTAMPING_32.size
 _TS_INFO = struct.Struct("IIiI3II3I")  # struct ethtool_ts_info
 _HWTSTAMP_CONFIG = struct.Struct("iii")  # struct hwtstamp_config: flags, tx_type, rx_filter
 _IFNAMSIZ = 16
@@ -80,7 +83,7 @@ _IFREQ_BYTES = 40  # struct ifreq on a 64-bit system: the name, then a 24-byte u
 
 def parse_scm_timestamping(value: bytes) -> tuple[int, int, int]:
     """(software, legacy, raw hardware) stamps of a SCM_TIMESTAMPING control message, ns; 0 where empty."""
-    s = _SCM_TIMESTAMPING.unpack_from(value)
+    s = (_SCM_TIMESTAMPING if len(value) >= _SCM_TIMESTAMPING.size else _SCM_TIMESTAMPING_32).unpack_from(value)
     return s[0] * 1_000_000_000 + s[1], s[2] * 1_000_000_000 + s[3], s[4] * 1_000_000_000 + s[5]
 
 

@@ -24,8 +24,8 @@ import struct
 import sys
 import time
 
-from .timestamping import HARDWARE_FLAGS, SCM_TIMESTAMPING, SO_TIMESTAMPING, SOFTWARE_FLAGS, StampChoice, \
-    choose_receive_stamps, parse_scm_timestamping
+from .timestamping import HARDWARE_FLAGS, SCM_TIMESTAMPING, SCM_TIMESTAMPING_MIN_BYTES, SO_TIMESTAMPING, SOFTWARE_FLAGS, \
+    StampChoice, choose_receive_stamps, parse_scm_timestamping
 
 SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
 SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
@@ -109,7 +109,7 @@ class UdpReceiver:
             return None
         t_ns = nic_ns = 0
         for level, kind, value in ancdata:
-            if level == socket.SOL_SOCKET and kind == SCM_TIMESTAMPING and len(value) >= 48:
+            if level == socket.SOL_SOCKET and kind == SCM_TIMESTAMPING and len(value) >= SCM_TIMESTAMPING_MIN_BYTES:
                 t_ns, _, nic_ns = parse_scm_timestamping(value)
             elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
                 self.kernel_drops = struct.unpack_from("I", value)[0]
