@@ -349,3 +349,17 @@ def test_record_on_lo_with_auto_stamps_says_software_in_health_recording_and_inf
     assert info["radars"]["left"]["receive_stamp"] == "software"
     text = format_info(info)
     assert "receive stamps: software (the kernel's, CLOCK_REALTIME)" in text and "why: lo (127.0.0.1 is loopback) lacks" in text
+
+
+def test_what_a_card_lacks_for_stamping_every_datagram():
+    """The capability masks of cards ethtool -T describes: one stamping only PTP's packets (as many do), one
+    stamping all; bits as in include/uapi/linux/net_tstamp.h."""
+    hw = 0b1000101  # hardware-transmit, hardware-receive, hardware-raw-clock
+    ptp_only = TimestampingInfo("eth1", hw | 0b11010, 0, 0b11, 1 << 0 | 1 << 12)  # none, ptpv2-event
+    assert ptp_only.capabilities == ["hardware-transmit", "software-transmit", "hardware-receive", "software-receive",
+                                     "software-system-clock", "hardware-raw-clock"]
+    assert ptp_only.tx_modes == ["off", "on"] and ptp_only.rx_filter_modes == ["none", "ptpv2-event"]
+    assert ptp_only.hardware_lacks() == "the receive filter 'all' (it stamps none, ptpv2-event)"
+    assert TimestampingInfo("eth2", hw, 1, 0b11, 0b11).hardware_lacks() is None
+    assert TimestampingInfo("eth3", 0b11010, -1, 0, 0b10).hardware_lacks() == \
+        "a PTP hardware clock; hardware receive stamps (hardware-receive, hardware-raw-clock)"
