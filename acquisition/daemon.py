@@ -20,7 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from drivers.can_driver import CanConfig
+from drivers.radar import timestamping
 from drivers.radar.link import RadarLink
+from drivers.radar.timestamping import StampChoice
 from imaging.core.errors import SarbotError
 from imaging.core.rig import Rig
 
@@ -125,6 +127,20 @@ def check_links_distinct(links: list[RadarLink]) -> None:
         addresses[where] = link.name
 
 
+def choose_receive_stamps(links: list[RadarLink]) -> tuple[list[RadarLink], dict[str, StampChoice]]:
+    """Each link with its receive stamps decided ("hardware" or "software", ``drivers.radar.timestamping``)
+    before any driver starts, so the recorder can say them from the file's start, and "hardware" demanded
+    where the card cannot stamp is a SarbotError now (naming the interface and what it lacks), not a driver
+    restarted for ever. The driver demands what was decided."""
+    choices = {}
+    for link in links:
+        try:
+            choices[link.name] = timestamping.choose_receive_stamps(link.host, link.source, link.receive_stamps)
+        except SarbotError as exc:
+            raise SarbotError(f"radar {link.name}: {exc}") from None
+    return [dataclasses.replace(link, receive_stamps=choices[link.name].source) for link in links], choices
+
+
 def check_radar_addresses(links: list[RadarLink]) -> None:
     """Bind each radar's UDP address once, before any driver starts: an address this host does not have (or
     cannot listen on at all) is said now and stops the run (SarbotError), instead of a driver that dies and is
@@ -220,6 +236,8 @@ class HealthMonitor:
             ptp=rec.ptp_status,
             receive_delay={n: d for n, d in ((n, r.stats()) for n, r in rec.receive_delay.items()) if d is not None},
             unlocked_frames=dict(rec.unlocked_frames),
+            receive_stamp=dict(rec.receive_stamps),
+            nic_unstamped=dict(rec.nic_unstamped),
             workers={role: rec.worker_states.get(role) or WorkerState(role, False, 0.0, {}) for role in self.worker_roles},
             sensors_idle_s=sensors_idle_s,
             conditions=dict(rec.conditions),
@@ -252,6 +270,8 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
         raise SarbotError(f"{out_dir}: cannot create the recordings folder ({exc.strerror})") from None
     path = path or out_dir / time.strftime("recording_%Y%m%dT%H%M%S.h5")
     check_radar_addresses(setup.radars)
+    links, stamp_choices = choose_receive_stamps(setup.radars)
+    setup = dataclasses.replace(setup, radars=links)
     health_pub = open_health_publisher(setup.health_endpoint)
     ctx = mp.get_context("spawn")
     stop = ctx.Event()
@@ -269,7 +289,13 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
                         wire_formats={link.name: link.wire_format for link in setup.radars},
                         split_bytes=setup.split_bytes, split_s=setup.split_s, min_free_bytes=setup.min_free_bytes,
                         frame_endpoints=[s.endpoint for role, s in specs.items() if role.startswith("radar.")],
-                        on_event=lambda e: health_pub.send(LoggedEvent(e.time_ns, e.source, e.level, e.message)))
+                        on_event=lambda e: health_pub.send(LoggedEvent(e.time_ns, e.source, e.level, e.message)),
+                        receive_stamps={name: c.source for name, c in stamp_choices.items()},
+                        receive_stamp_notes={name: c.line() for name, c in stamp_choices.items()})
+    for name, choice in stamp_choices.items():
+        log.info("radar %s: %s", name, choice.line())
+        if choice.source == "hardware":  # the receive delay is now on the card's clock: said where it is read
+            recorder.record_event(time.time_ns(), f"radar.{name}", "info", choice.line())
     stopping = threading.Event()
 
     def on_signal(signum, frame):

@@ -18,6 +18,7 @@ from drivers.imu import ImuDriver
 from drivers.radar.link import RadarLink
 from drivers.radar.stream import RadarStream, trouble
 from drivers.radar.udp import UdpReceiver
+from imaging.core.errors import SarbotError
 from imaging.core.waveform import Waveform
 
 from .bus import FRAME_QUEUE, RECORDER_LISTENING, BusPublisher, BusSubscriber
@@ -25,6 +26,10 @@ from .messages import CanBatch, Event, ImuBatch, RadarFrameMessage, RadarImuBatc
 from .processes import become_child
 
 log = logging.getLogger(f"sarbot.{__name__}")
+
+#: With hardware stamps: how many datagrams' card stamps are kept, by host stamp, for the frames they end
+#: (a frame completes at most a reorder window after its last datagram).
+NIC_STAMPS_KEPT = 65536
 
 
 class CounterChanges:
@@ -42,13 +47,16 @@ class CounterChanges:
 def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pub: BusPublisher,
                       stop: threading.Event, report_every_s: float = 1.0) -> RadarStream:
     """Receive datagrams, reassemble frames with ``stream``, publish each frame; wire trouble and kernel
-    drops are published as events. Returns the stream."""
+    drops are published as events. With hardware receive stamps each frame carries the card's stamp of its
+    last datagram (``nic_receive_ns``) beside the kernel's. Returns the stream."""
     def counted() -> dict[str, int]:
         return {**trouble(stream.counters), "foreign_source": receiver.foreign_source}
 
     changes = CounterChanges(counted())
     last_report = time.monotonic()
     kernel_drops = 0
+    hardware = getattr(receiver, "hardware", False)
+    nic_of: dict[int, int] = {}  # host stamp -> card stamp of the recent datagrams (hardware stamps only)
     if getattr(receiver, "rcvbuf_short", None):  # said once; health repeats it
         pub.send(Event(time.time_ns(), f"radar.{radar}", "warning", receiver.rcvbuf_short, condition="receive_buffer"))
 
@@ -64,7 +72,13 @@ def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pu
                 pub.send(Event(t_ns, f"radar.{radar}", "error",
                                f"kernel dropped {drops - kernel_drops} datagram(s) (socket buffer full)"))
                 kernel_drops = drops
+            if hardware:
+                nic_of[t_ns] = receiver.last_nic_ns
+                if len(nic_of) > NIC_STAMPS_KEPT:
+                    del nic_of[next(iter(nic_of))]
             for frame in stream.feed(data, t_ns):
+                if hardware:
+                    frame.nic_receive_ns = nic_of.get(frame.receive_ns, 0)
                 pub.send(RadarFrameMessage(radar, frame))
                 if not frame.valid:
                     report(t_ns)
@@ -72,6 +86,8 @@ def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pu
             report(time.time_ns())
             last_report = time.monotonic()
     for frame in stream.flush():
+        if hardware:
+            frame.nic_receive_ns = nic_of.get(frame.receive_ns, 0)
         pub.send(RadarFrameMessage(radar, frame))
     report(time.time_ns())
     log.debug("radar %s: stream ended; %s", radar, vars(stream.counters))
@@ -244,15 +260,18 @@ def radar_process(link: RadarLink, waveform: Waveform, endpoint: str, stop, boun
     stream = link.open_stream(waveform)
     port = (bound_port.value or link.port) if bound_port is not None else link.port
     try:
-        rx = UdpReceiver(link.host, port, accept_from=link.source)
+        rx = UdpReceiver(link.host, port, accept_from=link.source, receive_stamps=link.receive_stamps)
     except OSError as exc:  # the port taken, the address not this machine's: say so in one line, and exit
         log.error("radar %s: %s", link.name, exc.strerror or exc)
+        raise SystemExit(1) from None
+    except SarbotError as exc:  # hardware stamps demanded where the card cannot give them
+        log.error("radar %s: %s", link.name, exc)
         raise SystemExit(1) from None
     # Bound first: what the radar sends from now on waits in the socket until the recorder listens.
     pub = publisher_heard_by_recorder(endpoint, f"radar {link.name}", stop, high_water_mark=FRAME_QUEUE)
     if bound_port is not None:
         bound_port.value = rx.address[1]
-    log.info("radar %s: %s on %s:%d", link.name, link.wire_format, link.host, rx.address[1])
+    log.info("radar %s: %s on %s:%d, %s", link.name, link.wire_format, link.host, rx.address[1], rx.stamps.line())
     try:
         radar_driver_loop(rx, link.name, stream, pub, stop)
     finally:

@@ -119,6 +119,15 @@ def recording_info(path: str | Path) -> dict[str, Any]:
             locked = rec.ptp_locked(name)
             if locked is not None:  # a recorder's file: the frames whose clock was not PTP-locked
                 info["unlocked_frames"] = int(np.sum(~locked))
+            stamp = rec.receive_stamp(name)
+            if stamp is not None:  # which receive stamps timed the frames (hardware: the card's, beside the host's)
+                info["receive_stamp"] = stamp
+                note = rec.file[f"radar/{name}"].attrs.get("receive_stamp_note")
+                if note is not None:
+                    info["receive_stamp_note"] = note.decode() if isinstance(note, bytes) else str(note)
+                nic = rec.nic_time_ns(name)
+                if stamp == "hardware" and nic is not None:
+                    info["nic_unstamped_frames"] = int(np.sum(nic == 0))
             if radar_imu is not None:  # the IMU on the radar's own mount
                 attrs = rec.file[f"radar/{name}/imu"].attrs
                 info["imu"] = _imu_info(radar_imu, attrs["rate_hz"], attrs.get("clock_drift_ppm"))
@@ -207,6 +216,10 @@ def _imu_line(i: dict[str, Any]) -> str:
             f"{imu_clock_text(i['clock_drift_ppm'])}")
 
 
+_STAMP_TEXT = {"hardware": "hardware (the network card's PTP hardware clock, in nic_time_ns; host_time_ns the kernel's)",
+               "software": "software (the kernel's, CLOCK_REALTIME)", "none": "none (imported)"}
+
+
 def format_info(d: dict[str, Any]) -> str:
     """The info as lines a person reads."""
     lines = [f"{d['file']}: sarbot {d['kind']}"]
@@ -224,6 +237,12 @@ def format_info(d: dict[str, Any]) -> str:
                          f"{r['counter_gaps']} missing by counter; {r['wire_format'] or 'simulated'}; "
                          f"{wf['f0_ghz']:.2f} GHz, {wf['bandwidth_mhz']:.0f} MHz, {wf['chirps_per_frame']} chirps x "
                          f"{wf['samples_per_chirp']} samples, {wf['n_tx']} TX x {wf['n_rx']} RX")
+            if "receive_stamp" in r:
+                lines.append(f"    receive stamps: {_STAMP_TEXT.get(r['receive_stamp'], r['receive_stamp'])}"
+                             + (f"; {r['nic_unstamped_frames']} frames without one (host stamp only)"
+                                if r.get("nic_unstamped_frames") else ""))
+                if r.get("receive_stamp_note") and r["receive_stamp"] == "software":
+                    lines.append(f"      why: {r['receive_stamp_note'].partition('): ')[2] or r['receive_stamp_note']}")
             if "imu" in r:
                 lines.append(f"    its own IMU: {_imu_line(r['imu'])}")
             if r.get("unlocked_frames"):

@@ -68,14 +68,16 @@ class RadarFrameMessage(BusMessage):
         f = self.frame
         return Parts(self.topic_of(self.radar), f.frame_time_ns, [f.iq],
                      {"frame_counter": f.frame_counter, "frame_time_ns": f.frame_time_ns, "receive_ns": f.receive_ns,
-                      "valid": f.valid, "bytes_missing": f.bytes_missing, "ptp_locked": f.ptp_locked})
+                      "valid": f.valid, "bytes_missing": f.bytes_missing, "ptp_locked": f.ptp_locked,
+                      "nic_receive_ns": f.nic_receive_ns})
 
     @classmethod
     def from_message(cls, msg: Message) -> "RadarFrameMessage":
         h = msg.header
         return cls(msg.topic.split("/", 1)[1],
                    RadarFrame(int(h["frame_counter"]), int(h["frame_time_ns"]), int(h["receive_ns"]), bool(h["valid"]),
-                              int(h.get("bytes_missing", 0)), msg.arrays[0], bool(h.get("ptp_locked", False))))
+                              int(h.get("bytes_missing", 0)), msg.arrays[0], bool(h.get("ptp_locked", False)),
+                              int(h.get("nic_receive_ns", 0))))
 
 
 @dataclasses.dataclass
@@ -372,6 +374,12 @@ class Health(HeaderMessage):
     receive_delay: dict[str, ReceiveDelayStats] = dataclasses.field(default_factory=dict)
     #: Per radar: frames recorded while its clock said it was not PTP-locked (marked in /radar/NAME/ptp_locked).
     unlocked_frames: dict[str, int] = dataclasses.field(default_factory=dict)
+    #: Per radar: which receive stamps time its frames, "hardware" (the network card's PTP hardware clock, which
+    #: the receive delay is then measured with) or "software" (the kernel's, CLOCK_REALTIME).
+    receive_stamp: dict[str, str] = dataclasses.field(default_factory=dict)
+    #: Per radar with hardware stamps: frames whose last datagram the card left unstamped (host stamp only;
+    #: left out of the receive delay, 0 in /radar/NAME/nic_time_ns).
+    nic_unstamped: dict[str, int] = dataclasses.field(default_factory=dict)
     time_ns: int = 0
 
     @property
@@ -402,6 +410,9 @@ class Health(HeaderMessage):
         if self.ptp is not None:
             parts.append(self.ptp.line())
         parts += [f"{n} receive-frame end {d.median_ms:.1f} ms (p99 {d.p99_ms:.1f})" for n, d in self.receive_delay.items()]
+        for source in sorted(set(self.receive_stamp.values())):
+            parts.append(f"{source} receive stamps: " + ", ".join(n for n, s in self.receive_stamp.items() if s == source))
+        parts += [f"{n} {k} frames without a hardware stamp" for n, k in self.nic_unstamped.items() if k]
         parts += [f"{n} {k} frames unlocked" for n, k in self.unlocked_frames.items() if k]
         if self.latency_ms:
             parts.append(f"latency p50 {self.latency_ms.p50:.1f} ms, p99 {self.latency_ms.p99:.1f} ms")

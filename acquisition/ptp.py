@@ -205,6 +205,10 @@ class ReceiveDelay:
     clock drifting) the delay grows steadily, which is a rate and no jump. Against the scatter: a host whose
     sockets are read late by varying amounts (an emulator on a loaded machine: +-15 ms) has latency (health
     shows it), not a step of a clock. A new level held: a few frames late by different amounts are no step.
+
+    The receive time is the host's kernel stamp, or with hardware receive stamps the network card's (its PTP
+    hardware clock): one clock per radar, never both (the recorder leaves out a frame the card did not stamp).
+    What the level means depends on that clock: docs/architecture.md (receive time stamps).
     """
 
     def __init__(self, window: int = 200, jump_ms: float = 5.0, confirm: int = 8, scatter_factor: float = 6.0):

@@ -76,15 +76,27 @@ class Recorder:
         each loss written to /events, instead of taking the machine's memory until it is killed.
     on_event : callable, optional
         Called with every ``Event`` written to /events (the daemon publishes them for viewers).
+    receive_stamps : dict, optional
+        Radar name -> which receive stamps its driver takes, "hardware" or "software"
+        (``drivers.radar.timestamping``): each radar group's ``receive_stamp`` attribute, and with "hardware"
+        the receive delay is measured with the card's stamps (``nic_time_ns``). A radar not named is not said.
+    receive_stamp_notes : dict, optional
+        Radar name -> how its stamps were chosen (``StampChoice.line``): its ``receive_stamp_note`` attribute.
     """
 
     def __init__(self, path: str | Path, rig: Rig, endpoints, flush_interval_s: float = 0.5, adc_dtype: str = "int16",
                  context=None, wire_formats: dict[str, str] | None = None, split_bytes: int | None = None,
-                 split_s: float | None = None, min_free_bytes: int = 64_000_000, frame_endpoints=(), on_event=None):
+                 split_s: float | None = None, min_free_bytes: int = 64_000_000, frame_endpoints=(), on_event=None,
+                 receive_stamps: dict[str, str] | None = None, receive_stamp_notes: dict[str, str] | None = None):
         self.base_path = Path(path)
         self.rig = rig
         self.adc_dtype = adc_dtype
         self.wire_formats = {r.name: (wire_formats or {}).get(r.name, registry.DEFAULT) for r in rig.radars}
+        self.receive_stamps = {n: s for n, s in (receive_stamps or {}).items() if n in self.wire_formats}
+        self._radar_attrs = {n: {"receive_stamp": s} for n, s in self.receive_stamps.items()}
+        for n, note in (receive_stamp_notes or {}).items():
+            if n in self._radar_attrs:
+                self._radar_attrs[n]["receive_stamp_note"] = note
         self.split_bytes = split_bytes
         self.split_s = split_s
         self.min_free_bytes = min_free_bytes
@@ -118,6 +130,9 @@ class Recorder:
         self.ptp_locked: dict[str, bool] = {}
         self.unlocked_frames = {r.name: 0 for r in rig.radars}  # recorded and marked in /radar/NAME/ptp_locked
         self.receive_delay = {r.name: ReceiveDelay() for r in rig.radars}  # host receive minus frame end
+        # With hardware stamps: frames whose last datagram the card left unstamped (kept out of receive_delay,
+        # whose series stays on one clock).
+        self.nic_unstamped = {n: 0 for n, s in self.receive_stamps.items() if s == "hardware"}
         self._frame_duration_ns = {r.name: r.waveform.frame_duration_ns for r in rig.radars}
         self.ptp_status: PtpStatus | None = None  # the host's, as the daemon last read it
         self.triggers_seen = 0
@@ -141,7 +156,8 @@ class Recorder:
         path = self.base_path.with_name(f"{self.base_path.stem}_{part:03d}{self.base_path.suffix}") if split else self.base_path
         chain = {"part": part, "previous_part": self.paths[-1].name if self.paths else ""} if split else None
         writer = RecordingWriter(path, self.rig.radars, imu=self.rig.imu, adc_dtype=self.adc_dtype,
-                                 wire_format=self.wire_formats, root_attrs=chain, clock_state=True)
+                                 wire_format=self.wire_formats, root_attrs=chain, clock_state=True,
+                                 radar_attrs=self._radar_attrs)
         for t, source in self._triggers:  # each part says how its times were tied to the first chirp
             writer.append_trigger(t, source)
         self.paths.append(path)
@@ -189,7 +205,7 @@ class Recorder:
             self.latencies_ns.append(time.time_ns() - f.receive_ns)
         self.invalid_frames[m.radar] += 0 if f.valid else 1
         # A frame from an unlocked clock is kept, and marked: never mixed in silently.
-        self.writer.append_frame_clock(m.radar, f.ptp_locked)
+        self.writer.append_frame_clock(m.radar, f.ptp_locked, f.nic_receive_ns)
         self.unlocked_frames[m.radar] += 0 if f.ptp_locked else 1
         was = self.ptp_locked.get(m.radar)
         if was is not None and was != f.ptp_locked:
@@ -197,7 +213,16 @@ class Recorder:
                               "clock PTP-locked again" if f.ptp_locked else
                               f"clock not PTP-locked: frames from {f.frame_counter} marked in /radar/{m.radar}/ptp_locked")
         self.ptp_locked[m.radar] = f.ptp_locked
-        jump = self.receive_delay[m.radar].add(f.receive_ns, f.frame_time_ns + self._frame_duration_ns[m.radar])
+        receive_ns = f.receive_ns
+        if m.radar in self.nic_unstamped:  # hardware stamps: the delay on the card's clock, never mixed with the host's
+            receive_ns = f.nic_receive_ns
+            if not receive_ns and f.receive_ns > 0:
+                if not self.nic_unstamped[m.radar]:
+                    self._write_event(f.frame_time_ns, f"radar.{m.radar}", "warning",
+                                      f"frame {f.frame_counter}: its last datagram has no hardware receive stamp; such "
+                                      "frames keep the host's stamp only (0 in nic_time_ns) and are left out of the receive delay")
+                self.nic_unstamped[m.radar] += 1
+        jump = self.receive_delay[m.radar].add(receive_ns, f.frame_time_ns + self._frame_duration_ns[m.radar])
         if jump:
             self._write_event(f.frame_time_ns, f"radar.{m.radar}", "warning", jump)
 

@@ -122,7 +122,8 @@ def record_setup(args):
 
     from ..daemon import Setup
 
-    links = [parse_radar_link(spec) for spec in radar_link_specs(args)]
+    links = [parse_radar_link(spec, receive_stamps=getattr(args, "receive_stamps", "auto"))
+             for spec in radar_link_specs(args)]
     device_options = {option: getattr(args, option.lstrip("-").replace("-", "_")) or []
                       for option in opt.CONTROL_OPTIONS}
     opt.check_duration(args.split_time, "--split-time")

@@ -174,6 +174,11 @@ def acquisition_options(s: argparse.ArgumentParser) -> None:
     s.add_argument("--ptp4l", metavar="SOCKET", nargs="?", const="/var/run/ptp4l",
                    help="watch the host's linuxptp: ptp4l's port state, offset and path delay (through pmc on this "
                         "management socket, default /var/run/ptp4l) into health, /ptp and /events")
+    s.add_argument("--receive-stamps", choices=("auto", "hardware", "software"), default="auto",
+                   help="radar receive time stamps: the network card's (its PTP hardware clock; the interface must stamp "
+                        "every packet, and setting that needs CAP_NET_ADMIN), the kernel's (software), or auto: the card's "
+                        "where it can, else the kernel's (default); a link's stamps=MODE overrides it. Said in health, "
+                        "sarbot info and each radar's receive_stamp in the recording (hardware also in /events)")
     s.add_argument("--phc2sys-log", metavar="FILE",
                    help="with --ptp4l: a file phc2sys's -m output goes to; its offset joins health and /ptp")
 

@@ -138,7 +138,8 @@ def import_bag(bag_path: str | Path, calib_path: str | Path, output: str | Path,
     if skipped:
         log.warning("%d radar scan(s) before the first trigger were left out", skipped)
     with RecordingWriter(output, [radar], imu=imu_cfg, truth=False, wire_format="ros_pointcloud2",
-                         detections=[radar_name], overwrite=overwrite) as w:
+                         detections=[radar_name], overwrite=overwrite,
+                         radar_attrs={radar_name: {"receive_stamp": "none"}}) as w:
         w.append_trigger(trig_stamp, [calib["topic_radar_trigger"]] * trig_stamp.size)
         w.append_scans(radar_name, np.asarray(frame_times, np.int64), np.arange(len(frame_times)), np.asarray(host, np.int64))
         for scan, t_mid, pts in det:

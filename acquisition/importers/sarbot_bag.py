@@ -121,7 +121,8 @@ def import_sarbot_bag(bag_path: str | Path, output: str | Path, overwrite: bool 
             mount = Mount(np.array([tr.x, tr.y, tr.z]), np.array([r.x, r.y, r.z, r.w]))
         imu_config = ImuConfig(rate_hz=float(1e9 / np.median(np.diff(t))), mount=mount)
     with RecordingWriter(output, list(radars.values()), imu=imu_config, adc_dtype="int16", truth=len(truth) >= 2,
-                         wire_format="sarbot_msgs", overwrite=overwrite) as w:
+                         wire_format="sarbot_msgs", overwrite=overwrite,
+                         radar_attrs=dict.fromkeys(radars, {"receive_stamp": "none"})) as w:
         for name, rows in frames.items():
             t = np.array([r[0] for r in rows], np.int64)
             w.append_frames(name, np.stack([r[3] for r in rows]), t, np.array([r[1] for r in rows], np.uint32), t,

@@ -203,7 +203,8 @@ def import_ti_capture(paths, cfg_path, output, *, layout: str = "auto", sample_f
            f"{sample_format} samples{'; the analytic signal of the real samples' if not cfg.complex_output else ''})")
     with RecordingWriter(output, [radar], truth=True, wire_format="imported",
                          adc_dtype="int16" if cfg.complex_output else "complex64", overwrite=overwrite,
-                         root_attrs={"imported_from": how}) as w:
+                         root_attrs={"imported_from": how},
+                         radar_attrs={radar_name: {"receive_stamp": "none"}}) as w:
         done = 0
         for words in _words(paths, cfg.frame_bytes):
             if sample_format == "offset":

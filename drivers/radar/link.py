@@ -1,8 +1,10 @@
 """A radar link: where a radar's datagrams arrive, from whom, and in which wire format.
 
-On the command line a link is ``NAME=[HOST:]PORT[,format=FORMAT][,source=ADDRESS][,id=RADAR_ID][,OPTION=VALUE...]``:
+On the command line a link is ``NAME=[HOST:]PORT[,format=FORMAT][,source=ADDRESS][,id=RADAR_ID][,stamps=MODE][,OPTION=VALUE...]``:
 ``left=50001`` (SRF1 on loopback), ``left=192.168.1.10:50001,source=192.168.1.20,id=3`` (listen on the robot's
 network, take datagrams only from the radar's address and with its id), ``iwr=4098,format=DCA1000,cfg=xwr18xx.cfg``.
+``stamps`` chooses the receive time stamps: ``auto`` (the network card's where it can, else the kernel's),
+``hardware`` or ``software`` (``drivers.radar.timestamping``).
 The format's own options are checked by the format (``drivers.radar.registry``).
 """
 
@@ -18,6 +20,7 @@ from imaging.core.waveform import Waveform
 from . import registry
 from .registry import WireFormat
 from .stream import RadarStream
+from .timestamping import MODES
 
 #: Where a radar link listens unless told otherwise: nothing off this machine reaches it.
 DEFAULT_HOST = "127.0.0.1"
@@ -35,6 +38,7 @@ class RadarLink:
     options: dict = dataclasses.field(default_factory=dict)
     source: str | None = None  # the only sender address accepted (None: any)
     radar_id: int | None = None  # the only radar id accepted, for formats that carry one (None: any)
+    receive_stamps: str = "auto"  # auto, hardware or software (drivers.radar.timestamping)
     format: WireFormat = dataclasses.field(init=False, repr=False, compare=False)
     settings: Any = dataclasses.field(init=False, repr=False, compare=False)
 
@@ -55,6 +59,8 @@ class RadarLink:
                 raise ConfigError(f"{where}.source", f"{self.source!r} is not an IP address") from None
         if self.radar_id is not None and not 0 <= self.radar_id < 1 << 16:
             raise ConfigError(f"{where}.id", f"{self.radar_id} is not a radar id (0-65535)")
+        if self.receive_stamps not in MODES:
+            raise ConfigError(f"{where}.stamps", f"{self.receive_stamps!r} is not one of {', '.join(MODES)}")
         fmt = registry.get(self.wire_format, f"{where}.format")
         object.__setattr__(self, "format", fmt)
         object.__setattr__(self, "settings", fmt.configure(dict(self.options), where))
@@ -67,9 +73,9 @@ class RadarLink:
         return self.format.open_stream(waveform, self.settings, self.radar_id)
 
 
-def parse_radar_link(text: str, option: str = "--radar") -> RadarLink:
+def parse_radar_link(text: str, option: str = "--radar", receive_stamps: str = "auto") -> RadarLink:
     """A link from ``NAME=[HOST:]PORT[,format=FORMAT][,OPTION=VALUE...]``; SarbotError naming the option
-    and the part that is wrong."""
+    and the part that is wrong. ``receive_stamps``: the link's unless it says ``stamps=``."""
     where = f"{option} {text!r}"
     name, sep, rest = text.partition("=")
     if not sep or not name.strip():
@@ -91,10 +97,11 @@ def parse_radar_link(text: str, option: str = "--radar") -> RadarLink:
     wire_format = options.pop("format", registry.DEFAULT)
     source = options.pop("source", None)
     radar_id = options.pop("id", None)
+    receive_stamps = options.pop("stamps", receive_stamps)
     if radar_id is not None and not radar_id.isdigit():
         raise SarbotError(f"{where}: id {radar_id!r} is not a radar id (0-65535)")
     try:
         return RadarLink(name.strip(), int(port_text), host or DEFAULT_HOST, wire_format, options, source,
-                         None if radar_id is None else int(radar_id))
+                         None if radar_id is None else int(radar_id), receive_stamps)
     except ConfigError as exc:
         raise SarbotError(f"{where}: {exc}") from None

@@ -20,7 +20,9 @@ TROUBLE_COUNTERS = ("malformed", "truncated", "duplicates", "reordered", "wrong_
 
 @dataclasses.dataclass
 class RadarFrame:
-    """A frame as the drivers publish it: ``iq`` int16 [chirps, rx, samples, 2], zero where bytes were lost."""
+    """A frame as the drivers publish it: ``iq`` int16 [chirps, rx, samples, 2], zero where bytes were lost.
+    ``receive_ns`` is the kernel's (host clock) receive stamp of its last datagram, ``nic_receive_ns`` the
+    network card's (its PTP hardware clock) of the same datagram where hardware stamps are in use (else 0)."""
 
     frame_counter: int
     frame_time_ns: int
@@ -29,6 +31,7 @@ class RadarFrame:
     bytes_missing: int
     iq: np.ndarray
     ptp_locked: bool = False
+    nic_receive_ns: int = 0
 
 
 class RadarStream(Protocol):

@@ -1,5 +1,6 @@
-"""UDP reception the way a radar driver needs it: kernel receive timestamps, the kernel's drop counter, a
-large receive buffer (Linux socket options, numeric where Python does not name them), and few wake-ups.
+"""UDP reception the way a radar driver needs it: receive time stamps (the kernel's, and the network card's
+where it can: ``drivers.radar.timestamping``), the kernel's drop counter, a large receive buffer (Linux socket
+options, numeric where Python does not name them), and few wake-ups.
 
 A radar sends a frame as a burst of hundreds of datagrams, and a receiver faster than the sender finds
 the socket empty after almost every one: woken per datagram (5,600 times a second per driver in the
@@ -7,6 +8,11 @@ four-radar soak), it spent more on waking than on the data. So an empty socket i
 after ``coalesce_s`` (as a network card coalesces interrupts): the datagrams that came meanwhile are taken
 in one go. The kernel's receive timestamps keep every datagram's time exact; a frame is published at
 most ``coalesce_s`` later.
+
+Every datagram's host time is the kernel's software stamp (CLOCK_REALTIME), whatever the card does: latency,
+replay and the IMU's trigger estimate measure against the host's clock. With hardware stamps the card's stamp
+(its PTP hardware clock) comes beside it (``last_nic_ns``); a datagram the card left unstamped is counted
+(``nic_unstamped``) and has none.
 """
 
 from __future__ import annotations
@@ -18,8 +24,9 @@ import struct
 import sys
 import time
 
-SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
-SCM_TIMESTAMPNS = SO_TIMESTAMPNS
+from .timestamping import HARDWARE_FLAGS, SCM_TIMESTAMPING, SCM_TIMESTAMPING_MIN_BYTES, SO_TIMESTAMPING, SOFTWARE_FLAGS, \
+    StampChoice, choose_receive_stamps, parse_scm_timestamping
+
 SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
 SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
 
@@ -36,10 +43,15 @@ class UdpReceiver:
     """A bound UDP socket returning (payload, kernel receive time ns, kernel drops so far)."""
 
     def __init__(self, host: str = "127.0.0.1", port: int = 0, rcvbuf_bytes: int = 32 << 20, timeout_s: float = 0.1,
-                 accept_from: str | None = None, coalesce_s: float = 0.002):
+                 accept_from: str | None = None, coalesce_s: float = 0.002, receive_stamps: str = "auto"):
         """``accept_from``: the only source address whose datagrams are taken; others are counted
         (``foreign_source``) and dropped. None takes every sender (loopback, a single radar).
-        ``coalesce_s``: how long an empty socket is left before it is looked at again (0: at once)."""
+        ``coalesce_s``: how long an empty socket is left before it is looked at again (0: at once).
+        ``receive_stamps``: "auto", "hardware" or "software" (``timestamping.choose_receive_stamps``; "hardware"
+        where the interface cannot is a SarbotError naming it and what it lacks); the choice is ``stamps``."""
+        #: Which stamps, on which interface, and why (``timestamping.StampChoice``).
+        self.stamps: StampChoice = choose_receive_stamps(host, accept_from, receive_stamps)
+        self.hardware = self.stamps.source == "hardware"
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         # No SO_REUSEADDR: with it a second socket (another process, another local user) could bind the
         # same port and take the radar's datagrams.
@@ -57,7 +69,7 @@ class UdpReceiver:
                                  "(net.core.rmem_max caps it; sarbot install-unit stages /etc/sysctl.d/60-sarbot.conf): "
                                  "a burst of frames may overflow it")
             log.warning("%s", self.rcvbuf_short)
-        self.sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+        self.sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPING, HARDWARE_FLAGS if self.hardware else SOFTWARE_FLAGS)
         self.sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
         try:
             self.sock.bind((host, port))
@@ -74,6 +86,10 @@ class UdpReceiver:
         self.kernel_drops = 0
         self.accept_from = accept_from
         self.foreign_source = 0
+        #: The card's stamp (its PTP hardware clock, ns) of the datagram ``receive`` returned last; 0 where none.
+        self.last_nic_ns = 0
+        #: Datagrams the card left unstamped while hardware stamps are in use (timed by the kernel alone).
+        self.nic_unstamped = 0
 
     def receive(self, max_bytes: int = 65536) -> tuple[bytes, int, int] | None:
         """One datagram, or None on timeout (or for a datagram from a source not accepted)."""
@@ -91,13 +107,15 @@ class UdpReceiver:
         if self.accept_from is not None and source[0] != self.accept_from:
             self.foreign_source += 1
             return None
-        t_ns = 0
+        t_ns = nic_ns = 0
         for level, kind, value in ancdata:
-            if level == socket.SOL_SOCKET and kind == SCM_TIMESTAMPNS and len(value) >= 16:
-                sec, nsec = struct.unpack_from("qq", value)
-                t_ns = sec * 1_000_000_000 + nsec
+            if level == socket.SOL_SOCKET and kind == SCM_TIMESTAMPING and len(value) >= SCM_TIMESTAMPING_MIN_BYTES:
+                t_ns, _, nic_ns = parse_scm_timestamping(value)
             elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
                 self.kernel_drops = struct.unpack_from("I", value)[0]
+        if self.hardware:
+            self.last_nic_ns = nic_ns
+            self.nic_unstamped += 0 if nic_ns else 1
         return data, t_ns, self.kernel_drops
 
     def close(self) -> None:

@@ -76,8 +76,13 @@ class RecordingWriter:
         Extra attributes of ``/`` (set before SWMR starts, which forbids new attributes).
     clock_state : bool
         Also hold the clocks' state as the recorder sees it: ``/radar/NAME/ptp_locked`` [F] uint8 (the
-        frame's clock said it was PTP-locked) and ``/ptp/`` (the host's linuxptp state over time: time_ns,
-        port_state, offset_from_master_ns, mean_path_delay_ns, phc2sys_offset_ns; NaN where unknown).
+        frame's clock said it was PTP-locked), ``/radar/NAME/nic_time_ns`` [F] int64 (the network card's
+        receive stamp of the frame's last datagram, its PTP hardware clock; 0 where none) and ``/ptp/`` (the
+        host's linuxptp state over time: time_ns, port_state, offset_from_master_ns, mean_path_delay_ns,
+        phc2sys_offset_ns; NaN where unknown).
+    radar_attrs : dict, optional
+        Radar name -> extra attributes of its group (e.g. ``receive_stamp``), set at creation (SWMR forbids
+        new attributes later).
     """
 
     def __init__(
@@ -92,6 +97,7 @@ class RecordingWriter:
         detections: Iterable[str] = (),
         root_attrs: dict | None = None,
         clock_state: bool = False,
+        radar_attrs: dict[str, dict] | None = None,
     ):
         self.path = Path(path)
         if self.path.exists() and not overwrite:
@@ -119,6 +125,8 @@ class RecordingWriter:
                     g.attrs[key] = value
             g.attrs["tdm_tx_order"] = np.asarray(wf.tdm_tx_order(), dtype=np.int32)
             g.attrs["wire_format"] = wire_format if isinstance(wire_format, str) else wire_format.get(r.name, "simulated")
+            for k, v in (radar_attrs or {}).get(r.name, {}).items():
+                g.attrs[k] = v
             shape = (wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)
             if adc_dtype == "complex64":
                 g.create_dataset("adc", (0, *shape), np.complex64, maxshape=(None, *shape), chunks=(1, *shape),
@@ -133,6 +141,7 @@ class RecordingWriter:
                 g.create_dataset(name, (0,), dtype, maxshape=(None,), chunks=(1024,), fletcher32=True)
             if clock_state:
                 g.create_dataset("ptp_locked", (0,), np.uint8, maxshape=(None,), chunks=(1024,), fletcher32=True)
+                g.create_dataset("nic_time_ns", (0,), np.int64, maxshape=(None,), chunks=(1024,), fletcher32=True)
             if r.imu is not None:
                 _create_imu_group(g.create_group("imu"), r.imu)
             if r.name in set(detections):
@@ -252,9 +261,12 @@ class RecordingWriter:
         self._append(g["dlc"], np.atleast_1d(dlc).astype(np.uint8))
         self._append(g["data"], data[:, :64])
 
-    def append_frame_clock(self, radar: str, ptp_locked) -> None:
-        """Whether each frame just appended came from a PTP-locked clock (a writer with ``clock_state``)."""
+    def append_frame_clock(self, radar: str, ptp_locked, nic_time_ns=0) -> None:
+        """Whether each frame just appended came from a PTP-locked clock, and the network card's receive stamp
+        of its last datagram (0: none) (a writer with ``clock_state``)."""
         self._append(self._f[f"radar/{radar}/ptp_locked"], np.atleast_1d(ptp_locked).astype(np.uint8))
+        n = np.atleast_1d(ptp_locked).size
+        self._append(self._f[f"radar/{radar}/nic_time_ns"], np.broadcast_to(np.asarray(nic_time_ns, np.int64), (n,)))
 
     def append_ptp(self, time_ns: int, port_state: str, offset_from_master_ns=None, mean_path_delay_ns=None,
                    phc2sys_offset_ns=None) -> None:
@@ -469,6 +481,18 @@ class Recording:
         """Per frame, whether the radar's clock said it was PTP-locked; None where the file does not say."""
         g = self._radar_group(name)
         return np.asarray(g["ptp_locked"][()], bool) if "ptp_locked" in g else None
+
+    def receive_stamp(self, name: str) -> str | None:
+        """Which receive stamps timed the radar's frames: "hardware" (the network card's, in ``nic_time_ns``
+        beside the host's), "software" (the kernel's alone), "none" (imported); None where the file does not say."""
+        value = self._radar_group(name).attrs.get("receive_stamp")
+        return value.decode() if isinstance(value, bytes) else value
+
+    def nic_time_ns(self, name: str) -> np.ndarray | None:
+        """Per frame, the network card's receive stamp of its last datagram (PTP hardware clock, ns; 0 where
+        none); None where the file does not hold them."""
+        g = self._radar_group(name)
+        return np.asarray(g["nic_time_ns"][()], np.int64) if "nic_time_ns" in g else None
 
     def ptp(self) -> dict[str, np.ndarray] | None:
         """/ptp (the host's linuxptp state over time) as arrays; None where the file has none."""
