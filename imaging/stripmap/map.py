@@ -338,6 +338,12 @@ class StripMap:
         return self._refocus.results
 
     @property
+    def refocus_geometry(self) -> dict:
+        """Tile -> where its refocus looked (``imaging.stripmap.refocus.ScattererGeometry``), for every tile in
+        ``refocus_results`` whose estimate was applied."""
+        return self._refocus.geometry
+
+    @property
     def tiles_without_radar_imu(self) -> int:
         """IMU-aided refocus: tiles whose groups no radar IMU covered."""
         return self._refocus.tiles_without_radar_imu

@@ -1,0 +1,106 @@
+"""The map corrects the odometry (rio.map_feedback): a tile's track error read as a velocity error of the
+trajectory, the filter update that takes it, and none where the map's estimate is not to be trusted."""
+
+import math
+
+import numpy as np
+import pytest
+
+from imaging.core.track_error import TrackError, remove_line
+from imaging.stripmap.refocus import ScattererGeometry
+from rio.ekf import EkfConfig, RadarInertialEkf
+from rio.map_feedback import (
+    LookVelocityMeasurement,
+    MapFeedback,
+    MapFeedbackConfig,
+    displacement_per_velocity,
+    update_look_velocity,
+    velocity_error_from_tiles,
+)
+
+SPEED_MPS = 0.4
+
+
+def passing_tile(dv_mps, range_m=1.5, side=1.0, aperture_m=0.6, groups=60, origin_ns=10**18, x0_m=0.0):
+    """A radar driving along +x past a scatterer ``range_m`` to its ``side`` (+1 left), the trajectory's
+    velocity off by ``dv_mps`` [2]: the track error autofocus reads (exact ranges), and the geometry."""
+    t = np.linspace(-0.5, 0.5, groups) * aperture_m / SPEED_MPS
+    antenna = np.column_stack([x0_m + SPEED_MPS * t, np.zeros_like(t), np.zeros_like(t)])
+    scatterer = np.array([x0_m, side * range_m, 0.0])
+    look = np.tile([0.0, side, 0.0], (t.size, 1))
+    true_antenna = antenna + np.column_stack([np.asarray(dv_mps)[0] * t, np.asarray(dv_mps)[1] * t, 0 * t])
+    shorter = np.linalg.norm(scatterer - antenna, axis=1) - np.linalg.norm(scatterer - true_antenna, axis=1)
+    c = np.sum(look * (scatterer - antenna), axis=1) / np.linalg.norm(scatterer - antenna, axis=1)
+    time_s = t + 5.0
+    te = TrackError(time_s, remove_line(time_s, shorter / c), "truth", None, origin_ns)
+    geo = ScattererGeometry(scatterer, time_s, antenna, look, ("left_front" if side > 0 else "right_front",) * t.size,
+                            origin_ns)
+    return te, geo
+
+
+def test_the_prediction_is_the_exact_track_error_of_a_small_velocity_error():
+    te, geo = passing_tile((0.004, 0.0))
+    predicted = displacement_per_velocity(geo) @ np.array([0.004, 0.0])
+    assert np.max(np.abs(predicted - te.displacement_m)) < 0.01 * np.max(np.abs(te.displacement_m))
+    # 0.4 m/s, 4 mm/s too slow, 1.5 m, +-0.75 s: v dv t^2 / R0 bends it by 0.6 mm from centre to the ends
+    assert 5e-4 < np.ptp(te.displacement_m) < 7e-4
+
+
+def test_tiles_on_both_sides_recover_the_along_track_velocity_error_and_measure_nothing_across():
+    dv = np.array([0.008, 0.003])  # 2 % of 0.4 m/s along the track, 3 mm/s across it
+    tiles = [passing_tile(dv, 1.3, +1.0), passing_tile(dv, 1.7, -1.0)]
+    (m,) = velocity_error_from_tiles(tiles)  # one direction only: the cross-track velocity is a line
+    assert abs(abs(m.direction[0]) - 1.0) < 1e-3
+    assert m.velocity_error_mps * np.sign(m.direction[0]) == pytest.approx(0.008, rel=0.02)
+    assert m.radars == ("left_front", "right_front") and m.tiles == 2
+    assert m.sigma_mps == pytest.approx(MapFeedbackConfig().min_sigma_mps)  # exact data: the floor
+    assert m.time_ns == 10**18 + 5 * 10**9
+
+
+def test_no_measurement_where_the_velocity_error_does_not_explain_the_track_error():
+    te, geo = passing_tile((0.008, 0.0))
+    t = te.time_s
+    wobble = TrackError(t, remove_line(t, 1e-3 * np.sin(2 * math.pi * 3.0 * t)), "pga", None, te.time_origin_ns)
+    assert velocity_error_from_tiles([(wobble, geo)]) == []  # a vibration, not a speed error
+    assert velocity_error_from_tiles([]) == []
+    few = TrackError(t[:3], te.displacement_m[:3], "pga", None, te.time_origin_ns)
+    assert velocity_error_from_tiles([(few, geo)]) == []
+
+
+def moving_filter(velocity_mps=(0.4, 0.0, 0.0)) -> RadarInertialEkf:
+    ekf = RadarInertialEkf(EkfConfig())
+    still = np.tile([0.0, 0.0, 9.80665], (200, 1))
+    ekf.initialise_static(10**18, still, np.zeros((200, 3)))
+    ekf.state.v = np.array(velocity_mps, float)
+    ekf.state.P[3:6, 3:6] = np.eye(3) * 0.02 ** 2
+    return ekf
+
+
+def test_the_update_with_a_known_velocity_error_recovers_it_along_its_direction_only():
+    ekf = moving_filter()
+    m = LookVelocityMeasurement(10**18, 1.5, np.array([1.0, 0.0, 0.0]), 0.008, 0.0005, ("left_front",), 1)
+    res = update_look_velocity(ekf, m)
+    assert res.accepted
+    assert ekf.state.v[0] == pytest.approx(0.408, abs=0.0002)  # sigma 0.5 mm/s against a 20 mm/s prior
+    assert ekf.state.v[1] == 0.0 and ekf.state.v[2] == 0.0
+    assert math.sqrt(ekf.state.P[3, 3]) < 0.0006 and math.sqrt(ekf.state.P[4, 4]) == pytest.approx(0.02)
+
+
+def test_an_error_already_corrected_since_is_not_corrected_twice():
+    ekf = moving_filter()
+    feedback = MapFeedback()
+    te, geo = passing_tile((0.008, 0.0))
+    (first,) = feedback.apply(ekf, [(te, geo)])
+    after_first = ekf.state.v[0]
+    assert after_first == pytest.approx(0.408, abs=0.0005)
+    # a second tile of the same span, refocused later: the filter has it already
+    te2, geo2 = passing_tile((0.008, 0.0), range_m=1.8)
+    feedback.apply(ekf, [(te2, geo2)])
+    assert ekf.state.v[0] == pytest.approx(after_first, abs=0.0003)
+
+
+def test_a_measurement_far_outside_the_filter_s_uncertainty_is_refused():
+    ekf = moving_filter()
+    m = LookVelocityMeasurement(10**18, 1.5, np.array([1.0, 0.0, 0.0]), 0.3, 0.0005, ("left_front",), 1)
+    assert not update_look_velocity(ekf, m).accepted
+    assert ekf.state.v[0] == 0.4
