@@ -25,7 +25,11 @@ The measurement is of the trajectory's velocity at the tiles' time, which lies i
 (a tile is refocused once the radar has passed it). It is applied to the filter's current velocity on the
 assumption that the velocity error persists (what a tile can see is a systematic one: a Doppler scale, a
 mount error; the radar's own noise averages out over a tile), less what earlier map measurements already
-corrected since that time (``MapFeedback.applied``), so one error is not corrected twice.
+corrected since that time (``MapFeedback.applied``), so one error is not corrected twice. A velocity update
+alone is undone by the next radar scans (the filter trusts them, and they carry the same error), so
+``MapFeedback`` also learns the error's likely cause, a scale of the radars' Doppler (a radar clock or chirp
+slope off): each measurement's relative speed error, ``scale_gain`` of it, goes into ``doppler_scale``, and
+``correct_scan`` applies it to the scans before the filter takes them.
 
 Pure computation: used by the offline loop (``rio.feedback_drive``) and the live odometry worker.
 """
@@ -73,7 +77,17 @@ class MapFeedbackConfig:
     residual_floor_m: float = 2e-5
     #: Independent values per tile in its track error (the entropy model's orders 2 to 4).
     values_per_tile: int = 3
-    gate_chi2: float = CHI2_999[1]
+    #: A wide gate: the error the map sees is one the filter does not model (a Doppler scale), so the filter
+    #: is sure of its wrong velocity and a 99.9 % gate on its covariance refuses the map every time; the
+    #: map's own checks (``min_explained``, ``max_sigma_mps``) are what keep a wrong estimate out.
+    gate_chi2: float = 100.0
+    #: Also learn a scale of the radars' Doppler from the map (``MapFeedback.correct_scan``): a velocity
+    #: update alone is pulled back by the next radar scans within a second when the radars' error persists.
+    learn_doppler_scale: bool = True
+    #: The part of each measured relative speed error taken into the scale (below 1: the measurements are noisy).
+    scale_gain: float = 0.7
+    #: The scale is learnt only while the filter's speed along the measured direction is at least this.
+    scale_min_speed_mps: float = 0.1
 
 
 def displacement_per_velocity(geometry) -> np.ndarray:
@@ -160,21 +174,51 @@ class MapFeedback:
         self.applied: list[tuple[int, np.ndarray]] = []
         self.measurements: list[LookVelocityMeasurement] = []
         self.rejected = 0
+        #: the radars' Doppler is multiplied by this (``correct_scan``), learnt from the map's measurements
+        self.doppler_scale = 1.0
+        self.scale_log: list[tuple[int, float]] = []  # (filter time ns, scale from then on)
 
-    def corrected_since(self, time_ns: int, direction: np.ndarray) -> float:
-        """How far accepted map updates after ``time_ns`` moved the filter's velocity along ``direction``."""
-        return float(sum(dv @ direction for t, dv in self.applied if t > time_ns))
+    def scale_at(self, time_ns: int) -> float:
+        """The Doppler scale the scans of ``time_ns`` were corrected by."""
+        scale = 1.0
+        for t, value in self.scale_log:
+            if t > time_ns:
+                break
+            scale = value
+        return scale
+
+    def correct_scan(self, scan):
+        """``scan`` (a ``rio.odometry.RadarScan``) with its Doppler scaled by what the map has learnt."""
+        if self.doppler_scale == 1.0:
+            return scan
+        return dataclasses.replace(scan, doppler_mps=scan.doppler_mps * self.doppler_scale)
+
+    def corrected_since(self, time_ns: int, direction: np.ndarray, speed_mps: float = 0.0) -> float:
+        """How far accepted map updates after ``time_ns`` moved the filter's velocity along ``direction``, and
+        the Doppler scale learnt since at a speed of ``speed_mps`` along it."""
+        updates = float(sum(dv @ direction for t, dv in self.applied if t > time_ns))
+        return updates + (self.doppler_scale / self.scale_at(time_ns) - 1.0) * speed_mps
 
     def apply(self, ekf: RadarInertialEkf, tiles) -> list[LookVelocityMeasurement]:
         """Fit ``tiles`` (pairs of track error and geometry, see ``velocity_error_from_tiles``) and update the
         filter with each direction measured; returns the measurements accepted."""
+        return self.apply_measurements(ekf, velocity_error_from_tiles(tiles, self.config))
+
+    def apply_measurements(self, ekf: RadarInertialEkf, measurements) -> list[LookVelocityMeasurement]:
+        """Update the filter with ``measurements``; returns those accepted."""
         accepted = []
-        for m in velocity_error_from_tiles(tiles, self.config):
+        for m in measurements:
             before = ekf.state.v.copy()
-            res = update_look_velocity(ekf, m, self.corrected_since(m.time_ns, m.direction), self.config.gate_chi2)
+            speed = float(before @ m.direction)
+            done = self.corrected_since(m.time_ns, m.direction, speed)
+            res = update_look_velocity(ekf, m, done, self.config.gate_chi2)
             if res.accepted:
                 self.applied.append((ekf.state.time_ns, ekf.state.v - before))
                 accepted.append(m)
+                if self.config.learn_doppler_scale and abs(speed) >= self.config.scale_min_speed_mps:
+                    # Speed too low by dv along the track: the Doppler reads (v - dv) / v of the truth.
+                    self.doppler_scale *= 1.0 + self.config.scale_gain * (m.velocity_error_mps - done) / speed
+                    self.scale_log.append((ekf.state.time_ns, self.doppler_scale))
             else:
                 self.rejected += 1
         self.measurements.extend(accepted)

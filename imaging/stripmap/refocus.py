@@ -85,9 +85,10 @@ class TileRefocus:
             groups.append(((times[idx].mean() - self.t0_ns) * 1e-9, centre.mean(axis=0), direction))
         return values, groups
 
-    def finish(self, still_imaged: set, tiles: dict, tile_points) -> list[tuple[int, int]]:
-        """Refocus the tiles no longer reached by the frames; returns those whose image changed."""
-        done = [key for key in self.groups if key not in still_imaged]
+    def finish(self, still_imaged: set, tiles: dict, tile_points, radar: str | None = None) -> list[tuple[int, int]]:
+        """Refocus the tiles no longer reached by the frames (of ``radar``: a tile another radar is imaging
+        is not passed because this one's frame missed it); returns those whose image changed."""
+        done = [key for key in self.groups if key not in still_imaged and (radar is None or self.groups[key][-1][4] == radar)]
         return [key for key in done if self.refocus_tile(key, tiles, tile_points)]
 
     def pending(self, tiles: dict, tile_points) -> list[tuple[int, int]]:
