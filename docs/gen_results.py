@@ -79,6 +79,12 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                     "(pitch and the lever arm along z are not taken: a floor robot cannot show them), and the "
                     "odometry's drift with the true rig, the wrong rig and the wrong rig calibrated online.",
                     ".venv/bin/python benchmarks/calibration.py"),
+    "map_feedback": ("The map corrects the odometry",
+                     "Simulated straight drives at 0.4 m/s with the radars' Doppler 2 % low: the odometry's error along "
+                     "the track at the end, and every point target's peak in the live map as imaged (before refocus) "
+                     "against the map on the true trajectory, without and with the map's velocity errors fed back "
+                     "(rio.map_feedback: filter updates plus the Doppler scale learnt from them).",
+                     ".venv/bin/python benchmarks/map_feedback.py"),
     "pointcloud": ("Point clouds from raw frames",
                    "What each live odometry scan costs before the filter sees it, stage by stage.",
                    ".venv/bin/python benchmarks/pointcloud.py"),

@@ -170,3 +170,39 @@ def test_the_map_s_measurements_cut_the_drift_along_the_track(odometry_drive):
     assert learnt.doppler_scale == pytest.approx(1 / 0.98, abs=0.004)
     for run in (update_only, with_scale):
         assert abs(run[1] - without[1]) < 0.002
+
+
+def test_the_odometry_worker_takes_the_map_s_velocity_error_off_the_bus_and_scales_the_doppler(tmp_path):
+    """``map/velocity_error`` as the strip-map worker sends it, through a real bus socket into the odometry
+    worker with ``map_feedback``: its filter's velocity moves by the error, and the Doppler scale is learnt."""
+    import time
+
+    from acquisition.bus import BusPublisher, BusSubscriber
+    from acquisition.messages import ImuBatch, MapVelocityError, decode
+    from acquisition.workers.odometry import OdometryWorker, OdometryWorkerConfig
+    from imaging.core.rig import default_rig
+
+    pub = BusPublisher("tcp://127.0.0.1:*")
+    sub = BusSubscriber(pub.endpoint, topics=[MapVelocityError.TOPIC])
+    time.sleep(0.3)
+    config = OdometryWorkerConfig(default_rig(), None, str(tmp_path / "trajectory.h5"), map_feedback=True)
+    worker = OdometryWorker(config, pub)
+    assert MapVelocityError.TOPIC in worker.topics
+    t0 = 10**18
+    n = 800  # 2 s standing: the filter starts
+    t = t0 + np.arange(n, dtype=np.int64) * 2_500_000
+    worker.handle(ImuBatch(t, np.zeros((n, 3)), np.tile([0.0, 0.0, 9.80665], (n, 1)), np.zeros(n, np.uint32), t), True)
+    worker.rio.radar_silent()
+    assert worker.rio.ekf is not None
+    worker.rio.ekf.state.v = np.array([0.4, 0.0, 0.0])
+    worker.rio.ekf.state.P[3:6, 3:6] = np.eye(3) * 0.02 ** 2
+    m = LookVelocityMeasurement(int(t[-1]), 1.5, np.array([1.0, 0.0, 0.0]), 0.008, 0.0005, ("left_front", "right_front"), 2)
+    pub.send(MapVelocityError.of(m))
+    received = decode(sub.receive(timeout_ms=2000))
+    assert received.measurement().radars == ("left_front", "right_front")
+    worker.handle(received, True)
+    assert worker.rio.ekf.state.v[0] == pytest.approx(0.408, abs=0.0002)
+    assert worker.map_feedback.doppler_scale == pytest.approx(1 + 0.7 * 0.008 / 0.4)
+    assert worker.counters()["map_velocity_updates"] == 1
+    sub.close()
+    pub.close()
