@@ -206,3 +206,26 @@ def test_the_odometry_worker_takes_the_map_s_velocity_error_off_the_bus_and_scal
     assert worker.counters()["map_velocity_updates"] == 1
     sub.close()
     pub.close()
+
+
+def test_run_with_map_feedback_subscribes_the_odometry_to_the_map_worker(tmp_path):
+    """``sarbot run --map-refocus ... --rio-map-feedback``: the odometry worker is made before the map's (the map
+    needs its poses), and is given the map worker's endpoint as it is made."""
+    from acquisition.daemon import Setup
+    from acquisition.messages import MapVelocityError
+    from acquisition.workers.odometry import OdometryWorker
+    from acquisition.workers.pipeline import add_pipeline_workers
+    from drivers.can_driver import CanConfig
+    from drivers.radar.link import RadarLink
+    from imaging.core.rig import default_rig
+    from imaging.stripmap import StripMapConfig
+
+    for feedback in (False, True):
+        setup = Setup(default_rig(), [RadarLink("left_front", 50001)], imu_port="/nonexistent/imu",
+                      can=CanConfig("virtual", "nice"))
+        add_pipeline_workers(setup, tmp_path, "t", StripMapConfig(refocus="entropy"), rio_map_feedback=feedback)
+        specs = {w.role: w for w in setup.workers}
+        worker = OdometryWorker(specs["rio"].config, None)
+        assert (MapVelocityError.TOPIC in worker.topics) is feedback
+        assert worker.endpoints == ([specs["stripmap"].endpoint] if feedback else [])
+
