@@ -7,7 +7,9 @@ radars' Doppler 2 % low, the two front radars imaging, refocus by the entropy mo
 Writes docs/results/map_feedback.json and docs/results/map_feedback.png. Per seed: the odometry's position
 error along and across the track at the end and per metre driven, with and without the feedback; every
 target's peak in the map as imaged (before any refocus: how a tile starts) relative to the same map imaged on
-the true trajectory; and the map's measurements (velocity error read, its sigma, the truth's).
+the true trajectory; the map's measurements (velocity error read, its sigma); and the filter's side alone
+(``odometry_with_ideal_map``: the truth's velocity error as the measurement, every 1.6 s, 1 mm/s), as filter
+updates only and with the Doppler scale learnt from them.
 """
 
 from __future__ import annotations
@@ -24,7 +26,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from rio.feedback_drive import SPEED_MPS, run_feedback_loop, simulate_feedback_drive, target_peaks_db  # noqa: E402
+from rio.feedback_drive import (  # noqa: E402
+    SPEED_MPS,
+    odometry_with_truth_measurements,
+    run_feedback_loop,
+    simulate_feedback_drive,
+    target_peaks_db,
+)
 
 RESULTS = ROOT / "docs" / "results"
 
@@ -45,6 +53,17 @@ def run_seed(seed: int, length_m: float) -> dict:
     reference = run_feedback_loop(drive, False, trajectory=drive.truth)
     ref_db = target_peaks_db(reference.plain_map, drive.targets_m)
     row = {"seed": seed, "length_m": length_m, "targets": len(drive.targets_m)}
+    # The filter's side alone: the truth's along-track velocity error every 1.6 s at 1 mm/s, as the map would
+    # give it if every pair of tiles read one; as updates alone and with the Doppler scale learnt.
+    ideal = {}
+    for name, sigma, learn in (("none", None, False), ("updates_only", 0.001, False), ("updates_and_scale", 0.001, True)):
+        error, fb = odometry_with_truth_measurements(drive, sigma, learn_scale=learn, seed=seed)
+        ideal[name] = {"end_along_m": float(-error[0]), "end_across_m": float(-error[1]), "measurements": len(fb.measurements),
+                       "doppler_scale": fb.doppler_scale}
+    row["odometry_with_ideal_map"] = ideal
+    print(f"seed {seed} ideal map: end along {ideal['none']['end_along_m'] * 1e3:+.1f} mm without, "
+          f"{ideal['updates_only']['end_along_m'] * 1e3:+.1f} mm updates only, "
+          f"{ideal['updates_and_scale']['end_along_m'] * 1e3:+.1f} mm with the scale", flush=True)
     for name, feedback in (("without", False), ("with", True)):
         t0 = time.perf_counter()
         result = run_feedback_loop(drive, feedback)
@@ -77,6 +96,7 @@ def main(argv=None) -> int:
     summary = {}
     for name in ("without", "with"):
         summary[name] = {"along_per_m_mean": float(np.mean([r[name]["drift"]["along_per_m"] for r in rows])),
+                         "measurements_mean": float(np.mean([len(r["with"]["measurements"]) for r in rows])) if name == "with" else 0.0,
                          "end_along_m_mean": float(np.mean([r[name]["drift"]["end_along_m"] for r in rows])),
                          "late_peak_db_mean": float(np.mean([r[name]["late_peak_db_mean"] for r in rows]))}
     out = {"scenario": f"rio.feedback_drive: {length_m} m straight at {SPEED_MPS} m/s, Doppler 2 % low, targets on "

@@ -27,7 +27,7 @@ from imaging.sim.targets import PointTarget
 from imaging.stripmap import StripMap, StripMapConfig
 
 from .calibration_drive import SIM_EKF
-from .map_feedback import MapFeedback, MapFeedbackConfig
+from .map_feedback import LookVelocityMeasurement, MapFeedback, MapFeedbackConfig
 from .odometry import RadarScan, RioOptions
 from .streaming import StreamingRio
 
@@ -190,3 +190,43 @@ def target_peaks_db(strip_map: StripMap, targets_m: np.ndarray, radius_m: float 
         if best > 0:
             out[i] = 20 * np.log10(best)
     return out
+
+
+def odometry_with_truth_measurements(drive, sigma_mps: float | None, every_s: float = 1.6, span_s: float = 1.5,
+                                     seed: int = 0, learn_scale: bool = True):
+    """The streaming odometry over ``drive`` (its IMU and scans only); with ``sigma_mps``, every ``every_s``
+    while driving, a map measurement of the along-track velocity error over the last ``span_s`` (the truth's,
+    plus noise of that sigma), as the map's tiles would give it: the filter's side of the feedback alone.
+    Returns the position error at the end (truth minus odometry) and the ``MapFeedback``."""
+    rng = np.random.default_rng(seed)
+    rio = StreamingRio(RioOptions(ekf=SIM_EKF))
+    feedback = MapFeedback(MapFeedbackConfig(learn_doppler_scale=learn_scale))
+    t_imu, acc, gyr = drive.imu
+    scans = sorted(drive.scans, key=lambda s: s.time_ns)
+    poses, i, j = [], 0, 0
+    t = int(t_imu[0])
+    while t < t_imu[-1]:
+        t += int(every_s * 1e9)
+        while j < len(scans) and scans[j].time_ns <= t:
+            poses.append(rio.add_scan(feedback.correct_scan(scans[j])))
+            j += 1
+        k = int(np.searchsorted(t_imu, t, side="right"))
+        poses.append(rio.add_imu(t_imu[i:k], acc[i:k], gyr[i:k]))
+        i = k
+        done = [p for p in poses if len(p)]
+        if sigma_mps is None or not done:
+            continue
+        times = np.concatenate([p.time_ns for p in done])
+        centre = int(times[-1] - span_s / 2 * 1e9)
+        velocity = np.concatenate([p.velocity_mps for p in done])
+        true_v = drive.truth.sample(np.array([centre])).velocity_mps[0]
+        if true_v[0] < 0.3:
+            continue
+        error = true_v[0] - velocity[np.searchsorted(times, centre), 0] + rng.normal(0, sigma_mps)
+        feedback.apply_measurements(rio.ekf, [LookVelocityMeasurement(centre, span_s, np.array([1.0, 0, 0]), error,
+                                                                      sigma_mps, ("left_front", "right_front"), 2)])
+    poses.append(rio.finish())
+    done = [p for p in poses if len(p)]
+    times = np.concatenate([p.time_ns for p in done])
+    position = np.concatenate([p.position_m for p in done])
+    return drive.truth.sample(times[-1:]).position_m[0] - position[-1], feedback

@@ -106,6 +106,9 @@ def test_a_measurement_far_outside_the_filter_s_uncertainty_is_refused():
     assert ekf.state.v[0] == 0.4
 
 
+from rio.feedback_drive import odometry_with_truth_measurements  # noqa: E402
+
+
 @pytest.fixture(scope="module")
 def odometry_drive():
     from rio.feedback_drive import simulate_feedback_drive
@@ -113,56 +116,13 @@ def odometry_drive():
     return simulate_feedback_drive(length_m=3.0, seed=3, with_frames=False)
 
 
-def odometry_with_map(drive, sigma_mps: float | None, every_s: float = 1.6, span_s: float = 1.5, seed: int = 0,
-                      learn_scale: bool = True):
-    """The streaming odometry over ``drive``; with ``sigma_mps``, every ``every_s`` while driving, a map
-    measurement of the along-track velocity error over the last ``span_s`` (the truth's, plus noise of that
-    sigma), as the map's tiles would give it. Returns the position error at the end (truth minus odometry)."""
-    from rio.calibration_drive import SIM_EKF
-    from rio.odometry import RioOptions
-    from rio.streaming import StreamingRio
-
-    rng = np.random.default_rng(seed)
-    rio = StreamingRio(RioOptions(ekf=SIM_EKF))
-    feedback = MapFeedback(MapFeedbackConfig(learn_doppler_scale=learn_scale))
-    t_imu, acc, gyr = drive.imu
-    scans = sorted(drive.scans, key=lambda s: s.time_ns)
-    poses, i, j = [], 0, 0
-    t = int(t_imu[0])
-    while t < t_imu[-1]:
-        t += int(every_s * 1e9)
-        while j < len(scans) and scans[j].time_ns <= t:
-            poses.append(rio.add_scan(feedback.correct_scan(scans[j])))
-            j += 1
-        k = int(np.searchsorted(t_imu, t, side="right"))
-        poses.append(rio.add_imu(t_imu[i:k], acc[i:k], gyr[i:k]))
-        i = k
-        done = [p for p in poses if len(p)]
-        if sigma_mps is None or not done:
-            continue
-        times = np.concatenate([p.time_ns for p in done])
-        centre = int(times[-1] - span_s / 2 * 1e9)
-        velocity = np.concatenate([p.velocity_mps for p in done])
-        true_v = drive.truth.sample(np.array([centre])).velocity_mps[0]
-        if true_v[0] < 0.3:
-            continue
-        error = true_v[0] - velocity[np.searchsorted(times, centre), 0] + rng.normal(0, sigma_mps)
-        feedback.apply_measurements(rio.ekf, [LookVelocityMeasurement(centre, span_s, np.array([1.0, 0, 0]), error,
-                                                                      sigma_mps, ("left_front", "right_front"), 2)])
-    poses.append(rio.finish())
-    done = [p for p in poses if len(p)]
-    times = np.concatenate([p.time_ns for p in done])
-    position = np.concatenate([p.position_m for p in done])
-    return drive.truth.sample(times[-1:]).position_m[0] - position[-1], feedback
-
-
 def test_the_map_s_measurements_cut_the_drift_along_the_track(odometry_drive):
     """The radars' Doppler 2 % low: the odometry ends 5.7 cm short after 3 m. The map's along-track velocity
     errors (1 mm/s, every 1.6 s) as filter updates alone take a quarter of it out (the next radar scans pull
     the velocity back); with the Doppler scale learnt from them, two thirds. The cross-track error stays."""
-    without, _ = odometry_with_map(odometry_drive, None)
-    update_only, feedback = odometry_with_map(odometry_drive, 0.001, learn_scale=False)
-    with_scale, learnt = odometry_with_map(odometry_drive, 0.001)
+    without, _ = odometry_with_truth_measurements(odometry_drive, None)
+    update_only, feedback = odometry_with_truth_measurements(odometry_drive, 0.001, learn_scale=False)
+    with_scale, learnt = odometry_with_truth_measurements(odometry_drive, 0.001)
     assert without[0] > 0.05
     assert len(feedback.measurements) == 4 and feedback.rejected == 0
     assert abs(update_only[0]) < 0.85 * without[0]
@@ -229,3 +189,22 @@ def test_run_with_map_feedback_subscribes_the_odometry_to_the_map_worker(tmp_pat
         assert (MapVelocityError.TOPIC in worker.topics) is feedback
         assert worker.endpoints == ([specs["stripmap"].endpoint] if feedback else [])
 
+
+
+def test_sarbot_run_refuses_map_feedback_without_the_map_s_refocus(tmp_path):
+    from acquisition.cli import build_parser
+    from acquisition.cli.daemon import run_workers
+    from acquisition.daemon import Setup
+    from drivers.can_driver import CanConfig
+    from drivers.radar.link import RadarLink
+    from imaging.core.errors import SarbotError
+    from imaging.core.rig import default_rig
+
+    run = ["run", "--config", "rig.toml", "-o", str(tmp_path), "--rio-map-feedback"]
+    setup = Setup(default_rig(), [RadarLink("left_front", 50001)], imu_port="/nonexistent/imu",
+                  can=CanConfig("virtual", "nice"))
+    with pytest.raises(SarbotError, match="--rio-map-feedback needs --map-refocus"):
+        run_workers(setup, build_parser().parse_args(run), tmp_path, "t")
+    run_workers(setup, build_parser().parse_args([*run, "--map-refocus", "entropy"]), tmp_path, "t")
+    specs = {w.role: w for w in setup.workers}
+    assert specs["rio"].config.map_feedback and specs["rio"].config.map_endpoint == specs["stripmap"].endpoint
