@@ -208,3 +208,27 @@ def test_sarbot_run_refuses_map_feedback_without_the_map_s_refocus(tmp_path):
     run_workers(setup, build_parser().parse_args([*run, "--map-refocus", "entropy"]), tmp_path, "t")
     specs = {w.role: w for w in setup.workers}
     assert specs["rio"].config.map_feedback and specs["rio"].config.map_endpoint == specs["stripmap"].endpoint
+
+
+def test_a_map_of_two_radars_refocuses_each_tile_over_its_whole_aperture():
+    """Each radar's frame used to end every tile it did not reach, so a map imaged by radars looking left and
+    right refocused every tile after a frame or two of its own radar; now a tile is refocused once its own radar
+    has passed it, over the 0.6 m aperture, and its geometry is kept for the feedback."""
+    import dataclasses
+
+    from rio.feedback_drive import MAP_CONFIG, run_feedback_loop, simulate_feedback_drive
+
+    from imaging.core.trajectory import PathWithTurns
+
+    drive = simulate_feedback_drive(length_m=1.9, seed=0)
+    # imaged 2 % slow, as the odometry with the Doppler 2 % low: something for the refocus to correct
+    slow = PathWithTurns(segments=[("straight", 1.9 * 0.98)], speed_mps=0.4 * 0.98, accel_mps2=0.5 * 0.98,
+                         start_delay_s=2.0, t0_ns=drive.truth.t0_ns)
+    result = run_feedback_loop(drive, True, map_config=dataclasses.replace(MAP_CONFIG, refocus="pga"), trajectory=slow)
+    geometry = result.refocus_map.refocus_geometry
+    assert {key[1] > 0 for key in geometry} == {True, False}  # tiles of both sides, each with its scatterer
+    for key, geo in geometry.items():
+        assert len(set(geo.radars)) == 1
+        travel_m = np.ptp(geo.antenna_m[:, 0])
+        assert 0.55 < travel_m < 0.65, (key, travel_m)
+        assert np.linalg.norm(geo.scatterer_m[:2] - drive.targets_m[:, :2], axis=1).min() < 0.06  # 2 % of 1.1 m short
