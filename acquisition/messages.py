@@ -270,6 +270,36 @@ class MapTile(BusMessage):
 
 
 @dataclasses.dataclass
+class MapVelocityError(HeaderMessage):
+    """The trajectory's velocity error (truth minus trajectory) along one world direction, read off tiles the
+    strip map refocused together (``rio.map_feedback.LookVelocityMeasurement``): for the odometry."""
+
+    TOPIC: ClassVar[str] = "map/velocity_error"
+    time_ns: int  # centre of the tiles' time span (the trajectory's time base)
+    span_s: float
+    direction_x: float  # unit direction, world frame
+    direction_y: float
+    direction_z: float
+    velocity_error_mps: float
+    sigma_mps: float
+    radars: str  # comma-separated
+    tiles: int
+
+    @classmethod
+    def of(cls, m) -> "MapVelocityError":
+        return cls(int(m.time_ns), float(m.span_s), *(float(x) for x in m.direction), float(m.velocity_error_mps),
+                   float(m.sigma_mps), ",".join(m.radars), int(m.tiles))
+
+    def measurement(self):
+        from rio.map_feedback import LookVelocityMeasurement
+
+        return LookVelocityMeasurement(int(self.time_ns), float(self.span_s),
+                                       np.array([self.direction_x, self.direction_y, self.direction_z]),
+                                       float(self.velocity_error_mps), float(self.sigma_mps),
+                                       tuple(r for r in self.radars.split(",") if r), int(self.tiles))
+
+
+@dataclasses.dataclass
 class MapStatus(HeaderMessage):
     """The live strip map's state."""
 
@@ -432,7 +462,7 @@ class Health(HeaderMessage):
 
 
 _BY_TOPIC: dict[str, type[BusMessage]] = {cls.TOPIC: cls for cls in (
-    ImuBatch, CanBatch, Trigger, Event, LoggedEvent, PoseBatch, PoseEnd, MapTile, MapStatus, WorkerState, Health)}
+    ImuBatch, CanBatch, Trigger, Event, LoggedEvent, PoseBatch, PoseEnd, MapTile, MapVelocityError, MapStatus, WorkerState, Health)}
 
 
 def decode(msg: Message) -> BusMessage:

@@ -86,6 +86,12 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                              "refined mounts and time offset), and the true rig's odometry with the wrong mounts and "
                              "clock. Peak and main-lobe width against the image on the true rig's odometry.",
                              ".venv/bin/python benchmarks/calibration_stripmap.py"),
+    "map_feedback": ("The map corrects the odometry",
+                     "Simulated straight drives at 0.4 m/s with the radars' Doppler 2 % low: the odometry's error along "
+                     "the track at the end, and every point target's peak in the live map as imaged (before refocus) "
+                     "against the map on the true trajectory, without and with the map's velocity errors fed back "
+                     "(rio.map_feedback: filter updates plus the Doppler scale learnt from them).",
+                     ".venv/bin/python benchmarks/map_feedback.py"),
     "pointcloud": ("Point clouds from raw frames",
                    "What each live odometry scan costs before the filter sees it, stage by stage.",
                    ".venv/bin/python benchmarks/pointcloud.py"),

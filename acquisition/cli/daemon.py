@@ -58,6 +58,9 @@ def register(sub) -> None:
     s.add_argument("--rio-calibrate", action="store_true",
                    help="the odometry estimates every radar's mount and time offset online (in health and the "
                         "trajectory's /calibration)")
+    s.add_argument("--rio-map-feedback", action="store_true",
+                   help="the odometry takes the velocity errors the map's refocused tiles read (map/velocity_error; "
+                        "needs --map-refocus) and learns the radars' Doppler scale from them")
     opt.view_option(s)
     s.set_defaults(func=cmd_run)
 
@@ -193,6 +196,8 @@ def run_workers(setup, args, out_dir: Path, stamp: str):
         raise SarbotError(f"--map-presum {args.map_presum!r}: expected 'auto' or a positive integer")
     map_radars = opt.radar_names(args.map_radars, "--map-radars", names)
     config = map_config(args)
+    if getattr(args, "rio_map_feedback", False) and config.refocus == "none":
+        raise SarbotError("--rio-map-feedback needs --map-refocus: the velocity errors come from the tiles' refocus")
     if args.map_threads < 1:
         raise SarbotError(f"--map-threads {args.map_threads}: must be at least 1")
     max_thinning = MAX_THINNING if args.map_max_thinning is None else args.map_max_thinning
@@ -201,7 +206,7 @@ def run_workers(setup, args, out_dir: Path, stamp: str):
     return add_pipeline_workers(setup, out_dir, stamp, config, args.max_speed, map_radars,
                                 opt.radar_names(args.rio_radars, "--rio-radars", names), presum,
                                 opt.view_address(args.view), args.map_threads, max_thinning,
-                                getattr(args, "rio_calibrate", False))
+                                getattr(args, "rio_calibrate", False), getattr(args, "rio_map_feedback", False))
 
 
 def cmd_run(args) -> int:

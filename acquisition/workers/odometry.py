@@ -17,6 +17,7 @@ from imaging.core.samples import iq_to_complex
 from ..messages import (
     Event,
     ImuBatch,
+    MapVelocityError,
     PointCloudMessage,
     PoseBatch,
     PoseEnd,
@@ -48,6 +49,10 @@ class OdometryWorkerConfig:
     #: Estimate every radar's mount and time offset online (rio.ekf's calibration states): in health every
     #: second and in the trajectory file's /calibration at the end.
     calibrate: bool = False
+    #: Take the strip map's velocity errors (``map/velocity_error``, rio.map_feedback) into the filter and
+    #: learn the radars' Doppler scale from them. The strip-map worker's endpoint must be among ``endpoints``.
+    map_feedback: bool = False
+    map_endpoint: str | None = None
 
 
 class OdometryWorker(Worker):
@@ -64,6 +69,13 @@ class OdometryWorker(Worker):
         rig = config.rig
         use = set(config.radars or rig.radar_names)
         self.topics = [ImuBatch.TOPIC, *[RadarFrameMessage.topic_of(n) for n in sorted(use)]]
+        self.map_feedback = None
+        if config.map_feedback:
+            from rio.map_feedback import MapFeedback
+
+            self.map_feedback = MapFeedback()
+            self.topics.append(MapVelocityError.TOPIC)
+            self.endpoints = [config.map_endpoint] if config.map_endpoint else []
         self.radars = {r.name: r for r in rig.radars if r.name in use}
         self.orders = {name: np.asarray(r.waveform.tdm_tx_order()) for name, r in self.radars.items()}
         self.half_frame_ns = {name: r.waveform.frame_duration_ns // 2 for name, r in self.radars.items()}
@@ -139,6 +151,10 @@ class OdometryWorker(Worker):
             self._note_silence(now)
             self._publish(self.rio.add_imu(message.time_ns, message.accel_mps2, message.gyro_radps))
             return
+        if isinstance(message, MapVelocityError):
+            if self.map_feedback is not None and self.rio.ekf is not None:
+                self.map_feedback.apply_measurements(self.rio.ekf, [message.measurement()])
+            return
         if not isinstance(message, RadarFrameMessage) or message.radar not in self.radars or not message.frame.valid:
             return
         name, frame = message.radar, message.frame
@@ -157,7 +173,8 @@ class OdometryWorker(Worker):
         pc = detect(iq_to_complex(frame.iq), radar, self.orders[name], self.pc_config)
         if self.config.publish_points:
             self.pub.send(PointCloudMessage(name, t_scan, pc.xyz_m, pc.doppler_mps))
-        self._publish(self.rio.add_scan(RadarScan(t_scan, name, radar.mount, pc.xyz_m, pc.doppler_mps)))
+        scan = RadarScan(t_scan, name, radar.mount, pc.xyz_m, pc.doppler_mps)
+        self._publish(self.rio.add_scan(self.map_feedback.correct_scan(scan) if self.map_feedback is not None else scan))
 
     def _note_silence(self, now: float) -> None:
         """Radars with no frame for ``radar_silence_s`` are not waited for (said once on the bus); with none
@@ -195,6 +212,9 @@ class OdometryWorker(Worker):
 
     def counters(self) -> dict[str, int]:
         counted = {k: int(self.rio.stats[k]) for k in ("scans_thinned_behind", "scans_late") if k in self.rio.stats}
+        if self.map_feedback is not None:
+            counted["map_velocity_updates"] = len(self.map_feedback.measurements)
+            counted["map_velocity_refused"] = self.map_feedback.rejected
         return {**counted, "lag_ms": self.lag_ms}
 
     def calibration(self) -> dict[str, dict]:

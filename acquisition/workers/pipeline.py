@@ -38,6 +38,7 @@ class PipelineOptions:
     map_threads: int = 1
     map_max_thinning: int = MAX_THINNING
     rio_calibrate: bool = False  # the odometry estimates every radar's mount and time offset online
+    rio_map_feedback: bool = False  # the odometry takes the map's velocity errors (map/velocity_error)
 
 
 def trajectory_path(run: WorkerRun) -> Path:
@@ -52,15 +53,21 @@ def odometry_workers(setup, run: WorkerRun) -> list[WorkerSpec]:
     # The map waits for the odometry's poses: the odometry is the upstream worker (niced less).
     options = run.options
     config = OdometryWorkerConfig(setup.rig, options.rio_radars, str(trajectory_path(run)),
-                                  publish_points=options.view is not None, calibrate=options.rio_calibrate)
+                                  publish_points=options.view is not None, calibrate=options.rio_calibrate,
+                                  map_feedback=getattr(options, "rio_map_feedback", False))
     return [WorkerSpec("rio", OdometryWorker, config, upstream=True)]
 
 
 def stripmap_workers(setup, run: WorkerRun) -> list[WorkerSpec]:
     options = run.options
-    return [WorkerSpec("stripmap", StripMapWorker, StripMapWorkerConfig(
+    spec = WorkerSpec("stripmap", StripMapWorker, StripMapWorkerConfig(
         setup.rig, options.map_radars, options.map, run.workers["rio"].endpoint, str(map_path(run)),
-        threads=options.map_threads, max_thinning=options.map_max_thinning))]
+        threads=options.map_threads, max_thinning=options.map_max_thinning))
+    rio = run.workers["rio"].config
+    if getattr(rio, "map_feedback", False):
+        # The odometry is made first (the map needs its poses' endpoint); it learns the map's here.
+        rio.map_endpoint = spec.endpoint
+    return [spec]
 
 
 def view_workers(setup, run: WorkerRun) -> list[WorkerSpec]:
@@ -112,21 +119,24 @@ def check_pipeline_setup(setup, map_radars: list[str], imu_aided: bool) -> None:
 def add_pipeline_workers(setup, out_dir: Path, stamp: str, config, max_speed_mps: float = 0.5,
                          map_radars: list[str] | None = None, rio_radars: list[str] | None = None,
                          presum: int | None = None, view: tuple[str, int] | None = None, map_threads: int = 1,
-                         map_max_thinning: int = MAX_THINNING, rio_calibrate: bool = False):
+                         map_max_thinning: int = MAX_THINNING, rio_calibrate: bool = False,
+                         rio_map_feedback: bool = False):
     """Give ``setup`` (``acquisition.daemon.Setup``) the workers of every registered factory: the odometry,
     the strip map, the live view if asked, and any registered besides (``registry.register``).
 
     ``config`` is the ``imaging.stripmap.StripMapConfig``; ``presum`` None picks the largest pre-summing
     whose phase spread stays within pi/4 at ``max_speed_mps``. ``view`` (host, port): also serve the run
     on the Foxglove WebSocket protocol (``workers.view``). ``map_threads``: the map's backprojection threads
-    (``StripMapWorkerConfig.threads``); ``map_max_thinning`` its ``max_thinning``.
+    (``StripMapWorkerConfig.threads``); ``map_max_thinning`` its ``max_thinning``. ``rio_map_feedback``: the
+    odometry takes the map's velocity errors (``rio.map_feedback``), subscribed to the map worker's endpoint.
     Returns the trajectory path, the map path and the strip-map settings used.
     """
     names = [link.name for link in setup.radars]
     map_radars = map_radars or names
     check_pipeline_setup(setup, map_radars, config.refocus_imu_aided)
     config = resolve_map_config(setup, config, map_radars, max_speed_mps, presum)
-    options = PipelineOptions(config, map_radars, rio_radars or names, view, map_threads, map_max_thinning, rio_calibrate)
+    options = PipelineOptions(config, map_radars, rio_radars or names, view, map_threads, map_max_thinning, rio_calibrate,
+                              rio_map_feedback)
     out_dir.mkdir(parents=True, exist_ok=True)
     run = WorkerRun(out_dir, stamp, options)
     setup.workers = registry.assemble(setup, run)

@@ -18,7 +18,7 @@ import numpy as np
 
 from imaging.core.rig import Rig
 
-from ..messages import MapStatus, MapTile, PoseBatch, PoseEnd, RadarFrameMessage, RadarImuBatch
+from ..messages import MapStatus, MapTile, MapVelocityError, PoseBatch, PoseEnd, RadarFrameMessage, RadarImuBatch
 from . import Worker
 
 log = logging.getLogger(f"sarbot.{__name__}")
@@ -315,6 +315,8 @@ class StripMapWorker(Worker):
         self.changed.update(footprint.tiles)
         self.changed.update(footprint.refocused)
         status.tiles_refocused += len(footprint.refocused)
+        if footprint.refocused:
+            self._publish_velocity_error(footprint.refocused)
         status.frames_standing_still += footprint.frames_standing
         if self.map.frames_off_map > status.frames_off_map:
             if status.frames_off_map == 0:
@@ -330,6 +332,17 @@ class StripMapWorker(Worker):
             if oldest is not None and footprint.frames_imaged and not final:
                 status.lag_s = (time.time_ns() - oldest) * 1e-9
                 status.max_lag_s = max(status.max_lag_s, status.lag_s)
+
+    def _publish_velocity_error(self, keys) -> None:
+        """The trajectory's velocity error read off tiles refocused together (rio.map_feedback), on
+        ``map/velocity_error`` for the odometry; nothing where their estimates were not applied or do not
+        read as one velocity error."""
+        from rio.map_feedback import velocity_error_from_tiles
+
+        geometry, results = self.map.refocus_geometry, self.map.refocus_results
+        tiles = [(results[k].track_error, geometry[k]) for k in keys if k in geometry and k in results]
+        for m in velocity_error_from_tiles(tiles) if tiles else []:
+            self.pub.send(MapVelocityError.of(m))
 
     def catch_up(self, radar: str) -> tuple[int, bool, int]:
         """How the oldest queued frame (radar ``radar``'s) is imaged: (extra pre-summing, RX channels summed,

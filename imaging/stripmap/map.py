@@ -212,7 +212,7 @@ class StripMap:
             return FrameFootprint([], 0, skipped="map full", frames_standing=standing)
         self.frames += n_frames
         self.profiles += profiles.data.shape[0]
-        refocused = self._refocus.finish(set(touched), self.tiles, self.tile_points) if cfg.refocuses else []
+        refocused = self._refocus.finish(set(touched), self.tiles, self.tile_points, radar.name) if cfg.refocuses else []
         if not touched:
             return FrameFootprint([], 0, refocused=refocused, frames_imaged=n_frames, frames_standing=standing)
         # Every pixel any frame takes, tile by tile, and which of the frames take it (bit f: frame f).
@@ -336,6 +336,12 @@ class StripMap:
     def refocus_results(self) -> dict:
         """Tile -> the AutofocusResult of its refocus."""
         return self._refocus.results
+
+    @property
+    def refocus_geometry(self) -> dict:
+        """Tile -> where its refocus looked (``imaging.stripmap.refocus.ScattererGeometry``), for every tile in
+        ``refocus_results`` whose estimate was applied."""
+        return self._refocus.geometry
 
     @property
     def tiles_without_radar_imu(self) -> int:

@@ -14,6 +14,20 @@ from imaging.core.track_error import TrackError, remove_line
 from imaging.stripmap.config import StripMapConfig
 
 
+@dataclasses.dataclass(frozen=True)
+class ScattererGeometry:
+    """Where a tile's refocus looked: its brightest scatterer and, at the groups that saw it (those of its
+    track error), each group's time (s from ``time_origin_ns``), antenna phase centre [Q, 3] and the direction
+    [Q, 3] the track error displaces the antennas along (the horizontal boresight), world frame, radar names."""
+
+    scatterer_m: np.ndarray
+    time_s: np.ndarray
+    antenna_m: np.ndarray
+    direction: np.ndarray
+    radars: tuple[str, ...]
+    time_origin_ns: int
+
+
 class TileRefocus:
     """The refocus state of one map: what it keeps of the tiles being imaged, and what it found.
 
@@ -32,6 +46,9 @@ class TileRefocus:
         self.k = 0.0
         self.range_resolution_m = 0.0
         self.results: dict[tuple[int, int], object] = {}  # tile -> AutofocusResult of the refocus
+        #: tile -> where its refocus looked (``ScattererGeometry``): what turns the track error into a
+        #: velocity error of the trajectory (rio.map_feedback)
+        self.geometry: dict[tuple[int, int], ScattererGeometry] = {}
 
     def keep(self, key: tuple[int, int], groups: list, values: list, taken: np.ndarray, start: int, count: int,
              radar_name: str) -> None:
@@ -68,9 +85,10 @@ class TileRefocus:
             groups.append(((times[idx].mean() - self.t0_ns) * 1e-9, centre.mean(axis=0), direction))
         return values, groups
 
-    def finish(self, still_imaged: set, tiles: dict, tile_points) -> list[tuple[int, int]]:
-        """Refocus the tiles no longer reached by the frames; returns those whose image changed."""
-        done = [key for key in self.groups if key not in still_imaged]
+    def finish(self, still_imaged: set, tiles: dict, tile_points, radar: str | None = None) -> list[tuple[int, int]]:
+        """Refocus the tiles no longer reached by the frames (of ``radar``: a tile another radar is imaging
+        is not passed because this one's frame missed it); returns those whose image changed."""
+        done = [key for key in self.groups if key not in still_imaged and (radar is None or self.groups[key][-1][4] == radar)]
         return [key for key in done if self.refocus_tile(key, tiles, tile_points)]
 
     def pending(self, tiles: dict, tile_points) -> list[tuple[int, int]]:
@@ -177,6 +195,11 @@ class TileRefocus:
         te = result.track_error
         if seen.sum() >= 4:
             te = dataclasses.replace(te, time_s=te.time_s[seen], displacement_m=remove_line(te.time_s[seen], te.displacement_m[seen]))
+        else:
+            seen = np.ones(time_s.size, bool)
+        self.geometry[key] = ScattererGeometry(pts[brightest].copy(), time_s[seen], np.array([g[1] for g in groups])[seen],
+                                               np.array([g[2] for g in groups])[seen],
+                                               tuple(str(g[4]) for g, s in zip(groups, seen) if s), int(self.t0_ns))
         self.results[key] = dataclasses.replace(result, track_error=dataclasses.replace(te, time_origin_ns=self.t0_ns))
         out = np.zeros(n * n, np.complex128)
         out[order] = focused

@@ -1,0 +1,225 @@
+"""The live map corrects the odometry: velocity errors read off the strip map's refocused tiles, as filter
+measurements.
+
+A tile's refocus (``imaging.stripmap``, autofocus on its brightest scatterer) estimates the track error
+delta_q: how far the antennas of slow-time group q were displaced along the direction u_q (the horizontal
+boresight) from where the trajectory put them, with its constant and linear part removed (they only move
+the image; see ``imaging.core.track_error``). If the trajectory's velocity was off by dv (truth minus
+trajectory, constant over the tile's span), the antennas were displaced by e_q = dv (t_q - t_c), and the
+range to the scatterer g was shorter by e_q . s_q (s_q the unit vector from the antenna to g), which
+autofocus reads as delta_q = e_q . s_q / (u_q . s_q) (its model: a range shorter by delta c, c = u . s).
+
+Which terms are used, and why: only the part of that prediction that is not a line in time. The offset and
+the line of delta are unobservable (an image moved, not blurred), so a velocity error along the line of
+sight -- which is a line in delta -- is not seen by a tile at all. What is seen is the curvature: s_q turns
+as the antenna passes the scatterer, so a velocity error along the track bends delta (the classic
+azimuth defocus of a wrong speed: delta ~ v dv_along t^2 / R0), while one across the track bends it only
+at third order. Fitting dv (2-D, world frame, horizontal) to the tiles' curvature therefore measures the
+along-track velocity well and the cross-track velocity hardly: the fit's covariance says so, and only the
+directions it constrains to ``max_sigma_mps`` become measurements. Tiles refocused together (same time span,
+one or several radars) are fitted jointly, as one velocity error over their spans. A tile whose estimate was
+not applied (no scatterer, contrast too low, entropy not lowered) gives nothing; nor does a tile whose
+track error the velocity error does not explain (``min_explained``: a vibration, a random walk).
+
+The measurement is of the trajectory's velocity at the tiles' time, which lies in the past when it arrives
+(a tile is refocused once the radar has passed it). It is applied to the filter's current velocity on the
+assumption that the velocity error persists (what a tile can see is a systematic one: a Doppler scale, a
+mount error; the radar's own noise averages out over a tile), less what earlier map measurements already
+corrected since that time (``MapFeedback.applied``), so one error is not corrected twice. A velocity update
+alone is undone by the next radar scans (the filter trusts them, and they carry the same error), so
+``MapFeedback`` also learns the error's likely cause, a scale of the radars' Doppler (a radar clock or chirp
+slope off): each measurement's relative speed error, ``scale_gain`` of it, goes into ``doppler_scale``, and
+``correct_scan`` applies it to the scans before the filter takes them.
+
+Pure computation: used by the offline loop (``rio.feedback_drive``) and the live odometry worker.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from imaging.core.constants import CHI2_999
+from imaging.core.track_error import remove_line
+
+from .ekf import RadarInertialEkf, UpdateResult
+
+
+@dataclasses.dataclass(frozen=True)
+class LookVelocityMeasurement:
+    """A velocity error of the trajectory along one world direction, over a time span, from the map.
+
+    ``velocity_error_mps`` is truth minus trajectory along ``direction`` (unit [3], world frame, horizontal),
+    with standard deviation ``sigma_mps``; ``time_ns`` is the span's centre (on the trajectory's time base),
+    ``span_s`` its length; ``radars`` and ``tiles`` say what it was read from."""
+
+    time_ns: int
+    span_s: float
+    direction: np.ndarray
+    velocity_error_mps: float
+    sigma_mps: float
+    radars: tuple[str, ...]
+    tiles: int
+
+
+@dataclasses.dataclass(frozen=True)
+class MapFeedbackConfig:
+    """When a map estimate becomes an odometry measurement."""
+
+    #: A direction the tiles constrain worse than this is not measured (across the track, typically).
+    max_sigma_mps: float = 0.01
+    #: Never trusted better than this: the tiles' groups are not independent (the estimate is a smooth model).
+    min_sigma_mps: float = 0.0005
+    #: The fitted velocity error must explain this part of the tiles' track errors (their power).
+    min_explained: float = 0.5
+    #: Track-error scatter counted however small the fit residual (m): the estimate's own precision.
+    residual_floor_m: float = 2e-5
+    #: Independent values per tile in its track error (the entropy model's orders 2 to 4).
+    values_per_tile: int = 3
+    #: A wide gate: the error the map sees is one the filter does not model (a Doppler scale), so the filter
+    #: is sure of its wrong velocity and a 99.9 % gate on its covariance refuses the map every time; the
+    #: map's own checks (``min_explained``, ``max_sigma_mps``) are what keep a wrong estimate out.
+    gate_chi2: float = 100.0
+    #: Also learn a scale of the radars' Doppler from the map (``MapFeedback.correct_scan``): a velocity
+    #: update alone is pulled back by the next radar scans within a second when the radars' error persists.
+    learn_doppler_scale: bool = True
+    #: The part of each measured relative speed error taken into the scale (below 1: the measurements are noisy).
+    scale_gain: float = 0.7
+    #: The scale is learnt only while the filter's speed along the measured direction is at least this.
+    scale_min_speed_mps: float = 0.1
+
+
+def displacement_per_velocity(geometry) -> np.ndarray:
+    """The track error [Q, 2] a velocity error of 1 m/s along world x and y would give a tile's groups, less
+    its line (what autofocus can see). ``geometry`` is the tile's ``ScattererGeometry``."""
+    t = np.asarray(geometry.time_s, float)
+    to_scatterer = geometry.scatterer_m[None, :] - geometry.antenna_m
+    s = to_scatterer / np.linalg.norm(to_scatterer, axis=1, keepdims=True)
+    c = np.sum(geometry.direction * s, axis=1)
+    c = np.where(np.abs(c) < 1e-3, 1e-3, c)
+    dt = t - t.mean()
+    cols = [dt * s[:, i] / c for i in (0, 1)]
+    return np.column_stack([remove_line(t, col) for col in cols])
+
+
+def velocity_error_from_tiles(tiles, config: MapFeedbackConfig = MapFeedbackConfig()) -> list[LookVelocityMeasurement]:
+    """Fit one velocity error to tiles refocused over the same span, jointly; the directions it constrains
+    as measurements (none when the fit explains too little of the track errors).
+
+    ``tiles``: pairs (track error, geometry) of each tile: its refocus's ``TrackError`` (at the groups that saw
+    its scatterer, line removed) and ``ScattererGeometry``, both from ``StripMap.refocus_results`` /
+    ``refocus_geometry``.
+    """
+    rows, values, times, radars = [], [], [], set()
+    origin = None
+    for te, geo in tiles:
+        if te.time_s.size < 4 or te.time_s.size != geo.time_s.size:
+            continue
+        rows.append(displacement_per_velocity(geo))
+        values.append(remove_line(te.time_s, te.displacement_m))
+        origin = geo.time_origin_ns if origin is None else origin
+        times.append(np.asarray(geo.time_s) + (geo.time_origin_ns - origin) * 1e-9)
+        radars.update(geo.radars)
+    if not rows:
+        return []
+    a, y = np.concatenate(rows), np.concatenate(values)
+    # In the normal matrix's eigenbasis: each direction's information on its own, so a direction the tiles
+    # hardly see (across the track) neither spoils the solve nor gets a measurement.
+    info, basis = np.linalg.eigh(a.T @ a)
+    projected = basis.T @ (a.T @ y)
+    # The groups' values are not independent: count values_per_tile per tile, not every group.
+    inflation = y.size / max(config.values_per_tile * len(rows), 1)
+    seen = [i for i in range(info.size) if info[i] > 0]
+    dv = np.zeros(2)
+    for i in seen:
+        dv += basis[:, i] * projected[i] / info[i]
+    residual = y - a @ dv
+    power = float(y @ y)
+    if power <= 0 or 1.0 - float(residual @ residual) / power < config.min_explained:
+        return []
+    scatter_m = max(float(np.sqrt(np.mean(residual ** 2))), config.residual_floor_m)
+    t_all = np.concatenate(times)
+    centre_ns = int(origin + round(0.5 * (t_all.min() + t_all.max()) * 1e9))
+    out = []
+    for i in seen:
+        sigma = max(scatter_m * float(np.sqrt(inflation / info[i])), config.min_sigma_mps)
+        if sigma > config.max_sigma_mps:
+            continue
+        vec = basis[:, i]
+        out.append(LookVelocityMeasurement(centre_ns, float(np.ptp(t_all)), np.array([vec[0], vec[1], 0.0]),
+                                           float(vec @ dv), sigma, tuple(sorted(radars)), len(rows)))
+    return out
+
+
+def update_look_velocity(ekf: RadarInertialEkf, measurement: LookVelocityMeasurement,
+                         already_corrected_mps: float = 0.0, gate_chi2: float | None = CHI2_999[1]) -> UpdateResult:
+    """The filter's velocity along ``measurement.direction`` corrected by the measured velocity error, less
+    ``already_corrected_mps`` (what map measurements since the measurement's time moved it along that
+    direction): a pseudo-measurement of velocity with the measurement's sigma, chi-square gated."""
+    d = np.asarray(measurement.direction, float)
+    H = ekf._zeros(1)
+    H[0, 3:6] = d
+    residual = np.array([measurement.velocity_error_mps - already_corrected_mps])
+    return ekf._update(residual, H, np.array([[measurement.sigma_mps ** 2]]), gate_chi2, "velocity")
+
+
+class MapFeedback:
+    """Map estimates into one filter: turns tiles refocused together into measurements and applies them,
+    keeping what each applied one changed so later measurements of the same span are not counted twice."""
+
+    def __init__(self, config: MapFeedbackConfig = MapFeedbackConfig()):
+        self.config = config
+        #: applied corrections: (filter time ns, velocity change [3] m/s) of every accepted map update
+        self.applied: list[tuple[int, np.ndarray]] = []
+        self.measurements: list[LookVelocityMeasurement] = []
+        self.rejected = 0
+        #: the radars' Doppler is multiplied by this (``correct_scan``), learnt from the map's measurements
+        self.doppler_scale = 1.0
+        self.scale_log: list[tuple[int, float]] = []  # (filter time ns, scale from then on)
+
+    def scale_at(self, time_ns: int) -> float:
+        """The Doppler scale the scans of ``time_ns`` were corrected by."""
+        scale = 1.0
+        for t, value in self.scale_log:
+            if t > time_ns:
+                break
+            scale = value
+        return scale
+
+    def correct_scan(self, scan):
+        """``scan`` (a ``rio.odometry.RadarScan``) with its Doppler scaled by what the map has learnt."""
+        if self.doppler_scale == 1.0:
+            return scan
+        return dataclasses.replace(scan, doppler_mps=scan.doppler_mps * self.doppler_scale)
+
+    def corrected_since(self, time_ns: int, direction: np.ndarray, speed_mps: float = 0.0) -> float:
+        """How far accepted map updates after ``time_ns`` moved the filter's velocity along ``direction``, and
+        the Doppler scale learnt since at a speed of ``speed_mps`` along it."""
+        updates = float(sum(dv @ direction for t, dv in self.applied if t > time_ns))
+        return updates + (self.doppler_scale / self.scale_at(time_ns) - 1.0) * speed_mps
+
+    def apply(self, ekf: RadarInertialEkf, tiles) -> list[LookVelocityMeasurement]:
+        """Fit ``tiles`` (pairs of track error and geometry, see ``velocity_error_from_tiles``) and update the
+        filter with each direction measured; returns the measurements accepted."""
+        return self.apply_measurements(ekf, velocity_error_from_tiles(tiles, self.config))
+
+    def apply_measurements(self, ekf: RadarInertialEkf, measurements) -> list[LookVelocityMeasurement]:
+        """Update the filter with ``measurements``; returns those accepted."""
+        accepted = []
+        for m in measurements:
+            before = ekf.state.v.copy()
+            speed = float(before @ m.direction)
+            done = self.corrected_since(m.time_ns, m.direction, speed)
+            res = update_look_velocity(ekf, m, done, self.config.gate_chi2)
+            if res.accepted:
+                self.applied.append((ekf.state.time_ns, ekf.state.v - before))
+                accepted.append(m)
+                if self.config.learn_doppler_scale and abs(speed) >= self.config.scale_min_speed_mps:
+                    # Speed too low by dv along the track: the Doppler reads (v - dv) / v of the truth.
+                    self.doppler_scale *= 1.0 + self.config.scale_gain * (m.velocity_error_mps - done) / speed
+                    self.scale_log.append((ekf.state.time_ns, self.doppler_scale))
+            else:
+                self.rejected += 1
+        self.measurements.extend(accepted)
+        return accepted

@@ -1,0 +1,234 @@
+"""The map corrects the odometry (rio.map_feedback): a tile's track error read as a velocity error of the
+trajectory, the filter update that takes it, and none where the map's estimate is not to be trusted."""
+
+import math
+
+import numpy as np
+import pytest
+
+from imaging.core.track_error import TrackError, remove_line
+from imaging.stripmap.refocus import ScattererGeometry
+from rio.ekf import EkfConfig, RadarInertialEkf
+from rio.map_feedback import (
+    LookVelocityMeasurement,
+    MapFeedback,
+    MapFeedbackConfig,
+    displacement_per_velocity,
+    update_look_velocity,
+    velocity_error_from_tiles,
+)
+
+SPEED_MPS = 0.4
+
+
+def passing_tile(dv_mps, range_m=1.5, side=1.0, aperture_m=0.6, groups=60, origin_ns=10**18, x0_m=0.0):
+    """A radar driving along +x past a scatterer ``range_m`` to its ``side`` (+1 left), the trajectory's
+    velocity off by ``dv_mps`` [2]: the track error autofocus reads (exact ranges), and the geometry."""
+    t = np.linspace(-0.5, 0.5, groups) * aperture_m / SPEED_MPS
+    antenna = np.column_stack([x0_m + SPEED_MPS * t, np.zeros_like(t), np.zeros_like(t)])
+    scatterer = np.array([x0_m, side * range_m, 0.0])
+    look = np.tile([0.0, side, 0.0], (t.size, 1))
+    true_antenna = antenna + np.column_stack([np.asarray(dv_mps)[0] * t, np.asarray(dv_mps)[1] * t, 0 * t])
+    shorter = np.linalg.norm(scatterer - antenna, axis=1) - np.linalg.norm(scatterer - true_antenna, axis=1)
+    c = np.sum(look * (scatterer - antenna), axis=1) / np.linalg.norm(scatterer - antenna, axis=1)
+    time_s = t + 5.0
+    te = TrackError(time_s, remove_line(time_s, shorter / c), "truth", None, origin_ns)
+    geo = ScattererGeometry(scatterer, time_s, antenna, look, ("left_front" if side > 0 else "right_front",) * t.size,
+                            origin_ns)
+    return te, geo
+
+
+def test_the_prediction_is_the_exact_track_error_of_a_small_velocity_error():
+    te, geo = passing_tile((0.004, 0.0))
+    predicted = displacement_per_velocity(geo) @ np.array([0.004, 0.0])
+    assert np.max(np.abs(predicted - te.displacement_m)) < 0.01 * np.max(np.abs(te.displacement_m))
+    # 0.4 m/s, 4 mm/s too slow, 1.5 m, +-0.75 s: v dv t^2 / R0 bends it by 0.6 mm from centre to the ends
+    assert 5e-4 < np.ptp(te.displacement_m) < 7e-4
+
+
+def test_tiles_on_both_sides_recover_the_along_track_velocity_error_and_measure_nothing_across():
+    dv = np.array([0.008, 0.003])  # 2 % of 0.4 m/s along the track, 3 mm/s across it
+    tiles = [passing_tile(dv, 1.3, +1.0), passing_tile(dv, 1.7, -1.0)]
+    (m,) = velocity_error_from_tiles(tiles)  # one direction only: the cross-track velocity is a line
+    assert abs(abs(m.direction[0]) - 1.0) < 1e-3
+    assert m.velocity_error_mps * np.sign(m.direction[0]) == pytest.approx(0.008, rel=0.02)
+    assert m.radars == ("left_front", "right_front") and m.tiles == 2
+    assert m.sigma_mps == pytest.approx(MapFeedbackConfig().min_sigma_mps)  # exact data: the floor
+    assert m.time_ns == 10**18 + 5 * 10**9
+
+
+def test_no_measurement_where_the_velocity_error_does_not_explain_the_track_error():
+    te, geo = passing_tile((0.008, 0.0))
+    t = te.time_s
+    wobble = TrackError(t, remove_line(t, 1e-3 * np.sin(2 * math.pi * 3.0 * t)), "pga", None, te.time_origin_ns)
+    assert velocity_error_from_tiles([(wobble, geo)]) == []  # a vibration, not a speed error
+    assert velocity_error_from_tiles([]) == []
+    few = TrackError(t[:3], te.displacement_m[:3], "pga", None, te.time_origin_ns)
+    assert velocity_error_from_tiles([(few, geo)]) == []
+
+
+def moving_filter(velocity_mps=(0.4, 0.0, 0.0)) -> RadarInertialEkf:
+    ekf = RadarInertialEkf(EkfConfig())
+    still = np.tile([0.0, 0.0, 9.80665], (200, 1))
+    ekf.initialise_static(10**18, still, np.zeros((200, 3)))
+    ekf.state.v = np.array(velocity_mps, float)
+    ekf.state.P[3:6, 3:6] = np.eye(3) * 0.02 ** 2
+    return ekf
+
+
+def test_the_update_with_a_known_velocity_error_recovers_it_along_its_direction_only():
+    ekf = moving_filter()
+    m = LookVelocityMeasurement(10**18, 1.5, np.array([1.0, 0.0, 0.0]), 0.008, 0.0005, ("left_front",), 1)
+    res = update_look_velocity(ekf, m)
+    assert res.accepted
+    assert ekf.state.v[0] == pytest.approx(0.408, abs=0.0002)  # sigma 0.5 mm/s against a 20 mm/s prior
+    assert ekf.state.v[1] == 0.0 and ekf.state.v[2] == 0.0
+    assert math.sqrt(ekf.state.P[3, 3]) < 0.0006 and math.sqrt(ekf.state.P[4, 4]) == pytest.approx(0.02)
+
+
+def test_an_error_already_corrected_since_is_not_corrected_twice():
+    ekf = moving_filter()
+    feedback = MapFeedback()
+    te, geo = passing_tile((0.008, 0.0))
+    (first,) = feedback.apply(ekf, [(te, geo)])
+    after_first = ekf.state.v[0]
+    assert after_first == pytest.approx(0.408, abs=0.0005)
+    # a second tile of the same span, refocused later: the filter has it already
+    te2, geo2 = passing_tile((0.008, 0.0), range_m=1.8)
+    feedback.apply(ekf, [(te2, geo2)])
+    assert ekf.state.v[0] == pytest.approx(after_first, abs=0.0003)
+
+
+def test_a_measurement_far_outside_the_filter_s_uncertainty_is_refused():
+    ekf = moving_filter()
+    m = LookVelocityMeasurement(10**18, 1.5, np.array([1.0, 0.0, 0.0]), 0.3, 0.0005, ("left_front",), 1)
+    assert not update_look_velocity(ekf, m).accepted
+    assert ekf.state.v[0] == 0.4
+
+
+from rio.feedback_drive import odometry_with_truth_measurements  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def odometry_drive():
+    from rio.feedback_drive import simulate_feedback_drive
+
+    return simulate_feedback_drive(length_m=3.0, seed=3, with_frames=False)
+
+
+def test_the_map_s_measurements_cut_the_drift_along_the_track(odometry_drive):
+    """The radars' Doppler 2 % low: the odometry ends 5.7 cm short after 3 m. The map's along-track velocity
+    errors (1 mm/s, every 1.6 s) as filter updates alone take a quarter of it out (the next radar scans pull
+    the velocity back); with the Doppler scale learnt from them, two thirds. The cross-track error stays."""
+    without, _ = odometry_with_truth_measurements(odometry_drive, None)
+    update_only, feedback = odometry_with_truth_measurements(odometry_drive, 0.001, learn_scale=False)
+    with_scale, learnt = odometry_with_truth_measurements(odometry_drive, 0.001)
+    assert without[0] > 0.05
+    assert len(feedback.measurements) == 4 and feedback.rejected == 0
+    assert abs(update_only[0]) < 0.85 * without[0]
+    assert abs(with_scale[0]) < 0.4 * without[0]
+    assert learnt.doppler_scale == pytest.approx(1 / 0.98, abs=0.004)
+    for run in (update_only, with_scale):
+        assert abs(run[1] - without[1]) < 0.002
+
+
+def test_the_odometry_worker_takes_the_map_s_velocity_error_off_the_bus_and_scales_the_doppler(tmp_path):
+    """``map/velocity_error`` as the strip-map worker sends it, through a real bus socket into the odometry
+    worker with ``map_feedback``: its filter's velocity moves by the error, and the Doppler scale is learnt."""
+    import time
+
+    from acquisition.bus import BusPublisher, BusSubscriber
+    from acquisition.messages import ImuBatch, MapVelocityError, decode
+    from acquisition.workers.odometry import OdometryWorker, OdometryWorkerConfig
+    from imaging.core.rig import default_rig
+
+    pub = BusPublisher("tcp://127.0.0.1:*")
+    sub = BusSubscriber(pub.endpoint, topics=[MapVelocityError.TOPIC])
+    time.sleep(0.3)
+    config = OdometryWorkerConfig(default_rig(), None, str(tmp_path / "trajectory.h5"), map_feedback=True)
+    worker = OdometryWorker(config, pub)
+    assert MapVelocityError.TOPIC in worker.topics
+    t0 = 10**18
+    n = 800  # 2 s standing: the filter starts
+    t = t0 + np.arange(n, dtype=np.int64) * 2_500_000
+    worker.handle(ImuBatch(t, np.zeros((n, 3)), np.tile([0.0, 0.0, 9.80665], (n, 1)), np.zeros(n, np.uint32), t), True)
+    worker.rio.radar_silent()
+    assert worker.rio.ekf is not None
+    worker.rio.ekf.state.v = np.array([0.4, 0.0, 0.0])
+    worker.rio.ekf.state.P[3:6, 3:6] = np.eye(3) * 0.02 ** 2
+    m = LookVelocityMeasurement(int(t[-1]), 1.5, np.array([1.0, 0.0, 0.0]), 0.008, 0.0005, ("left_front", "right_front"), 2)
+    pub.send(MapVelocityError.of(m))
+    received = decode(sub.receive(timeout_ms=2000))
+    assert received.measurement().radars == ("left_front", "right_front")
+    worker.handle(received, True)
+    assert worker.rio.ekf.state.v[0] == pytest.approx(0.408, abs=0.0002)
+    assert worker.map_feedback.doppler_scale == pytest.approx(1 + 0.7 * 0.008 / 0.4)
+    assert worker.counters()["map_velocity_updates"] == 1
+    sub.close()
+    pub.close()
+
+
+def test_run_with_map_feedback_subscribes_the_odometry_to_the_map_worker(tmp_path):
+    """``sarbot run --map-refocus ... --rio-map-feedback``: the odometry worker is made before the map's (the map
+    needs its poses), and is given the map worker's endpoint as it is made."""
+    from acquisition.daemon import Setup
+    from acquisition.messages import MapVelocityError
+    from acquisition.workers.odometry import OdometryWorker
+    from acquisition.workers.pipeline import add_pipeline_workers
+    from drivers.can_driver import CanConfig
+    from drivers.radar.link import RadarLink
+    from imaging.core.rig import default_rig
+    from imaging.stripmap import StripMapConfig
+
+    for feedback in (False, True):
+        setup = Setup(default_rig(), [RadarLink("left_front", 50001)], imu_port="/nonexistent/imu",
+                      can=CanConfig("virtual", "nice"))
+        add_pipeline_workers(setup, tmp_path, "t", StripMapConfig(refocus="entropy"), rio_map_feedback=feedback)
+        specs = {w.role: w for w in setup.workers}
+        worker = OdometryWorker(specs["rio"].config, None)
+        assert (MapVelocityError.TOPIC in worker.topics) is feedback
+        assert worker.endpoints == ([specs["stripmap"].endpoint] if feedback else [])
+
+
+
+def test_sarbot_run_refuses_map_feedback_without_the_map_s_refocus(tmp_path):
+    from acquisition.cli import build_parser
+    from acquisition.cli.daemon import run_workers
+    from acquisition.daemon import Setup
+    from drivers.can_driver import CanConfig
+    from drivers.radar.link import RadarLink
+    from imaging.core.errors import SarbotError
+    from imaging.core.rig import default_rig
+
+    run = ["run", "--config", "rig.toml", "-o", str(tmp_path), "--rio-map-feedback"]
+    setup = Setup(default_rig(), [RadarLink("left_front", 50001)], imu_port="/nonexistent/imu",
+                  can=CanConfig("virtual", "nice"))
+    with pytest.raises(SarbotError, match="--rio-map-feedback needs --map-refocus"):
+        run_workers(setup, build_parser().parse_args(run), tmp_path, "t")
+    run_workers(setup, build_parser().parse_args([*run, "--map-refocus", "entropy"]), tmp_path, "t")
+    specs = {w.role: w for w in setup.workers}
+    assert specs["rio"].config.map_feedback and specs["rio"].config.map_endpoint == specs["stripmap"].endpoint
+
+
+def test_a_map_of_two_radars_refocuses_each_tile_over_its_whole_aperture():
+    """Each radar's frame used to end every tile it did not reach, so a map imaged by radars looking left and
+    right refocused every tile after a frame or two of its own radar; now a tile is refocused once its own radar
+    has passed it, over the 0.6 m aperture, and its geometry is kept for the feedback."""
+    import dataclasses
+
+    from rio.feedback_drive import MAP_CONFIG, run_feedback_loop, simulate_feedback_drive
+
+    from imaging.core.trajectory import PathWithTurns
+
+    drive = simulate_feedback_drive(length_m=1.9, seed=0)
+    # imaged 2 % slow, as the odometry with the Doppler 2 % low: something for the refocus to correct
+    slow = PathWithTurns(segments=[("straight", 1.9 * 0.98)], speed_mps=0.4 * 0.98, accel_mps2=0.5 * 0.98,
+                         start_delay_s=2.0, t0_ns=drive.truth.t0_ns)
+    result = run_feedback_loop(drive, True, map_config=dataclasses.replace(MAP_CONFIG, refocus="pga"), trajectory=slow)
+    geometry = result.refocus_map.refocus_geometry
+    assert {key[1] > 0 for key in geometry} == {True, False}  # tiles of both sides, each with its scatterer
+    for key, geo in geometry.items():
+        assert len(set(geo.radars)) == 1
+        travel_m = np.ptp(geo.antenna_m[:, 0])
+        assert 0.55 < travel_m < 0.65, (key, travel_m)
+        assert np.linalg.norm(geo.scatterer_m[:2] - drive.targets_m[:, :2], axis=1).min() < 0.06  # 2 % of 1.1 m short
