@@ -230,7 +230,8 @@ def test_image_autofocus_and_analyze_report_the_track_error(vibrating, tmp_path,
     out = tmp_path / "focused.h5"
     assert cli.main(["image", str(vibrating), "-o", str(out), "--grid", "-0.1:0.1:0.001,1.9:2.1:0.002", "--tx", "0",
                      "--rx", "0", "--frames", frames, "--autofocus", "entropy"]) == 0
-    assert "autofocus (entropy): track error" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "autofocus (entropy): track error" in said and "half-band consistency +" in said
     assert cli.main(["analyze", str(out), "--at", "0,2"]) == 0
     report = json.loads(capsys.readouterr().out)
     te = report["track_error"]
@@ -238,6 +239,11 @@ def test_image_autofocus_and_analyze_report_the_track_error(vibrating, tmp_path,
     assert te["vibration"]["frequency_hz"] == pytest.approx(3.83, rel=0.02)
     assert te["vibration"]["amplitude_m"] == pytest.approx(0.319e-3, rel=0.02)
     assert te["entropy_after"] < te["entropy_before"]
+    from imaging.io.image_file import read_image
+
+    attrs = read_image(out).attrs
+    assert attrs["autofocus_consistent"] == 1 and attrs["autofocus_consistency_margin_db"] > 0
+    assert attrs["autofocus_uncertainty_m"] < 0.1 * attrs["autofocus_common_rms_m"]
     # A bad option is one line and exit code 2, and writes nothing.
     assert cli.main(["image", str(vibrating), "-o", str(tmp_path / "x.h5"), "--grid", "-0.1:0.1:0.001,1.9:2.1:0.002",
                      "--autofocus", "entropy", "--autofocus-sinusoids", "9"]) == 2

@@ -82,14 +82,15 @@ def half_band_blocks(blocks: Iterable, half: int) -> Iterator:
         yield dataclasses.replace(blk, profiles=split_band(blk.profiles)[half])
 
 
-def effective_dof(values: np.ndarray) -> float:
-    """Independent values a series holds, from its periodogram: ``2 (sum P)^2 / sum P^2`` (the periodogram
-    of white noise has exponential bins: about one per sample; a smooth bend a few), at least 1."""
-    p = np.abs(np.fft.rfft(np.asarray(values, float))) ** 2
+def effective_dof(*series: np.ndarray) -> float:
+    """Independent values a series holds, from its periodogram (of several series of one length: their
+    periodograms added): ``2 (sum P)^2 / sum P^2`` (white noise: about one per sample; a smooth bend or a
+    random walk, a few), at least 1."""
+    p = sum(np.abs(np.fft.rfft(np.asarray(v, float))) ** 2 for v in series)
     p = p[1:]  # the mean is no information (the line is removed already)
     if p.size == 0 or p.sum() <= 0:
         return 1.0
-    return float(max(1.0, min(values.size, 2.0 * p.sum() ** 2 / (p ** 2).sum())))
+    return float(max(1.0, min(series[0].size, 2.0 * p.sum() ** 2 / (p ** 2).sum())))
 
 
 def smooth_basis(time_s: np.ndarray, lower_m: np.ndarray, upper_m: np.ndarray, poly_order: int, sinusoids: int
@@ -182,17 +183,21 @@ class Consistency:
 
 
 def consistency_of(time_s: np.ndarray, lower_m: np.ndarray, upper_m: np.ndarray, applied_m: np.ndarray | None = None,
-                   false_alarm: float = FALSE_ALARM, poly_order: int = 6, sinusoids: int = 1
+                   false_alarm: float = FALSE_ALARM, poly_order: int = 6, sinusoids: int = 1, floor_m: float = 0.0
                    ) -> tuple[Consistency, np.ndarray | None]:
     """Compare two estimates of one track error from disjoint data (metres at the group times [Q]), and the
     estimate to apply, if any, against their common part (see the module's docstring). Returns the
     comparison and what may be applied: ``applied_m`` where it agrees group by group, its smooth part where
-    only that agrees, else None."""
+    only that agrees, else None. ``floor_m``: the rms by which the estimate to apply may always depart from
+    the common part (where the halves agree to micrometres, the full band's own window and carrier differ
+    by more than that)."""
     t = np.asarray(time_s, float)
     a, b = remove_line(t, np.asarray(lower_m, float)), remove_line(t, np.asarray(upper_m, float))
     common, diff = 0.5 * (a + b), 0.5 * (a - b)
     each = 0.5 * false_alarm  # two tests: together at most the stated false-alarm rate
-    dof = effective_dof(diff)
+    # From both parts' spectra: under the null they have one spectrum, and one periodogram alone is too
+    # noisy a count where a few bins hold most of the power (a random walk's).
+    dof = effective_dof(common, diff)
     ratio, critical, passed = _f_test(common, diff, dof, each)
     basis = smooth_basis(t, a, b, poly_order, sinusoids)
     s_ratio, s_critical, s_passed = _f_test(basis.T @ common, basis.T @ diff, float(basis.shape[1]), each)
@@ -201,14 +206,14 @@ def consistency_of(time_s: np.ndarray, lower_m: np.ndarray, upper_m: np.ndarray,
     if passed:
         scope, scope_common, scope_diff = "per-group", common, diff
         if applied is not None:
-            agrees = float(np.sum((applied - common) ** 2)) <= critical * float(np.sum(diff ** 2))
+            agrees = float(np.sum((applied - common) ** 2)) <= critical * float(np.sum(diff ** 2)) + t.size * floor_m ** 2
             out = applied if agrees else None
     elif s_passed:
         scope = "smooth"
         scope_common, scope_diff = basis @ (basis.T @ common), basis @ (basis.T @ diff)
         if applied is not None:
             smooth = basis @ (basis.T @ applied)
-            agrees = float(np.sum((smooth - scope_common) ** 2)) <= s_critical * float(np.sum(scope_diff ** 2))
+            agrees = float(np.sum((smooth - scope_common) ** 2)) <= s_critical * float(np.sum(scope_diff ** 2)) + t.size * floor_m ** 2
             out = smooth if agrees else None
     else:
         scope_common, scope_diff = common, diff

@@ -132,8 +132,9 @@ def estimate_on_group_images(g: GroupImages, options: AutofocusOptions,
     consistency = None
     if halves is not None:
         lower, upper = (np.asarray(METHODS[options.method](h, options)[0], float) for h in halves)
+        # The full band may always depart from the halves' common part by 0.1 rad of two-way phase.
         consistency, agreed = consistency_of(g.time_s, lower, upper, delta, options.false_alarm, options.poly_order,
-                                             max(options.sinusoids, 1))
+                                             max(options.sinusoids, 1), floor_m=0.1 / (2.0 * g.k))
         log.info("autofocus (%s): %s", options.method, consistency.describe())
         if agreed is None:
             applied = False
