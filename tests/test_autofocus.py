@@ -527,7 +527,7 @@ def test_an_entropy_model_that_dims_the_target_is_not_kept(sim_dir, monkeypatch)
         if guard != "on":
             monkeypatch.setattr(autofocus_module, "MODEL_PEAK_KEEP", 0.0)
         # The guard on its own: the contrast decision applies whatever lowers the entropy.
-        chosen = ENTROPY if guard == "off, consistency" else dataclasses.replace(ENTROPY, decision="contrast")
+        chosen = dataclasses.replace(ENTROPY, decision="consistency" if guard == "off, consistency" else "contrast")
         with Recording(path) as rec:
             img = image_at(rec, scene.trajectory, rod, 0.05, SPEED, autofocus=chosen, options=tapered)
             wavelength = rec.radar(RADAR).waveform.wavelength_m
