@@ -69,6 +69,12 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                               "The real Gotcha pass with a 0.3 rad/pulse random walk and an 11 rad polynomial added: "
                               "each method's peak against the clean image and the pulse-to-pulse steps it leaves.",
                               ".venv/bin/python benchmarks/autofocus_per_profile.py"),
+    "autofocus_decision": ("Autofocus decision: contrast gate against half-band consistency",
+                           "Synthesised 77 GHz passes with a drift, a 6.1 Hz vibration and a 2 % scale error: a point "
+                           "target's width against the true image's over image SNR, and clutter's correlation with the "
+                           "true image, for the forced estimate, the 20 dB contrast gate and the consistency decision; "
+                           "the consistency test's false-alarm rate on independent noise.",
+                           ".venv/bin/python benchmarks/autofocus_decision.py"),
     "rio": ("Radar-inertial odometry",
             "Accuracy on long simulated drives (evaluated with evo), the filter's settings against speed, and a "
             "real ROS bag.",

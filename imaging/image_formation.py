@@ -337,7 +337,8 @@ def focus_image(
     displacement measured by the IMU on the radar's own mount (``imaging.imu_aided``) corrects the track
     first, and autofocus estimates what is left. The track error goes into the image:
     ``SarImage.track_error`` (``/autofocus`` in the file) and attributes ``autofocus``,
-    ``autofocus_entropy_before``/``_after``, ``autofocus_applied``, ``imu_aided``.
+    ``autofocus_entropy_before``/``_after``, ``autofocus_applied``, ``imu_aided``, and under the default
+    decision the consistency of the half-band estimates (``autofocus_consistency_*``, docs/formats/image.md).
     """
     from imaging.autofocus import AutofocusOptions, estimate_track_error, image_entropy
     from imaging.imu_aided import boresight_track_from_imu, combined
@@ -396,6 +397,8 @@ def focus_image(
     img.attrs.update({"autofocus": autofocus.method, "autofocus_applied": int(result.applied),
                       "autofocus_entropy_before": result.entropy_before, "autofocus_entropy_after": result.entropy_after,
                       "autofocus_groups": result.groups, "autofocus_pixels": result.pixels})
+    if result.consistency is not None:  # the half-band estimates compared (imaging.autofocus.consistency)
+        img.attrs.update(result.consistency.as_attrs())
     img.track_error = track if result.applied else (imu_track or result.track_error)
     return img
 

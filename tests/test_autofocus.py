@@ -230,7 +230,8 @@ def test_image_autofocus_and_analyze_report_the_track_error(vibrating, tmp_path,
     out = tmp_path / "focused.h5"
     assert cli.main(["image", str(vibrating), "-o", str(out), "--grid", "-0.1:0.1:0.001,1.9:2.1:0.002", "--tx", "0",
                      "--rx", "0", "--frames", frames, "--autofocus", "entropy"]) == 0
-    assert "autofocus (entropy): track error" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "autofocus (entropy): track error" in said and "half-band consistency +" in said
     assert cli.main(["analyze", str(out), "--at", "0,2"]) == 0
     report = json.loads(capsys.readouterr().out)
     te = report["track_error"]
@@ -238,6 +239,11 @@ def test_image_autofocus_and_analyze_report_the_track_error(vibrating, tmp_path,
     assert te["vibration"]["frequency_hz"] == pytest.approx(3.83, rel=0.02)
     assert te["vibration"]["amplitude_m"] == pytest.approx(0.319e-3, rel=0.02)
     assert te["entropy_after"] < te["entropy_before"]
+    from imaging.io.image_file import read_image
+
+    attrs = read_image(out).attrs
+    assert attrs["autofocus_consistent"] == 1 and attrs["autofocus_consistency_margin_db"] > 0
+    assert attrs["autofocus_uncertainty_m"] < 0.1 * attrs["autofocus_common_rms_m"]
     # A bad option is one line and exit code 2, and writes nothing.
     assert cli.main(["image", str(vibrating), "-o", str(tmp_path / "x.h5"), "--grid", "-0.1:0.1:0.001,1.9:2.1:0.002",
                      "--autofocus", "entropy", "--autofocus-sinusoids", "9"]) == 2
@@ -501,7 +507,8 @@ def test_an_entropy_model_that_dims_the_target_is_not_kept(sim_dir, monkeypatch)
     """Study 7's rod at 0.4 m/s imaged over 0.05 m (2.5 frames) under a Taylor taper: the entropy model
     found a sixth-order bend of 2.4 mm rms that lowered the entropy by moving the rod's energy out of the
     pixels (its peak 2.2 dB down, moved 2 cm, no -3 dB crossing left in the cut). It is refused for PGA's
-    estimate, and the width is the taper's theory; with the guard off the failure comes back."""
+    estimate, and the width is the taper's theory; with the guard off the failure comes back under the
+    contrast decision, and the default consistency decision refuses it on its own."""
     import imaging.autofocus.track_model as autofocus_module
     from acquisition.studies.common import ENTROPY, image_at, target_xy, widths
     from imaging.sim.scene import load_scene
@@ -516,11 +523,13 @@ def test_an_entropy_model_that_dims_the_target_is_not_kept(sim_dir, monkeypatch)
     rod = target_xy(next(t for t in scene.targets if isinstance(t, Rod)))
     tapered = dataclasses.replace(ONE_PAIR, aperture_window="taylor")
     results = {}
-    for guard in ("on", "off"):
-        if guard == "off":
+    for guard in ("on", "off", "off, consistency"):
+        if guard != "on":
             monkeypatch.setattr(autofocus_module, "MODEL_PEAK_KEEP", 0.0)
+        # The guard on its own: the contrast decision applies whatever lowers the entropy.
+        chosen = dataclasses.replace(ENTROPY, decision="consistency" if guard == "off, consistency" else "contrast")
         with Recording(path) as rec:
-            img = image_at(rec, scene.trajectory, rod, 0.05, SPEED, autofocus=ENTROPY, options=tapered)
+            img = image_at(rec, scene.trajectory, rod, 0.05, SPEED, autofocus=chosen, options=tapered)
             wavelength = rec.radar(RADAR).waveform.wavelength_m
         w = widths(img, rod)
         r0 = float(np.hypot(*(np.asarray(w["peak_m"]) - img.attrs["aperture_centre_m"][:2])))
@@ -530,6 +539,9 @@ def test_an_entropy_model_that_dims_the_target_is_not_kept(sim_dir, monkeypatch)
     assert ratio == pytest.approx(1.0, abs=0.1) and moved_m < 0.01 and rms_m < 0.3e-3
     ratio, moved_m, rms_m = results["off"]
     assert not ratio < 1.1 and moved_m > 0.015 and rms_m > 1e-3
+    # With the guard off, the default decision alone refuses that model: the half-bands do not agree on it.
+    ratio, moved_m, _ = results["off, consistency"]
+    assert ratio == pytest.approx(1.0, abs=0.1) and moved_m < 0.01
 
 
 # -- pulse-to-pulse errors: the per-profile estimate -------------------------------------------------------

@@ -42,6 +42,9 @@ def register(sub) -> None:
     s.add_argument("--rx", help="RX channels, e.g. 0 (default all)")
     s.add_argument("--png", help="where to write the PNG (default: beside the image)")
     s.add_argument("--autofocus-sinusoids", type=int, default=1, help="sinusoids in the entropy model (0-4, default 1)")
+    s.add_argument("--autofocus-decision", default="consistency", choices=("consistency", "contrast"),
+                   help="when an estimate is applied: consistency (default): the estimates from the lower and upper "
+                        "half of the band must agree (1 %% false alarms); contrast: the former 20 dB contrast gate")
     s.add_argument("--imu-aided", action="store_true",
                    help="correct the track by the IMU on the radar's own mount first (a rig's [radar.NAME.imu]); "
                         "autofocus, if asked for, estimates what is left")
@@ -132,7 +135,8 @@ def cmd_image(args) -> int:
     if args.autofocus != "none":  # imaging.autofocus (scipy.optimize) costs 0.6 s to import: only when asked
         from imaging.autofocus import AutofocusOptions
 
-        autofocus = AutofocusOptions(method=args.autofocus, sinusoids=args.autofocus_sinusoids)
+        autofocus = AutofocusOptions(method=args.autofocus, sinusoids=args.autofocus_sinusoids,
+                                     decision=args.autofocus_decision)
     with Recording(args.recording) as rec:
         opt.use_rig_file(rec, args.rig)
         img = image_recording(rec, args.radar, args.grid, args.trajectory, opt.parse_frames(args.frames), options,
@@ -157,11 +161,16 @@ def autofocus_summary(img) -> str:
     te = img.track_error
     if "autofocus" not in a:  # the radar's IMU alone
         return f"imu-aided: the radar's IMU moved it {1e3 * te.rms_m:.3f} mm rms along the boresight over {np.ptp(te.time_s):.2f} s"
+    consistency = ""
+    if "autofocus_consistency_margin_db" in a:  # the half-band estimates compared (imaging.autofocus.consistency)
+        consistency = (f"; half-band consistency {a['autofocus_consistency_margin_db']:+.1f} dB at "
+                       f"{100 * a['autofocus_consistency_false_alarm']:g} % false alarms "
+                       f"({a['autofocus_consistency_scope']}, uncertainty {1e3 * a['autofocus_uncertainty_m']:.3f} mm)")
     if not a.get("autofocus_applied"):
-        return (f"autofocus ({a['autofocus']}): nothing to gain (image entropy {a['autofocus_entropy_before']:.3f}); "
+        return (f"autofocus ({a['autofocus']}): nothing to gain (image entropy {a['autofocus_entropy_before']:.3f}){consistency}; "
                 "the image is formed on the trajectory as it is")
     return (f"autofocus ({a['autofocus']}{' on the radar IMU' if a.get('imu_aided') else ''}): track error {1e3 * te.rms_m:.3f} mm rms along the boresight over "
-            f"{np.ptp(te.time_s):.2f} s; entropy {a['autofocus_entropy_before']:.3f} -> {a['autofocus_entropy_after']:.3f}")
+            f"{np.ptp(te.time_s):.2f} s; entropy {a['autofocus_entropy_before']:.3f} -> {a['autofocus_entropy_after']:.3f}{consistency}")
 
 
 def cmd_batch(args) -> int:

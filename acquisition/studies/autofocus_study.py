@@ -164,7 +164,7 @@ class AutofocusStudy:
 
             for method in ("pga", "entropy"):
                 img = image_at(rec, scene.trajectory, xy, 0.14, scene.trajectory.speed_mps,
-                               autofocus=AutofocusOptions(method=method))
+                               autofocus=AutofocusOptions(method=method, decision=ENTROPY.decision))
                 te = img.track_error
                 fit = fit_vibration(te)
                 out[method] = {"frequency_hz": fit.frequency_hz, "amplitude_m": fit.amplitude_m,

@@ -41,12 +41,21 @@ with nothing to focus on is never made worse.
 sinusoid fit (with the unobservable offset and drift as nuisance terms), so the vibration no longer has to
 be inferred from the level of its paired side lobes.
 
-Autofocus needs something to focus on: an image (noise, diffuse clutter) whose brightest pixel stands less
-than ``min_contrast_db`` above its background is left as it is. The background is the median intensity of
-noise estimated from the dimmest tenth of the pixels; noise alone reaches 13 dB above it at a million
-pixels, a point target tens of dB.
+Whether an estimate is applied (``AutofocusOptions.decision``): by default ("consistency") the method
+estimates the track error three times, from the whole band and from its lower and upper halves
+(``consistency.split_band``: disjoint chirp frequencies, so independent noise and decorrelated speckle, but
+the same path-length error), and the estimate is applied only where the two halves agree beyond what two
+fits to nothing would at the false-alarm rate ``false_alarm`` (an F test of their common part against
+their difference, group by group or in a low-order smooth part, ``consistency.consistency_of``) and the
+whole band's estimate agrees with them; the comparison goes into ``AutofocusResult.consistency`` and the
+image file. Diffuse clutter and noise, whose estimates are fits to speckle, are so left untouched
+whatever the contrast gate says. The former rule stays as decision "contrast": an image (noise, diffuse
+clutter) whose brightest pixel stands less than ``min_contrast_db`` above its background is left as it
+is. The background is the median intensity of noise estimated from the dimmest tenth of the pixels; noise
+alone reaches 13 dB above it at a million pixels, a point target tens of dB.
 
-Modules, one idea each: ``subapertures`` (the group images and their entropy), ``pga``, ``track_model``
+Modules, one idea each: ``subapertures`` (the group images and their entropy), ``consistency`` (the
+half-band estimates and their comparison), ``pga``, ``track_model``
 (the minimum-entropy model), ``registry`` (the methods by name: ``METHODS``, ``register_method``),
 ``per_profile`` (the per-group sharpening and the combination), ``estimate`` (``estimate_track_error`` and what every method shares), ``vibration`` (``fit_vibration``),
 ``options``; the track error itself is ``imaging.core.track_error``. Another method is one estimator
@@ -62,7 +71,8 @@ from imaging.autofocus.estimate import (
     nothing_to_focus_on,
     select_pixels,
 )
-from imaging.autofocus.options import AutofocusOptions, AutofocusResult, ProfileBlock
+from imaging.autofocus.consistency import Consistency, consistency_of, split_band
+from imaging.autofocus.options import DECISIONS, AutofocusOptions, AutofocusResult, ProfileBlock
 from imaging.autofocus.per_profile import per_group_sharpening, residual_spectrum
 from imaging.autofocus.pga import phase_gradient_autofocus
 from imaging.autofocus.registry import METHODS, Estimator, register_method
@@ -80,10 +90,11 @@ from imaging.autofocus.vibration import VibrationFit, fit_vibration
 from imaging.core.track_error import TrackError, remove_line
 
 __all__ = [
-    "METHODS", "MODEL_PEAK_KEEP", "TILE", "AutofocusOptions", "AutofocusResult", "Estimator", "GroupImages",
+    "DECISIONS", "METHODS", "MODEL_PEAK_KEEP", "TILE", "AutofocusOptions", "AutofocusResult", "Consistency",
+    "Estimator", "GroupImages",
     "ProfileBlock", "TrackError", "VibrationFit", "assemble_group_images", "backproject_blocks",
-    "corrected_block", "entropy_and_gradient", "estimate_on_group_images", "estimate_track_error",
+    "consistency_of", "corrected_block", "entropy_and_gradient", "estimate_on_group_images", "estimate_track_error",
     "evaluate_model", "fit_track_model", "fit_vibration", "group_images", "image_entropy", "minimum_entropy",
     "nothing_to_focus_on", "per_group_sharpening", "phase_gradient_autofocus", "register_method", "remove_line", "residual_spectrum", "resolution_m",
-    "select_pixels",
+    "select_pixels", "split_band",
 ]

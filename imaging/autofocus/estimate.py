@@ -1,6 +1,7 @@
-"""Estimating a track error from an image: the estimation pixels, the contrast gate, the group images, the
-chosen method (``imaging.autofocus.registry``), and the rule that a result which does not sharpen the image
-is left unapplied; and backprojection on the corrected track."""
+"""Estimating a track error from an image: the estimation pixels, the group images, the chosen method
+(``imaging.autofocus.registry``), the decision whether to apply it (by default the two half-bands' estimates
+must agree, ``imaging.autofocus.consistency``; else the contrast gate), and the rule that a result which
+does not sharpen the image is left unapplied; and backprojection on the corrected track."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
+from imaging.autofocus.consistency import consistency_of, half_band_blocks
 from imaging.autofocus.subapertures import GroupImages, entropy_and_gradient, group_images, image_entropy
 from imaging.autofocus.options import AutofocusOptions, AutofocusResult, ProfileBlock
 from imaging.autofocus.registry import METHODS
@@ -70,7 +72,7 @@ def estimate_track_error(blocks: Callable[[], Iterable[ProfileBlock]], image: np
         The profiles' time span, where the caller knows it (else one more pass over the blocks finds it).
     """
     options = options or AutofocusOptions()
-    note = nothing_to_focus_on(image, options)
+    note = nothing_to_focus_on(image, options) if options.decision == "contrast" else ""
     if note:
         e = image_entropy(image)
         return AutofocusResult(TrackError(np.zeros(2), np.zeros(2), options.method), e, e, False, 0, 0, 0, note)
@@ -81,7 +83,11 @@ def estimate_track_error(blocks: Callable[[], Iterable[ProfileBlock]], image: np
             t_lo, t_hi = min(t_lo, float(blk.time_s.min())), max(t_hi, float(blk.time_s.max()))
     if not np.isfinite(t_lo) or t_hi <= t_lo:
         raise ValueError("autofocus needs profiles spread over time")
-    return estimate_on_group_images(group_images(blocks(), pixels, options.groups, (t_lo, t_hi)), options)
+    g = group_images(blocks(), pixels, options.groups, (t_lo, t_hi))
+    halves = None
+    if options.decision == "consistency":
+        halves = tuple(group_images(half_band_blocks(blocks(), h), pixels, options.groups, (t_lo, t_hi)) for h in (0, 1))
+    return estimate_on_group_images(g, options, halves)
 
 
 def nothing_to_focus_on(image: np.ndarray, options: AutofocusOptions) -> str:
@@ -104,10 +110,16 @@ def nothing_to_focus_on(image: np.ndarray, options: AutofocusOptions) -> str:
 
 
 
-def estimate_on_group_images(g: GroupImages, options: AutofocusOptions) -> AutofocusResult:
+def estimate_on_group_images(g: GroupImages, options: AutofocusOptions,
+                             halves: tuple[GroupImages, GroupImages] | None = None) -> AutofocusResult:
     """The track error from group images already formed (``estimate_track_error``'s second half; the live
     strip map keeps its tiles' group images and calls this once a tile is complete), by the method
-    ``options.method`` names in ``METHODS``."""
+    ``options.method`` names in ``METHODS``.
+
+    ``halves``: the same groups imaged from the lower and from the upper half-band (``split_band``). Given
+    them, the method estimates on each too and the estimate is applied only where the two agree and it
+    agrees with them (``AutofocusResult.consistency``); without them only the entropy decides.
+    """
     e0, _ = entropy_and_gradient(g, np.zeros_like(g.c))
     delta, model, it = METHODS[options.method](g, options)
     delta = np.asarray(delta, float)
@@ -117,13 +129,30 @@ def estimate_on_group_images(g: GroupImages, options: AutofocusOptions) -> Autof
     e1, _ = entropy_and_gradient(g, g.phase(delta))
     applied = e1 < e0
     note = "" if applied else "the estimate did not sharpen the image; left unapplied"
+    consistency = None
+    if halves is not None:
+        lower, upper = (np.asarray(METHODS[options.method](h, options)[0], float) for h in halves)
+        # The full band may always depart from the halves' common part by 0.1 rad of two-way phase.
+        consistency, agreed = consistency_of(g.time_s, lower, upper, delta, options.false_alarm, options.poly_order,
+                                             max(options.sinusoids, 1), floor_m=0.1 / (2.0 * g.k))
+        log.info("autofocus (%s): %s", options.method, consistency.describe())
+        if agreed is None:
+            applied = False
+            note = ("the half-band estimates disagree; left unapplied" if not consistency.passed else
+                    "the estimate departs from the half-band estimates; left unapplied")
+        elif consistency.scope == "smooth":
+            # Only the smooth part is consistent: that part is applied, the per-group rest is noise.
+            delta, model = agreed, {"kind": "consistent smooth part", "method": options.method, "model": model}
+            e1, _ = entropy_and_gradient(g, g.phase(delta))
+            applied = e1 < e0
+            note = "" if applied else "the consistent part did not sharpen the image; left unapplied"
     if not applied:
         delta, model = np.zeros(g.b.shape[1]), None
         e1 = e0
     log.info("autofocus (%s): %d groups, %d pixels, entropy %.4f -> %.4f%s", options.method, g.b.shape[1],
              int(g.weight.sum()), e0, e1, f" ({note})" if note else "")
     return AutofocusResult(TrackError(g.time_s, delta, options.method, model), e0, e1, applied, int(g.weight.sum()),
-                           g.b.shape[1], it, note)
+                           g.b.shape[1], it, note, consistency)
 
 
 def corrected_block(blk: ProfileBlock, track_error: TrackError) -> ProfileBlock:

@@ -7,11 +7,17 @@ import math
 
 import numpy as np
 
+from imaging.autofocus.consistency import Consistency
 from imaging.autofocus.subapertures import TILE
 from imaging.autofocus.registry import METHODS
 from imaging.core.config import require
 from imaging.core.track_error import TrackError
 from imaging.range_compression import RangeProfiles
+
+
+#: When an estimate is applied: the two half-bands' estimates agree ("consistency"), or the image has a
+#: bright enough pixel and the estimate lowers the entropy ("contrast").
+DECISIONS = ("consistency", "contrast")
 
 
 @dataclasses.dataclass
@@ -24,6 +30,13 @@ class AutofocusOptions:
     ``poly_order`` by the Bayesian information criterion on the PGA estimate: no more than the scene needs);
     ``per_profile_iterations``: the per-group sharpening of the "per-profile" and "combined" methods
     (``imaging.autofocus.per_profile``).
+
+    ``decision``: when an estimate is applied. "consistency" (default): the method also estimates the track
+    error from the lower and from the upper half of the band, and the estimate is applied only where the
+    two agree (at the false-alarm rate ``false_alarm``) and it agrees with them
+    (``imaging.autofocus.consistency``); the contrast gate is not used. "contrast": the former rule, an
+    image whose brightest pixel stands less than ``min_contrast_db`` above its background is left as it
+    is, and any estimate that lowers the entropy is applied.
     """
 
     method: str = "entropy"
@@ -37,7 +50,9 @@ class AutofocusOptions:
     sinusoids: int = 1
     entropy_iterations: int = 200
     per_profile_iterations: int = 100  # the per-group sharpening of "per-profile" and "combined"
-    min_contrast_db: float = 20.0  # brightest pixel over the background (noise median): below it, nothing to focus on
+    min_contrast_db: float = 20.0  # decision "contrast": brightest pixel over the background (noise median) needed
+    decision: str = "consistency"
+    false_alarm: float = 0.01  # decision "consistency": the chance two fits to nothing pass as one track error
 
     def __post_init__(self) -> None:
         require(self.method in METHODS, "method", f"must be one of {', '.join(METHODS)}, got {self.method!r}")
@@ -52,6 +67,8 @@ class AutofocusOptions:
                 f"must be 1 to 10000, got {self.per_profile_iterations}")
         require(0 <= self.sinusoids <= 4, "sinusoids", f"must be 0 to 4, got {self.sinusoids}")
         require(math.isfinite(self.min_contrast_db), "min_contrast_db", f"must be finite, got {self.min_contrast_db}")
+        require(self.decision in DECISIONS, "decision", f"must be one of {', '.join(DECISIONS)}, got {self.decision!r}")
+        require(1e-6 <= self.false_alarm <= 0.5, "false_alarm", f"must be 1e-6 to 0.5, got {self.false_alarm}")
 
 
 @dataclasses.dataclass
@@ -70,7 +87,8 @@ class ProfileBlock:
 
 @dataclasses.dataclass
 class AutofocusResult:
-    """The estimate, and the entropy of the estimation pixels before and after (nats)."""
+    """The estimate, and the entropy of the estimation pixels before and after (nats); ``consistency``: the
+    half-band estimates compared (``imaging.autofocus.consistency.Consistency``), None where not checked."""
 
     track_error: TrackError
     entropy_before: float
@@ -80,4 +98,5 @@ class AutofocusResult:
     groups: int
     iterations: int
     note: str = ""
+    consistency: Consistency | None = None
 
