@@ -13,6 +13,9 @@ per pixel, with d its small offset from c, the range differences come in float32
     |u + d| - |u| = (2 u.d + d.d) / (|u + d| + |u|)
 
 whose every term is either small or needed only to relative precision, at twice float64's SIMD width.
+Where the block is small against its distance from the antenna (almost always), that quotient is
+|u| t g(t) with t = (2 u.d + d.d) / |u|^2 and g(t) = (sqrt(1 + t) - 1) / t by its Taylor series:
+multiply-adds only, no square root or division per pixel (``_range_offsets``).
 What float32 does lose is in the pixel's range offset itself: its rounding, 2^-24 of the block's extent,
 is a phase error of k times that. Blocks are therefore compact (a 2-D grid is walked in 16 x 16 patches),
 and a set of points whose blocks are wider than ``PHASE_ROUNDING_RAD / (k 2^-24)`` (1 m at 77 GHz; a
@@ -143,6 +146,49 @@ def _cos_sin_turns(t):
     return np.float32(1.0) - s2 * s, s2 * c
 
 
+#: Taylor coefficients of g(t) = (sqrt(1 + t) - 1) / t, and the first one left out (|t|^6's in sqrt(1 + t)).
+_G = (0.5, -1.0 / 8, 1.0 / 16, -5.0 / 128, 7.0 / 256, -21.0 / 1024)
+_G_NEXT = 33.0 / 2048
+#: The series' truncation error allowed, metres of range (1.6e-6 rad at 77 GHz).
+SERIES_TOLERANCE_M = 1e-9
+
+
+@numba.njit(inline="always")
+def series_applies(u_n, radius):
+    """Whether g's series (see ``_range_offsets``) is within SERIES_TOLERANCE_M for every point within
+    ``radius`` of a block centre ``u_n`` metres from the antenna (|t| <= (2 |u| r + r^2) / |u|^2; the
+    error is about |u| 33/2048 |t|^7, alternating terms; |t| < 0.5 keeps the series converging fast)."""
+    t_max = (2.0 * u_n * radius + radius * radius) / (u_n * u_n)
+    return t_max < 0.5 and u_n * _G_NEXT * t_max ** 7 <= SERIES_TOLERANCE_M
+
+
+@numba.njit(inline="always", fastmath=True)
+def _range_offsets(u0, u1, u2, u_n, radius, dx, dy, dz, dd, out):
+    """out[i] = |u + d_i| - |u| in float32, for the float64 vector u from an antenna to the block centre.
+
+    With t = (2 u.d + d.d) / |u|^2, |u + d| - |u| = (2 u.d + d.d) / |u| g(t), g(t) = (sqrt(1 + t) - 1) / t:
+    by g's Taylor series (11 multiply-adds, no square root or division) where every |d| <= radius keeps
+    the series' error below SERIES_TOLERANCE_M, else as (2 u.d + d.d) / (|u + d| + |u|).
+    """
+    a0, a1, a2 = np.float32(2.0 * u0), np.float32(2.0 * u1), np.float32(2.0 * u2)
+    if series_applies(u_n, radius):
+        inv_n = np.float32(1.0 / u_n)
+        inv_n2 = np.float32(1.0 / (u_n * u_n))
+        g0, g1, g2, g3 = np.float32(_G[0]), np.float32(_G[1]), np.float32(_G[2]), np.float32(_G[3])
+        g4, g5 = np.float32(_G[4]), np.float32(_G[5])
+        for i in range(dx.size):
+            num = a0 * dx[i] + a1 * dy[i] + a2 * dz[i] + dd[i]
+            t = num * inv_n2
+            g = g0 + t * (g1 + t * (g2 + t * (g3 + t * (g4 + t * g5))))
+            out[i] = (num * inv_n) * g
+    else:
+        a_n, a_n2 = np.float32(u_n), np.float32(u_n * u_n)
+        for i in range(dx.size):
+            # |u + d|^2 = |u|^2 + (2 u.d + d.d): the sum's rounding only touches the denominator.
+            num = a0 * dx[i] + a1 * dy[i] + a2 * dz[i] + dd[i]
+            out[i] = num / (math.sqrt(a_n2 + num) + a_n)
+
+
 @numba.njit(inline="always", fastmath=True)
 def _gather_pairs_accumulate(row, idx, frac, turns, pairs, acc_re, acc_im, linear):
     """The second and third passes of a (block, profile) of the float32 kernel: gather each pixel's two
@@ -220,6 +266,7 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
         pixel_turns = np.empty(nb, np.float32)  # each pixel's phase, in turns
         pairs = np.empty((nb, 2), np.complex64)
         da = np.empty(nb, np.float32)
+        db = np.empty(nb, np.float32)
         cx = 0.5 * (gx[g0:g0 + nb].min() + gx[g0:g0 + nb].max())
         cy = 0.5 * (gy[g0:g0 + nb].min() + gy[g0:g0 + nb].max())
         cz = 0.5 * (gz[g0:g0 + nb].min() + gz[g0:g0 + nb].max())
@@ -232,6 +279,7 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
             dy[i] = np.float32(gy[g0 + i] - cy)
             dz[i] = np.float32(gz[g0 + i] - cz)
             dd[i] = dx[i] * dx[i] + dy[i] * dy[i] + dz[i] * dz[i]
+        radius = math.sqrt(np.float64(dd.max()))
         for p in range(p0, p1):
             ua0, ua1, ua2 = cx - tx[p, 0], cy - tx[p, 1], cz - tx[p, 2]
             ub0, ub1, ub2 = cx - rx[p, 0], cy - rx[p, 1], cz - rx[p, 2]
@@ -246,30 +294,23 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
             top = np.float32(hi - base)
             turns = k * dr_c * (1.0 / _TWO_PI)
             turns_c = np.float32(turns - np.floor(turns + 0.5))
-            ibase = np.int64(base)
+            ibase = np.int32(base)
             # A TX shared with the previous profile (the RX channels of one chirp) has the same offsets.
             if p == p0 or tx[p, 0] != tx[p - 1, 0] or tx[p, 1] != tx[p - 1, 1] or tx[p, 2] != tx[p - 1, 2]:
-                a0, a1, a2 = np.float32(2.0 * ua0), np.float32(2.0 * ua1), np.float32(2.0 * ua2)
-                a_n, a_n2 = np.float32(ua), np.float32(ua * ua)
-                for i in range(nb):
-                    # |u + d|^2 = |u|^2 + (2 u.d + d.d): the sum's rounding only touches the denominator.
-                    num = a0 * dx[i] + a1 * dy[i] + a2 * dz[i] + dd[i]
-                    da[i] = num / (math.sqrt(a_n2 + num) + a_n)
-            b0, b1, b2 = np.float32(2.0 * ub0), np.float32(2.0 * ub1), np.float32(2.0 * ub2)
-            b_n, b_n2 = np.float32(ub), np.float32(ub * ub)
+                _range_offsets(ua0, ua1, ua2, ua, radius, dx, dy, dz, dd, da)
+            _range_offsets(ub0, ub1, ub2, ub, radius, dx, dy, dz, dd, db)
             for i in range(nb):
-                num = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
-                ddr = da[i] + num / (math.sqrt(b_n2 + num) + b_n)
+                ddr = da[i] + db[i]
                 # Position relative to the centre's bin (+1 guard bin in base); clamped onto the guard bins.
                 lp = frac_c + ddr * inv32
                 lp = lp if lp > lo else lo
                 lp = lp if lp < top else top
                 if linear:
                     fl = np.floor(lp)
-                    idx[i] = np.uint32(ibase + np.int64(fl))
+                    idx[i] = np.uint32(ibase + np.int32(fl))
                     frac[i] = lp - fl
                 else:
-                    idx[i] = np.uint32(ibase + np.int64(np.floor(lp + np.float32(0.5))))
+                    idx[i] = np.uint32(ibase + np.int32(np.floor(lp + np.float32(0.5))))
                 pixel_turns[i] = turns_c + k_turns32 * ddr
             _gather_pairs_accumulate(rows[p], idx, frac, pixel_turns, pairs, acc_re, acc_im, linear)
         for i in range(nb):

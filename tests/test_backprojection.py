@@ -11,6 +11,7 @@ from imaging.backprojection import (
     backproject,
     max_block_extent_m,
     patch_order,
+    series_applies,
 )
 from imaging.range_compression import range_compress
 
@@ -252,3 +253,29 @@ def test_full_width_vectors_where_the_cpu_has_avx512():
     features, target = json.loads(subprocess.run([sys.executable, "-c", code], env={**env, "NUMBA_CPU_FEATURES": mine},
                                                  capture_output=True, text=True, check=True).stdout)
     assert features == mine and not target["prefer_256_bit_off"]
+
+
+@pytest.mark.parametrize("distance_m", [0.12, 2.0], ids=["near-square-root", "series"])
+@pytest.mark.parametrize("far", [0.0, 5000.0])
+def test_range_offsets_by_series_and_by_square_root_match_numpy_reference(distance_m, far):
+    """The float32 block kernel's two forms of a pixel's range offset: g's Taylor series where the block is
+    small against its distance from the antenna, the square root beside the antenna; each against the
+    numpy reference, near the origin and 5 km out."""
+    prof, tx, rx, grid = grid_case((48, 48), far)
+    # Move the antennas so that the grid's centre is distance_m away from their centre.
+    centre = grid[24, 24]
+    shift = centre - [0.0, distance_m, 0.0] - tx.mean(axis=0)
+    tx, rx = tx + shift, rx + shift
+    radius = np.sqrt(2) * PATCH / 2 * 0.004
+    u_n = np.linalg.norm(centre - tx, axis=1)
+    assert all(series_applies(u, radius) for u in u_n) == (distance_m > 1.0)
+    assert any(series_applies(u, radius) for u in u_n) == (distance_m > 1.0)
+    # Echoes of a scatterer at the grid's centre, from the moved antennas.
+    r = np.linalg.norm(tx - centre, axis=1) + np.linalg.norm(rx - centre, axis=1)
+    n = np.arange(NS)
+    prof = range_compress(np.exp(2j * np.pi / C * (F0 + FSTEP * n[None, :]) * r[:, None]), F0, FSTEP, oversample=8)
+    got = backproject(prof, tx, rx, grid)
+    want = backproject_reference(prof, tx, rx, grid)
+    scale = np.abs(want).max()
+    assert np.abs(got - want).max() < 2e-5 * scale
+    assert abs(want[24, 24]) > 0.5 * prof.data.shape[0]  # the scatterer focuses (not vacuous)
