@@ -163,6 +163,38 @@ def series_applies(u_n, radius):
     return t_max < 0.5 and u_n * _G_NEXT * t_max ** 7 <= SERIES_TOLERANCE_M
 
 
+@numba.njit(inline="always")
+def _series_scales(u_n):
+    """Per (block, antenna): 1/|u|, 1/|u|^2 and g's coefficients, float32, for ``_series_offset``."""
+    return (np.float32(1.0 / u_n), np.float32(1.0 / (u_n * u_n)), np.float32(_G[0]), np.float32(_G[1]),
+            np.float32(_G[2]), np.float32(_G[3]), np.float32(_G[4]), np.float32(_G[5]))
+
+
+@numba.njit(inline="always", fastmath=True)
+def _series_offset(num, sc):
+    """|u + d| - |u| from num = 2 u.d + d.d by g's series (see ``_range_offsets``); ``sc`` from ``_series_scales``."""
+    t = num * sc[1]
+    return (num * sc[0]) * (sc[2] + t * (sc[3] + t * (sc[4] + t * (sc[5] + t * (sc[6] + t * sc[7])))))
+
+
+@numba.njit(inline="always", fastmath=True)
+def _place(i, ddr, place, idx, frac, pixel_turns):
+    """Pixel i's bin (idx, frac) and phase in turns from its range offset ``ddr`` to the block centre, whose
+    bin and phase ``place`` holds: (frac_c, 1 / bin, lo, top, ibase, turns_c, k in turns, linear)."""
+    frac_c, inv32, lo, top, ibase, turns_c, k_turns32, linear = place
+    # Position relative to the centre's bin (+1 guard bin in base); clamped onto the guard bins.
+    lp = frac_c + ddr * inv32
+    lp = lp if lp > lo else lo
+    lp = lp if lp < top else top
+    if linear:
+        fl = np.floor(lp)
+        idx[i] = np.uint32(ibase + np.int32(fl))
+        frac[i] = lp - fl
+    else:
+        idx[i] = np.uint32(ibase + np.int32(np.floor(lp + np.float32(0.5))))
+    pixel_turns[i] = turns_c + k_turns32 * ddr
+
+
 @numba.njit(inline="always", fastmath=True)
 def _range_offsets(u0, u1, u2, u_n, radius, dx, dy, dz, dd, out):
     """out[i] = |u + d_i| - |u| in float32, for the float64 vector u from an antenna to the block centre.
@@ -173,15 +205,9 @@ def _range_offsets(u0, u1, u2, u_n, radius, dx, dy, dz, dd, out):
     """
     a0, a1, a2 = np.float32(2.0 * u0), np.float32(2.0 * u1), np.float32(2.0 * u2)
     if series_applies(u_n, radius):
-        inv_n = np.float32(1.0 / u_n)
-        inv_n2 = np.float32(1.0 / (u_n * u_n))
-        g0, g1, g2, g3 = np.float32(_G[0]), np.float32(_G[1]), np.float32(_G[2]), np.float32(_G[3])
-        g4, g5 = np.float32(_G[4]), np.float32(_G[5])
+        sc = _series_scales(u_n)
         for i in range(dx.size):
-            num = a0 * dx[i] + a1 * dy[i] + a2 * dz[i] + dd[i]
-            t = num * inv_n2
-            g = g0 + t * (g1 + t * (g2 + t * (g3 + t * (g4 + t * g5))))
-            out[i] = (num * inv_n) * g
+            out[i] = _series_offset(a0 * dx[i] + a1 * dy[i] + a2 * dz[i] + dd[i], sc)
     else:
         a_n, a_n2 = np.float32(u_n), np.float32(u_n * u_n)
         for i in range(dx.size):
@@ -269,7 +295,6 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
         pixel_turns = np.empty(nb, np.float32)  # each pixel's phase, in turns
         pairs = np.empty((nb, 2), np.complex64)
         da = np.empty(nb, np.float32)
-        db = np.empty(nb, np.float32)
         x_lo, x_hi = gx[g0:g0 + nb].min(), gx[g0:g0 + nb].max()
         y_lo, y_hi = gy[g0:g0 + nb].min(), gy[g0:g0 + nb].max()
         z_lo, z_hi = gz[g0:g0 + nb].min(), gz[g0:g0 + nb].max()
@@ -306,22 +331,34 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
             turns_c = np.float32(turns - np.floor(turns + 0.5))
             ibase = np.int32(base)
             # A TX shared with the previous profile (the RX channels of one chirp) has the same offsets.
-            if p == p0 or tx[p, 0] != tx[p - 1, 0] or tx[p, 1] != tx[p - 1, 1] or tx[p, 2] != tx[p - 1, 2]:
-                _range_offsets(ua0, ua1, ua2, ua, radius, dx, dy, dz, dd, da)
-            _range_offsets(ub0, ub1, ub2, ub, radius, dx, dy, dz, dd, db)
-            for i in range(nb):
-                ddr = da[i] + db[i]
-                # Position relative to the centre's bin (+1 guard bin in base); clamped onto the guard bins.
-                lp = frac_c + ddr * inv32
-                lp = lp if lp > lo else lo
-                lp = lp if lp < top else top
-                if linear:
-                    fl = np.floor(lp)
-                    idx[i] = np.uint32(ibase + np.int32(fl))
-                    frac[i] = lp - fl
+            new_tx = p == p0 or tx[p, 0] != tx[p - 1, 0] or tx[p, 1] != tx[p - 1, 1] or tx[p, 2] != tx[p - 1, 2]
+            rx_series = series_applies(ub, radius)
+            b0, b1, b2 = np.float32(2.0 * ub0), np.float32(2.0 * ub1), np.float32(2.0 * ub2)
+            place = (frac_c, inv32, lo, top, ibase, turns_c, k_turns32, linear)
+            tx_alone = new_tx and (p + 1 == p1 or tx[p + 1, 0] != tx[p, 0] or tx[p + 1, 1] != tx[p, 1]
+                                   or tx[p + 1, 2] != tx[p, 2])
+            if tx_alone and rx_series and series_applies(ua, radius):
+                # One pass for both antennas where no other profile shares this TX (a one-antenna pass), its
+                # offsets not stored.
+                a0, a1, a2 = np.float32(2.0 * ua0), np.float32(2.0 * ua1), np.float32(2.0 * ua2)
+                ga, gb = _series_scales(ua), _series_scales(ub)
+                for i in range(nb):
+                    num_a = a0 * dx[i] + a1 * dy[i] + a2 * dz[i] + dd[i]
+                    num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
+                    _place(i, _series_offset(num_a, ga) + _series_offset(num_b, gb), place, idx, frac, pixel_turns)
+            else:
+                if new_tx:
+                    _range_offsets(ua0, ua1, ua2, ua, radius, dx, dy, dz, dd, da)
+                if rx_series:
+                    gb = _series_scales(ub)
+                    for i in range(nb):
+                        num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
+                        _place(i, da[i] + _series_offset(num_b, gb), place, idx, frac, pixel_turns)
                 else:
-                    idx[i] = np.uint32(ibase + np.int32(np.floor(lp + np.float32(0.5))))
-                pixel_turns[i] = turns_c + k_turns32 * ddr
+                    b_n, b_n2 = np.float32(ub), np.float32(ub * ub)
+                    for i in range(nb):
+                        num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
+                        _place(i, da[i] + num_b / (math.sqrt(b_n2 + num_b) + b_n), place, idx, frac, pixel_turns)
             _gather_pairs_accumulate(rows[p], idx, frac, pixel_turns, pairs, acc_re, acc_im, linear)
         for i in range(nb):
             out[g0 + i] += complex(acc_re[i], acc_im[i])
