@@ -25,7 +25,7 @@ is unchanged to 0.01 dB, near the origin and 5 km out. The float32 kernel's phas
 with polynomials for half the angle and the double-angle formulas; a TX shared by consecutive profiles (the
 RX channels of one chirp) is ranged once for all of them; each pixel's two neighbouring bins are gathered as
 one 16-byte pair; and on a CPU with AVX-512 numba is told to use all 512 bits (see
-``_prefer_full_width_vectors``). The profile is sampled by one of three modes:
+``imaging.numba_target.prefer_full_width_vectors``). The profile is sampled by one of three modes:
 
 ``nearest``  nearest bin of a (heavily) oversampled profile; cheapest per sample, needs a large oversampling.
 ``linear``   linear interpolation between bins (default; about 68 dB signal-to-error at 16x oversampling,
@@ -42,56 +42,16 @@ from __future__ import annotations
 
 import functools
 import math
-import os
 
 import numba
 import numpy as np
 
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
+from imaging.numba_target import compiled_target, prefer_full_width_vectors  # noqa: F401 - compiled_target re-exported
 from imaging.range_compression import RangeProfiles
 
-
-
-def _prefer_full_width_vectors() -> str | None:
-    """Let numba's LLVM use all 512 bits of AVX-512 where the CPU has it; returns the feature string set.
-
-    LLVM tunes Intel's AVX-512 server and client cores to prefer 256-bit vectors (``prefer-256-bit``), so
-    numba's loops run 8 float32 lanes wide where 16 fit; turning that tuning off makes the float32 block
-    kernel about 1.25x faster here. numba reads its target once, when it first compiles anything in the
-    process: this has to run before that (it does on import, before any kernel of this package is called),
-    and it affects every numba function of the process (all are vectorised the same way, only wider). An
-    explicit ``NUMBA_CPU_FEATURES`` or ``NUMBA_CPU_NAME`` is left alone.
-    """
-    if os.environ.get("NUMBA_CPU_FEATURES") or os.environ.get("NUMBA_CPU_NAME"):
-        return None
-    import llvmlite.binding as llvm
-    from numba.core import config
-
-    try:
-        features = llvm.get_host_cpu_features()
-    except RuntimeError:  # a host LLVM cannot describe: leave numba's default
-        return None
-    if not features.get("avx512f"):
-        return None
-    # The environment, not only numba's config: numba re-reads its config from NUMBA_* variables when they
-    # change, and the acquisition's worker processes compile with the same target.
-    os.environ["NUMBA_CPU_FEATURES"] = features.flatten() + ",-prefer-256-bit"
-    config.reload_config()
-    return os.environ["NUMBA_CPU_FEATURES"]
-
-
-_prefer_full_width_vectors()
-
-
-def compiled_target() -> dict:
-    """The CPU name and features numba compiles for in this process (benchmarks report it)."""
-    from numba.core.registry import cpu_target
-
-    codegen = cpu_target.target_context.codegen()
-    features = codegen._tm_features  # noqa: SLF001 - what the JIT really uses, not what the config says
-    wide = "-prefer-256-bit" in features and "+avx512f" in features
-    return {"cpu": codegen._get_host_cpu_name(), "vector_bits": 512 if wide else 256 if "+avx" in features else 128,  # noqa: SLF001
-            "prefer_256_bit_off": "-prefer-256-bit" in features}
+# Before any kernel compiles: 512-bit vectors where the CPU has AVX-512 (see imaging/numba_target.py).
+prefer_full_width_vectors()
 
 
 MODES = ("nearest", "linear", "exact")
