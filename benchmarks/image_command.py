@@ -56,6 +56,21 @@ def make_recording(path: Path, n_frames: int) -> None:
     simulate_recording(scene, path)
 
 
+def import_times(cmd: list) -> dict:
+    """What the command's imports cost (``python -X importtime``): the total of the top-level imports and
+    the largest of them, seconds (cumulative, each with what it imports)."""
+    err = subprocess.run(cmd, check=True, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True).stderr
+    top = {}
+    for line in err.splitlines():
+        if not line.startswith("import time:") or "cumulative" in line:
+            continue
+        _, cumulative, name = line[len("import time:"):].split("|")
+        if not name.startswith("  "):  # top level: one space after the bar, nested ones indented further
+            top[name.strip()] = top.get(name.strip(), 0.0) + int(cumulative) * 1e-6
+    largest = dict(sorted(top.items(), key=lambda kv: -kv[1])[:10])
+    return {"total_s": sum(top.values()), "largest_s": largest}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
@@ -107,6 +122,8 @@ def main() -> int:
             return time.perf_counter() - t
 
         command()  # warm: the kernels compiled into numba's cache, files in the page cache
+        imports = import_times([sys.executable, "-X", "importtime", "-m", "acquisition.cli", "-q", "image", str(rec_path),
+                                "-o", str(tmp / "imp.h5"), "--grid", grid_text])
         # Alternating: the whole command as a new process, then the kernel alone here; ratio per round.
         rounds = []
         for _ in range(repeats):
@@ -127,6 +144,7 @@ def main() -> int:
         "command_is": "a new process: python -m acquisition.cli image",
         "load_average": os.getloadavg(),
         "form_image_fraction_of_kernel": t_kernel / t_form,
+        "command_imports": imports,
         "seconds": {"command": t_command, "form_image": t_form, "kernel": t_kernel, "read_and_range_compress": t_compress,
                     "write_image": t_write, "png_layout": t_png_layout, "png_draw": t_png,
                     "command_minus_form_image_write_png": t_command - t_form - t_write - t_png_layout - t_png},

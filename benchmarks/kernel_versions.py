@@ -2,8 +2,9 @@
 
 Each version runs in a worker process of its own (numba compiles for one target per process, and the
 earlier kernel ran with numba's default one), built from ``git show COMMIT:imaging/backprojection.py``, on
-the same case (the backprojection benchmark's: 16 frames of the left-front radar, 16 channels, 256 x 256
-pixels, linear, 16x oversampled profiles). The parent asks each worker in turn to backproject once and
+the same two cases, linear, 16x oversampled profiles: the backprojection benchmark's (16 frames of the
+left-front radar, 16 channels, 256 x 256 pixels; ``threads`` in the JSON) and the peers benchmark's
+one-antenna pass (4,096 chirps of TX 0 / RX 0 onto the same pixels; ``one_antenna``). The parent asks each worker in turn to backproject once and
 report its wall time and the CPU time its threads used; the ratio is taken per round, the median over
 rounds reported, for 1 and 2 threads. Cycles per backprojection are CPU seconds x the CPU's clock
 (/proc/cpuinfo) / backprojections: what the kernel costs a core, whatever else the machine runs.
@@ -39,23 +40,43 @@ spec.loader.exec_module(bp)
 import numba
 import numpy as np
 from backprojection import make_case, ser_db
+from peers import one_antenna_case
 from imaging.range_compression import range_compress
-frames, px = {frames}, {px}
-samples, wf, tx, rx, grid = make_case(frames, px, px)
-prof = range_compress(samples, wf.f0_hz, wf.frequency_step_hz, oversample=16, guarded=True)
-sub = grid[::8, ::8]
-exact = bp.backproject(prof, tx, rx, sub, mode="exact")
-ser = ser_db(bp.backproject(prof, tx, rx, grid)[::8, ::8], exact)
+frames, px, one = {frames}, {px}, {one}
+cases, ser, work = {{}}, {{}}, {{}}
+for name, (samples, wf, tx, rx, grid) in (("benchmark", make_case(frames, px, px)),
+                                          ("one_antenna", one_antenna_case(one, px, px))):
+    prof = range_compress(samples, wf.f0_hz, wf.frequency_step_hz, oversample=16, guarded=True)
+    exact = bp.backproject(prof, tx, rx, grid[::8, ::8], mode="exact")
+    ser[name] = ser_db(bp.backproject(prof, tx, rx, grid)[::8, ::8], exact)
+    work[name] = int(tx.shape[0] * px * px)
+    cases[name] = (prof, tx, rx, grid)
 from numba.core.registry import cpu_target
 features = cpu_target.target_context.codegen()._tm_features
-print(json.dumps({{"ready": True, "ser_db": ser, "work": int(tx.shape[0] * px * px),
+print(json.dumps({{"ready": True, "ser_db": ser, "work": work,
                   "prefer_256_bit_off": "-prefer-256-bit" in features}}), flush=True)
 for line in sys.stdin:
-    numba.set_num_threads(int(line))
+    threads, name = line.split()
+    numba.set_num_threads(int(threads))
     c, t = time.process_time(), time.perf_counter()
-    bp.backproject(prof, tx, rx, grid)
+    bp.backproject(*cases[name])
     print(json.dumps({{"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}}), flush=True)
 """
+
+
+def uptime() -> str:
+    """``uptime``'s line (the load averages): the machine is shared."""
+    try:
+        return subprocess.run(["uptime"], capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def current_commit() -> str:
+    """The checkout's commit, with ``+changes`` when the kernel differs from it."""
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    dirty = subprocess.run(["git", "diff", "--quiet", "HEAD", "--", "imaging/backprojection.py"], cwd=ROOT).returncode
+    return head + ("+changes" if dirty else "")
 
 
 def cpu_hz() -> float | None:
@@ -68,15 +89,16 @@ def cpu_hz() -> float | None:
     return None
 
 
-def start_worker(module: Path, frames: int, px: int, env: dict) -> tuple[subprocess.Popen, dict]:
-    code = WORKER.format(root=str(ROOT), benchmarks=str(ROOT / "benchmarks"), module=str(module), frames=frames, px=px)
+def start_worker(module: Path, frames: int, px: int, one: int, env: dict) -> tuple[subprocess.Popen, dict]:
+    code = WORKER.format(root=str(ROOT), benchmarks=str(ROOT / "benchmarks"), module=str(module), frames=frames, px=px,
+                         one=one)
     proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
                             env=env, cwd=ROOT)
     return proc, json.loads(proc.stdout.readline())
 
 
-def ask(proc: subprocess.Popen, threads: int) -> dict:
-    proc.stdin.write(f"{threads}\n")
+def ask(proc: subprocess.Popen, threads: int, case: str = "benchmark") -> dict:
+    proc.stdin.write(f"{threads} {case}\n")
     proc.stdin.flush()
     return json.loads(proc.stdout.readline())
 
@@ -87,8 +109,9 @@ def main() -> int:
     ap.add_argument("--baseline", default=BASELINE, help=f"the earlier kernel's commit (default {BASELINE})")
     ap.add_argument("--rounds", type=int, default=None)
     args = ap.parse_args()
-    frames, px = (4, 128) if args.quick else (16, 256)
+    frames, px, one = (4, 128, 1024) if args.quick else (16, 256, 4096)
     rounds = args.rounds or (2 if args.quick else 6)
+    uptime_before = uptime()
     with tempfile.TemporaryDirectory() as tmp:
         old_module = Path(tmp) / "backprojection_baseline.py"
         old_module.write_text(subprocess.run(["git", "show", f"{args.baseline}:imaging/backprojection.py"], cwd=ROOT,
@@ -100,49 +123,57 @@ def main() -> int:
         import llvmlite.binding as llvm
 
         host = llvm.get_host_cpu_features().flatten()
-        old, old_info = start_worker(old_module, frames, px, {**base_env, "NUMBA_CPU_FEATURES": host,
+        old, old_info = start_worker(old_module, frames, px, one, {**base_env, "NUMBA_CPU_FEATURES": host,
                                                               "NUMBA_CACHE_DIR": str(Path(tmp) / "cache")})
-        new, new_info = start_worker(ROOT / "imaging" / "backprojection.py", frames, px, base_env)
-        work = new_info["work"]
+        new, new_info = start_worker(ROOT / "imaging" / "backprojection.py", frames, px, one, base_env)
         hz = cpu_hz()
-        per_threads = {}
+        per_case = {}
         try:
-            for threads in (1, 2):
-                ask(old, threads), ask(new, threads)  # warm
-                rows = [(ask(old, threads), ask(new, threads)) for _ in range(rounds)]
-                speedups = [o["wall_s"] / n["wall_s"] for o, n in rows]
-                cpu_ratio = [o["cpu_s"] / n["cpu_s"] for o, n in rows]
-                best_old = min(o["cpu_s"] for o, _ in rows)
-                best_new = min(n["cpu_s"] for _, n in rows)
-                per_threads[threads] = {
-                    "speedup_wall_median": statistics.median(speedups), "speedup_wall_min": min(speedups),
-                    "speedup_wall_max": max(speedups), "speedup_cpu_time_median": statistics.median(cpu_ratio),
-                    "backprojections_per_s": {"baseline": work / statistics.median(o["wall_s"] for o, _ in rows),
-                                              "current": work / statistics.median(n["wall_s"] for _, n in rows)},
-                    "cycles_per_backprojection": None if hz is None else {"baseline": best_old * hz / work,
-                                                                          "current": best_new * hz / work},
-                }
-                r = per_threads[threads]
-                cyc = r["cycles_per_backprojection"]
-                print(f"{threads} thread(s): current kernel {r['speedup_wall_median']:.2f}x the baseline's speed "
-                      f"({r['speedup_wall_min']:.2f}-{r['speedup_wall_max']:.2f}; CPU time {r['speedup_cpu_time_median']:.2f}x)"
-                      + (f", {cyc['current']:.2f} cycles per backprojection against {cyc['baseline']:.2f}" if cyc else ""),
-                      flush=True)
+            for case in ("benchmark", "one_antenna"):
+                work = new_info["work"][case]
+                per_threads = per_case[case] = {}
+                for threads in (1, 2):
+                    ask(old, threads, case), ask(new, threads, case)  # warm
+                    rows = [(ask(old, threads, case), ask(new, threads, case)) for _ in range(rounds)]
+                    speedups = [o["wall_s"] / n["wall_s"] for o, n in rows]
+                    cpu_ratio = [o["cpu_s"] / n["cpu_s"] for o, n in rows]
+                    best_old = min(o["cpu_s"] for o, _ in rows)
+                    best_new = min(n["cpu_s"] for _, n in rows)
+                    per_threads[threads] = {
+                        "speedup_wall_median": statistics.median(speedups), "speedup_wall_min": min(speedups),
+                        "speedup_wall_max": max(speedups), "speedup_cpu_time_median": statistics.median(cpu_ratio),
+                        "backprojections_per_s": {"baseline": work / statistics.median(o["wall_s"] for o, _ in rows),
+                                                  "current": work / statistics.median(n["wall_s"] for _, n in rows)},
+                        "cycles_per_backprojection": None if hz is None else {"baseline": best_old * hz / work,
+                                                                              "current": best_new * hz / work},
+                    }
+                    r = per_threads[threads]
+                    cyc = r["cycles_per_backprojection"]
+                    print(f"{case}, {threads} thread(s): current kernel {r['speedup_wall_median']:.2f}x the baseline's speed "
+                          f"({r['speedup_wall_min']:.2f}-{r['speedup_wall_max']:.2f}; CPU time {r['speedup_cpu_time_median']:.2f}x)"
+                          + (f", {cyc['current']:.2f} cycles per backprojection against {cyc['baseline']:.2f}" if cyc else ""),
+                          flush=True)
         finally:
             for proc in (old, new):
                 proc.stdin.close()
                 proc.wait(timeout=60)
     load = os.getloadavg()
     result = {
-        "baseline_commit": args.baseline, "case": {"frames": frames, "pixels": px * px, "backprojections": work, "quick": args.quick},
+        "baseline_commit": args.baseline, "current_commit": current_commit(),
+        "case": {"frames": frames, "pixels": px * px, "backprojections": new_info["work"]["benchmark"], "quick": args.quick},
         "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(), "cpu_hz": hz,
-                    "load_average": load},
-        "ser_db": {"baseline": old_info["ser_db"], "current": new_info["ser_db"]},
+                    "load_average": load, "uptime_before": uptime_before, "uptime_after": uptime()},
+        "ser_db": {"baseline": old_info["ser_db"]["benchmark"], "current": new_info["ser_db"]["benchmark"]},
         "full_width_vectors": {"baseline": old_info["prefer_256_bit_off"], "current": new_info["prefer_256_bit_off"]},
-        "rounds": rounds, "threads": per_threads,
+        "rounds": rounds, "threads": per_case["benchmark"],
+        "one_antenna": {"profiles": one, "pixels": px * px, "backprojections": new_info["work"]["one_antenna"],
+                        "ser_db": {"baseline": old_info["ser_db"]["one_antenna"], "current": new_info["ser_db"]["one_antenna"]},
+                        "threads": per_case["one_antenna"]},
     }
-    print(f"SER against the exact matched filter: baseline {old_info['ser_db']:.2f} dB, current {new_info['ser_db']:.2f} dB; "
-          f"load average {load[0]:.2f}")
+    for case in ("benchmark", "one_antenna"):
+        print(f"{case}: SER against the exact matched filter: baseline {old_info['ser_db'][case]:.2f} dB, current "
+              f"{new_info['ser_db'][case]:.2f} dB")
+    print(f"load average {load[0]:.2f}")
     RESULTS.mkdir(parents=True, exist_ok=True)
     name = "kernel_versions_quick" if args.quick else "kernel_versions"
     (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2))

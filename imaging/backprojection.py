@@ -13,15 +13,19 @@ per pixel, with d its small offset from c, the range differences come in float32
     |u + d| - |u| = (2 u.d + d.d) / (|u + d| + |u|)
 
 whose every term is either small or needed only to relative precision, at twice float64's SIMD width.
+Where the block is small against its distance from the antenna (almost always), that quotient is
+|u| t g(t) with t = (2 u.d + d.d) / |u|^2 and g(t) = (sqrt(1 + t) - 1) / t by its Taylor series:
+multiply-adds only, no square root or division per pixel (``_range_offsets``).
 What float32 does lose is in the pixel's range offset itself: its rounding, 2^-24 of the block's extent,
-is a phase error of k times that. Blocks are therefore compact (a 2-D grid is walked in 16 x 16 patches),
-and a set of points whose blocks are wider than ``PHASE_ROUNDING_RAD / (k 2^-24)`` (1 m at 77 GHz; a
-scattered set) takes the float64 kernel. On the benchmark case the SER against the exact matched filter
+is a phase error of k times that. Blocks are therefore compact (a 2-D grid is walked in patches as long
+as wide in metres, 16 x 16 points for square pixels, fewer on a coarse grid: ``patch_shape``), and a block
+wider than ``PHASE_ROUNDING_RAD / (k 2^-24)`` (1 m at 77 GHz; of a scattered set) takes float64 geometry
+(``_float64_block``), each block by its own extent. On the benchmark case the SER against the exact matched filter
 is unchanged to 0.01 dB, near the origin and 5 km out. The float32 kernel's phase is reduced to whole turns,
 with polynomials for half the angle and the double-angle formulas; a TX shared by consecutive profiles (the
 RX channels of one chirp) is ranged once for all of them; each pixel's two neighbouring bins are gathered as
 one 16-byte pair; and on a CPU with AVX-512 numba is told to use all 512 bits (see
-``_prefer_full_width_vectors``). The profile is sampled by one of three modes:
+``imaging.numba_target.prefer_full_width_vectors``). The profile is sampled by one of three modes:
 
 ``nearest``  nearest bin of a (heavily) oversampled profile; cheapest per sample, needs a large oversampling.
 ``linear``   linear interpolation between bins (default; about 68 dB signal-to-error at 16x oversampling,
@@ -38,56 +42,16 @@ from __future__ import annotations
 
 import functools
 import math
-import os
 
 import numba
 import numpy as np
 
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
+from imaging.numba_target import compiled_target, prefer_full_width_vectors  # noqa: F401 - compiled_target re-exported
 from imaging.range_compression import RangeProfiles
 
-
-
-def _prefer_full_width_vectors() -> str | None:
-    """Let numba's LLVM use all 512 bits of AVX-512 where the CPU has it; returns the feature string set.
-
-    LLVM tunes Intel's AVX-512 server and client cores to prefer 256-bit vectors (``prefer-256-bit``), so
-    numba's loops run 8 float32 lanes wide where 16 fit; turning that tuning off makes the float32 block
-    kernel about 1.25x faster here. numba reads its target once, when it first compiles anything in the
-    process: this has to run before that (it does on import, before any kernel of this package is called),
-    and it affects every numba function of the process (all are vectorised the same way, only wider). An
-    explicit ``NUMBA_CPU_FEATURES`` or ``NUMBA_CPU_NAME`` is left alone.
-    """
-    if os.environ.get("NUMBA_CPU_FEATURES") or os.environ.get("NUMBA_CPU_NAME"):
-        return None
-    import llvmlite.binding as llvm
-    from numba.core import config
-
-    try:
-        features = llvm.get_host_cpu_features()
-    except RuntimeError:  # a host LLVM cannot describe: leave numba's default
-        return None
-    if not features.get("avx512f"):
-        return None
-    # The environment, not only numba's config: numba re-reads its config from NUMBA_* variables when they
-    # change, and the acquisition's worker processes compile with the same target.
-    os.environ["NUMBA_CPU_FEATURES"] = features.flatten() + ",-prefer-256-bit"
-    config.reload_config()
-    return os.environ["NUMBA_CPU_FEATURES"]
-
-
-_prefer_full_width_vectors()
-
-
-def compiled_target() -> dict:
-    """The CPU name and features numba compiles for in this process (benchmarks report it)."""
-    from numba.core.registry import cpu_target
-
-    codegen = cpu_target.target_context.codegen()
-    features = codegen._tm_features  # noqa: SLF001 - what the JIT really uses, not what the config says
-    wide = "-prefer-256-bit" in features and "+avx512f" in features
-    return {"cpu": codegen._get_host_cpu_name(), "vector_bits": 512 if wide else 256 if "+avx" in features else 128,  # noqa: SLF001
-            "prefer_256_bit_off": "-prefer-256-bit" in features}
+# Before any kernel compiles: 512-bit vectors where the CPU has AVX-512 (see imaging/numba_target.py).
+prefer_full_width_vectors()
 
 
 MODES = ("nearest", "linear", "exact")
@@ -141,6 +105,75 @@ def _cos_sin_turns(t):
         np.float32(_COS_PI[3]) + y2 * np.float32(_COS_PI[4]))))
     s2 = s + s
     return np.float32(1.0) - s2 * s, s2 * c
+
+
+#: Taylor coefficients of g(t) = (sqrt(1 + t) - 1) / t, and the first one left out (|t|^6's in sqrt(1 + t)).
+_G = (0.5, -1.0 / 8, 1.0 / 16, -5.0 / 128, 7.0 / 256, -21.0 / 1024)
+_G_NEXT = 33.0 / 2048
+#: The series' truncation error allowed, metres of range (1.6e-6 rad at 77 GHz).
+SERIES_TOLERANCE_M = 1e-9
+
+
+@numba.njit(inline="always")
+def series_applies(u_n, radius):
+    """Whether g's series (see ``_range_offsets``) is within SERIES_TOLERANCE_M for every point within
+    ``radius`` of a block centre ``u_n`` metres from the antenna (|t| <= (2 |u| r + r^2) / |u|^2; the
+    error is about |u| 33/2048 |t|^7, alternating terms; |t| < 0.5 keeps the series converging fast)."""
+    t_max = (2.0 * u_n * radius + radius * radius) / (u_n * u_n)
+    return t_max < 0.5 and u_n * _G_NEXT * t_max ** 7 <= SERIES_TOLERANCE_M
+
+
+@numba.njit(inline="always")
+def _series_scales(u_n):
+    """Per (block, antenna): 1/|u|, 1/|u|^2 and g's coefficients, float32, for ``_series_offset``."""
+    return (np.float32(1.0 / u_n), np.float32(1.0 / (u_n * u_n)), np.float32(_G[0]), np.float32(_G[1]),
+            np.float32(_G[2]), np.float32(_G[3]), np.float32(_G[4]), np.float32(_G[5]))
+
+
+@numba.njit(inline="always", fastmath=True)
+def _series_offset(num, sc):
+    """|u + d| - |u| from num = 2 u.d + d.d by g's series (see ``_range_offsets``); ``sc`` from ``_series_scales``."""
+    t = num * sc[1]
+    return (num * sc[0]) * (sc[2] + t * (sc[3] + t * (sc[4] + t * (sc[5] + t * (sc[6] + t * sc[7])))))
+
+
+@numba.njit(inline="always", fastmath=True)
+def _place(i, ddr, place, idx, frac, pixel_turns):
+    """Pixel i's bin (idx, frac) and phase in turns from its range offset ``ddr`` to the block centre, whose
+    bin and phase ``place`` holds: (frac_c, 1 / bin, lo, top, ibase, turns_c, k in turns, linear)."""
+    frac_c, inv32, lo, top, ibase, turns_c, k_turns32, linear = place
+    # Position relative to the centre's bin (+1 guard bin in base); clamped onto the guard bins.
+    lp = frac_c + ddr * inv32
+    lp = lp if lp > lo else lo
+    lp = lp if lp < top else top
+    if linear:
+        fl = np.floor(lp)
+        idx[i] = np.uint32(ibase + np.int32(fl))
+        frac[i] = lp - fl
+    else:
+        idx[i] = np.uint32(ibase + np.int32(np.floor(lp + np.float32(0.5))))
+    pixel_turns[i] = turns_c + k_turns32 * ddr
+
+
+@numba.njit(inline="always", fastmath=True)
+def _range_offsets(u0, u1, u2, u_n, radius, dx, dy, dz, dd, out):
+    """out[i] = |u + d_i| - |u| in float32, for the float64 vector u from an antenna to the block centre.
+
+    With t = (2 u.d + d.d) / |u|^2, |u + d| - |u| = (2 u.d + d.d) / |u| g(t), g(t) = (sqrt(1 + t) - 1) / t:
+    by g's Taylor series (11 multiply-adds, no square root or division) where every |d| <= radius keeps
+    the series' error below SERIES_TOLERANCE_M, else as (2 u.d + d.d) / (|u + d| + |u|).
+    """
+    a0, a1, a2 = np.float32(2.0 * u0), np.float32(2.0 * u1), np.float32(2.0 * u2)
+    if series_applies(u_n, radius):
+        sc = _series_scales(u_n)
+        for i in range(dx.size):
+            out[i] = _series_offset(a0 * dx[i] + a1 * dy[i] + a2 * dz[i] + dd[i], sc)
+    else:
+        a_n, a_n2 = np.float32(u_n), np.float32(u_n * u_n)
+        for i in range(dx.size):
+            # |u + d|^2 = |u|^2 + (2 u.d + d.d): the sum's rounding only touches the denominator.
+            num = a0 * dx[i] + a1 * dy[i] + a2 * dz[i] + dd[i]
+            out[i] = num / (math.sqrt(a_n2 + num) + a_n)
 
 
 @numba.njit(inline="always", fastmath=True)
@@ -202,17 +235,19 @@ def _gather_accumulate(row, idx, frac, cos_, sin_, v0, v1, acc_re, acc_im, linea
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True, nogil=True)
-def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, linear, out):
-    """As ``_bp_interp`` (same arguments), with the block-relative float32 geometry of the module's
-    docstring; for blocks no wider than PHASE_ROUNDING_RAD / (k 2^-24)."""
+def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, linear, max_extent_m, block, out):
+    """Profiles p0..p1-1 of rows [P, n_bins + 3] (complex64, one zero guard bin before, two after) onto the
+    points (gx, gy, gz), added to out, in parallel over blocks of ``block`` consecutive points: with the
+    block-relative float32 geometry of the module's docstring where the block is no wider than
+    ``max_extent_m`` (PHASE_ROUNDING_RAD / (k 2^-24)), else in float64 (``_float64_block``)."""
     n_g = gx.size
     hi = np.float64(rows.shape[1] - 2)
-    n_blocks = (n_g + BLOCK - 1) // BLOCK
+    n_blocks = (n_g + block - 1) // block
     inv32 = np.float32(inv_dr)
     k_turns32 = np.float32(k / _TWO_PI)
     for blk in numba.prange(n_blocks):
-        g0 = blk * BLOCK
-        nb = min(g0 + BLOCK, n_g) - g0
+        g0 = blk * block
+        nb = min(g0 + block, n_g) - g0
         acc_re = np.zeros(nb, np.float32)
         acc_im = np.zeros(nb, np.float32)
         idx = np.empty(nb, np.uint32)
@@ -220,9 +255,16 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
         pixel_turns = np.empty(nb, np.float32)  # each pixel's phase, in turns
         pairs = np.empty((nb, 2), np.complex64)
         da = np.empty(nb, np.float32)
-        cx = 0.5 * (gx[g0:g0 + nb].min() + gx[g0:g0 + nb].max())
-        cy = 0.5 * (gy[g0:g0 + nb].min() + gy[g0:g0 + nb].max())
-        cz = 0.5 * (gz[g0:g0 + nb].min() + gz[g0:g0 + nb].max())
+        x_lo, x_hi = gx[g0:g0 + nb].min(), gx[g0:g0 + nb].max()
+        y_lo, y_hi = gy[g0:g0 + nb].min(), gy[g0:g0 + nb].max()
+        z_lo, z_hi = gz[g0:g0 + nb].min(), gz[g0:g0 + nb].max()
+        if max(x_hi - x_lo, y_hi - y_lo, z_hi - z_lo) > max_extent_m:
+            _float64_block(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx[g0:g0 + nb], gy[g0:g0 + nb], gz[g0:g0 + nb],
+                           linear, acc_re, acc_im)
+            for i in range(nb):
+                out[g0 + i] += complex(acc_re[i], acc_im[i])
+            continue
+        cx, cy, cz = 0.5 * (x_lo + x_hi), 0.5 * (y_lo + y_hi), 0.5 * (z_lo + z_hi)
         dx = np.empty(nb, np.float32)
         dy = np.empty(nb, np.float32)
         dz = np.empty(nb, np.float32)
@@ -232,6 +274,7 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
             dy[i] = np.float32(gy[g0 + i] - cy)
             dz[i] = np.float32(gz[g0 + i] - cz)
             dd[i] = dx[i] * dx[i] + dy[i] * dy[i] + dz[i] * dz[i]
+        radius = math.sqrt(np.float64(dd.max()))
         for p in range(p0, p1):
             ua0, ua1, ua2 = cx - tx[p, 0], cy - tx[p, 1], cz - tx[p, 2]
             ub0, ub1, ub2 = cx - rx[p, 0], cy - rx[p, 1], cz - rx[p, 2]
@@ -246,89 +289,84 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
             top = np.float32(hi - base)
             turns = k * dr_c * (1.0 / _TWO_PI)
             turns_c = np.float32(turns - np.floor(turns + 0.5))
-            ibase = np.int64(base)
+            ibase = np.int32(base)
             # A TX shared with the previous profile (the RX channels of one chirp) has the same offsets.
-            if p == p0 or tx[p, 0] != tx[p - 1, 0] or tx[p, 1] != tx[p - 1, 1] or tx[p, 2] != tx[p - 1, 2]:
-                a0, a1, a2 = np.float32(2.0 * ua0), np.float32(2.0 * ua1), np.float32(2.0 * ua2)
-                a_n, a_n2 = np.float32(ua), np.float32(ua * ua)
-                for i in range(nb):
-                    # |u + d|^2 = |u|^2 + (2 u.d + d.d): the sum's rounding only touches the denominator.
-                    num = a0 * dx[i] + a1 * dy[i] + a2 * dz[i] + dd[i]
-                    da[i] = num / (math.sqrt(a_n2 + num) + a_n)
+            new_tx = p == p0 or tx[p, 0] != tx[p - 1, 0] or tx[p, 1] != tx[p - 1, 1] or tx[p, 2] != tx[p - 1, 2]
+            rx_series = series_applies(ub, radius)
             b0, b1, b2 = np.float32(2.0 * ub0), np.float32(2.0 * ub1), np.float32(2.0 * ub2)
-            b_n, b_n2 = np.float32(ub), np.float32(ub * ub)
-            for i in range(nb):
-                num = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
-                ddr = da[i] + num / (math.sqrt(b_n2 + num) + b_n)
-                # Position relative to the centre's bin (+1 guard bin in base); clamped onto the guard bins.
-                lp = frac_c + ddr * inv32
-                lp = lp if lp > lo else lo
-                lp = lp if lp < top else top
-                if linear:
-                    fl = np.floor(lp)
-                    idx[i] = np.uint32(ibase + np.int64(fl))
-                    frac[i] = lp - fl
+            place = (frac_c, inv32, lo, top, ibase, turns_c, k_turns32, linear)
+            tx_alone = new_tx and (p + 1 == p1 or tx[p + 1, 0] != tx[p, 0] or tx[p + 1, 1] != tx[p, 1]
+                                   or tx[p + 1, 2] != tx[p, 2])
+            if tx_alone and rx_series and series_applies(ua, radius):
+                # One pass for both antennas where no other profile shares this TX (a one-antenna pass), its
+                # offsets not stored.
+                a0, a1, a2 = np.float32(2.0 * ua0), np.float32(2.0 * ua1), np.float32(2.0 * ua2)
+                ga, gb = _series_scales(ua), _series_scales(ub)
+                for i in range(nb):
+                    num_a = a0 * dx[i] + a1 * dy[i] + a2 * dz[i] + dd[i]
+                    num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
+                    _place(i, _series_offset(num_a, ga) + _series_offset(num_b, gb), place, idx, frac, pixel_turns)
+            else:
+                if new_tx:
+                    _range_offsets(ua0, ua1, ua2, ua, radius, dx, dy, dz, dd, da)
+                if rx_series:
+                    gb = _series_scales(ub)
+                    for i in range(nb):
+                        num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
+                        _place(i, da[i] + _series_offset(num_b, gb), place, idx, frac, pixel_turns)
                 else:
-                    idx[i] = np.uint32(ibase + np.int64(np.floor(lp + np.float32(0.5))))
-                pixel_turns[i] = turns_c + k_turns32 * ddr
+                    b_n, b_n2 = np.float32(ub), np.float32(ub * ub)
+                    for i in range(nb):
+                        num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
+                        _place(i, da[i] + num_b / (math.sqrt(b_n2 + num_b) + b_n), place, idx, frac, pixel_turns)
             _gather_pairs_accumulate(rows[p], idx, frac, pixel_turns, pairs, acc_re, acc_im, linear)
         for i in range(nb):
             out[g0 + i] += complex(acc_re[i], acc_im[i])
 
 
-@numba.njit(parallel=True, fastmath=True, cache=True, nogil=True)
-def _bp_interp(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, linear, out):
-    """Profiles p0..p1-1 of rows [P, n_bins + 3] (complex64, one zero guard bin before, two after) into out.
+@numba.njit(inline="always", fastmath=True)
+def _float64_block(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, bx, by, bz, linear, acc_re, acc_im):
+    """Profiles p0..p1-1 onto the points (bx, by, bz) of one block, float64 geometry and phase, into
+    (acc_re, acc_im): for a block too wide for the float32 geometry (a scattered set of points).
 
-    Three passes per (block, profile), because LLVM will not vectorise a loop that gathers on this CPU:
-    geometry and phase (vectorised), the gather (scalar, loads and stores only), interpolation and
-    accumulation (vectorised).
+    Three passes per profile, because LLVM will not vectorise a loop that gathers on this CPU: geometry
+    and phase (vectorised), the gather (scalar, loads and stores only), interpolation and accumulation
+    (vectorised).
     """
-    n_g = gx.size
+    nb = bx.size
     hi = np.float64(rows.shape[1] - 2)  # largest position: j + 1 stays inside the trailing guard
-    n_blocks = (n_g + BLOCK - 1) // BLOCK
-    for blk in numba.prange(n_blocks):
-        g0 = blk * BLOCK
-        nb = min(g0 + BLOCK, n_g) - g0
-        acc_re = np.zeros(nb, np.float32)
-        acc_im = np.zeros(nb, np.float32)
-        idx = np.empty(nb, np.uint32)  # unsigned: no negative-index wrap-around code in the gather
-        frac = np.empty(nb, np.float32)
-        cos_ = np.empty(nb, np.float32)
-        sin_ = np.empty(nb, np.float32)
-        v0 = np.empty(nb, np.complex64)
-        v1 = np.empty(nb, np.complex64)
-        bx = gx[g0:g0 + nb]
-        by = gy[g0:g0 + nb]
-        bz = gz[g0:g0 + nb]
-        for p in range(p0, p1):
-            tx0, tx1, tx2 = tx[p, 0], tx[p, 1], tx[p, 2]
-            rx0, rx1, rx2 = rx[p, 0], rx[p, 1], rx[p, 2]
-            ref = r_ref[p]
-            for i in range(nb):
-                a0 = bx[i] - tx0
-                a1 = by[i] - tx1
-                a2 = bz[i] - tx2
-                b0 = bx[i] - rx0
-                b1 = by[i] - rx1
-                b2 = bz[i] - rx2
-                dr = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2) + math.sqrt(b0 * b0 + b1 * b1 + b2 * b2) - ref
-                # +1: the leading guard bin; points outside the range axis land on zero guard bins.
-                pos = (dr - r0) * inv_dr + 1.0
-                pos = pos if pos > 0.0 else 0.0
-                pos = pos if pos < hi else hi
-                if linear:
-                    fl = np.floor(pos)
-                    idx[i] = np.uint32(fl)
-                    frac[i] = np.float32(pos - fl)
-                else:
-                    idx[i] = np.uint32(pos + 0.5)
-                c, s = _cos_sin(k * dr)
-                cos_[i] = c
-                sin_[i] = s
-            _gather_accumulate(rows[p], idx, frac, cos_, sin_, v0, v1, acc_re, acc_im, linear)
+    idx = np.empty(nb, np.uint32)  # unsigned: no negative-index wrap-around code in the gather
+    frac = np.empty(nb, np.float32)
+    cos_ = np.empty(nb, np.float32)
+    sin_ = np.empty(nb, np.float32)
+    v0 = np.empty(nb, np.complex64)
+    v1 = np.empty(nb, np.complex64)
+    for p in range(p0, p1):
+        tx0, tx1, tx2 = tx[p, 0], tx[p, 1], tx[p, 2]
+        rx0, rx1, rx2 = rx[p, 0], rx[p, 1], rx[p, 2]
+        ref = r_ref[p]
         for i in range(nb):
-            out[g0 + i] += complex(acc_re[i], acc_im[i])
+            a0 = bx[i] - tx0
+            a1 = by[i] - tx1
+            a2 = bz[i] - tx2
+            b0 = bx[i] - rx0
+            b1 = by[i] - rx1
+            b2 = bz[i] - rx2
+            dr = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2) + math.sqrt(b0 * b0 + b1 * b1 + b2 * b2) - ref
+            # +1: the leading guard bin; points outside the range axis land on zero guard bins.
+            pos = (dr - r0) * inv_dr + 1.0
+            pos = pos if pos > 0.0 else 0.0
+            pos = pos if pos < hi else hi
+            if linear:
+                fl = np.floor(pos)
+                idx[i] = np.uint32(fl)
+                frac[i] = np.float32(pos - fl)
+            else:
+                idx[i] = np.uint32(pos + 0.5)
+            c, s = _cos_sin(k * dr)
+            cos_[i] = c
+            sin_[i] = s
+        _gather_accumulate(rows[p], idx, frac, cos_, sin_, v0, v1, acc_re, acc_im, linear)
 
 
 @numba.njit(parallel=True, fastmath=False, cache=True, nogil=True)
@@ -363,7 +401,6 @@ def _bp_exact(samples, f0, fstep, tx, rx, r_ref, gx, gy, gz, out):
 # themselves (FFBP's leaves): one parallel region per small call waits on every core at its end, and on a
 # machine where another process holds a core that wait is a scheduler time slice per call.
 _bp_interp_blocks_serial = numba.njit(fastmath=True, cache=True, nogil=True)(_bp_interp_blocks.py_func)
-_bp_interp_serial = numba.njit(fastmath=True, cache=True, nogil=True)(_bp_interp.py_func)
 _bp_exact_serial = numba.njit(fastmath=False, cache=True, nogil=True)(_bp_exact.py_func)
 
 
@@ -378,21 +415,59 @@ def _guarded(data: np.ndarray) -> np.ndarray:
     return rows
 
 
-@functools.lru_cache(maxsize=8)
-def patch_order(shape: tuple[int, ...]) -> np.ndarray | None:
-    """The order that walks a grid of this shape ([..., ny, nx]) in PATCH x PATCH squares, each layer in
-    turn; None for a 1-D set of points (kept in the order given). Cached: ``form_image`` and the strip map
-    backproject block after block onto the same grid (callers only index with it)."""
-    if len(shape) < 2 or shape[-1] <= PATCH and shape[-2] <= PATCH:
+@functools.lru_cache(maxsize=32)
+def patch_order(shape: tuple[int, ...], width: int = PATCH, points: int = BLOCK) -> np.ndarray | None:
+    """The order that walks a grid of this shape ([..., ny, nx]) in patches of about ``points`` points,
+    ``width`` columns wide (PATCH x PATCH squares by default), each layer in turn; None for a 1-D set of points or a grid
+    within one patch (kept in the order given). Cached: ``form_image`` and the strip map backproject block
+    after block onto the same grid, FFBP's leaves onto grids of a few shapes (callers only index with it)."""
+    if len(shape) < 2:
         return None
     ny, nx = shape[-2], shape[-1]
-    iy, ix = np.divmod(np.arange(ny * nx), nx)
-    key = ((iy // PATCH) * ((nx + PATCH - 1) // PATCH) + ix // PATCH) * PATCH * PATCH + (iy % PATCH) * PATCH + ix % PATCH
-    layer = np.argsort(key, kind="stable")
+    pw = max(1, min(width, nx))
+    ph = max(1, points // pw)
+    if nx <= pw and ny <= ph:
+        return None
+    # Rows of patches alternately left to right and right to left: a run of ``points`` that leaves a
+    # patch (after a narrower one at the grid's edge) goes on into a neighbouring one, never across the
+    # grid; the last, lower row of patches has wider ones, of about as many points.
+    pieces, y0, backwards = [], 0, False
+    while y0 < ny:
+        h = min(ph, ny - y0)
+        w = pw if h == ph else min(nx, -(-ph * pw // h))
+        starts = range(0, nx, w)
+        for x0 in reversed(starts) if backwards else starts:
+            iy, ix = np.mgrid[y0:y0 + h, x0:min(x0 + w, nx)]
+            pieces.append((iy * nx + ix).ravel())
+        y0, backwards = y0 + h, not backwards
+    layer = np.concatenate(pieces)
     layers = int(np.prod(shape[:-2], dtype=np.int64))
     order = (np.arange(layers)[:, None] * (ny * nx) + layer[None, :]).ravel()
     order.flags.writeable = False  # shared by every call on this shape
     return order
+
+
+#: Largest side of a patch: two of them stay within the float32 kernel's extent (1 m at 77 GHz).
+PATCH_SIDE_MAX_M = 0.4
+
+
+def patch_shape(grid_m: np.ndarray) -> tuple[int, int]:
+    """(columns, points) of the patches to walk a grid [..., ny, nx, 3] in, the points also the kernel's
+    block: BLOCK points (PATCH x PATCH for square pixels), fewer columns where columns lie farther apart
+    than rows (an FFBP leaf's polar grid: few, widely spaced angles), and 64 or 16 points where a patch of
+    BLOCK would be wider than PATCH_SIDE_MAX_M (a coarse grid). Compact blocks take the float32 kernel,
+    and small ones its series for the range offsets."""
+    if grid_m.ndim < 3 or grid_m.shape[-3] < 2 or grid_m.shape[-2] < 2:
+        return PATCH, BLOCK
+    g = grid_m.reshape(-1, *grid_m.shape[-3:])[0]
+    sx = float(np.linalg.norm(g[0, 1] - g[0, 0]))
+    sy = float(np.linalg.norm(g[1, 0] - g[0, 0]))
+    if not (sx > 0.0 and sy > 0.0):
+        return PATCH, BLOCK
+    points = BLOCK
+    while points > 16 and math.sqrt(points * sx * sy) > PATCH_SIDE_MAX_M:
+        points //= 4
+    return int(2 ** min(max(round(0.5 * math.log2(points * sy / sx)), 0), int(math.log2(points)))), points
 
 
 def max_block_extent_m(gx: np.ndarray, gy: np.ndarray, gz: np.ndarray) -> float:
@@ -477,20 +552,18 @@ def backproject(
         rows = profiles.rows
         if rows is None or rows.shape != (n_p, data.shape[1] + 3) or not np.shares_memory(rows, data):
             rows = _guarded(data)  # profiles not compressed with guarded=True: one copy into the kernel's layout
-        order = patch_order(shape)
+        width, block = patch_shape(np.asarray(grid_m))
+        order = patch_order(shape, width, block)
         if order is not None:
             gx, gy, gz = gx[order], gy[order], gz[order]
-        fast = max_block_extent_m(gx, gy, gz) * k * 2.0 ** -24 <= PHASE_ROUNDING_RAD
-        if parallel:
-            kernel = _bp_interp_blocks if fast else _bp_interp
-        else:
-            kernel = _bp_interp_blocks_serial if fast else _bp_interp_serial
+        kernel = _bp_interp_blocks if parallel else _bp_interp_blocks_serial
+        max_extent_m = PHASE_ROUNDING_RAD / (k * 2.0 ** -24)
         acc = flat_out if order is None else np.zeros(flat_out.size, np.complex128)
         # Profiles in chunks, all grid blocks per chunk: the chunk's rows stay in cache while every block
         # reads them, instead of every block streaming all profiles from memory.
         for p0 in range(0, n_p, PROFILE_CHUNK):
             kernel(rows, p0, min(p0 + PROFILE_CHUNK, n_p), profiles.range_start_m, 1.0 / profiles.range_step_m, k,
-                   tx, rx, r_ref, gx, gy, gz, mode == "linear", acc)
+                   tx, rx, r_ref, gx, gy, gz, mode == "linear", max_extent_m, block, acc)
         if order is not None:
             flat_out[order] += acc
     if not out.flags.c_contiguous:

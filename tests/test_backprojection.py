@@ -11,6 +11,8 @@ from imaging.backprojection import (
     backproject,
     max_block_extent_m,
     patch_order,
+    patch_shape,
+    series_applies,
 )
 from imaging.range_compression import range_compress
 
@@ -123,6 +125,26 @@ def test_patch_order_walks_squares():
     for b in range(0, order.size, BLOCK):
         assert np.ptp(iz[b:b + BLOCK]) == 0 or b + BLOCK > 37 * 50 * (iz[b] + 1)
     assert patch_order((5, 3)) is None and patch_order((100,)) is None
+    # ... and within two patches of the grid in each direction, also where patches are narrower at an edge
+    # (50 = 3 x 16 + 2 columns) and for narrow patches (8 columns x 32 rows)
+    for width in (PATCH, 8):
+        order = patch_order(shape, width)
+        iy, ix = np.divmod(order % (37 * 50), 50)
+        for b in range(0, 37 * 50 - BLOCK, BLOCK):
+            if iy[b:b + BLOCK].max() < 32:  # (the last row of patches, 5 rows, is one patch 50 wide)
+                assert np.ptp(ix[b:b + BLOCK]) < 2 * width
+            assert np.ptp(iy[b:b + BLOCK]) < 2 * PATCH * PATCH // width
+
+
+def test_patch_shape_follows_the_spacing_of_rows_and_columns():
+    x, y = np.meshgrid(np.arange(40) * 0.02, np.arange(80) * 0.005)  # columns 4x as far apart as rows
+    polar_like = np.stack([x, y, np.zeros_like(x)], axis=-1)
+    assert patch_shape(polar_like) == (PATCH // 2, BLOCK)  # 8 columns x 32 rows: 16 cm x 16 cm
+    assert patch_shape(polar_like[..., [1, 0, 2]].transpose(1, 0, 2)) == (PATCH * 2, BLOCK)
+    square = np.stack([*np.meshgrid(np.arange(30) * 0.004, np.arange(20) * 0.004), np.zeros((20, 30))], axis=-1)
+    assert patch_shape(square) == (PATCH, BLOCK)
+    assert patch_shape(square * 10) == (PATCH // 2, BLOCK // 4)  # 4 cm pixels: 8 x 8 patches of 32 cm
+    assert patch_shape(square * 100) == (4, 16)  # the smallest patches, however coarse the grid
 
 
 def test_turns_sin_cos_against_numpy():
@@ -252,3 +274,46 @@ def test_full_width_vectors_where_the_cpu_has_avx512():
     features, target = json.loads(subprocess.run([sys.executable, "-c", code], env={**env, "NUMBA_CPU_FEATURES": mine},
                                                  capture_output=True, text=True, check=True).stdout)
     assert features == mine and not target["prefer_256_bit_off"]
+
+
+@pytest.mark.parametrize("distance_m", [0.12, 2.0], ids=["near-square-root", "series"])
+@pytest.mark.parametrize("far", [0.0, 5000.0])
+def test_range_offsets_by_series_and_by_square_root_match_numpy_reference(distance_m, far):
+    """The float32 block kernel's two forms of a pixel's range offset: g's Taylor series where the block is
+    small against its distance from the antenna, the square root beside the antenna; each against the
+    numpy reference, near the origin and 5 km out."""
+    prof, tx, rx, grid = grid_case((48, 48), far)
+    # Move the antennas so that the grid's centre is distance_m away from their centre.
+    centre = grid[24, 24]
+    shift = centre - [0.0, distance_m, 0.0] - tx.mean(axis=0)
+    tx, rx = tx + shift, rx + shift
+    radius = np.sqrt(2) * PATCH / 2 * 0.004
+    u_n = np.linalg.norm(centre - tx, axis=1)
+    assert all(series_applies(u, radius) for u in u_n) == (distance_m > 1.0)
+    assert any(series_applies(u, radius) for u in u_n) == (distance_m > 1.0)
+    # Echoes of a scatterer at the grid's centre, from the moved antennas.
+    r = np.linalg.norm(tx - centre, axis=1) + np.linalg.norm(rx - centre, axis=1)
+    n = np.arange(NS)
+    prof = range_compress(np.exp(2j * np.pi / C * (F0 + FSTEP * n[None, :]) * r[:, None]), F0, FSTEP, oversample=8)
+    got = backproject(prof, tx, rx, grid)
+    want = backproject_reference(prof, tx, rx, grid)
+    scale = np.abs(want).max()
+    assert np.abs(got - want).max() < 2e-5 * scale
+    assert abs(want[24, 24]) > 0.5 * prof.data.shape[0]  # the scatterer focuses (not vacuous)
+
+
+def test_compact_and_wide_blocks_in_one_call_match_numpy_reference():
+    """Each block of points takes the float32 or the float64 geometry by its own extent: one compact block
+    (float32) and one scattered over metres (float64) in one call, each as the numpy reference."""
+    prof, tx, rx, grid = grid_case((40, 70))
+    compact = grid.reshape(-1, 3)[patch_order((40, 70))][:BLOCK]
+    scattered = synthetic_case(np.random.default_rng(11))[3][:BLOCK]
+    points = np.concatenate([compact, scattered])
+    k = 2 * np.pi * prof.carrier_hz / C
+    assert max_block_extent_m(*(compact[:, i] for i in range(3))) * k * 2.0 ** -24 <= PHASE_ROUNDING_RAD
+    assert max_block_extent_m(*(scattered[:, i] for i in range(3))) * k * 2.0 ** -24 > PHASE_ROUNDING_RAD
+    for parallel in (True, False):
+        got = backproject(prof, tx, rx, points, parallel=parallel)
+        want = backproject_reference(prof, tx, rx, points)
+        for part in (slice(0, BLOCK), slice(BLOCK, None)):
+            assert np.abs(got[part] - want[part]).max() < 2e-5 * np.abs(want[part]).max()
