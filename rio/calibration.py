@@ -342,8 +342,7 @@ def calibrate_recording(path: str | Path, out: str | Path, rig: Rig | None = Non
         rig = rig or rig_of_recording(rec)
         imu = imu_from_recording(rec)
         scans = [dataclasses.replace(s, mount=rig.radar(s.radar).mount) for s in scans_from_recording(rec)]
-    priors = {r.name: r.calibration for r in rig.radars if r.calibration is not None}
-    options = dataclasses.replace(options, calibration_priors={**priors, **options.calibration_priors})
+    options = dataclasses.replace(options, calibration_priors={**rig.calibration_priors(), **options.calibration_priors})
     result = calibrate(imu, scans, options, **kwargs)
     header = f"Calibrated by sarbot calibrate from {Path(path).name}: axes not taken keep the rig's values.\n" + result.report()
     write_rig_toml(refined_rig(rig, result), out, header)

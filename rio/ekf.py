@@ -402,9 +402,9 @@ class RadarInertialEkf:
         self._last_gyro = self._last_gyro.copy()
         return recorded
 
-    # -- updates ------------------------------------------------------------------------------------------
-    def _update(self, residual: np.ndarray, H: np.ndarray, R_meas: np.ndarray, gate: float | None,
-                kind: str = "") -> UpdateResult:
+    def update(self, residual: np.ndarray, H: np.ndarray, R_meas: np.ndarray, gate: float | None,
+               kind: str = "") -> UpdateResult:
+        """A measurement update (H from ``jacobian_rows``; gate: chi2, None for none; "velocity": it moved)."""
         s = self.state
         ok, chi2, dx, P = _joseph_update(s.P, np.ascontiguousarray(H, dtype=np.float64),
                                          np.ascontiguousarray(R_meas, dtype=np.float64),
@@ -431,7 +431,7 @@ class RadarInertialEkf:
             self.bias_log[-1:] = [entry]
         return UpdateResult(True, chi2)
 
-    def _zeros(self, rows: int) -> np.ndarray:  # a measurement Jacobian's rows, as wide as the error state
+    def jacobian_rows(self, rows: int) -> np.ndarray:  # a measurement Jacobian's rows, as wide as the error state
         return np.zeros((rows, self.state.P.shape[0]))
 
     def measurement_time_ns(self, radar: str, stamp_ns: int) -> int:
@@ -456,7 +456,7 @@ class RadarInertialEkf:
         w = self._last_gyro - s.bg
         v_body = s.R.T @ s.v
         predicted = Rm.T @ (v_body + cross3(w, lever))
-        H = self._zeros(3)
+        H = self.jacobian_rows(3)
         H[:, 3:6] = Rm.T @ s.R.T
         H[:, 6:9] = Rm.T @ skew(v_body)
         covariance = covariance + np.eye(3) * self.config.radar_velocity_sigma_floor_mps ** 2
@@ -476,18 +476,18 @@ class RadarInertialEkf:
                 t_hist = self._recent_imu[0]
                 half_interval_s = 0.5e-9 * (t_hist[-1] - t_hist[-2]) if t_hist.size > 1 else 0.0
                 predicted = predicted + rate * ((int(stamp_ns) - s.time_ns) * 1e-9 + half_interval_s - cal.time_offset_s)
-        return self._update(np.asarray(velocity_sensor_mps) - predicted, H, covariance, self.config.gate_chi2, "velocity")
+        return self.update(np.asarray(velocity_sensor_mps) - predicted, H, covariance, self.config.gate_chi2, "velocity")
 
     def update_body_velocity(self, velocity_body_mps: np.ndarray, covariance: np.ndarray) -> UpdateResult:
         """Body-frame velocity (several radars solved together)."""
         self.end_standstill()
         s = self.state
         v_body = s.R.T @ s.v
-        H = self._zeros(3)
+        H = self.jacobian_rows(3)
         H[:, 3:6] = s.R.T
         H[:, 6:9] = skew(v_body)
         covariance = covariance + np.eye(3) * self.config.radar_velocity_sigma_floor_mps ** 2
-        return self._update(np.asarray(velocity_body_mps) - v_body, H, covariance, self.config.gate_chi2, "velocity")
+        return self.update(np.asarray(velocity_body_mps) - v_body, H, covariance, self.config.gate_chi2, "velocity")
 
     def inflate_velocity_uncertainty(self) -> None:
         """Reset the velocity block of P (and its correlations) to a wide prior."""
@@ -532,11 +532,11 @@ class RadarInertialEkf:
         self._in_standstill = True
         self._zero_rate_during_standstill()
         s = self.state
-        H = self._zeros(3)
+        H = self.jacobian_rows(3)
         H[:, 3:6] = np.eye(3)
         c = self.config
         sigma = c.still_zero_velocity_sigma_mps if standing else c.zero_velocity_sigma_mps
-        return self._update(-s.v, H, np.eye(3) * sigma ** 2, None)
+        return self.update(-s.v, H, np.eye(3) * sigma ** 2, None)
 
     def _zero_rate_during_standstill(self) -> None:
         """A long standstill gives its zero-rate update every ``standstill_update_s``, not only when it ends:
@@ -588,13 +588,13 @@ class RadarInertialEkf:
             s.P[:, 12:15] = 0.0
             s.P[12:15, 12:15] = np.eye(3) * c.init_gyro_bias_sigma ** 2
             self.bias_resets += 1
-        H = self._zeros(3)
+        H = self.jacobian_rows(3)
         H[:, 12:15] = -np.eye(3)  # measured rate - b_g = 0
-        return self._update(-rate, H, rate_cov, None)
+        return self.update(-rate, H, rate_cov, None)
 
     def update_planar(self) -> UpdateResult:
         """No vertical velocity in the world frame (a robot on a flat floor)."""
         s = self.state
-        H = self._zeros(1)
+        H = self.jacobian_rows(1)
         H[0, 5] = 1.0
-        return self._update(np.array([-s.v[2]]), H, np.array([[self.config.planar_sigma_mps ** 2]]), CHI2_999[1])
+        return self.update(np.array([-s.v[2]]), H, np.array([[self.config.planar_sigma_mps ** 2]]), CHI2_999[1])

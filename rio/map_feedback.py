@@ -158,10 +158,10 @@ def update_look_velocity(ekf: RadarInertialEkf, measurement: LookVelocityMeasure
     ``already_corrected_mps`` (what map measurements since the measurement's time moved it along that
     direction): a pseudo-measurement of velocity with the measurement's sigma, chi-square gated."""
     d = np.asarray(measurement.direction, float)
-    H = ekf._zeros(1)
+    H = ekf.jacobian_rows(1)
     H[0, 3:6] = d
     residual = np.array([measurement.velocity_error_mps - already_corrected_mps])
-    return ekf._update(residual, H, np.array([[measurement.sigma_mps ** 2]]), gate_chi2, "velocity")
+    return ekf.update(residual, H, np.array([[measurement.sigma_mps ** 2]]), gate_chi2, "velocity")
 
 
 class MapFeedback:

@@ -58,8 +58,14 @@ class RioOptions:
     calibrate_extrinsics: bool = False
     calibrate_time_offset: bool = False
     #: Per radar name, the rig's calibration prior (imaging.core.rig.CalibrationPrior): the time offset to
-    #: start from and the standard deviations; radars not named start at offset 0 with the EkfConfig's.
+    #: start from and the standard deviations; radars not named start at offset 0 with the EkfConfig's. Not
+    #: calibrating, the time offsets are taken as known (``shift_by_known_offsets``).
     calibration_priors: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def calibrating(self) -> bool:
+        """Whether the filter carries calibration states (mounts, time offsets or both)."""
+        return self.calibrate_extrinsics or self.calibrate_time_offset
 
 
 @dataclasses.dataclass
@@ -101,7 +107,7 @@ def run_rio(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOptio
     ekf.initialise_static(t_imu[k0], acc[still], gyr[still], options.initial_position_m, options.initial_yaw_rad)
     ekf.propagate(t_imu[k0], acc[k0], gyr[k0])
     start_mounts = add_calibration_states(ekf, scans, options)
-    if not start_mounts:  # the rig's known clock offsets, where the filter does not estimate them
+    if not options.calibrating:  # the rig's known clock offsets, where the filter does not estimate them
         scans = shift_by_known_offsets(scans, options.calibration_priors)
     calibration_log: list = []
     out_every = max(1, int(round((1e9 / np.median(np.diff(t_imu))) / options.output_rate_hz)))
@@ -189,7 +195,7 @@ def shift_by_known_offsets(scans: list[RadarScan], priors: dict) -> list[RadarSc
 def add_calibration_states(ekf: RadarInertialEkf, scans: list[RadarScan], options: RioOptions) -> dict:
     """Give the filter every scanned radar's calibration states, as ``options`` ask; returns the start
     mount of each (empty when not calibrating)."""
-    if not (options.calibrate_extrinsics or options.calibrate_time_offset):
+    if not options.calibrating:
         return {}
     if options.joint_radars:
         raise ValueError("online calibration needs per-radar updates: joint_radars must be off")

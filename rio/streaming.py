@@ -95,7 +95,7 @@ class StreamingRio:
         return _NO_RADAR_YET if self._wait_for_first_radar else None
 
     def add_scan(self, scan: RadarScan) -> PoseBatch:
-        if not (self.options.calibrate_extrinsics or self.options.calibrate_time_offset):
+        if not self.options.calibrating:
             (scan,) = shift_by_known_offsets([scan], self.options.calibration_priors)
         self.radar_seen(scan.radar, scan.time_ns)
         if self.ekf is not None and scan.time_ns < self.ekf.state.time_ns:
@@ -168,8 +168,7 @@ class StreamingRio:
             if scan.time_ns < self.ekf.state.time_ns:
                 self.stats["scans_late"] += 1
                 continue
-            if (self.options.calibrate_extrinsics or self.options.calibrate_time_offset) \
-                    and scan.radar not in self.ekf.calibration:
+            if self.options.calibrating and scan.radar not in self.ekf.calibration:
                 add_calibration_states(self.ekf, [scan], self.options)  # each radar's states from its first scan
             self._propagate_to(int(np.searchsorted(self._imu_t, scan.time_ns, side="left")), chunks)
             self.ekf.propagate(scan.time_ns)

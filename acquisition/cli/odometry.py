@@ -69,6 +69,7 @@ def check_rio_options(args) -> None:
 def cmd_rio(args) -> int:
     from imaging.io.recording import Recording
     from imaging.io.trajectory_file import write_trajectory, write_tum
+    from rio.calibration import rig_of_recording
     from rio.ekf import EkfConfig
     from rio.odometry import (
         RioOptions,
@@ -91,7 +92,7 @@ def cmd_rio(args) -> int:
             raise SarbotError(f"{args.recording}: no radar detections to run odometry on")
         truth = rec.truth()
         # The rig's clock offsets (and, calibrating, its uncertainties) as the filter's starting point.
-        priors = {n: rec.radar(n).calibration for n in rec.radar_names if rec.radar(n).calibration is not None}
+        priors = rig_of_recording(rec).calibration_priors()
     start = {}
     if args.start_from_truth:
         if truth is None:

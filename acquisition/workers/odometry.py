@@ -82,7 +82,7 @@ class OdometryWorker(Worker):
         self.every = {name: max(1, int(round(1.0 / (r.waveform.frame_interval_s * config.scan_rate_hz))))
                       for name, r in self.radars.items()}
         options = RioOptions(calibrate_extrinsics=config.calibrate, calibrate_time_offset=config.calibrate,
-                             calibration_priors={n: r.calibration for n, r in self.radars.items() if r.calibration})
+                             calibration_priors={n: p for n, p in rig.calibration_priors().items() if n in use})
         self.rio = StreamingRio(options, imu_rate_hz=rig.imu.rate_hz)
         self.pc_config = PointCloudConfig()
         self.trajectory = None  # a TrajectoryWriter once the first poses come: poses go to disk, not memory

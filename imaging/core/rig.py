@@ -195,6 +195,10 @@ class Rig:
     def radar_names(self) -> list[str]:
         return [r.name for r in self.radars]
 
+    def calibration_priors(self) -> dict[str, CalibrationPrior]:
+        """Per radar name, its ``[radar.NAME.calibration]``, for the radars that have one."""
+        return {r.name: r.calibration for r in self.radars if r.calibration is not None}
+
 
 def default_rig() -> Rig:
     """Four reference radars facing outward, perpendicular to travel, start frequencies 76.0-76.3 GHz.
