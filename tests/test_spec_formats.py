@@ -478,6 +478,68 @@ def test_imu_and_detections_follow_the_documented_frames(files):
             assert on_wall.mean() > 0.5, radar
 
 
+def test_imu_can_and_events_groups_are_the_documented_ones(files):
+    with h5py.File(files / "drive.h5", "r") as rec:
+        a = rec["imu"].attrs  # the reference rig's IMU (docs/config/rig.md defaults)
+        expected = dict(rate_hz=400.0, gyro_noise_density_radps_per_sqrt_hz=1e-4,
+                        accel_noise_density_mps2_per_sqrt_hz=1e-3, gyro_bias_random_walk_radps2_per_sqrt_hz=1e-5,
+                        accel_bias_random_walk_mps3_per_sqrt_hz=1e-4)
+        for key, value in expected.items():
+            assert a[key] == pytest.approx(value, rel=1e-12), key
+        np.testing.assert_allclose(a["mount_translation_m"], [0, 0, 0])
+        np.testing.assert_allclose(a["mount_rotation_xyzw"], [0, 0, 0, 1])
+        assert "clock_drift_ppm" in a  # NaN until a driver knows it
+        counter = rec["imu/counter"][:].astype(np.int64)
+        np.testing.assert_array_equal(np.diff(counter), 1)
+        assert rec["imu/host_time_ns"].dtype == np.int64 and rec["imu/host_time_ns"].shape == counter.shape
+        # /events: strings and int64 times, one row each.
+        lengths = {len(rec[f"events/{k}"]) for k in ("time_ns", "source", "level", "message")}
+        assert len(lengths) == 1 and rec["events/time_ns"].dtype == np.int64
+        # /can (docs/wire/can.md): the trigger frame 0x100 carries the trigger's PTP time, u64 LE;
+        # 0x201 the wheel speeds, int32 LE mm/s, left then right.
+        can = rec["can"]
+        ids, dlc, data, t = can["arbitration_id"][:], can["dlc"][:], can["data"][:], can["time_ns"][:]
+        assert ids.dtype == np.uint32 and dlc.dtype == np.uint8 and data.dtype == np.uint8 and t.dtype == np.int64
+        assert data.shape == (len(ids), 64) and np.all(data[np.arange(64)[None, :] >= dlc[:, None]] == 0)
+        trigger = data[ids == 0x100]
+        assert len(trigger) == 1
+        assert int.from_bytes(bytes(trigger[0, :8]), "little") == int(rec["trigger/time_ns"][0])
+        wheels = data[ids == 0x201][:, :8].copy().view("<i4") * 1e-3  # [K, 2] m/s
+        wheel_t = t[ids == 0x201]
+        assert len(wheels) > 100
+        truth_t = rec["truth/time_ns"][:]
+        speed = np.interp(wheel_t, truth_t, np.linalg.norm(rec["truth/velocity_mps"][:], axis=1))
+        yaw_rate = np.interp(wheel_t, truth_t, np.gradient(np.unwrap(yaw_rad(rec["truth/orientation_xyzw"][:])),
+                                                           truth_t * 1e-9))
+        straight = np.abs(yaw_rate) < 1e-3
+        np.testing.assert_allclose(wheels[straight], np.stack([speed[straight]] * 2, axis=1), atol=0.01)
+        turning = np.abs(yaw_rate) > 0.3
+        assert turning.sum() > 10
+        np.testing.assert_array_equal(np.sign(wheels[turning, 1] - wheels[turning, 0]), np.sign(yaw_rate[turning]))
+
+
+def test_a_flipped_byte_is_a_read_error_never_good_data(files, tmp_path):
+    """docs/formats/recording.md: every numeric dataset carries Fletcher-32, so a flipped byte is a read error."""
+    damaged = tmp_path / "damaged.h5"
+    damaged.write_bytes((files / "counts.h5").read_bytes())
+    with h5py.File(damaged, "r") as rec:
+        chunk = rec["radar/left_front/frame_time_ns"].id.get_chunk_info(0)
+    raw = bytearray(damaged.read_bytes())
+    raw[chunk.byte_offset + 2] ^= 0x10  # a byte of the first frame's time
+    damaged.write_bytes(bytes(raw))
+    with h5py.File(damaged, "r") as rec:
+        with pytest.raises(OSError):
+            rec["radar/left_front/frame_time_ns"][:]
+
+
+def test_info_tum_of_truth_is_the_truth_in_tum_order(files):
+    tum = read_tum(files / "truth.txt")
+    with h5py.File(files / "drive.h5", "r") as rec:
+        np.testing.assert_allclose(tum[:, 0], rec["truth/time_ns"][:] * 1e-9, atol=1e-6, rtol=0)
+        np.testing.assert_allclose(tum[:, 1:4], rec["truth/position_m"][:], atol=2e-9)
+        np.testing.assert_allclose(tum[:, 4:], rec["truth/orientation_xyzw"][:], atol=2e-9)
+
+
 def test_trajectory_file_has_the_documented_layout_and_matches_the_tum_text(files):
     with h5py.File(files / "traj.h5", "r") as f:
         assert f.attrs["schema"] == "sarbot.trajectory" and int(f.attrs["schema_version"]) == 1
