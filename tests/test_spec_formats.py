@@ -319,14 +319,9 @@ def half_power_width(axis, power):
     """Width at -3.0 dB (docs/conventions.md) around the maximum, by linear interpolation."""
     level = power.max() * 10 ** -0.3
     k = int(np.argmax(power))
-    lo = k
-    while lo > 0 and power[lo] > level:
-        lo -= 1
-    hi = k
-    while hi < len(power) - 1 and power[hi] > level:
-        hi += 1
-    left = axis[lo] + (level - power[lo]) / (power[lo + 1] - power[lo]) * (axis[lo + 1] - axis[lo])
-    right = axis[hi - 1] + (power[hi - 1] - level) / (power[hi - 1] - power[hi]) * (axis[hi] - axis[hi - 1])
+    lo, hi = k - int(np.argmax(power[k::-1] < level)), k + int(np.argmax(power[k:] < level))
+    left = np.interp(level, power[lo:lo + 2], axis[lo:lo + 2])
+    right = np.interp(level, power[hi - 1:hi + 1][::-1], axis[hi - 1:hi + 1][::-1])
     return right - left
 
 
@@ -341,6 +336,7 @@ def test_image_file_has_the_documented_datasets_and_attributes(files):
             assert axis[0] == pytest.approx(start) and np.allclose(np.diff(axis), step)
             assert stop - step < axis[-1] <= stop + step / 2  # the grid's end (inclusive or not: not documented)
         np.testing.assert_allclose(z, [0.3])  # default height: the radar's (docs/cli.md "Grids")
+        assert all(f[k].fletcher32 for k in ("image", "x_m", "y_m", "z_m"))
         a = dict(f.attrs)
     assert (files / "image.png").exists()  # "a PNG goes beside it"
     assert a["radar"] == "left_front" and a["frames"] == "0:28" and int(a["n_frames"]) == 28
@@ -531,6 +527,9 @@ def test_a_flipped_byte_is_a_read_error_never_good_data(files, tmp_path):
     with h5py.File(damaged, "r") as rec:
         with pytest.raises(OSError):
             rec["radar/left_front/frame_time_ns"][:]
+    exe = Path(sys.executable).with_name("sarbot")  # info --verify: one line per damaged chunk, exit 2
+    done = subprocess.run([str(exe), "info", "--verify", str(damaged)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "/radar/left_front/frame_time_ns" in done.stdout + done.stderr
 
 
 def test_info_tum_of_truth_is_the_truth_in_tum_order(files):
