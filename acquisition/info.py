@@ -185,8 +185,9 @@ def image_info(path: str | Path) -> dict[str, Any]:
     attrs = {k: (v.tolist() if isinstance(v, np.ndarray) else v.item() if isinstance(v, np.generic) else v)
              for k, v in img.attrs.items()}
     return {"file": str(path), "kind": "image", "shape": list(img.image.shape),
-            "pixel_m": [float(np.diff(img.x_m[:2])[0]) if img.x_m.size > 1 else None,
-                        float(np.diff(img.y_m[:2])[0]) if img.y_m.size > 1 else None],
+            # to the nanometre: a grid's spacing read back as a difference of centres carries rounding (0.0040000000000000036)
+            "pixel_m": [round(float(np.diff(img.x_m[:2])[0]), 9) if img.x_m.size > 1 else None,
+                        round(float(np.diff(img.y_m[:2])[0]), 9) if img.y_m.size > 1 else None],
             "x_m": [float(img.x_m[0]), float(img.x_m[-1])], "y_m": [float(img.y_m[0]), float(img.y_m[-1])],
             "attrs": attrs}
 

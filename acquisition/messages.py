@@ -14,6 +14,7 @@ robot's IMU, ZeroMQ topics being prefixes), ``can`` (CanBatch), ``trigger``
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any, ClassVar
 
 import numpy as np
@@ -353,7 +354,7 @@ CLOCK_RATE_NOT_DRIFT_PPM = 10_000.0
 def imu_clock_text(drift_ppm: float | None) -> str:
     """An IMU clock against the host's, for a person: "clock drift +12.3 ppm", "clock drift unknown", or its
     rate where it is no drift ("clock at 0.50x host time (a replay at that speed?)")."""
-    if drift_ppm is None:
+    if drift_ppm is None or not math.isfinite(drift_ppm):  # a file stores "not known" as NaN
         return "clock drift unknown"
     if abs(drift_ppm) < CLOCK_RATE_NOT_DRIFT_PPM:
         return f"clock drift {drift_ppm:+.1f} ppm"

@@ -155,6 +155,7 @@ def test_the_health_line_tells_a_drifting_imu_clock_from_one_at_another_rate():
 
     assert "IMU clock drift +12.3 ppm" in line(12.3) and "IMU clock drift -850.0 ppm" in line(-850.0)
     assert "IMU clock drift unknown" in line(None)
+    assert "IMU clock drift unknown" in line(float("nan"))  # a recording's "not known" (was "clock at nanx")
     assert "IMU clock at 0.50x host time (a replay at that speed?)" in line(1e6)  # replayed at 0.5x
     assert "IMU clock at 2.00x host time" in line(-5e5)  # at 2x
     assert "ppm" not in line(1e6)

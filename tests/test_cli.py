@@ -167,6 +167,9 @@ def test_existing_output_is_not_overwritten(recording):
 def test_list_scenes():
     res = sarbot("simulate", "--list")
     assert res.returncode == 0 and "paper_pass_0.4" in res.stdout and "point_target" in res.stdout
+    # each description's first sentence whole, not cut at its TOML line break ("... at r0 = 2 m from the")
+    entries = res.stdout.replace("\n                   ", " ").splitlines()
+    assert entries and all(e.rstrip().endswith(".") for e in entries), entries
 
 
 def test_vibration_inverse_from_the_command_line(tmp_path):

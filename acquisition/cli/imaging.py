@@ -99,9 +99,13 @@ def cmd_simulate(args) -> int:
     from ..progress import Progress
 
     if args.list:
+        import textwrap
+
         for name in builtin_scene_names():
-            scene = load_scene(name)
-            print(f"{name:18s} {scene.description.splitlines()[0] if scene.description else ''}")
+            # the description's first sentence, whole: its TOML line breaks would cut it mid-sentence
+            text = " ".join(load_scene(name).description.split())
+            first = text.split(". ")[0].rstrip(".") + "." if text else ""
+            print(textwrap.fill(first, width=110, initial_indent=f"{name:18s} ", subsequent_indent=" " * 19))
         return EXIT_OK
     if not args.scene or not args.output:
         raise SarbotError("simulate needs a SCENE and -o OUTPUT (or --list)")
