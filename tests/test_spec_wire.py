@@ -98,14 +98,16 @@ def crc32c(data: bytes) -> int:
     return crc ^ 0xFFFFFFFF
 
 
-def srf1_datagrams(counter, frame_time_ns, payload, *, locked=True, radar_id=RADAR_ID):
-    """One frame as SRF1 version 2 datagrams: chunks of at most 1440 bytes, a multiple of 4."""
+def srf1_datagrams(counter, frame_time_ns, payload, *, locked=True, radar_id=RADAR_ID, version=2):
+    """One frame as SRF1 datagrams: chunks of at most 1440 bytes, a multiple of 4; v2 with CRC32C."""
     datagrams = []
     for offset in range(0, len(payload), SRF1_MAX_PAYLOAD):
         chunk = payload[offset:offset + SRF1_MAX_PAYLOAD]
-        head = SRF1_HEADER_V2.pack(b"SRF1", 2, 1 if locked else 0, radar_id, counter & 0xFFFFFFFF,
+        head = SRF1_HEADER_V2.pack(b"SRF1", version, 1 if locked else 0, radar_id, counter & 0xFFFFFFFF,
                                    frame_time_ns, len(payload), offset, 0)[:28]
-        datagrams.append(head + struct.pack("<I", crc32c(head + chunk)) + chunk)
+        if version == 2:
+            head += struct.pack("<I", crc32c(head + chunk))
+        datagrams.append(head + chunk)
     return datagrams
 
 
@@ -179,11 +181,15 @@ def _udp_port_bound(port):
 
 
 # --- what we send ---------------------------------------------------------------------------------------
-N_FRAMES = 6
+N_FRAMES = 7
 FIRST_COUNTER = 0xFFFFFFFE          # the wrap from 2^32-1 to 0 is just the next frame (docs/wire/srf1.md)
 DROPPED_FRAME = 2                   # its middle datagram is never sent
-CRC_FRAME = 4                       # one datagram's payload flipped after its CRC was computed
 UNLOCKED_FRAME = 3                  # flags bit 0 clear: the radar's clock not PTP-locked
+V1_FRAME = 4                        # sent as SRF1 version 1 ('version 1 stays readable')
+CRC_FRAME = 5                       # one datagram's payload flipped after its CRC was computed
+REVERSED_FRAME = 6                  # datagrams sent last first: 'reordering is harmless'
+OTHER_RADAR_ID = 8                  # a whole frame from another radar, between frames 3 and 4
+OTHER_RADAR_COUNTER = 500
 N_IMU_BEFORE_TRIGGER = 20
 N_IMU_AFTER_TRIGGER = 130
 IMU_TICKS_PER_SAMPLE = int(round(10_000 / IMU_RATE_HZ))
@@ -323,7 +329,12 @@ def _send(session: Session, udp_port: int, master_fd: int) -> None:
             iq = np.roll(iq0, f, axis=2) if f else iq0  # each frame its own bytes
             payload = iq.tobytes()
             datagrams = srf1_datagrams(FIRST_COUNTER + f, first_frame_time_ns + int(f * FRAME_INTERVAL_S * 1e9),
-                                       payload, locked=f != UNLOCKED_FRAME)
+                                       payload, locked=f != UNLOCKED_FRAME, version=1 if f == V1_FRAME else 2)
+            if f == V1_FRAME:
+                datagrams = srf1_datagrams(OTHER_RADAR_COUNTER, first_frame_time_ns, payload,
+                                           radar_id=OTHER_RADAR_ID) + datagrams
+            if f == REVERSED_FRAME:
+                datagrams.reverse()
             if f == DROPPED_FRAME:
                 del datagrams[1]
             if f == CRC_FRAME:
@@ -451,6 +462,8 @@ def test_losses_are_reported_and_the_late_duplicate_is_not_recorded_twice(record
     assert text.count("frames_incomplete +1") == 2, radar_messages
     assert text.count("bytes_lost +1440") == 2, radar_messages
     assert "crc_errors +1" in text and "late_datagrams +3" in text, radar_messages
+    assert "wrong_radar +3" in text, radar_messages  # another radar id: 'counted and ignored'
+    assert OTHER_RADAR_COUNTER not in counters.tolist()
 
 
 def _bus_delays_ms(session):
@@ -605,6 +618,7 @@ def test_health_on_the_health_endpoint(session):
     assert delay["median_ms"] < -36_000  # UTC against TAI
     # IMU samples per second over 2 s reports add up to the samples recorded by then
     assert abs(sum(h["imu_hz"] for h in healths) * 2.0 - len(_good_imu(session)) + N_IMU_BEFORE_TRIGGER) < 20
+    assert last["frames_per_s"][RADAR_NAME] >= 0.0
 
 
 def test_radar_frames_on_the_bus(session):
@@ -646,3 +660,29 @@ def test_imu_batches_and_trigger_on_the_bus(session, recording):
     triggers = _messages(session, "trigger")
     assert [h["source"] for h, _ in triggers] == ["imu_syncin"]
     assert triggers[0][0]["sensor_time_ns"] == int(recording["trigger"]["time_ns"][0])
+
+
+@pytest.mark.xfail(reason=(
+    "docs/wire/xbus.md: the drift 'is estimated by a line through (IMU time, host receive time) and reported in ppm "
+    "(health, the recording's clock_drift_ppm)'; the page does not say over which span or when the estimate is "
+    "updated. Our IMU's ticks follow the host clock (-20 ppm), the line through the recorded samples of a 1.3 s run "
+    "lies within +-6,000 ppm, yet sarbot's recorded value was -4,700 to -35,800 ppm in 5 of 6 runs (frozen from "
+    "the sixth 50 ms batch on)"))
+def test_the_recorded_imu_clock_drift_is_the_line_through_the_samples(recording):
+    imu = recording["imu"]
+    sample_s = (imu["time_ns"][:] - imu["time_ns"][0]) * 1e-9  # IMU clock, tied to PTP by the trigger
+    host_s = (imu["host_time_ns"][:] - imu["host_time_ns"][0]) * 1e-9
+    (slope, _), cov = np.polyfit(sample_s, host_s, 1, cov=True)
+    line_ppm = (slope - 1.0) * 1e6
+    tolerance_ppm = 3000 + 5 * np.sqrt(cov[0, 0]) * 1e6  # receive jitter on a loaded machine
+    assert abs(imu.attrs["clock_drift_ppm"] - line_ppm) < tolerance_ppm, (imu.attrs["clock_drift_ppm"], line_ppm)
+
+
+def test_the_log_topic_carries_every_event_as_written_to_events(session, recording):
+    """docs/bus.md: `log` on --health-endpoint is 'every event as it was written to /events'."""
+    logged = sorted((h["source"], h["level"], h["message"]) for h, _ in _messages(session, "log"))
+    events = recording["events"]
+    written = sorted((_text(s), _text(l), _text(m))
+                     for s, l, m in zip(events["source"][:], events["level"][:], events["message"][:]))
+    assert logged == written
+    assert len(written) >= 6
