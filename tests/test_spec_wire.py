@@ -181,14 +181,31 @@ def _udp_port_bound(port):
 
 
 # --- what we send ---------------------------------------------------------------------------------------
-N_FRAMES = 7
 FIRST_COUNTER = 0xFFFFFFFE          # the wrap from 2^32-1 to 0 is just the next frame (docs/wire/srf1.md)
-DROPPED_FRAME = 2                   # its middle datagram is never sent
-UNLOCKED_FRAME = 3                  # flags bit 0 clear: the radar's clock not PTP-locked
-V1_FRAME = 4                        # sent as SRF1 version 1 ('version 1 stays readable')
-CRC_FRAME = 5                       # one datagram's payload flipped after its CRC was computed
-REVERSED_FRAME = 6                  # datagrams sent last first: 'reordering is harmless'
-OTHER_RADAR_ID = 8                  # a whole frame from another radar, between frames 3 and 4
+# (counter - FIRST_COUNTER, 50 ms slot of its frame time, what happens to it); one frame per slot
+FRAME_PLAN = [
+    (0, 0, "ok"),
+    (1, 1, "ok"),
+    (2, 2, "lost"),           # never sent: 'smaller gaps are recorded as invalid placeholder frames'
+    (3, 3, "ok"),
+    (4, 4, "dropped"),        # its middle datagram is never sent
+    (5, 5, "unlocked"),       # flags bit 0 clear: the radar's clock not PTP-locked
+    (6, 6, "v1"),             # SRF1 version 1 ('stays readable'); before it, a whole frame from another radar id
+    (7, 7, "crc"),            # one datagram's payload flipped after its CRC was computed
+    (8, 8, "reversed"),       # datagrams sent last first: 'reordering is harmless'
+    (9, 9, "lost"),           # never sent, two frames after an incomplete one
+    (10, 10, "ok"),
+    (11, 11, "ok"),
+    (12, 12, "ok"),           # then the late duplicate of frame 0
+    (13, 13, "lost_before_resync"),  # never sent; one frame follows it before the counter jumps
+    (14, 14, "ok"),
+    (114, 15, "resync"),      # a jump of 100 > resync_jump (16): 'a resynchronisation ... not placeholder frames'
+    (115, 16, "dropped"),     # the radar's last lossy frame
+    (116, 17, "ok"),
+]
+LOST_KINDS = ("lost", "lost_before_resync")
+COMPLETE_KINDS = ("ok", "unlocked", "v1", "reversed", "resync")
+OTHER_RADAR_ID = 8
 OTHER_RADAR_COUNTER = 500
 N_IMU_BEFORE_TRIGGER = 20
 N_IMU_AFTER_TRIGGER = 130
@@ -309,7 +326,7 @@ def _send(session: Session, udp_port: int, master_fd: int) -> None:
     ticks0 = 123_456_000
     n_imu = N_IMU_BEFORE_TRIGGER + N_IMU_AFTER_TRIGGER
     start = time.monotonic()
-    next_frame = 0
+    plan = iter(FRAME_PLAN)
     for index in range(n_imu):
         while time.monotonic() < start + index / IMU_RATE_HZ:
             time.sleep(0.0005)
@@ -324,36 +341,44 @@ def _send(session: Session, udp_port: int, master_fd: int) -> None:
         session.imu.append(sample)
         # radar frames start with the trigger sample, one every 5 IMU samples (50 ms)
         k = index - N_IMU_BEFORE_TRIGGER
-        if k >= 0 and k % 5 == 0 and next_frame < N_FRAMES:
-            f = next_frame
-            iq = np.roll(iq0, f, axis=2) if f else iq0  # each frame its own bytes
-            payload = iq.tobytes()
-            datagrams = srf1_datagrams(FIRST_COUNTER + f, first_frame_time_ns + int(f * FRAME_INTERVAL_S * 1e9),
-                                       payload, locked=f != UNLOCKED_FRAME, version=1 if f == V1_FRAME else 2)
-            if f == V1_FRAME:
-                datagrams = srf1_datagrams(OTHER_RADAR_COUNTER, first_frame_time_ns, payload,
-                                           radar_id=OTHER_RADAR_ID) + datagrams
-            if f == REVERSED_FRAME:
-                datagrams.reverse()
-            if f == DROPPED_FRAME:
-                del datagrams[1]
-            if f == CRC_FRAME:
-                bad = bytearray(datagrams[1])
-                bad[40] ^= 0x01
-                datagrams[1] = bytes(bad)
-            before = time.time_ns()
-            for datagram in datagrams:
-                sock.send(datagram)
-            after = time.time_ns()
-            session.frames.append(dict(counter=(FIRST_COUNTER + f) & 0xFFFFFFFF,
-                                       time_ns=first_frame_time_ns + int(f * FRAME_INTERVAL_S * 1e9),
-                                       iq=iq, locked=f != UNLOCKED_FRAME, window=(before, after),
-                                       complete=f not in (DROPPED_FRAME, CRC_FRAME)))
-            next_frame += 1
-    # a late duplicate of frame 0: counted and dropped, never a second frame 0 (docs/wire/srf1.md)
-    for datagram in srf1_datagrams(FIRST_COUNTER, first_frame_time_ns, iq0.tobytes()):
-        sock.send(datagram)
+        if k >= 0 and k % 5 == 0:
+            step = next(plan, None)
+            if step is not None:
+                session.frames.append(_send_frame(sock, step, first_frame_time_ns, iq0))
+                if step[2] == "ok" and step[0] == 12:
+                    # a late duplicate of frame 0: counted and dropped, never a second frame 0
+                    for datagram in srf1_datagrams(FIRST_COUNTER, first_frame_time_ns, iq0.tobytes()):
+                        sock.send(datagram)
     sock.close()
+
+
+def _send_frame(sock, step, first_frame_time_ns, iq0):
+    offset, slot, kind = step
+    counter = (FIRST_COUNTER + offset) & 0xFFFFFFFF
+    time_ns = first_frame_time_ns + int(slot * FRAME_INTERVAL_S * 1e9)
+    iq = np.roll(iq0, slot, axis=2)  # each frame its own bytes
+    frame = dict(counter=counter, time_ns=time_ns, iq=iq, kind=kind, locked=kind != "unlocked",
+                 complete=kind in COMPLETE_KINDS, window=None)
+    if kind in LOST_KINDS:
+        frame["iq"] = np.zeros_like(iq)
+        return frame
+    datagrams = srf1_datagrams(counter, time_ns, iq.tobytes(), locked=frame["locked"],
+                               version=1 if kind == "v1" else 2)
+    if kind == "v1":
+        datagrams = srf1_datagrams(OTHER_RADAR_COUNTER, time_ns, iq.tobytes(), radar_id=OTHER_RADAR_ID) + datagrams
+    if kind == "reversed":
+        datagrams.reverse()
+    if kind == "dropped":
+        del datagrams[1]
+    if kind == "crc":
+        bad = bytearray(datagrams[1])
+        bad[40] ^= 0x01
+        datagrams[1] = bytes(bad)
+    before = time.time_ns()
+    for datagram in datagrams:
+        sock.send(datagram)
+    frame["window"] = (before, time.time_ns())
+    return frame
 
 
 @pytest.fixture(scope="module")
@@ -384,21 +409,32 @@ def _chunk_mask(dropped_chunk: int) -> np.ndarray:
 
 
 # --- 1. a radar of our own ------------------------------------------------------------------------------
+def _sent(session):
+    return [f for f in session.frames if f["window"] is not None]
+
+
+def _row_of(recording):
+    return {int(c): i for i, c in enumerate(_radar_group(recording)["frame_counter"][:])}
+
+
 def test_srf1_frames_are_recorded_as_sent(session, recording):
-    """Every counter once, in order (across the 2^32 wrap); frame times, ADC values, PTP lock as sent."""
+    """Every frame sent recorded once, in order (across the 2^32 wrap); frame times, ADC values, PTP lock."""
     group = _radar_group(recording)
-    sent = session.frames
-    assert [int(c) for c in group["frame_counter"][:]] == [f["counter"] for f in sent]
-    assert group["frame_counter"].dtype == np.uint32
-    assert group["frame_time_ns"].dtype == np.int64
-    np.testing.assert_array_equal(group["frame_time_ns"][:], [f["time_ns"] for f in sent])
-    adc = group["adc"][:]
+    counters = [int(c) for c in group["frame_counter"][:]]
+    assert len(counters) == len(set(counters))
+    row = _row_of(recording)
+    sent = _sent(session)
+    rows = [row[f["counter"]] for f in sent]
+    assert rows == sorted(rows)
+    assert group["frame_counter"].dtype == np.uint32 and group["frame_time_ns"].dtype == np.int64
+    times, locked, adc = group["frame_time_ns"][:], group["ptp_locked"][:], group["adc"][:]
     assert adc.dtype == np.int16
-    assert adc.shape == (N_FRAMES, CHIRPS_PER_FRAME, N_RX, SAMPLES_PER_CHIRP, 2)
-    for index, frame in enumerate(sent):
+    assert adc.shape[1:] == (CHIRPS_PER_FRAME, N_RX, SAMPLES_PER_CHIRP, 2)
+    for frame, index in zip(sent, rows):
+        assert times[index] == frame["time_ns"], frame["kind"]
+        assert locked[index] == (1 if frame["locked"] else 0), frame["kind"]
         if frame["complete"]:
-            np.testing.assert_array_equal(adc[index], frame["iq"], err_msg=f"frame {index}")
-    np.testing.assert_array_equal(group["ptp_locked"][:], [1 if f["locked"] else 0 for f in sent])
+            np.testing.assert_array_equal(adc[index], frame["iq"], err_msg=frame["kind"])
     assert group.attrs["wire_format"] == "SRF1"
     assert group.attrs["receive_stamp"] == "software"  # loopback has no PTP hardware clock
 
@@ -407,24 +443,79 @@ def test_a_lost_or_corrupt_datagram_makes_its_frame_invalid_and_zero_filled(sess
     """docs/wire/srf1.md: 'A frame touched by loss is zero-filled and passed on marked invalid'; a v2
     datagram whose CRC fails is dropped, 'so a flipped bit makes its frame invalid rather than wrong'."""
     group = _radar_group(recording)
-    expected_valid = [1 if f["complete"] else 0 for f in session.frames]
-    np.testing.assert_array_equal(group["valid"][:], expected_valid)
     assert group["valid"].dtype == np.uint8
-    adc = group["adc"][:]
+    valid, adc, row = group["valid"][:], group["adc"][:], _row_of(recording)
+    assert [int(valid[row[f["counter"]]]) for f in _sent(session)] == [int(f["complete"]) for f in _sent(session)]
     mask = _chunk_mask(1)
-    for index in (DROPPED_FRAME, CRC_FRAME):
-        sent = session.frames[index]["iq"]
-        assert np.count_nonzero(adc[index][mask]) == 0, f"frame {index}: lost bytes not zero-filled"
-        np.testing.assert_array_equal(adc[index][~mask], sent[~mask], err_msg=f"frame {index}")
+    touched = [f for f in _sent(session) if not f["complete"]]
+    assert len(touched) == 3
+    for frame in touched:
+        got = adc[row[frame["counter"]]]
+        assert np.count_nonzero(got[mask]) == 0, f"{frame['kind']}: lost bytes not zero-filled"
+        np.testing.assert_array_equal(got[~mask], frame["iq"][~mask], err_msg=frame["kind"])
+
+
+def _frame(session, kind):
+    return [f for f in session.frames if f["kind"] == kind][0]
+
+
+def test_a_lost_frame_is_an_invalid_placeholder_and_a_big_jump_a_resync(session, recording):
+    """docs/wire/srf1.md: 'smaller gaps are recorded as invalid placeholder frames where the loss happened';
+    a jump by more than 16 'is a resynchronisation ..., not a run of placeholder frames'."""
+    group = _radar_group(recording)
+    row = _row_of(recording)
+    lost = _frame(session, "lost")
+    assert row[lost["counter"]] == row[(lost["counter"] - 1) & 0xFFFFFFFF] + 1
+    assert group["valid"][row[lost["counter"]]] == 0
+    assert np.count_nonzero(group["adc"][row[lost["counter"]]]) == 0
+    resync = _frame(session, "resync")
+    assert row[resync["counter"]] == row[(FIRST_COUNTER + 14) & 0xFFFFFFFF] + 1  # nothing in between
+    lost_rows = [row[f["counter"]] for f in session.frames if f["kind"] == "lost"]
+    assert len(lost_rows) == 2  # one after complete frames, one two frames after an incomplete one
+    assert all(group["valid"][i] == 0 and not np.any(group["adc"][i]) for i in lost_rows)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "docs/wire/srf1.md: 'smaller gaps are recorded as invalid placeholder frames where the loss happened' -- a "
+    "frame lost when only one more frame comes before the counter jumps (a resync) is not recorded at all: "
+    "no placeholder, and in some runs not counted either (no frames_skipped event)"))
+def test_a_frame_lost_just_before_a_resync_is_a_placeholder_too(session, recording):
+    row = _row_of(recording)
+    lost = _frame(session, "lost_before_resync")
+    assert row[lost["counter"]] == row[(lost["counter"] - 1) & 0xFFFFFFFF] + 1
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "docs/formats/recording.md: frame_time_ns is the 'start of the frame's first chirp', host_time_ns the 'kernel "
+    "receive time of the frame's last datagram'; a placeholder for a lost frame is recorded with both 0 (and its "
+    "/events row at time 0); no page says so, nor what time a placeholder has"))
+def test_a_placeholder_frame_has_its_slots_frame_time(session, recording):
+    group = _radar_group(recording)
+    lost = _frame(session, "lost")
+    index = _row_of(recording)[lost["counter"]]
+    assert int(group["frame_time_ns"][index]) == lost["time_ns"]
+    assert int(group["host_time_ns"][index]) > 0
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "docs/formats/recording.md: ptp_locked is '1 when the frame's clock said it was PTP-locked' and /events says "
+    "'when the lock is lost and regained'; a placeholder for a lost frame (its clock said nothing) is recorded "
+    "with ptp_locked 0, counted in health's unlocked_frames, and brings a 'clock not PTP-locked' / 'clock "
+    "PTP-locked again' pair of events although the radar's clock stayed locked"))
+def test_a_lost_frame_does_not_read_as_an_unlocked_clock(session, recording):
+    messages = [m for s, m in _event_rows(recording) if s == "radar." + RADAR_NAME]
+    assert sum("not PTP-locked" in m for m in messages) == 1, messages  # the one frame sent unlocked
 
 
 def test_srf1_host_times_are_the_receive_times_of_the_last_datagram(session, recording):
     """docs/formats/recording.md: host_time_ns is the kernel receive time of the frame's last datagram."""
     host = _radar_group(recording)["host_time_ns"][:]
-    for index, frame in enumerate(session.frames):
+    row = _row_of(recording)
+    for frame in _sent(session):
         if frame["complete"]:
             before, after = frame["window"]
-            assert before <= host[index] <= after + 2_000_000, (index, host[index] - before)
+            got = host[row[frame["counter"]]]
+            assert before <= got <= after + 2_000_000, (frame["kind"], got - before)
 
 
 def test_the_recorded_point_target_is_at_its_range(recording):
@@ -443,6 +534,17 @@ def test_the_recorded_point_target_is_at_its_range(recording):
     np.testing.assert_array_equal(group.attrs["tdm_tx_order"], np.arange(CHIRPS_PER_FRAME) % N_TX)
 
 
+def _event_counts(messages):
+    """Sum 'name +N' parts of the drivers' event messages."""
+    totals = {}
+    for message in messages:
+        for part in message.split(","):
+            words = part.split()
+            if len(words) == 2 and words[1].startswith("+") and words[1][1:].isdigit():
+                totals[words[0]] = totals.get(words[0], 0) + int(words[1][1:])
+    return totals
+
+
 def _text(value):
     return value.decode() if isinstance(value, bytes) else value
 
@@ -455,28 +557,38 @@ def _event_rows(recording):
 def test_losses_are_reported_and_the_late_duplicate_is_not_recorded_twice(recording):
     """docs/wire/srf1.md: counted and reported as events -- a lost datagram (bytes lost), a CRC error, the
     three late datagrams of frame 0 sent again; and no frame counter is ever passed on twice."""
-    counters = _radar_group(recording)["frame_counter"][:]
-    assert len(counters) == len(set(counters.tolist())) == N_FRAMES
+    group = _radar_group(recording)
+    counters = group["frame_counter"][:]
+    assert len(counters) == len(set(counters.tolist()))
     radar_messages = [m for s, m in _event_rows(recording) if s == "radar." + RADAR_NAME]
-    text = " ".join(radar_messages)
-    assert text.count("frames_incomplete +1") == 2, radar_messages
-    assert text.count("bytes_lost +1440") == 2, radar_messages
-    assert "crc_errors +1" in text and "late_datagrams +3" in text, radar_messages
-    assert "wrong_radar +3" in text, radar_messages  # another radar id: 'counted and ignored'
+    totals = _event_counts(radar_messages)
+    placeholders = sum(1 for i in range(len(counters))
+                       if group["valid"][i] == 0 and not np.any(group["adc"][i]))
+    assert placeholders >= 1
+    assert totals["frames_incomplete"] == 3, radar_messages
+    assert totals.get("frames_skipped", 0) == placeholders, radar_messages
+    assert totals["bytes_lost"] == 3 * SRF1_MAX_PAYLOAD + placeholders * FRAME_BYTES, radar_messages
+    assert totals["crc_errors"] == 1 and totals["late_datagrams"] == 3, radar_messages
+    assert totals["wrong_radar"] == 3, radar_messages  # another radar id: 'counted and ignored'
+    assert totals["reordered"] >= 1 and totals["resyncs"] == 1, radar_messages
     assert OTHER_RADAR_COUNTER not in counters.tolist()
 
 
 def _bus_delays_ms(session):
     """Per frame sent: when our subscriber got it on the bus, ms after its last datagram left us."""
     received = {h["frame_counter"]: r for t, h, _, r in session.bus if t == f"radar/{RADAR_NAME}"}
-    return [(received[f["counter"]] - f["window"][1]) / 1e6 for f in session.frames]
+    return [(received[f["counter"]] - f["window"][1]) / 1e6 if f["window"] else None for f in session.frames]
+
+
+def _last_lossy(session):
+    return max(i for i, f in enumerate(session.frames) if not f["complete"])
 
 
 def test_frames_reach_the_bus_promptly_while_the_radar_sends(session):
     """A complete frame, and an incomplete one once the next frames arrive, reach the bus within 0.5 s
     (health's latency_ms measures the same path, docs/bus.md)."""
     delays_ms = _bus_delays_ms(session)
-    assert all(0 < d < 500 for d in delays_ms[:CRC_FRAME]), delays_ms
+    assert all(0 < d < 500 for d in delays_ms[:_last_lossy(session)] if d is not None), delays_ms
 
 
 @pytest.mark.xfail(strict=True, reason=(
@@ -485,7 +597,7 @@ def test_frames_reach_the_bus_promptly_while_the_radar_sends(session):
     "until the run ends (seconds)"))
 def test_frames_behind_the_last_incomplete_one_are_not_held_until_the_end(session):
     delays_ms = _bus_delays_ms(session)
-    assert all(d < 1000 for d in delays_ms[CRC_FRAME:]), delays_ms
+    assert all(d < 1000 for d in delays_ms[_last_lossy(session):]), delays_ms
 
 
 # --- 2. an IMU of our own -------------------------------------------------------------------------------
@@ -603,7 +715,7 @@ def test_health_on_the_health_endpoint(session):
     frames_before = [h for t, h, _, received in session.bus
                      if t == f"radar/{RADAR_NAME}" and received < last_received_ns]
     assert last["invalid_frames"][RADAR_NAME] == sum(not h["valid"] for h in frames_before) >= 1
-    assert last["unlocked_frames"][RADAR_NAME] == sum(not h["ptp_locked"] for h in frames_before) == 1
+    assert last["unlocked_frames"][RADAR_NAME] == sum(not h["ptp_locked"] for h in frames_before) >= 1
     assert last["receive_stamp"][RADAR_NAME] == "software"
     assert last["nic_unstamped"].get(RADAR_NAME, 0) == 0
     assert last["bus_lost"] == 0 and last["restarts"] == 0
@@ -613,7 +725,7 @@ def test_health_on_the_health_endpoint(session):
     # software stamps: host receive time (UTC) minus frame end (TAI) includes -37 s (docs/architecture.md)
     # 'host receive time minus frame end': our own send times against our frame times
     frame_span_ns = int(CHIRPS_PER_FRAME * CHIRP_INTERVAL_S * 1e9)
-    ours_ms = [(f["window"][1] - f["time_ns"] - frame_span_ns) / 1e6 for f in session.frames[:delay["frames"]]]
+    ours_ms = [(f["window"][1] - f["time_ns"] - frame_span_ns) / 1e6 for f in session.frames if f["complete"]]
     assert abs(delay["median_ms"] - np.median(ours_ms)) < 5.0, (delay, ours_ms)
     assert delay["median_ms"] < -36_000  # UTC against TAI
     # IMU samples per second over 2 s reports add up to the samples recorded by then
@@ -621,21 +733,27 @@ def test_health_on_the_health_endpoint(session):
     assert last["frames_per_s"][RADAR_NAME] >= 0.0
 
 
-def test_radar_frames_on_the_bus(session):
-    """`radar/NAME` (docs/bus.md): header fields and the int16 [chirps, rx, samples, 2] array, as sent."""
+def test_radar_frames_on_the_bus(session, recording):
+    """`radar/NAME` (docs/bus.md): header fields and the int16 [chirps, rx, samples, 2] array, as recorded."""
     messages = _messages(session, f"radar/{RADAR_NAME}")
-    assert [h["frame_counter"] for h, _ in messages] == [f["counter"] for f in session.frames]
+    group = _radar_group(recording)
+    assert [h["frame_counter"] for h, _ in messages] == group["frame_counter"][:].tolist()
     assert [h["seq"] for h, _ in messages] == list(range(len(messages)))
-    for (header, arrays), frame in zip(messages, session.frames):
+    by_counter = {f["counter"]: f for f in session.frames}
+    for index, (header, arrays) in enumerate(messages):
         _assert_common_header(header)
-        assert header["frame_time_ns"] == header["sensor_time_ns"] == frame["time_ns"]
-        assert header["valid"] is frame["complete"]
-        assert header["bytes_missing"] == (0 if frame["complete"] else SRF1_MAX_PAYLOAD)
-        assert header["ptp_locked"] is frame["locked"]
-        assert isinstance(header["receive_ns"], int) and header["nic_receive_ns"] == 0
+        frame = by_counter[header["frame_counter"]]
+        assert header["frame_time_ns"] == header["sensor_time_ns"] == int(group["frame_time_ns"][index])
+        assert header["valid"] is frame["complete"] is bool(group["valid"][index])
+        assert header["ptp_locked"] is bool(group["ptp_locked"][index])
+        assert header["receive_ns"] == int(group["host_time_ns"][index]) and header["nic_receive_ns"] == 0
         assert header["arrays"] == [["<i2", [CHIRPS_PER_FRAME, N_RX, SAMPLES_PER_CHIRP, 2]]]
+        expected_missing = 0 if frame["complete"] else FRAME_BYTES if frame["kind"] in LOST_KINDS else SRF1_MAX_PAYLOAD
+        assert header["bytes_missing"] == expected_missing
         (iq,) = arrays
+        np.testing.assert_array_equal(iq, group["adc"][index])
         if frame["complete"]:
+            assert header["frame_time_ns"] == frame["time_ns"] and header["ptp_locked"] is frame["locked"]
             np.testing.assert_array_equal(iq, frame["iq"])
 
 
