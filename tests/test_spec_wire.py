@@ -323,7 +323,7 @@ def _send(session: Session, udp_port: int, master_fd: int) -> None:
     rng = np.random.default_rng(5)
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.connect(("127.0.0.1", udp_port))
-    ticks0 = 123_456_000
+    ticks0 = 2**32 - 30 * IMU_TICKS_PER_SAMPLE  # the 32-bit sample time wraps 10 samples after the trigger
     n_imu = N_IMU_BEFORE_TRIGGER + N_IMU_AFTER_TRIGGER
     start = time.monotonic()
     plan = iter(FRAME_PLAN)
@@ -331,7 +331,8 @@ def _send(session: Session, udp_port: int, master_fd: int) -> None:
         while time.monotonic() < start + index / IMU_RATE_HZ:
             time.sleep(0.0005)
         trigger = index == N_IMU_BEFORE_TRIGGER
-        sample = dict(counter=(65530 + index) & 0xFFFF, ticks=ticks0 + index * IMU_TICKS_PER_SAMPLE,
+        # the u16 packet counter wraps 20 samples after the trigger
+        sample = dict(counter=(65496 + index) & 0xFFFF, ticks=ticks0 + index * IMU_TICKS_PER_SAMPLE,
                       accel=tuple(np.float32(v) for v in rng.normal([0.1, -0.2, 9.81], 0.05)),
                       gyro=tuple(np.float32(v) for v in rng.normal(0.0, 0.01, 3)),
                       status=SYNCIN_BIT if trigger else 0, corrupt=index == CORRUPT_IMU_INDEX)
