@@ -7,6 +7,13 @@ pty, docs/wire/xbus.md) and a bus client of its own (pyzmq + msgpack, docs/bus.m
 recording it writes is read back with h5py per docs/formats/recording.md and compared with what was sent,
 number for number. The point target's samples follow docs/signal-model.md.
 
+The radar sends 18 frame slots of a point target: complete frames across the 2^32 counter wrap, a lost
+datagram, an unlocked clock, SRF1 version 1 after a frame of another radar id, a CRC failure, reordered
+datagrams, two lost frames, a late duplicate, a counter resync. The IMU sends 150 messages at 100 Hz with
+the SyncIn mark, a bad checksum and its u16 counter and 32-bit sample time wrapping; a second run loses the
+SyncIn packet. The bus is read from outside: `health` and `log` on --health-endpoint, then `radar/NAME`,
+`imu`, `trigger` and `event` on the drivers' endpoints that health names.
+
 Where the docs are silent or disagree with what sarbot does, the test encodes what the docs say and
 xfails with a reason that names the gap.
 """
