@@ -64,8 +64,18 @@ def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pu
         if text := changes.since_last(counted()):
             pub.send(Event(now_ns, f"radar.{radar}", "warning", text))
 
+    expire = getattr(stream, "expire", None)  # optional in a RadarStream
+
+    def publish(frames) -> None:
+        for frame in frames:
+            if hardware:
+                frame.nic_receive_ns = nic_of.get(frame.receive_ns, 0)
+            pub.send(RadarFrameMessage(radar, frame))
+
     while not stop.is_set():
         got = receiver.receive()
+        if got is None and expire is not None:  # the radar quiet: what it left incomplete is passed on
+            publish(expire(time.time_ns()))
         if got is not None:
             data, t_ns, drops = got
             if drops > kernel_drops:
@@ -83,12 +93,11 @@ def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pu
                 if not frame.valid:
                     report(t_ns)
         if time.monotonic() - last_report > report_every_s:  # also when only rejected datagrams come
+            if expire is not None:
+                publish(expire(time.time_ns()))
             report(time.time_ns())
             last_report = time.monotonic()
-    for frame in stream.flush():
-        if hardware:
-            frame.nic_receive_ns = nic_of.get(frame.receive_ns, 0)
-        pub.send(RadarFrameMessage(radar, frame))
+    publish(stream.flush())
     report(time.time_ns())
     log.debug("radar %s: stream ended; %s", radar, vars(stream.counters))
     return stream
@@ -197,9 +206,10 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
                     warn("no radar to take the trigger's time from: IMU samples are timed on the host clock (the first "
                          "sample's receive time, CLOCK_REALTIME + TAI-UTC), good to a few ms, not on PTP time")
                 if radar is None:
-                    source = "host_clock" if driver.host_clock else (
+                    # the trigger's own source; ``source`` stays the driver's role, which its events carry
+                    trigger_source = "host_clock" if driver.host_clock else (
                         "imu_receive_time" if driver.trigger_estimated else "imu_syncin")
-                    pub.send(Trigger(clock.trigger_time_ns, source))
+                    pub.send(Trigger(clock.trigger_time_ns, trigger_source))
                 trigger_sent = True
                 trigger_ticks = clock.trigger_ticks
                 if clock_reference is not None:

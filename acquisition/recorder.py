@@ -201,7 +201,10 @@ class Recorder:
         self.writer.append_frames(m.radar, f.iq[None], [f.frame_time_ns], [f.frame_counter], [f.receive_ns],
                                   [1 if f.valid else 0])
         self.frames[m.radar] += 1
-        if f.receive_ns > 0:  # a frame of which no datagram came (lost whole) has no receive time
+        # A frame of which no datagram came (lost whole: a placeholder) has no receive time of its own; the
+        # one it carries is interpolated between its neighbours', for the file's order, not a measurement.
+        lost_whole = f.bytes_missing >= f.iq.nbytes
+        if f.receive_ns > 0 and not lost_whole:
             self.latencies_ns.append(time.time_ns() - f.receive_ns)
         self.invalid_frames[m.radar] += 0 if f.valid else 1
         # A frame from an unlocked clock is kept, and marked: never mixed in silently.
@@ -213,6 +216,8 @@ class Recorder:
                               "clock PTP-locked again" if f.ptp_locked else
                               f"clock not PTP-locked: frames from {f.frame_counter} marked in /radar/{m.radar}/ptp_locked")
         self.ptp_locked[m.radar] = f.ptp_locked
+        if lost_whole:
+            return
         receive_ns = f.receive_ns
         if m.radar in self.nic_unstamped:  # hardware stamps: the delay on the card's clock, never mixed with the host's
             receive_ns = f.nic_receive_ns

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import time
 
 import numpy as np
@@ -42,6 +43,11 @@ class ImuSample:
     counter: int  # NO_COUNTER when the packet carried none
     host_time_ns: int
     sync_in: bool
+
+
+#: The IMU clock's drift is said (health, the recording) once its fit's standard error is below this: a crystal
+#: drifts tens of ppm, a replay at another speed (the demo's 0.5x) 500,000.
+MAX_DRIFT_SIGMA_PPM = 20.0
 
 
 class ImuClock:
@@ -91,10 +97,13 @@ class ImuClock:
         return int(round(imu_s * 1e9 / TICK_NS))
 
     def drift_ppm(self) -> float | None:
-        """(host clock rate / IMU clock rate - 1) in ppm, from the receive times seen so far.
+        """(host clock rate / IMU clock rate - 1) in ppm, from the receive times seen so far; None until the
+        fit's standard error is below ``MAX_DRIFT_SIGMA_PPM`` (or 1 % of the value).
 
-        Refitted after every 400 new samples (about a second): a fit over up to 20000 points on every
-        serial read would cost the driver more than everything else it does."""
+        Over a short span the receive jitter dominates: 1 ms of it over half a second is thousands of ppm,
+        which a crystal never drifts, so such a value is not said at all. Refitted after every 400 new samples
+        (about a second at 400 Hz): a fit over up to 20000 points on every serial read would cost the driver
+        more than everything else it does."""
         n = len(self._fit_imu)
         if n < 50:
             return None
@@ -108,8 +117,10 @@ class ImuClock:
         y = np.asarray(self._fit_host) - self._fit_host[0]
         if np.ptp(x) <= 0:
             return None
-        slope = np.polyfit(x, y, 1)[0]
-        return float((slope - 1.0) * 1e6)
+        (slope, _), cov = np.polyfit(x, y, 1, cov=True)
+        ppm, sigma_ppm = float((slope - 1.0) * 1e6), math.sqrt(max(cov[0, 0], 0.0)) * 1e6
+        # a clock at another rate (a replay) is plain long before its ppm are known to 20
+        return ppm if sigma_ppm <= max(MAX_DRIFT_SIGMA_PPM, 0.01 * abs(ppm)) else None
 
 
 class ImuDriver:

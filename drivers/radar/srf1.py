@@ -182,7 +182,11 @@ class FrameAssembler:
     """Reassemble one radar's frames from SRF1 datagrams.
 
     Frames are emitted in counter order: complete ones as soon as their last byte arrives; incomplete
-    ones when a frame ``window`` counters newer arrives (the rest is lost), zero-filled and invalid.
+    ones when a frame ``window`` counters newer arrives (the rest is lost), or when the radar has sent
+    nothing for ``quiet_s`` (``expire``), zero-filled and invalid. A frame of which nothing came is a
+    placeholder: zero, invalid, its frame and receive times interpolated between its neighbours' on the
+    counter grid (so frame times stay monotonic), and the PTP lock of the frame before it (its clock said
+    nothing).
 
     Parameters
     ----------
@@ -193,7 +197,7 @@ class FrameAssembler:
     """
 
     def __init__(self, frame_bytes: int, radar_id: int | None = None, window: int = 2, resync_jump: int = 16,
-                 late_horizon: int = 64):
+                 late_horizon: int = 64, quiet_s: float = 0.25):
         """A counter more than ``resync_jump`` ahead is a restart (or a corrupt counter): a resync, not that
         many placeholder frames. Up to ``resync_jump`` frames lost in a row are recorded as invalid
         placeholders, so the file shows the loss where it happened. A counter of a frame already emitted,
@@ -210,6 +214,12 @@ class FrameAssembler:
         self._next_emit: int | None = None
         self._newest_time_ns: int | None = None  # the newest frame time of any datagram taken
         self._chunk = 0  # the largest payload seen: the sender's chunk size
+        self.quiet_ns = int(quiet_s * 1e9)
+        self._newest_recv_ns = 0  # the latest receive time of any datagram taken
+        # The last frame passed on that a datagram came for: (counter, frame time, receive time, PTP lock),
+        # and the frame interval seen between neighbours: what a placeholder's times are made from.
+        self._last_real: tuple[int, int, int, bool] | None = None
+        self._interval_ns = 0
 
     def _unwrap(self, counter: int) -> int:
         """The wire's u32 counter as the nearest integer to the next frame due (so 0 follows 2^32 - 1)."""
@@ -272,8 +282,10 @@ class FrameAssembler:
             out += self._flush_all()
             self._next_emit = n = header.frame_counter
             self._newest_time_ns = None
+            self._last_real = None  # no placeholder is timed across a restart
         if self._newest_time_ns is None or header.frame_time_ns > self._newest_time_ns:
             self._newest_time_ns = header.frame_time_ns
+        self._newest_recv_ns = max(self._newest_recv_ns, recv_ns)
         part = self._partial.get(n)
         if part is None:
             part = self._partial[n] = _Partial(header, recv_ns)
@@ -335,7 +347,8 @@ class FrameAssembler:
         if part is None:
             c.frames_skipped += 1
             c.bytes_lost += self.frame_bytes
-            return Frame(k & 0xFFFFFFFF, 0, bytearray(self.frame_bytes), False, self.frame_bytes, False, 0)
+            time_ns, recv_ns, locked = self._placeholder_times(k)
+            return Frame(k & 0xFFFFFFFF, time_ns, bytearray(self.frame_bytes), False, self.frame_bytes, locked, recv_ns)
         missing = self.frame_bytes - part.received
         if missing:
             c.frames_incomplete += 1
@@ -343,13 +356,47 @@ class FrameAssembler:
         elif not part.contradicted:
             c.frames_complete += 1
         valid = missing == 0 and not part.contradicted
+        if self._last_real is not None and self._last_real[0] == k - 1:
+            self._interval_ns = part.header.frame_time_ns - self._last_real[1]
+        self._last_real = (k, part.header.frame_time_ns, part.last_recv, part.header.ptp_locked)
         return Frame(k & 0xFFFFFFFF, part.header.frame_time_ns, part.data, valid, missing, part.header.ptp_locked, part.last_recv)
 
+    def _placeholder_times(self, k: int) -> tuple[int, int, bool]:
+        """Frame time, receive time and PTP lock for counter ``k``, of which no datagram came: on the line
+        through the frames before and after it, or one frame interval from the nearest one (0, 0 with
+        neither)."""
+        before = self._last_real
+        later = [j for j in self._partial if j > k]
+        after = None if not later else (min(later), self._partial[min(later)].header.frame_time_ns,
+                                        self._partial[min(later)].last_recv)
+        locked = before[3] if before is not None else (after is not None and
+                                                       self._partial[after[0]].header.ptp_locked)
+        if before is not None and after is not None:
+            w = (k - before[0]) / (after[0] - before[0])
+            return (before[1] + round(w * (after[1] - before[1])), before[2] + round(w * (after[2] - before[2])),
+                    locked)
+        if self._interval_ns <= 0 or (before is None and after is None):
+            return 0, 0, locked
+        near, steps = (before, k - before[0]) if before is not None else (after, k - after[0])
+        return near[1] + steps * self._interval_ns, near[2] + steps * self._interval_ns, locked
+
     def _flush_all(self) -> list[Frame]:
+        """Everything pending, in counter order, with a placeholder for each counter between that never came."""
         out = []
-        for k in sorted(self._partial):
-            out.append(self._finish(k))
+        if self._partial:
+            first = min(self._partial) if self._next_emit is None else min(self._next_emit, min(self._partial))
+            for k in range(first, max(self._partial) + 1):
+                out.append(self._finish(k))
+            self._next_emit = k + 1
         return out
+
+    def expire(self, now_ns: int) -> list[Frame]:
+        """Pass on what is pending once the radar has sent nothing for ``quiet_s`` (host clock ``now_ns``,
+        the receive stamps' clock): frames it left incomplete cannot be completed any more, and complete
+        ones behind them would otherwise wait for its next datagram (the end of a run, seconds later)."""
+        if not self._partial or not self._newest_recv_ns or now_ns - self._newest_recv_ns < self.quiet_ns:
+            return []
+        return self._flush_all()
 
     def flush(self) -> list[Frame]:
         """Emit everything still pending (end of stream)."""
@@ -377,6 +424,9 @@ class Srf1Stream:
 
     def flush(self) -> list[RadarFrame]:
         return self._frames(self._asm.flush())
+
+    def expire(self, now_ns: int) -> list[RadarFrame]:
+        return self._frames(self._asm.expire(now_ns))
 
 
 def _open_stream(waveform: Waveform, settings, radar_id: int | None) -> Srf1Stream:

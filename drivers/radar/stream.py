@@ -41,6 +41,9 @@ class RadarStream(Protocol):
     order; ``flush`` returns what is still pending at the end of the stream (incomplete frames marked
     invalid). ``counters`` is a dataclass of integer counters; those named in ``TROUBLE_COUNTERS`` are
     reported as events.
+
+    A stream that holds frames back for datagrams still to come may also have ``expire(now_ns)``: called
+    while the socket is quiet, with the host clock, it returns what it will wait for no longer.
     """
 
     wire_format: str
