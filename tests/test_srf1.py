@@ -185,6 +185,46 @@ def test_overlapping_chunks_never_overwrite_and_a_contradiction_invalidates_the_
     assert len(out) == 1 and not out[0].valid and asm.counters.contradictions == 1
 
 
+def test_a_placeholder_is_timed_between_its_neighbours_and_keeps_their_lock():
+    """A lost frame's times come from the frames around it (frame times stay in order), its PTP lock from the
+    frame before; also for a loss right before a counter jump, which the resync once swallowed."""
+    iqs = frames(5)
+    dgs = datagrams(iqs)
+    asm = FrameAssembler(FRAME_BYTES)
+    out = []
+    for k in (0, 1, 3):  # 102 lost; only one frame (103) comes before the counter jumps
+        for d in dgs[k]:
+            out += asm.feed(d, recv_ns=5_000_000_000 + k * 52_000_000)
+    for d in encode_frame(7, 100 + 60, 1_000_000_000 + 60 * 52_000_000, iqs[4], version=1):
+        out += asm.feed(d, recv_ns=5_000_000_000 + 60 * 52_000_000)  # a jump of 57: a resync
+    out += asm.flush()
+    assert [f.frame_counter for f in out] == [100, 101, 102, 103, 160]
+    lost = out[2]
+    assert not lost.valid and lost.bytes_missing == FRAME_BYTES and lost.ptp_locked
+    assert lost.frame_time_ns == 1_000_000_000 + 2 * 52_000_000
+    assert lost.last_receive_ns == 5_000_000_000 + 2 * 52_000_000
+    assert asm.counters.frames_skipped == 1 and asm.counters.resyncs == 1
+
+
+def test_frames_behind_an_incomplete_one_go_once_the_radar_is_quiet():
+    """The radar's last frames: one incomplete, one complete behind it. Nothing newer will come to end the
+    wait, so once the socket has been quiet for quiet_s both are passed on, in order."""
+    iqs = frames(3)
+    dgs = datagrams(iqs)
+    asm = FrameAssembler(FRAME_BYTES, quiet_s=0.25)
+    out = []
+    for k, group in enumerate(dgs):
+        for d in (group[:-1] if k == 1 else group):  # frame 101 loses its last datagram
+            out += asm.feed(d, recv_ns=1_000_000_000 + k * 52_000_000)
+    assert [f.frame_counter for f in out] == [100]  # 102 is complete but waits behind 101
+    last_ns = 1_000_000_000 + 2 * 52_000_000
+    assert asm.expire(last_ns + 200_000_000) == []  # not quiet long enough
+    late = asm.expire(last_ns + 300_000_000)
+    assert [(f.frame_counter, f.valid) for f in late] == [(101, False), (102, True)]
+    np.testing.assert_array_equal(late[1].iq(SHAPE), iqs[2])
+    assert asm.expire(last_ns + 900_000_000) == [] and asm.flush() == []
+
+
 def test_a_counter_jump_is_a_resync_not_hundreds_of_placeholder_frames():
     """A forged or corrupt frame counter 900 ahead (one version-1 datagram): at most a handful of frames come
     out for it, not 900 zero-filled ones (650 MB of a reference radar's frames)."""
