@@ -17,6 +17,7 @@ from drivers.can_driver import CanConfig, CanDriver
 from drivers.imu import ImuDriver
 from drivers.radar.link import RadarLink
 from drivers.radar.stream import RadarStream, trouble
+from drivers.radar.timestamping import CardFrameTimes
 from drivers.radar.udp import UdpReceiver
 from imaging.core.errors import SarbotError
 from imaging.core.waveform import Waveform
@@ -48,7 +49,9 @@ def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pu
                       stop: threading.Event, report_every_s: float = 1.0) -> RadarStream:
     """Receive datagrams, reassemble frames with ``stream``, publish each frame; wire trouble and kernel
     drops are published as events. With hardware receive stamps each frame carries the card's stamp of its
-    last datagram (``nic_receive_ns``) beside the kernel's. Returns the stream."""
+    last datagram (``nic_receive_ns``) beside the kernel's, and a stream whose frames are timed by their
+    receipt (``times_by_receipt``: the DCA1000) takes its frame times from the card's stamps
+    (``timestamping.CardFrameTimes``), said once in /events. Returns the stream."""
     def counted() -> dict[str, int]:
         return {**trouble(stream.counters), "foreign_source": receiver.foreign_source}
 
@@ -57,6 +60,11 @@ def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pu
     kernel_drops = 0
     hardware = getattr(receiver, "hardware", False)
     nic_of: dict[int, int] = {}  # host stamp -> card stamp of the recent datagrams (hardware stamps only)
+    card_times = CardFrameTimes() if hardware and getattr(stream, "times_by_receipt", False) else None
+    if card_times is not None:
+        pub.send(Event(time.time_ns(), f"radar.{radar}", "info",
+                       f"frame times: the network card's stamp of each frame's first datagram ({stream.wire_format} "
+                       "frames carry no time of their own)"))
     if getattr(receiver, "rcvbuf_short", None):  # said once; health repeats it
         pub.send(Event(time.time_ns(), f"radar.{radar}", "warning", receiver.rcvbuf_short, condition="receive_buffer"))
 
@@ -69,7 +77,7 @@ def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pu
     def publish(frames) -> None:
         for frame in frames:
             if hardware:
-                frame.nic_receive_ns = nic_of.get(frame.receive_ns, 0)
+                _card_stamps(frame, nic_of, card_times)
             pub.send(RadarFrameMessage(radar, frame))
 
     while not stop.is_set():
@@ -86,9 +94,11 @@ def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pu
                 nic_of[t_ns] = receiver.last_nic_ns
                 if len(nic_of) > NIC_STAMPS_KEPT:
                     del nic_of[next(iter(nic_of))]
+                if card_times is not None:
+                    card_times.observe(t_ns, receiver.last_nic_ns)
             for frame in stream.feed(data, t_ns):
                 if hardware:
-                    frame.nic_receive_ns = nic_of.get(frame.receive_ns, 0)
+                    _card_stamps(frame, nic_of, card_times)
                 pub.send(RadarFrameMessage(radar, frame))
                 if not frame.valid:
                     report(t_ns)
@@ -101,6 +111,14 @@ def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pu
     report(time.time_ns())
     log.debug("radar %s: stream ended; %s", radar, vars(stream.counters))
     return stream
+
+
+def _card_stamps(frame, nic_of: dict[int, int], card_times: CardFrameTimes | None) -> None:
+    """Give a frame the card's stamps: of its last datagram beside the host's, and, for a stream timed by
+    receipt, its time (its first datagram's; the frame's time is that datagram's host stamp until now)."""
+    frame.nic_receive_ns = nic_of.get(frame.receive_ns, 0)
+    if card_times is not None and frame.frame_time_ns:
+        frame.frame_time_ns = card_times.frame_time_ns(frame.frame_time_ns, nic_of.get(frame.frame_time_ns, 0))
 
 
 def imu_role(radar: str | None) -> str:

@@ -5,7 +5,11 @@ say about the clocks.
 ``pmc -u`` is linuxptp's own client for it, so its text output is what is parsed here (PORT_DATA_SET: the
 port state; CURRENT_DATA_SET: offset from master, mean path delay, steps removed; TIME_STATUS_NP: the
 grandmaster and whether one is present). ``phc2sys`` serves no management requests: its offset comes from
-its log lines (``CLOCK_REALTIME phc offset -12 s2 freq +3 delay 500``), e.g. the journal of its unit.
+its log lines (``CLOCK_REALTIME phc offset -12 s2 freq +3 delay 500``), e.g. the journal of its unit, and so do
+its refusals: phc2sys copies a PTP hardware clock (PHC) to another clock and has nothing to do without one
+-- with ptp4l on software time stamps (``-S``) ptp4l steers CLOCK_REALTIME itself, and phc2sys says "no
+suitable ports available" (``-a``) or "interface X does not have a PHC" (``-s X``). Such a line is the
+status's ``phc2sys_error`` and an event, never an offset. See docs/architecture.md#receive-time-stamps.
 
 ``PtpMonitor.poll`` returns the state and the events a change calls for: the port state changing, the offset
 stepping (a jump larger than ``step_ns`` between two polls), ptp4l no longer answering. ``ReceiveDelay``
@@ -42,6 +46,7 @@ class PtpStatus:
     grandmaster_present: bool | None = None
     phc2sys_offset_ns: float | None = None
     phc2sys_state: str | None = None  # the servo state of its latest line: s0 unlocked, s1 step, s2 locked
+    phc2sys_error: str | None = None  # what phc2sys last said instead of an offset (it has no PHC, no rights)
     error: str | None = None  # why ptp4l could not be asked
 
     @property
@@ -59,6 +64,8 @@ class PtpStatus:
             parts.append(f"path delay {self.mean_path_delay_ns:.0f} ns")
         if self.phc2sys_offset_ns is not None:
             parts.append(f"phc2sys offset {self.phc2sys_offset_ns:.0f} ns")
+        if self.phc2sys_error is not None:
+            parts.append(f"phc2sys: {self.phc2sys_error}")
         return " ".join(parts)
 
 
@@ -123,6 +130,19 @@ def parse_phc2sys_line(line: str) -> tuple[float, str] | None:
     return float(m.group("offset")), f"s{m.group('state')}"
 
 
+#: What phc2sys logs when it cannot do its work (linuxptp 3.1: phc2sys.c, clockadj.c): the line's text from
+#: here on is the error.
+_PHC2SYS_ERRORS = re.compile(r"(no suitable ports available|interface \S+ does not have a PHC|"
+                             r"failed to (?:adjust|step|set) the clock(?: status)?: .*|Waiting for ptp4l)")
+
+
+def parse_phc2sys_error(line: str) -> str | None:
+    """What a phc2sys log line says it cannot do (no PHC to copy, no right to adjust a clock, ptp4l not yet
+    following a master); None for other lines."""
+    m = _PHC2SYS_ERRORS.search(line)
+    return None if m is None else m.group(1).strip()
+
+
 @dataclasses.dataclass
 class PtpEvent:
     """Something /events should hold: a level (info, warning) and the message."""
@@ -144,17 +164,21 @@ class PtpMonitor:
         self._query = query or (lambda: query_ptp4l(self.socket_path))
         self.status: PtpStatus | None = None
         self._phc2sys: tuple[float, str] | None = None
+        self._phc2sys_error: str | None = None
 
     def phc2sys_line(self, line: str) -> None:
-        """Take one line of phc2sys's log (others are ignored)."""
+        """Take one line of phc2sys's log: an offset, or what it cannot do (an offset after it clears that)."""
         parsed = parse_phc2sys_line(line)
         if parsed is not None:
-            self._phc2sys = parsed
+            self._phc2sys, self._phc2sys_error = parsed, None
+        elif (error := parse_phc2sys_error(line)) is not None:
+            self._phc2sys_error = error
 
     def poll(self) -> tuple[PtpStatus, list[PtpEvent]]:
         new = self._query()
         if self._phc2sys is not None:
             new.phc2sys_offset_ns, new.phc2sys_state = self._phc2sys
+        new.phc2sys_error = self._phc2sys_error
         events = self.changes(self.status, new)
         self.status = new
         return new, events
@@ -164,7 +188,7 @@ class PtpMonitor:
         events = []
         if old is None:
             level = "info" if new.reachable else "warning"
-            return [PtpEvent(level, f"PTP host: {new.line().removeprefix('PTP host').strip()}")]
+            return [PtpEvent(level, new.line() if new.error else f"PTP host: {new.line().removeprefix('PTP host').strip()}")]
         if new.reachable != old.reachable:
             if not new.reachable:
                 return [PtpEvent("warning", f"PTP host: {new.error}")]
@@ -179,6 +203,8 @@ class PtpMonitor:
                 and abs(new.offset_from_master_ns - old.offset_from_master_ns) > self.step_ns):
             events.append(PtpEvent("warning", f"PTP host: offset stepped {old.offset_from_master_ns:.0f} -> "
                                               f"{new.offset_from_master_ns:.0f} ns"))
+        if new.phc2sys_error is not None and new.phc2sys_error != old.phc2sys_error:
+            events.append(PtpEvent("warning", f"PTP host: phc2sys: {new.phc2sys_error}"))
         if (new.phc2sys_offset_ns is not None and old.phc2sys_offset_ns is not None
                 and abs(new.phc2sys_offset_ns - old.phc2sys_offset_ns) > self.step_ns):
             events.append(PtpEvent("warning", f"PTP host: phc2sys offset stepped {old.phc2sys_offset_ns:.0f} -> "

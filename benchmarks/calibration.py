@@ -1,9 +1,10 @@
 """Online calibration (rio.calibration): each radar's mount and time offset from a simulated calibration drive
 with a miscalibrated rig (rio.calibration_drive: 2 deg yaw, 1 deg pitch, 2 cm lever arm wrong on every radar,
 one radar 5 ms late), against the drive's length; and the odometry's drift with the true rig, the wrong rig,
-and the wrong rig calibrated online.
+and the wrong rig calibrated online. The drive starts and stops at ``--accel`` (1 m/s^2 by default; the time
+offset shows only while the velocity changes, and 2 m/s^2 shows it better: benchmarks/calibration_time_offset.py).
 
-    python benchmarks/calibration.py [--quick]
+    python benchmarks/calibration.py [--quick] [--accel 1.0]
 
 Writes docs/results/calibration.json and docs/results/calibration.png.
 """
@@ -13,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -32,12 +34,13 @@ RESULTS = ROOT / "docs" / "results"
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="two short drives, one seed")
+    ap.add_argument("--accel", type=float, default=1.0, help="the drive's acceleration and braking, m/s^2")
     args = ap.parse_args(argv)
     lengths_s = (20.0, 40.0) if args.quick else (20.0, 40.0, 60.0, 90.0, 120.0)
     seeds = (1,) if args.quick else (1, 2)
     rows = []
     for duration in lengths_s:
-        traj = calibration_drive(repeats=int(math.ceil(duration / 12)) + 1)
+        traj = calibration_drive(repeats=int(math.ceil(duration / 12)) + 1, accel_mps2=args.accel)
         for seed in seeds:
             imu, wrong, right = simulate_drive(traj, duration, seed)
             result = calibrate(imu, wrong, RioOptions(ekf=SIM_EKF))
@@ -61,8 +64,9 @@ def main(argv=None) -> int:
                   f"calibrated {drift['calibrated']['ate_rmse_m'] * 1e3:.1f} mm")
     out = {"units": {"roll": "deg", "pitch": "deg", "yaw": "deg", "lever_x": "mm", "lever_y": "mm", "lever_z": "mm",
                      "time_offset": "ms"},
-           "scenario": "rio.calibration_drive: 2 deg yaw, 1 deg pitch, 2 cm lever arm wrong on each radar; left_rear 5 ms late",
-           "rows": rows}
+           "scenario": "rio.calibration_drive: 2 deg yaw, 1 deg pitch, 2 cm lever arm wrong on each radar; left_rear 5 ms "
+                       f"late; starts and stops at {args.accel:g} m/s^2",
+           "accel_mps2": args.accel, "load_average_1min": os.getloadavg()[0], "rows": rows}
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "calibration.json").write_text(json.dumps(out, indent=2))
     plot(rows, RESULTS / "calibration.png")

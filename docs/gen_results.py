@@ -92,6 +92,20 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                              "refined mounts and time offset), and the true rig's odometry with the wrong mounts and "
                              "clock. Peak and main-lobe width against the image on the true rig's odometry.",
                              ".venv/bin/python benchmarks/calibration_stripmap.py"),
+    "calibration_time_offset": ("What limits the time-offset calibration",
+                                "The Doppler fit's real velocity error per sensor axis against its own standard "
+                                "deviation (and the floor that would close the gap), and on 120 s calibration drives "
+                                "(2 seeds, 4 radars) the time offset's error, its standard deviation and the NEES of "
+                                "the observable axes (yaw, lever x, y, time offset) for the drive's acceleration and "
+                                "the filter's velocity floor.",
+                                ".venv/bin/python benchmarks/calibration_time_offset.py --configs 1.0:0.008,1.0:0.0045,2.0:0.008"),
+    "calibration_unobservable": ("What the axes calibration refuses cost",
+                                 "Every radar's mount tilted 1 deg about its array's axis (a sideways radar's pitch) "
+                                 "and 2 cm too high, not calibrated (sarbot calibrate refuses both on a floor robot): the "
+                                 "geometry (antenna shift, cone angle, Doppler), the odometry's ATE against the true "
+                                 "rig's on the calibration drives, and point targets imaged where the robot sets off "
+                                 "into a turn against the true rig's image.",
+                                 ".venv/bin/python benchmarks/calibration_unobservable.py"),
     "map_feedback": ("The map corrects the odometry",
                      "Simulated straight drives at 0.4 m/s with the radars' Doppler 2 % low: the odometry's error along "
                      "the track at the end, and every point target's peak in the live map as imaged (before refocus) "

@@ -4,8 +4,10 @@ odometry's filter with its calibration states on, and only where the drive made 
 What a drive makes observable (see rio.ekf): a radar measures its own velocity, R_m^T (v_b + w x l) at the
 stamp less its time offset. So the lever arm l shows only while the robot turns, and only across the axis it
 turns about (a robot on a floor turns about z: the lever arm along z never shows); the rotation about the
-boresight's horizontal normal (the mount's pitch for a radar looking sideways) shows only through velocity
-along the boresight, which a robot driving forward gives a sideways radar only from w x l; the time offset
+boresight's horizontal normal (the mount's pitch for a radar looking sideways, a turn about its own array's
+axis) shows only through velocity along the boresight, which a robot driving forward gives a sideways radar
+only from w x l, and then only in the vertical velocity. Both are refused on a floor robot, and both are
+harmless there (rio.calibration_unobservable, benchmarks/calibration_unobservable.py); the time offset
 shows only while the sensor's velocity changes (accelerating, braking, turning in and out). An axis whose
 standard deviation the drive did not bring below ``CalibrationLimits`` is refused: it keeps the rig's value,
 and the report says which axis and why, instead of a confident wrong value.
@@ -121,13 +123,18 @@ def why_unobservable(axis: int, mount: Mount, drive: DriveExcitation) -> str:
             return (f"the drive hardly turned ({drive.turning_s:.1f} s above 0.2 rad/s): the lever arm shows only in "
                     "the velocity w x l a rotation gives the radar, and on a straight drive it trades against the yaw")
         if axis == 5 and drive.tilting_s < 2.0:
-            return "the drive turned only about z: a lever arm along z changes no velocity then"
+            return ("the drive turned only about z: a lever arm along z changes no velocity then (w x l = 0), and on a "
+                    "level track it shifts a strip map's targets by lz^2/2r without blurring them: unobservable and "
+                    "harmless on a floor (rio.calibration_unobservable)")
         return "the turns were too few or too slow for the lever arm along this axis"
     if axis in (0, 1, 2):
         boresight = mount.rotation_matrix[:, 0]
         if axis == 1 and abs(boresight[2]) < 0.5 and abs(boresight[0]) < 0.5:
-            return ("the radar looks sideways: the tilt of its boresight shows only in velocity along the boresight, "
-                    "which driving forward does not give it (turning in place does, a little)")
+            return ("the radar looks sideways: this tilt turns it about its own array's axis, which moves no antenna "
+                    "and no cone angle and changes a Doppler level with the radar by 1 - cos (1.5e-4 at 1 deg); only "
+                    "the vertical velocity a turn gives the boresight shows it, which a horizontal array hardly "
+                    "measures: unobservable from the ego-velocity, and harmless to odometry and strip map on a floor "
+                    "(rio.calibration_unobservable)")
         if drive.accelerating_s < 2.0 and drive.turning_s < 2.0:
             return "the drive had too few accelerations and turns to tell the mount's rotation from the velocity's"
         return "the drive's velocity directions in the radar frame were too few for this rotation"

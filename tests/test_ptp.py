@@ -17,9 +17,11 @@ import pytest
 from acquisition.bus import Message
 from acquisition.messages import ClockState, Health
 from acquisition.ptp import (
+    FOLLOWING_STATES,
     PtpMonitor,
     PtpStatus,
     ReceiveDelay,
+    parse_phc2sys_error,
     parse_phc2sys_line,
     parse_pmc,
     query_ptp4l,
@@ -62,6 +64,25 @@ def test_phc2sys_log_lines():
         == (-12.0, "s2")
     assert parse_phc2sys_line("phc2sys[10.0]: eth0 sys offset 123456 s0 freq -20 delay 0") == (123456.0, "s0")
     assert parse_phc2sys_line("phc2sys[10.0]: reconfiguring after port state change") is None
+
+
+def test_phc2sys_refusals_are_errors_not_offsets():
+    """What phc2sys 3.1.1 printed here (tests below run it): without a PHC, and without the right to adjust."""
+    assert parse_phc2sys_error("phc2sys[22559.459]: no suitable ports available") == "no suitable ports available"
+    assert parse_phc2sys_error("phc2sys[22559.492]: interface sbs1v does not have a PHC") == \
+        "interface sbs1v does not have a PHC"
+    assert parse_phc2sys_error("phc2sys[22569.311]: failed to adjust the clock: Operation not permitted") == \
+        "failed to adjust the clock: Operation not permitted"
+    assert parse_phc2sys_error("phc2sys[22574.427]: Waiting for ptp4l...") == "Waiting for ptp4l"
+    assert parse_phc2sys_error("phc2sys[2516.274]: CLOCK_REALTIME phc offset -12 s2 freq +3456 delay 500") is None
+    monitor = PtpMonitor("/x", query=lambda: PtpStatus("SLAVE", offset_from_master_ns=-5.0))
+    monitor.phc2sys_line("phc2sys[1.0]: no suitable ports available")
+    status, events = monitor.poll()
+    assert status.phc2sys_error == "no suitable ports available" and status.phc2sys_offset_ns is None
+    assert "phc2sys: no suitable ports available" in status.line()
+    monitor.phc2sys_line("phc2sys[2.0]: CLOCK_REALTIME phc offset -12 s2 freq +3456 delay 500")
+    status, events = monitor.poll()  # measuring again: the error is gone
+    assert status.phc2sys_error is None and status.phc2sys_offset_ns == -12.0 and events == []
 
 
 def test_monitor_events_on_state_change_step_and_silence():
@@ -243,11 +264,44 @@ def veth_namespaces():
             _run("ip", "netns", "del", ns)
 
 
+#: linuxptp's programs as the tests run them: without CAP_SYS_TIME (not even root may then set, step or slew a
+#: clock: clock_adjtime fails with EPERM) and in an IPC namespace of their own (phc2sys's ntpshm servo writes
+#: an NTP shared-memory segment, which a time daemon of the host might read).
+NO_CLOCK_RIGHTS = ["unshare", "--ipc", "setpriv", "--inh-caps=-sys_time", "--bounding-set=-sys_time"]
+CAP_SYS_TIME = 25  # include/uapi/linux/capability.h
+
+
 def _ptp4l(ns: str, iface: str, config, log):
     # -S: software time stamps (a veth has no PHC). The namespaces share the host's clock: the master never
-    # adjusts a clock, the slave runs free (free_running 1), and no phc2sys steers CLOCK_REALTIME here.
-    return subprocess.Popen(["ip", "netns", "exec", ns, "ptp4l", "-S", "-i", iface, "-f", str(config), "-m"],
-                            stdout=log, stderr=subprocess.STDOUT)
+    # adjusts a clock, the slave runs free (free_running 1), and neither has the right to adjust one.
+    return subprocess.Popen(["ip", "netns", "exec", ns, *NO_CLOCK_RIGHTS, "ptp4l", "-S", "-i", iface, "-f", str(config),
+                             "-m"], stdout=log, stderr=subprocess.STDOUT)
+
+
+def _realtime_minus_monotonic_ns() -> int:
+    """What a step of CLOCK_REALTIME moves (CLOCK_MONOTONIC is never stepped)."""
+    return time.clock_gettime_ns(time.CLOCK_REALTIME) - time.clock_gettime_ns(time.CLOCK_MONOTONIC)
+
+
+def _start_master_and_slave(master: str, slave: str, tmp_path):
+    """ptp4l master and free-running slave on the veth pair, the slave following (UNCALIBRATED); the processes
+    and a PtpMonitor on the slave's socket."""
+    (tmp_path / "m.cfg").write_text(PTP4L_CONFIG.format(sock=tmp_path / "m.sock", extra="priority1 1"))
+    (tmp_path / "s.cfg").write_text(PTP4L_CONFIG.format(sock=tmp_path / "s.sock", extra="free_running 1\nslaveOnly 1"))
+    m_log, s_log = open(tmp_path / "m.log", "w"), open(tmp_path / "s.log", "w")
+    procs = [_ptp4l(master, f"{master}v", tmp_path / "m.cfg", m_log), _ptp4l(slave, f"{slave}v", tmp_path / "s.cfg", s_log)]
+    return procs, PtpMonitor(str(tmp_path / "s.sock"))
+
+
+def _stop(procs) -> None:
+    for p in procs:
+        if p.poll() is None:
+            p.terminate()
+            try:
+                p.wait(5)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
 
 
 def _wait_for(monitor, condition, timeout_s):
@@ -266,12 +320,8 @@ def test_real_ptp4l_master_and_slave_over_a_veth_pair(veth_namespaces, tmp_path)
     master, slave = veth_namespaces
     procs = []
     try:
-        (tmp_path / "m.cfg").write_text(PTP4L_CONFIG.format(sock=tmp_path / "m.sock", extra="priority1 1"))
-        (tmp_path / "s.cfg").write_text(PTP4L_CONFIG.format(sock=tmp_path / "s.sock", extra="free_running 1\nslaveOnly 1"))
-        m_log, s_log = open(tmp_path / "m.log", "w"), open(tmp_path / "s.log", "w")
-        procs.append(_ptp4l(master, f"{master}v", tmp_path / "m.cfg", m_log))
-        procs.append(_ptp4l(slave, f"{slave}v", tmp_path / "s.cfg", s_log))
-        monitor = PtpMonitor(str(tmp_path / "s.sock"))
+        started, monitor = _start_master_and_slave(master, slave, tmp_path)
+        procs += started
         # A free-running slave never calls itself locked: it follows the master as UNCALIBRATED, measuring.
         status, events = _wait_for(monitor, lambda s: s.port_state in ("UNCALIBRATED", "SLAVE")
                                    and s.offset_from_master_ns not in (None, 0.0) and s.mean_path_delay_ns, 30.0)
@@ -299,6 +349,116 @@ def test_real_ptp4l_master_and_slave_over_a_veth_pair(veth_namespaces, tmp_path)
                 except subprocess.TimeoutExpired:
                     p.kill()
                     p.wait()
+
+
+def _no_clock_rights_or_skip() -> None:
+    missing = [c for c in ("unshare", "setpriv", "phc2sys") if shutil.which(c) is None]
+    if missing:
+        pytest.skip(f"{', '.join(missing)} not installed (util-linux, linuxptp): phc2sys is run only without the "
+                    "right to touch the clock")
+
+
+def test_phc2sys_as_the_tests_run_it_cannot_adjust_the_clock(tmp_path):
+    """The guard every real phc2sys here runs under: no CAP_SYS_TIME. Even with the ntpshm servo (which
+    leaves the clock to another process) phc2sys 3.1 sets the clock's frequency and status at start; without
+    the right each such call fails with EPERM, and the clock stays as it was."""
+    _no_clock_rights_or_skip()
+    caps = subprocess.run([*NO_CLOCK_RIGHTS, "grep", "CapEff", "/proc/self/status"], capture_output=True, text=True,
+                          timeout=10)
+    if caps.returncode != 0:
+        pytest.skip(f"cannot make a process without CAP_SYS_TIME here: {caps.stderr.strip()}")
+    assert not int(caps.stdout.split()[1], 16) >> CAP_SYS_TIME & 1
+    before = _realtime_minus_monotonic_ns()
+    # CLOCK_REALTIME onto itself: the one thing phc2sys accepts without a PHC; it still tries to adjust.
+    res = subprocess.run(["timeout", "3", *NO_CLOCK_RIGHTS, "phc2sys", "-s", "CLOCK_REALTIME", "-c", "CLOCK_REALTIME",
+                          "-O", "0", "-E", "ntpshm", "-m", "-q"], capture_output=True, text=True, timeout=20)
+    out = res.stdout + res.stderr
+    assert "failed to adjust the clock: Operation not permitted" in out, out
+    assert "Operation not permitted" in out and not re.search(r"offset\s+-?\d+ s\d", out)  # nothing to measure either
+    assert abs(_realtime_minus_monotonic_ns() - before) < 500_000_000  # not stepped
+    monitor = PtpMonitor("/x", query=lambda: PtpStatus("SLAVE", offset_from_master_ns=-5.0))
+    for line in out.splitlines():
+        monitor.phc2sys_line(line)
+    status, _ = monitor.poll()
+    assert status.phc2sys_error.endswith("Operation not permitted")  # its latest refusal, as health would say
+
+
+def _phc2sys_beside(slave: str, tmp_path, log):
+    """The real phc2sys in the slave's namespace, configured from its ptp4l (-a), on the ntpshm servo, without
+    the right to touch a clock, its -m lines to ``log``."""
+    return subprocess.Popen(["ip", "netns", "exec", slave, *NO_CLOCK_RIGHTS, "phc2sys", "-a", "-E", "ntpshm", "-R", "4",
+                             "-z", str(tmp_path / "s.sock"), "-m", "-q"], stdout=log, stderr=subprocess.STDOUT)
+
+
+def _phc2sys_in_the_slave_namespace(veth_namespaces, tmp_path):
+    """Run ptp4l master and slave, then the real phc2sys beside the slave, its log followed by the poller
+    as the daemon follows it: (statuses seen, events, phc2sys's log, the clock's step meanwhile ns)."""
+    _no_clock_rights_or_skip()
+    from acquisition.ptp import PtpPoller
+
+    master, slave = veth_namespaces
+    before = _realtime_minus_monotonic_ns()
+    procs, monitor = _start_master_and_slave(master, slave, tmp_path)
+    try:
+        status, events = _wait_for(monitor, lambda s: s.port_state in ("UNCALIBRATED", "SLAVE"), 30.0)
+        assert status is not None, (events[-1:], (tmp_path / "s.log").read_text())
+        log_path = tmp_path / "phc2sys.log"
+        log_path.write_text("")
+        poller = PtpPoller(monitor, interval_s=0.25, phc2sys_log=str(log_path))
+        with open(log_path, "a") as log:
+            procs.append(_phc2sys_beside(slave, tmp_path, log))
+        poller.start()
+        seen, deadline = [], time.monotonic() + 10.0
+        try:
+            while time.monotonic() < deadline:
+                for _, st, new in poller.drain():
+                    seen.append(st)
+                    events += new
+                if any(st.phc2sys_offset_ns is not None for st in seen[-1:]) or \
+                        (procs[-1].poll() is not None and any(st.phc2sys_error for st in seen[-1:])):
+                    break
+                time.sleep(0.1)
+        finally:
+            poller.stop()
+    finally:
+        _stop(procs)
+    return seen, events, log_path.read_text(), _realtime_minus_monotonic_ns() - before
+
+
+def test_real_phc2sys_beside_a_software_stamping_ptp4l_says_why_in_health(veth_namespaces, tmp_path):
+    """phc2sys copies a PTP hardware clock to another clock; ptp4l on software stamps (-S) has none (it steers
+    CLOCK_REALTIME itself). The real phc2sys, asked to configure itself from that ptp4l, says so, and health
+    and /events carry what it said -- while the clock stays untouched."""
+    seen, events, log, step_ns = _phc2sys_in_the_slave_namespace(veth_namespaces, tmp_path)
+    assert abs(step_ns) < 500_000_000, step_ns
+    if any(st.phc2sys_offset_ns is not None for st in seen):
+        pytest.skip("this machine's veth has a PHC: phc2sys measured, see the next test")
+    assert "no suitable ports available" in log, log
+    last = seen[-1]
+    assert last.phc2sys_error == "no suitable ports available" and last.phc2sys_offset_ns is None
+    assert last.port_state in FOLLOWING_STATES  # ptp4l itself is fine
+    assert "phc2sys: no suitable ports available" in _health(last).line()
+    assert [e.message for e in events if e.message.startswith("PTP host: phc2sys")] == \
+        ["PTP host: phc2sys: no suitable ports available"]
+
+
+def test_real_phc2sys_offset_in_health(veth_namespaces, tmp_path):
+    """Where phc2sys finds a PHC behind ptp4l's port it measures, and health shows its offset. A veth has none
+    (and no card here has one): then this says exactly that and skips."""
+    seen, events, log, step_ns = _phc2sys_in_the_slave_namespace(veth_namespaces, tmp_path)
+    assert abs(step_ns) < 500_000_000, step_ns
+    measured = [st for st in seen if st.phc2sys_offset_ns is not None]
+    if not measured:
+        import glob
+
+        said = "; ".join(sorted({st.phc2sys_error for st in seen if st.phc2sys_error})) or log.strip()[-200:]
+        phcs = sorted(glob.glob("/dev/ptp*"))
+        where = f"this machine's PHCs ({', '.join(phcs)}) are not behind it" if phcs else "this machine has none (no /dev/ptp*)"
+        pytest.skip("phc2sys measures only a PTP hardware clock (PHC) against another clock: ptp4l here runs on "
+                    f"software time stamps (-S) on a veth, which has no PHC, and {where}; "
+                    f"the real phc2sys -a said: {said!r}. Its offset lines are tested through their "
+                    "format (test_phc2sys_log_lines, test_poller_takes_phc2sys_offsets_from_its_log_file)")
+    assert f"phc2sys offset {measured[-1].phc2sys_offset_ns:.0f} ns" in _health(measured[-1]).line()
 
 
 def test_recorder_marks_unlocked_frames_follows_receive_delay_and_records_ptp(tmp_path):

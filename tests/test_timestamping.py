@@ -363,3 +363,128 @@ def test_what_a_card_lacks_for_stamping_every_datagram():
     assert TimestampingInfo("eth2", hw, 1, 0b11, 0b11).hardware_lacks() is None
     assert TimestampingInfo("eth3", 0b11010, -1, 0, 0b10).hardware_lacks() == \
         "a PTP hardware clock; hardware receive stamps (hardware-receive, hardware-raw-clock)"
+
+
+# -- DCA1000 frames: timed by their first datagram's receipt ---------------------------------------------------
+def _dca1000_capture(frames: int):
+    """A small DCA1000 stream: the shared capture's .cfg, ``frames`` frames of known samples as datagrams, and
+    for each datagram the frame its first byte belongs to."""
+    from drivers.radar.dca1000 import Dca1000Encoder, Dca1000Stream, parse_data_packet
+    from drivers.radar.ti_cfg import load_ti_cfg
+    from conftest import SHARED_DATA
+
+    cfg = load_ti_cfg(SHARED_DATA / "dca1000_iwr1843_one_frame" / "xwr18xx_profile.cfg")
+    encode = Dca1000Encoder(cfg.iq_swap)
+    shape = (cfg.chirps_per_frame, cfg.n_rx, cfg.adc_samples, 2)
+    datagrams = [d for k in range(frames) for d in encode(k, 0, np.full(shape, k + 1, np.int16))]
+    first_of = [parse_data_packet(d)[1] // cfg.frame_bytes for d in datagrams]
+    return cfg, Dca1000Stream(cfg), datagrams, first_of
+
+
+def _run_driver(receiver, stream, frames: int):
+    """The real driver loop on ``receiver``: the frames and events it publishes."""
+    from acquisition.bus import BusPublisher, BusSubscriber
+    from acquisition.driver_loops import radar_driver_loop
+    from acquisition.messages import Event, RadarFrameMessage
+
+    ctx = zmq.Context()
+    pub = BusPublisher("tcp://127.0.0.1:0", context=ctx)
+    sub = BusSubscriber(pub.endpoint, topics=["radar/", "event"], context=ctx)
+    time.sleep(0.2)
+    stop = threading.Event()
+    loop = threading.Thread(target=radar_driver_loop, args=(receiver, "dca", stream, pub, stop))
+    loop.start()
+    got, events = [], []
+    deadline = time.monotonic() + 30
+    while len(got) < frames and time.monotonic() < deadline:
+        m = sub.receive(timeout_ms=200)
+        if m is not None and m.topic == RadarFrameMessage.topic_of("dca"):
+            got.append(RadarFrameMessage.from_message(m).frame)
+        elif m is not None and m.topic == Event.TOPIC:
+            events.append(Event.from_message(m).message)
+    stop.set()
+    loop.join(5)
+    while (m := sub.receive(timeout_ms=200)) is not None:
+        if m.topic == Event.TOPIC:
+            events.append(Event.from_message(m).message)
+    pub.close()
+    sub.close()
+    ctx.term()
+    return got, events
+
+
+class _StampKeepingReceiver:
+    """A real UdpReceiver that keeps the kernel stamp of every datagram it returns."""
+
+    def __init__(self, rx: UdpReceiver):
+        self.rx, self.kept = rx, []
+
+    def __getattr__(self, name):
+        return getattr(self.rx, name)
+
+    def receive(self):
+        got = self.rx.receive()
+        if got is not None:
+            self.kept.append((got[0], got[1]))
+        return got
+
+
+def test_dca1000_frames_on_loopback_are_timed_by_the_kernel_stamp_of_their_first_datagram():
+    """Software stamps (no card here stamps): a DCA1000 frame's time is the kernel's stamp of its first
+    datagram, as the socket gave it; no card stamp, and no event about the card's clock."""
+    from drivers.radar.dca1000 import parse_data_packet
+
+    cfg, stream, datagrams, first_of = _dca1000_capture(4)
+    rx = _StampKeepingReceiver(UdpReceiver("127.0.0.1", 0, receive_stamps="auto", coalesce_s=0))
+    assert not rx.hardware and rx.stamps.source == "software"
+
+    def send():
+        time.sleep(0.3)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            for k, d in enumerate(datagrams):
+                tx.sendto(d, rx.address)
+                if k % 20 == 19:
+                    time.sleep(0.002)  # not faster than the socket's buffer takes them
+
+    sender = threading.Thread(target=send)
+    sender.start()
+    frames, events = _run_driver(rx, stream, 4)
+    sender.join()
+    rx.close()
+    first_stamp = {}
+    for data, stamp in rx.kept:
+        first_stamp.setdefault(parse_data_packet(data)[1] // cfg.frame_bytes, stamp)
+    assert [f.frame_counter for f in frames] == [0, 1, 2, 3] and all(f.valid for f in frames)
+    assert [f.frame_time_ns for f in frames] == [first_stamp[k] for k in range(4)]
+    assert all(f.nic_receive_ns == 0 for f in frames)
+    assert abs(frames[0].frame_time_ns - time.time_ns()) < 60e9  # the host's clock
+    assert not any("network card" in e for e in events)
+
+
+def test_dca1000_frames_with_card_stamps_are_timed_on_the_card_clock():
+    """Hardware stamps (fed: no card here has a PHC): each DCA1000 frame's time is the card's stamp of its
+    first datagram; where the card left it unstamped, its host stamp moved by the latest card-minus-host
+    difference, so the series stays on the card's clock; the host stamp stays the frame's receive time; said
+    once in /events."""
+    cfg, stream, datagrams, first_of = _dca1000_capture(10)
+    t0, period = 1_700_000_000_000_000_000, 50_000_000
+    fed, first_host, first_nic, last_offset = [], {}, {}, {}
+    offset = None
+    for j, (d, k) in enumerate(zip(datagrams, first_of)):
+        host = t0 + k * period + j * 1000
+        # a PHC on TAI (37 s ahead), 1.5 ms earlier than the host, drifting 1 ppm; frames 4 and 9 unstamped
+        nic = 0 if k % 5 == 4 else host + 37_000_000_000 - 1_500_000 + (host - t0) // 1_000_000
+        first_host.setdefault(k, host)
+        first_nic.setdefault(k, nic)
+        last_offset.setdefault(k, offset)  # the card-minus-host difference known when the frame began
+        offset = nic - host if nic else offset
+        fed.append((d, host, nic))
+    frames, events = _run_driver(_CardStampingReceiver(fed), stream, 10)
+    assert [f.frame_counter for f in frames] == list(range(10))
+    for f in frames:
+        k = f.frame_counter
+        want = first_nic[k] if first_nic[k] else first_host[k] + last_offset[k]
+        assert f.frame_time_ns == want, k
+        assert f.receive_ns == first_host[k]  # the host's stamp: latency and lag stay host-clock figures
+    assert frames[4].frame_time_ns - first_host[4] == last_offset[4] != 37_000_000_000 - 1_500_000
+    assert sum("frame times: the network card's stamp of each frame's first datagram (DCA1000" in e for e in events) == 1

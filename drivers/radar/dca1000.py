@@ -200,10 +200,13 @@ class Dca1000Stream:
     """DCA1000 raw byte stream to frames, laid out by the TI ``.cfg``.
 
     The DCA1000 sends no time stamps and no frame counter: the counter is the frame's index in the stream
-    and its time the kernel receive time of its first datagram (put on the PTP base by the host clock).
+    and its time the receipt of its first datagram -- the kernel's stamp here (put on the PTP base by the host
+    clock), the network card's where the driver takes hardware stamps (``times_by_receipt``: the driver loop
+    replaces it, ``drivers.radar.timestamping.CardFrameTimes``).
     """
 
     wire_format = "DCA1000"
+    times_by_receipt = True
 
     def __init__(self, cfg: TiRadarConfig):
         if not cfg.complex_output:

@@ -279,3 +279,31 @@ def choose_receive_stamps(host: str, source: str | None = None, mode: str = "aut
     if mode == "hardware":
         raise SarbotError(f"receive stamps hardware for {host}: {reason}")
     return StampChoice("software", interface, None, reason)
+
+
+class CardFrameTimes:
+    """Frame times on the network card's clock for a stream that has no time of its own (the DCA1000: a
+    frame's time is the receipt of its first datagram, see drivers/radar/dca1000.py).
+
+    With hardware stamps a frame's time is the card's stamp of that datagram: on the PHC, which ptp4l keeps
+    on the radars' PTP time, and free of the host's interrupt and scheduling latency. Where the card left that
+    datagram unstamped the frame's time is its host stamp moved by the card-minus-host difference of the latest
+    datagram the card did stamp (the two clocks part by ppm: microseconds over the gap), so the series stays on
+    the card's clock; ``estimated`` counts such frames. Before any stamped datagram the host stamp stays (and is
+    counted as well)."""
+
+    def __init__(self) -> None:
+        self.card_minus_host_ns: int | None = None
+        self.estimated = 0
+
+    def observe(self, host_ns: int, nic_ns: int) -> None:
+        """Take one datagram's two stamps (``nic_ns`` 0: the card left it unstamped)."""
+        if nic_ns:
+            self.card_minus_host_ns = int(nic_ns) - int(host_ns)
+
+    def frame_time_ns(self, host_ns: int, nic_ns: int) -> int:
+        """The frame's time from its first datagram's host stamp and card stamp (0: none)."""
+        if nic_ns:
+            return int(nic_ns)
+        self.estimated += 1
+        return int(host_ns) + (self.card_minus_host_ns or 0)
