@@ -64,6 +64,32 @@ def test_image_imports_autofocus_only_when_asked(recording, tmp_path):
     assert res.stdout.strip().endswith("imported") and "not imported" not in res.stdout
 
 
+def test_image_imports_neither_matplotlib_nor_scipy_rotations(recording, tmp_path):
+    """``sarbot image`` writes its PNG (the image's pixels) without matplotlib and places its antennas without
+    scipy's Rotation (half a second of a whole process between them); ``--png-figure`` draws matplotlib's
+    figure, axes and colour bar, 990 pixels wide."""
+    from PIL import Image
+
+    code = ("import sys; from acquisition.cli import main; code = main(sys.argv[1:]); "
+            "print(sorted(m for m in ('matplotlib', 'scipy.spatial') if m in sys.modules)); sys.exit(code)")
+    args = [recording, "-o", tmp_path / "a.h5", "--frames", "10:20", "--grid", "-0.05:0.05:0.005,1.9:2.1:0.005"]
+    res = subprocess.run([sys.executable, "-c", code, "image", *map(str, args)], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip().endswith("[]")
+    with Image.open(tmp_path / "a.png") as png:
+        assert png.size == (21 * 13, 41 * 13)  # 13 x 13 screen pixels per grid point: 512 or more on the longer side
+        assert png.text["Title"].startswith("left_front frames 10:20")
+    args[2] = tmp_path / "b.h5"
+    res = subprocess.run([sys.executable, "-c", code, "image", *map(str, args), "--png-figure"], capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert "'matplotlib'" in res.stdout.splitlines()[-1]
+    with Image.open(tmp_path / "b.png") as png:
+        assert png.size[0] == 990
+    with h5py.File(tmp_path / "a.h5") as a, h5py.File(tmp_path / "b.h5") as b:
+        np.testing.assert_array_equal(a["image"][()], b["image"][()])
+
+
 def test_image_with_ffbp_equals_the_direct_image(recording, tmp_path):
     """``--algorithm ffbp``: the same image as the direct kernel within -40 dB (all channels, the whole
     pass), the plan's error figures in the file; a volume grid is a one-line error."""
