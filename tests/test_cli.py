@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import subprocess
 import sys
@@ -277,6 +278,27 @@ def test_choice_lists_are_read_from_their_sources_when_needed(monkeypatch):
     assert (args.window, args.aperture_window) == ("kaiser", "kaiser")
     record_help = " ".join(_subparser(parser, "record").format_help().split())
     assert all(name in record_help for name in registry.names()) and f"default {registry.DEFAULT}" in record_help
+
+
+def test_a_command_builds_its_own_parser_alone():
+    """``FAMILIES`` names every command its family registers; a command's parser alone parses its arguments as
+    the whole command line's does, and does not register (nor import for) another family's commands."""
+    import argparse
+
+    from acquisition.cli import FAMILIES, ArgumentParser, build_parser, command_of
+
+    for family, commands in FAMILIES.items():
+        sub = ArgumentParser(prog="t").add_subparsers()
+        importlib.import_module(f"acquisition.cli.{family}").register(sub)
+        assert tuple(sub.choices) == commands, family
+    full = build_parser()
+    argv = ["-q", "image", "rec.h5", "-o", "img.h5", "--grid=-1:1:0.1,1:2:0.1", "--frames", "3:9"]
+    assert command_of(argv) == "image" and command_of(["-v", "--version"]) is None
+    alone = build_parser("image")
+    assert vars(alone.parse_args(argv)) == vars(full.parse_args(argv))
+    commands = next(a for a in alone._actions if isinstance(a, argparse._SubParsersAction)).choices
+    assert set(commands) == set(FAMILIES["imaging"])
+    assert build_parser("no-such-command")._actions[-1].choices.keys() == full._actions[-1].choices.keys()
 
 
 def _choices():
