@@ -66,13 +66,15 @@ def test_image_imports_autofocus_only_when_asked(recording, tmp_path):
 
 
 def test_image_imports_neither_matplotlib_nor_scipy_rotations(recording, tmp_path):
-    """``sarbot image`` writes its PNG (the image's pixels) without matplotlib and places its antennas without
-    scipy's Rotation (half a second of a whole process between them); ``--png-figure`` draws matplotlib's
-    figure, axes and colour bar, 990 pixels wide."""
+    """``sarbot image`` writes its PNG (the image's pixels) without matplotlib, places its antennas without
+    scipy's Rotation (half a second of a whole process between them) and does not let numba search every
+    installed distribution for extensions; ``--png-figure`` draws matplotlib's figure, axes and colour bar,
+    990 pixels wide."""
     from PIL import Image
 
-    code = ("import sys; from acquisition.cli import main; code = main(sys.argv[1:]); "
-            "print(sorted(m for m in ('matplotlib', 'scipy.spatial') if m in sys.modules)); sys.exit(code)")
+    code = ("import sys, importlib.metadata as md; scans = []; md.entry_points = lambda *a, **k: scans.append(1); "
+            "from acquisition.cli import main; code = main(sys.argv[1:]); "
+            "print(sorted(m for m in ('matplotlib', 'scipy.spatial') if m in sys.modules) + scans); sys.exit(code)")
     args = [recording, "-o", tmp_path / "a.h5", "--frames", "10:20", "--grid", "-0.05:0.05:0.005,1.9:2.1:0.005"]
     res = subprocess.run([sys.executable, "-c", code, "image", *map(str, args)], capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
