@@ -120,6 +120,7 @@ def cmd_image(args) -> int:
     from imaging.image_formation import ImagingOptions, image_recording
     from imaging.io.image_file import write_image
     from imaging.io.recording import Recording
+
     from ..progress import Progress
 
     out = Path(args.output)

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
 from imaging.core import quaternion
 from imaging.core.config import ConfigError, as_vector, from_dict, read_toml, require
 from imaging.core.waveform import Waveform

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
+
 from imaging.core import quaternion
 from imaging.core.errors import ConfigError
 
