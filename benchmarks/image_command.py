@@ -1,13 +1,18 @@
-"""`sarbot image` as a whole command against its backprojection kernel alone, on the backprojection
-benchmark's case (16 frames of the left-front radar, all 16 channels, a 256 x 256 grid).
+"""`sarbot image` as a whole command against its backprojection kernel alone: on the backprojection
+benchmark's case (16 frames of the left-front radar, all 16 channels, a 256 x 256 grid) and on a larger
+one (32 frames, a 512 x 512 grid: 8 times the work, 0.67 m of track imaged at 2 mm).
 
 The command is timed as a new process (``python -m acquisition.cli image ...``: its imports, numba's cache
-load and all), as a user runs it; the kernel in this process, on the same profiles, alternating with it.
+load and all), as a user runs it: with sarbot's modules byte-compiled, as they are after an install (this
+environment's PYTHONDONTWRITEBYTECODE is left out of the command's, else every run compiles sarbot's
+sources again); the kernel in this process, on the same profiles, alternating with it.
 
 The command reads the recording, range-compresses (the next block while the kernel backprojects this
-one), places the antennas, backprojects, writes the image and its PNG. ``form_image`` is the same without
-the files. Its throughput (grid points x profiles per second of wall time) is printed as a fraction of
-the kernel's on the same profiles in the same process, with the time of each stage.
+one), places the antennas, backprojects, writes the image and its PNG (the pixels; ``--png-figure``'s
+matplotlib figure is timed apart). ``form_image`` is the same without the files. Its throughput (grid
+points x profiles per second of wall time) is printed as a fraction of the kernel's on the same profiles
+in the same process, with the time of each stage, and what the process start costs, step by step, in a
+new process of its own (``fixed_costs``).
 
     python benchmarks/image_command.py [--quick]
 
@@ -17,6 +22,7 @@ Writes docs/results/image_command.json.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -42,6 +48,39 @@ from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.sim.targets import PointTarget  # noqa: E402
 from imaging.core import strict_json  # noqa: E402
 
+#: The command's environment: this one without PYTHONDONTWRITEBYTECODE (see the module's docstring).
+COMMAND_ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+
+#: What the start of ``sarbot image`` costs, step by step, in a new process: each import on top of the
+#: ones before it; numba's target set-up (its typing and lowering registries, and with them scipy.linalg,
+#: which numba imports for BLAS), which the first compiled call does; then a first image of one frame on
+#: four pixels (the kernel's load from numba's cache, its threads' start), then the same image again (what
+#: it costs once all that is done).
+FIXED_COSTS = r"""
+import json, sys, time
+t = [time.perf_counter()]
+steps = []
+def step(name):
+    t.append(time.perf_counter()); steps.append((name, t[-1] - t[-2]))
+import numpy; step("numpy")
+import h5py; step("h5py")
+import scipy.fft; step("scipy.fft")
+import numba; step("numba")
+import acquisition.cli.imaging; step("sarbot command line")
+from imaging.image_formation import ImagingOptions, image_recording; step("sarbot imaging")
+from imaging.io.recording import Recording
+from imaging.plot import save_image_pixels_png
+from imaging.io.image_file import write_image; step("sarbot files")
+from numba.core.registry import cpu_target
+cpu_target.target_context.refresh(); step("numba's target set-up (with scipy.linalg)")
+def one(): 
+    with Recording(sys.argv[1]) as rec:
+        return image_recording(rec, "left_front", "0:0.002:0.002,2:2.002:0.002", "truth", slice(0, 1), ImagingOptions())
+one(); step("first image of one frame (the kernel from numba's cache, its threads)")
+one(); step("the same image again")
+print(json.dumps(steps))
+"""
+
 RESULTS = ROOT / "docs" / "results"
 
 
@@ -59,7 +98,8 @@ def make_recording(path: Path, n_frames: int) -> None:
 def import_times(cmd: list) -> dict:
     """What the command's imports cost (``python -X importtime``): the total of the top-level imports and
     the largest of them, seconds (cumulative, each with what it imports)."""
-    err = subprocess.run(cmd, check=True, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True).stderr
+    err = subprocess.run(cmd, check=True, cwd=ROOT, env=COMMAND_ENV, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                         text=True).stderr
     top = {}
     for line in err.splitlines():
         if not line.startswith("import time:") or "cumulative" in line:
@@ -71,87 +111,113 @@ def import_times(cmd: list) -> dict:
     return {"total_s": sum(top.values()), "largest_s": largest}
 
 
+def fixed_costs(rec_path: Path) -> dict:
+    """``FIXED_COSTS`` in a new process, twice (the first warms the page cache): seconds per step."""
+    for _ in range(2):
+        out = subprocess.run([sys.executable, "-c", FIXED_COSTS, str(rec_path)], check=True, cwd=ROOT, env=COMMAND_ENV,
+                             capture_output=True, text=True).stdout
+    return dict(json.loads(out.splitlines()[-1]))
+
+
+def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int) -> dict:
+    """The kernel, form_image, the files and the command as a new process (alternating with the kernel)."""
+    grid_text = f"-0.5:0.5:{1.0 / n_px},1.5:2.5:{1.0 / n_px},0.3"
+    rec_path = tmp / f"{name}.h5"
+    make_recording(rec_path, n_frames)
+    grid = Grid.parse(grid_text, default_z_m=0.3)
+    points = grid.points()
+    options = ImagingOptions()
+    with Recording(rec_path) as rec:
+        radar = rec.radar("left_front")
+        truth = rec.truth()
+        n = rec.n_frames("left_front")
+
+        def compress():
+            return frame_profiles(rec.adc("left_front"), rec.frame_time_ns("left_front"), radar, truth,
+                                  rec.tdm_tx_order("left_front"), options)
+
+        profiles, tx_m, rx_m, _, _ = compress()
+        n_p = profiles.data.shape[0]
+        backproject(profiles, tx_m, rx_m, points[:2, :2])  # compile
+        t_kernel = best_time(lambda: backproject(profiles, tx_m, rx_m, points), repeats)
+        t_compress = best_time(compress, repeats)
+        image = backproject(profiles, tx_m, rx_m, points)
+        # The library call behind the command: read, range-compress (overlapped), backproject.
+        t_form = best_time(lambda: form_image(rec, "left_front", grid, truth, options=options), repeats)
+
+    from imaging.io.image_file import SarImage
+    from imaging.plot import ImagePicture, save_image_pixels_png
+
+    img = SarImage(image, grid.x_m, grid.y_m, grid.z_m, {"wavelength_m": 0.0039})
+    t_write = best_time(lambda: write_image(tmp / "w.h5", img), repeats)
+    t_png = best_time(lambda: save_image_pixels_png(tmp / "w.png", image, grid.x_m, grid.y_m, title="bench"), repeats)
+    # --png-figure: laying its figure out (axes, ticks, colour bar: all from the grid), then drawing the pixels.
+    t_figure_layout = best_time(lambda: ImagePicture(grid.x_m, grid.y_m), repeats)
+    picture = ImagePicture(grid.x_m, grid.y_m)
+    t_figure = best_time(lambda: picture.save(tmp / "f.png", image, title="bench"), repeats)
+    out = tmp / f"{name}_img.h5"
+    command_line = [sys.executable, "-m", "acquisition.cli", "-q", "image", str(rec_path), "-o", str(out),
+                    "--grid", grid_text, "--overwrite"]
+
+    def command() -> float:
+        t = time.perf_counter()
+        subprocess.run(command_line, check=True, cwd=ROOT, env=COMMAND_ENV, stdout=subprocess.DEVNULL)
+        return time.perf_counter() - t
+
+    command()  # warm: the kernels compiled into numba's cache, sarbot's byte code written, files in the page cache
+    # Alternating: the whole command as a new process, then the kernel alone here; ratio per round.
+    rounds = []
+    for _ in range(repeats):
+        t_cmd = command()
+        t = time.perf_counter()
+        backproject(profiles, tx_m, rx_m, points)
+        rounds.append((t_cmd, time.perf_counter() - t))
+    t_command = min(r[0] for r in rounds)
+    fractions = [k / c for c, k in rounds]
+    work = n_p * points.reshape(-1, 3).shape[0]
+    result = {
+        "case": {"frames": n, "profiles": n_p, "grid_points": int(points.size // 3), "grid": grid_text},
+        "kernel_backprojections_per_s": work / t_kernel,
+        "command_backprojections_per_s": work / t_command,
+        "command_fraction_of_kernel": t_kernel / t_command,
+        "command_fraction_of_kernel_per_round": {"median": statistics.median(fractions), "min": min(fractions),
+                                                 "max": max(fractions)},
+        "form_image_fraction_of_kernel": t_kernel / t_form,
+        "seconds": {"command": t_command, "form_image": t_form, "kernel": t_kernel, "read_and_range_compress": t_compress,
+                    "write_image": t_write, "png": t_png,
+                    "command_minus_form_image_write_png": t_command - t_form - t_write - t_png,
+                    "png_figure_layout": t_figure_layout, "png_figure_draw": t_figure},
+    }
+    sec = result["seconds"]
+    print(f"{name}: kernel {work / t_kernel / 1e9:.3f} G/s, form_image {100 * t_kernel / t_form:.0f} %, sarbot image "
+          f"{100 * t_kernel / t_command:.0f} % of the kernel (rounds {100 * min(fractions):.0f}-{100 * max(fractions):.0f} %);"
+          " seconds: " + ", ".join(f"{k} {v:.3f}" for k, v in sec.items()), flush=True)
+    return result
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
-    n_frames, n_px, repeats = (4, 128, 1) if args.quick else (16, 256, 5)
-    grid_text = f"-0.5:0.5:{1.0 / n_px},1.5:2.5:{1.0 / n_px},0.3"
+    cases = {"benchmark_case": (4, 128, 1), "larger_case": (8, 256, 1)} if args.quick else \
+        {"benchmark_case": (16, 256, 5), "larger_case": (32, 512, 2)}
+    load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        rec_path = tmp / "bench.h5"
-        make_recording(rec_path, n_frames)
-        grid = Grid.parse(grid_text, default_z_m=0.3)
-        points = grid.points()
-        options = ImagingOptions()
-        with Recording(rec_path) as rec:
-            radar = rec.radar("left_front")
-            truth = rec.truth()
-            n = rec.n_frames("left_front")
-
-            def compress():
-                return frame_profiles(rec.adc("left_front"), rec.frame_time_ns("left_front"), radar, truth,
-                                      rec.tdm_tx_order("left_front"), options)
-
-            profiles, tx_m, rx_m, _, _ = compress()
-            n_p = profiles.data.shape[0]
-            backproject(profiles, tx_m, rx_m, points[:2, :2])  # compile
-            t_kernel = best_time(lambda: backproject(profiles, tx_m, rx_m, points), repeats)
-            t_compress = best_time(compress, repeats)
-            image = backproject(profiles, tx_m, rx_m, points)
-            profiles_again = profiles  # for the rounds against the command
-            # The library call behind the command: read, range-compress (overlapped), backproject.
-            t_form = best_time(lambda: form_image(rec, "left_front", grid, truth, options=options), repeats)
-
-        from imaging.io.image_file import SarImage
-        from imaging.plot import ImagePicture
-
-        img = SarImage(image, grid.x_m, grid.y_m, grid.z_m, {"wavelength_m": 0.0039})
-        t_write = best_time(lambda: write_image(tmp / "w.h5", img), repeats)
-        # The PNG: laying its figure out (axes, ticks, colour bar: all from the grid), then drawing the pixels.
-        t_png_layout = best_time(lambda: ImagePicture(grid.x_m, grid.y_m), repeats)
-        picture = ImagePicture(grid.x_m, grid.y_m)
-        t_png = best_time(lambda: picture.save(tmp / "w.png", image, title="bench"), repeats)
-
-        def command() -> float:
-            for f in ("img.h5", "img.png"):
-                (tmp / f).unlink(missing_ok=True)
-            t = time.perf_counter()
-            subprocess.run([sys.executable, "-m", "acquisition.cli", "-q", "image", str(rec_path), "-o", str(tmp / "img.h5"),
-                            "--grid", grid_text], check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
-            return time.perf_counter() - t
-
-        command()  # warm: the kernels compiled into numba's cache, files in the page cache
-        imports = import_times([sys.executable, "-X", "importtime", "-m", "acquisition.cli", "-q", "image", str(rec_path),
-                                "-o", str(tmp / "imp.h5"), "--grid", grid_text])
-        # Alternating: the whole command as a new process, then the kernel alone here; ratio per round.
-        rounds = []
-        for _ in range(repeats):
-            t_cmd = command()
-            t = time.perf_counter()
-            backproject(profiles_again, tx_m, rx_m, points)
-            rounds.append((t_cmd, time.perf_counter() - t))
-        t_command = min(r[0] for r in rounds)
-        command_fraction_rounds = [k / c for c, k in rounds]
-    work = n_p * points.reshape(-1, 3).shape[0]
+        results = {name: measure_case(tmp, name, *case) for name, case in cases.items()}
+        bench = tmp / "benchmark_case.h5"
+        imports = import_times([sys.executable, "-X", "importtime", "-m", "acquisition.cli", "-q", "image", str(bench),
+                                "-o", str(tmp / "imp.h5"), "--grid", results["benchmark_case"]["case"]["grid"]])
+        start = fixed_costs(bench)
+    print("process start: " + ", ".join(f"{k} {v:.3f}" for k, v in start.items()))
     result = {
-        "case": {"frames": n, "profiles": n_p, "grid_points": int(points.size // 3), "quick": args.quick},
-        "kernel_backprojections_per_s": work / t_kernel,
-        "command_backprojections_per_s": work / t_command,
-        "command_fraction_of_kernel": t_kernel / t_command,
-        "command_fraction_of_kernel_per_round": {"median": statistics.median(command_fraction_rounds),
-                                                 "min": min(command_fraction_rounds), "max": max(command_fraction_rounds)},
-        "command_is": "a new process: python -m acquisition.cli image",
-        "load_average": os.getloadavg(),
-        "form_image_fraction_of_kernel": t_kernel / t_form,
+        **results,
+        "quick": args.quick,
+        "command_is": "a new process: python -m acquisition.cli image (sarbot's byte code cached, as after an install)",
+        "load_average": {"before": load_before, "after": os.getloadavg()},
         "command_imports": imports,
-        "seconds": {"command": t_command, "form_image": t_form, "kernel": t_kernel, "read_and_range_compress": t_compress,
-                    "write_image": t_write, "png_layout": t_png_layout, "png_draw": t_png,
-                    "command_minus_form_image_write_png": t_command - t_form - t_write - t_png_layout - t_png},
+        "process_start_seconds": start,
     }
-    s = result["seconds"]
-    print(f"kernel {work / t_kernel / 1e9:.3f} G/s, form_image {work / t_form / 1e9:.3f} G/s ({100 * t_kernel / t_form:.0f} %), "
-          f"sarbot image {work / t_command / 1e9:.3f} G/s ({100 * t_kernel / t_command:.0f} % of the kernel); seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in s.items()))
     RESULTS.mkdir(parents=True, exist_ok=True)
     name = "image_command_quick" if args.quick else "image_command"
     (RESULTS / f"{name}.json").write_text(strict_json.dumps(result, indent=2))

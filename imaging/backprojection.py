@@ -47,11 +47,13 @@ import numba
 import numpy as np
 
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
-from imaging.numba_target import compiled_target, prefer_full_width_vectors  # noqa: F401 - compiled_target re-exported
+from imaging.numba_target import (  # noqa: F401 - compiled_target re-exported
+    compiled_target, prefer_full_width_vectors, skip_extension_search)
 from imaging.range_compression import RangeProfiles
 
 # Before any kernel compiles: 512-bit vectors where the CPU has AVX-512 (see imaging/numba_target.py).
 prefer_full_width_vectors()
+skip_extension_search()  # and no search of every installed distribution for numba extensions
 
 
 MODES = ("nearest", "linear", "exact")

@@ -1,7 +1,8 @@
-"""The CPU target numba compiles for: full-width AVX-512 vectors where the CPU has them.
+"""How numba is set up for sarbot's kernels: full-width AVX-512 vectors where the CPU has them, and no
+search for numba extensions, which the kernels do not use.
 
-``imaging.backprojection`` calls :func:`prefer_full_width_vectors` on import, before any of its kernels
-compiles; benchmarks report :func:`compiled_target`.
+``imaging.backprojection`` calls :func:`prefer_full_width_vectors` and :func:`skip_extension_search` on
+import, before any of its kernels compiles; benchmarks report :func:`compiled_target`.
 """
 
 from __future__ import annotations
@@ -46,3 +47,16 @@ def compiled_target() -> dict:
     wide = "-prefer-256-bit" in features and "+avx512f" in features
     return {"cpu": codegen._get_host_cpu_name(), "vector_bits": 512 if wide else 256 if "+avx" in features else 128,  # noqa: SLF001
             "prefer_256_bit_off": "-prefer-256-bit" in features}
+
+
+def skip_extension_search() -> None:
+    """Tell numba its extensions are loaded already, so that it does not look for any.
+
+    Before its first compilation or cache load numba runs every installed ``numba_extensions`` entry point,
+    and to find them it reads the metadata of every installed distribution (importlib.metadata): about
+    0.1 s of every process that images, more the more packages the environment holds. sarbot's kernels
+    use numba's own types and functions only; a process that needs a numba extension imports it itself.
+    """
+    from numba.core import entrypoints
+
+    entrypoints._already_initialized = True  # noqa: SLF001 - numba's flag that the search was done

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import subprocess
 import sys
@@ -62,6 +63,34 @@ def test_image_imports_autofocus_only_when_asked(recording, tmp_path):
                          text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip().endswith("imported") and "not imported" not in res.stdout
+
+
+def test_image_imports_neither_matplotlib_nor_scipy_rotations(recording, tmp_path):
+    """``sarbot image`` writes its PNG (the image's pixels) without matplotlib, places its antennas without
+    scipy's Rotation (half a second of a whole process between them) and does not let numba search every
+    installed distribution for extensions; ``--png-figure`` draws matplotlib's figure, axes and colour bar,
+    990 pixels wide."""
+    from PIL import Image
+
+    code = ("import sys, importlib.metadata as md; scans = []; md.entry_points = lambda *a, **k: scans.append(1); "
+            "from acquisition.cli import main; code = main(sys.argv[1:]); "
+            "print(sorted(m for m in ('matplotlib', 'scipy.spatial') if m in sys.modules) + scans); sys.exit(code)")
+    args = [recording, "-o", tmp_path / "a.h5", "--frames", "10:20", "--grid", "-0.05:0.05:0.005,1.9:2.1:0.005"]
+    res = subprocess.run([sys.executable, "-c", code, "image", *map(str, args)], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip().endswith("[]")
+    with Image.open(tmp_path / "a.png") as png:
+        assert png.size == (21 * 13, 41 * 13)  # 13 x 13 screen pixels per grid point: 512 or more on the longer side
+        assert png.text["Title"].startswith("left_front frames 10:20")
+    args[2] = tmp_path / "b.h5"
+    res = subprocess.run([sys.executable, "-c", code, "image", *map(str, args), "--png-figure"], capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert "'matplotlib'" in res.stdout.splitlines()[-1]
+    with Image.open(tmp_path / "b.png") as png:
+        assert png.size[0] == 990
+    with h5py.File(tmp_path / "a.h5") as a, h5py.File(tmp_path / "b.h5") as b:
+        np.testing.assert_array_equal(a["image"][()], b["image"][()])
 
 
 def test_image_with_ffbp_equals_the_direct_image(recording, tmp_path):
@@ -256,6 +285,27 @@ def test_choice_lists_are_read_from_their_sources_when_needed(monkeypatch):
     assert all(name in record_help for name in registry.names()) and f"default {registry.DEFAULT}" in record_help
 
 
+def test_a_command_builds_its_own_parser_alone():
+    """``FAMILIES`` names every command its family registers; a command's parser alone parses its arguments as
+    the whole command line's does, and does not register (nor import for) another family's commands."""
+    import argparse
+
+    from acquisition.cli import FAMILIES, ArgumentParser, build_parser, command_of
+
+    for family, commands in FAMILIES.items():
+        sub = ArgumentParser(prog="t").add_subparsers()
+        importlib.import_module(f"acquisition.cli.{family}").register(sub)
+        assert tuple(sub.choices) == commands, family
+    full = build_parser()
+    argv = ["-q", "image", "rec.h5", "-o", "img.h5", "--grid=-1:1:0.1,1:2:0.1", "--frames", "3:9"]
+    assert command_of(argv) == "image" and command_of(["-v", "--version"]) is None
+    alone = build_parser("image")
+    assert vars(alone.parse_args(argv)) == vars(full.parse_args(argv))
+    commands = next(a for a in alone._actions if isinstance(a, argparse._SubParsersAction)).choices
+    assert set(commands) == set(FAMILIES["imaging"])
+    assert build_parser("no-such-command")._actions[-1].choices.keys() == full._actions[-1].choices.keys()
+
+
 def _choices():
     """What completion must offer, read from where sarbot keeps it (not written out in the test)."""
     from acquisition.exporters.ros2_bag import STORAGES
@@ -326,7 +376,10 @@ def _fake_distribution(site, package: str, name: str, version: str = "9.9") -> N
     (info / "RECORD").write_text(f"{package}.py,,\n{info.name}/METADATA,,\n{info.name}/RECORD,,\n")
 
 
-@pytest.mark.parametrize("package, command", [("rio", ["rio", "rec.h5", "-o", "traj.h5"]), ("drivers", ["info", "rec.h5"])])
+# Commands that import the package: rio's odometry; record's options (its wire formats). ``info`` builds only its own
+# family's parser now, which needs nothing of drivers.
+@pytest.mark.parametrize("package, command", [("rio", ["rio", "rec.h5", "-o", "traj.h5"]),
+                                              ("drivers", ["record", "--config", "rec.h5", "-o", "out"])])
 def test_a_package_of_another_distribution_in_place_of_sarbots_is_named_in_one_line(tmp_path, package, command):
     """``pip install rio`` (or ``drivers``) puts another project's package where sarbot's was; here a folder
     first on the path does the same. sarbot names the package, where it is, whose it is, and the way out."""

@@ -1,11 +1,14 @@
-"""SampledTrajectory's interpolation against scipy's: the attitude by slerp, the rest linear, held outside."""
+"""SampledTrajectory's interpolation against scipy's: the attitude by slerp, the rest linear, held outside;
+and the numpy quaternion helpers the imaging path uses instead of scipy's Rotation, against it."""
 
 from __future__ import annotations
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from imaging.core.trajectory import SampledTrajectory
+from imaging.core import quaternion
+from imaging.core.rig import Mount
+from imaging.core.trajectory import SampledTrajectory, StraightLine
 
 
 def test_sampling_matches_scipy_slerp_and_linear_interpolation():
@@ -36,3 +39,39 @@ def test_sampling_matches_scipy_slerp_and_linear_interpolation():
     step = (Rotation.from_quat(quat[k]).inv() * Rotation.from_quat(quat[k + 1])).as_rotvec()
     np.testing.assert_allclose(traj.sample(np.array([mid])).angular_velocity_body_radps[0],
                                step / ((time_ns[k + 1] - time_ns[k]) * 1e-9), rtol=1e-9)
+
+
+def _random_quaternions(rng, n):
+    """Unnormalised quaternions of every sign, with rotations of nearly nothing and nearly half a turn."""
+    q = rng.normal(size=(n, 4)) * rng.uniform(0.5, 2.0, (n, 1))
+    q[:10, :3] *= 1e-6  # tiny angles: the rotation vector's series
+    q[10:20, 3] *= 1e-6  # angles near pi
+    q[::3] *= -1
+    return q
+
+
+def test_quaternion_helpers_give_scipys_numbers():
+    rng = np.random.default_rng(7)
+    q = _random_quaternions(rng, 500)
+    r, qn = Rotation.from_quat(q), quaternion.normalized(q)
+    np.testing.assert_allclose(qn, r.as_quat(), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(quaternion.to_matrix(qn), r.as_matrix(), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(quaternion.inverse(qn), r.inv().as_quat(), rtol=0, atol=1e-12)
+    composed = quaternion.compose(quaternion.inverse(qn[:-1]), qn[1:])
+    np.testing.assert_allclose(composed, (r[:-1].inv() * r[1:]).as_quat(), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(quaternion.to_rotvec(qn), r.as_rotvec(), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(quaternion.to_rotvec(composed), (r[:-1].inv() * r[1:]).as_rotvec(), rtol=0, atol=1e-12)
+    angle = rng.uniform(-7, 7, 50)
+    np.testing.assert_allclose(quaternion.about_z(angle), Rotation.from_euler("z", angle[:, None]).as_quat(),
+                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose(quaternion.to_matrix(q[0] / np.linalg.norm(q[0])), r[0].as_matrix(), rtol=0, atol=1e-12)
+
+
+def test_mounts_and_samples_give_the_matrices_of_scipys_rotation():
+    mount = Mount.from_yaw([0.1, 0.2, 0.3], 57.0)
+    np.testing.assert_allclose(mount.rotation_xyzw, Rotation.from_euler("z", 57.0, degrees=True).as_quat(), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(mount.rotation_matrix, mount.rotation.as_matrix(), rtol=0, atol=1e-15)
+    s = StraightLine(start_m=(0, 0, 0), speed_mps=0.4, heading_deg=115.0).sample(np.arange(5) * 10 ** 8)
+    np.testing.assert_allclose(s.orientation_xyzw, Rotation.from_euler("z", np.full((5, 1), 115.0), degrees=True).as_quat(),
+                               rtol=0, atol=1e-15)
+    np.testing.assert_allclose(s.rotation_matrix, s.rotation.as_matrix(), rtol=0, atol=1e-15)

@@ -18,8 +18,15 @@ from ..processes import configure_logging, ensure_jit_cache_dir
 from .exit_codes import run_command
 from .options import ArgumentParser, join_negative_values
 
-#: The command families, in the order their commands are listed.
-FAMILIES = ("imaging", "odometry", "files", "daemon", "system")
+#: The command families, in the order their commands are listed, each with the commands it registers: a
+#: command's parser is built alone (``sarbot image`` need not build, nor import for, ``record``'s options).
+FAMILIES = {
+    "imaging": ("simulate", "image", "batch", "analyze", "experiment"),
+    "odometry": ("rio", "calibrate"),
+    "files": ("info", "export", "import-bag", "import-ti"),
+    "daemon": ("record", "run", "replay", "demo"),
+    "system": ("install-unit", "completion"),
+}
 
 
 def _version() -> str:
@@ -42,13 +49,21 @@ class _VersionAction(argparse.Action):
         parser.exit()
 
 
-def build_parser() -> argparse.ArgumentParser:
+def command_of(argv: list[str]) -> str | None:
+    """The command an argument list asks for: its first word that is not an option (sarbot's own options
+    take no values), or None."""
+    return next((a for a in argv if not a.startswith("-")), None)
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The command line's parser: with every command, or (``command``) with that one only, when it is one."""
     p = ArgumentParser(prog="sarbot", description="SAR imaging and radar-inertial odometry for mobile robots.")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     p.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only (no progress, no info lines)")
     p.add_argument("--version", action=_VersionAction, help="show the version and exit")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for family in FAMILIES:
+    families = [family for family, commands in FAMILIES.items() if command in commands] or list(FAMILIES)
+    for family in families:
         importlib.import_module(f"{__name__}.{family}").register(sub)
     return p
 
@@ -56,7 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     # Before anything imports numba: a choice list read from its module (autofocus methods) may import it.
     ensure_jit_cache_dir()
-    parser = build_parser()
-    args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else list(argv)))
+    argv = join_negative_values(sys.argv[1:] if argv is None else list(argv))
+    args = build_parser(command_of(argv)).parse_args(argv)
     configure_logging(-1 if args.quiet else args.verbose)  # also every process the command starts (environment)
     return run_command(args.func, args)

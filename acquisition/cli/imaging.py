@@ -41,6 +41,9 @@ def register(sub) -> None:
     s.add_argument("--tx", help="TX channels, e.g. 0,2 (default all)")
     s.add_argument("--rx", help="RX channels, e.g. 0 (default all)")
     s.add_argument("--png", help="where to write the PNG (default: beside the image)")
+    s.add_argument("--png-figure", action="store_true",
+                   help="the PNG as a figure with axes in metres, a colour bar and the title (matplotlib; about half a "
+                        "second more) instead of the image's pixels alone")
     s.add_argument("--autofocus-sinusoids", type=int, default=1, help="sinusoids in the entropy model (0-4, default 1)")
     s.add_argument("--autofocus-decision", default="consistency", choices=("consistency", "contrast"),
                    help="when an estimate is applied: consistency (default): the estimates from the lower and upper "
@@ -118,10 +121,9 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_image(args) -> int:
-    from imaging.image_formation import ImagingOptions, image_recording, image_title
+    from imaging.image_formation import ImagingOptions, image_recording
     from imaging.io.image_file import write_image
     from imaging.io.recording import Recording
-    from imaging.plot import ImagePicture
 
     from ..progress import Progress
 
@@ -149,14 +151,27 @@ def cmd_image(args) -> int:
     if args.rig:  # the image says whose mounts placed its antennas
         img.attrs["rig"] = str(args.rig)
     path = opt.write_output(out, lambda p: write_image(p, img), "-o ")
-    # Not laid out beside the backprojection: its kernel has every core, and the figure's Python then holds
-    # the GIL the kernel's calls need (0.15 s slower than after it, benchmarks/image_command.py).
-    opt.write_output(png, lambda p: ImagePicture(img.x_m, img.y_m).save(p, img.image, title=image_title(img)),
-                     "--png ")  # a volume: its maximum over height
+    opt.write_output(png, lambda p: write_picture(p, img, args.png_figure), "--png ")
     print(f"wrote {path} and {png}")
     if img.track_error is not None:
         print(autofocus_summary(img))
     return EXIT_OK
+
+
+def write_picture(path: Path, img, figure: bool) -> Path:
+    """The PNG of ``img`` (a volume: its largest magnitude over height): its pixels in the colour map, or
+    with ``figure`` matplotlib's figure of them (imported only then: it costs half a second)."""
+    from imaging.image_formation import image_title
+
+    if not figure:
+        from imaging.plot import save_image_pixels_png
+
+        return save_image_pixels_png(path, img.image, img.x_m, img.y_m, title=image_title(img))
+    from imaging.plot import ImagePicture
+
+    # Not laid out beside the backprojection: its kernel has every core, and the figure's Python then holds
+    # the GIL the kernel's calls need (0.15 s slower than after it, benchmarks/image_command.py).
+    return ImagePicture(img.x_m, img.y_m).save(path, img.image, title=image_title(img))
 
 
 def autofocus_summary(img) -> str:

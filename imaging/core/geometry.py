@@ -89,7 +89,7 @@ def antenna_track(
     # measured at stamp - offset: that is where the trajectory, in the IMU's time, has it.
     offset_ns = 0 if radar.calibration is None else int(round(radar.calibration.time_offset_s * 1e9))
     s = trajectory.sample(time_ns - np.int64(offset_ns))
-    rot = s.rotation.as_matrix()  # [P, 3, 3] body -> world
+    rot = s.rotation_matrix  # [P, 3, 3] body -> world
     mount = radar.mount
     # Lever arms of each antenna in the body frame.
     tx_body = mount.to_body(radar.array.tx_positions_m)[tx_index]  # [P, 3]

@@ -22,13 +22,16 @@ import dataclasses
 import functools
 import re
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from imaging.core import quaternion
 from imaging.core.config import ConfigError, as_vector, from_dict, read_toml, require
 from imaging.core.waveform import Waveform
+
+if TYPE_CHECKING:
+    from scipy.spatial.transform import Rotation
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,16 +85,19 @@ class Mount:
     @classmethod
     def from_yaw(cls, translation_m, yaw_deg: float) -> "Mount":
         """A sensor whose boresight points at ``yaw_deg`` from body x towards body y, level."""
-        return cls(np.asarray(translation_m, float), Rotation.from_euler("z", yaw_deg, degrees=True).as_quat())
+        return cls(np.asarray(translation_m, float), quaternion.about_z(np.deg2rad(yaw_deg)))
 
     @property
     def rotation(self) -> Rotation:
+        """Sensor -> body as scipy's Rotation (imported here: the imaging path needs only the matrix)."""
+        from scipy.spatial.transform import Rotation
+
         return Rotation.from_quat(self.rotation_xyzw)
 
     @functools.cached_property
     def rotation_matrix(self) -> np.ndarray:
         """Sensor -> body rotation matrix (computed once: filters use it at every update)."""
-        return self.rotation.as_matrix()
+        return quaternion.to_matrix(quaternion.normalized(self.rotation_xyzw))  # as scipy's from_quat(q).as_matrix()
 
     def to_body(self, points_sensor_m: np.ndarray) -> np.ndarray:
         """Sensor-frame points [..., 3] to body frame."""

@@ -12,11 +12,15 @@ import abc
 import dataclasses
 import math
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from imaging.core import quaternion
 from imaging.core.errors import ConfigError
+
+if TYPE_CHECKING:
+    from scipy.spatial.transform import Rotation
 
 
 @dataclasses.dataclass
@@ -32,7 +36,16 @@ class TrajectorySample:
 
     @property
     def rotation(self) -> Rotation:
+        """Body -> world as scipy's Rotation (imported here: the imaging path needs only the matrices,
+        ``rotation_matrix``)."""
+        from scipy.spatial.transform import Rotation
+
         return Rotation.from_quat(self.orientation_xyzw)
+
+    @property
+    def rotation_matrix(self) -> np.ndarray:
+        """Body -> world rotation matrices [N, 3, 3] (the same numbers as ``rotation.as_matrix()``)."""
+        return quaternion.to_matrix(quaternion.normalized(self.orientation_xyzw))
 
 
 class Trajectory(abc.ABC):
@@ -59,7 +72,7 @@ def _planar_sample(time_ns, xy, heading, speed, yaw_rate, z, accel_along=None) -
     position = np.column_stack([xy, np.full(n, z)])
     c, s = np.cos(heading), np.sin(heading)
     velocity = np.column_stack([speed * c, speed * s, np.zeros(n)])
-    orientation = Rotation.from_euler("z", heading[:, None]).as_quat()
+    orientation = quaternion.about_z(heading)
     omega = np.zeros((n, 3))
     omega[:, 2] = yaw_rate
     # Tangential plus centripetal (v * yaw rate, towards the inside of the turn).
@@ -278,11 +291,10 @@ class SampledTrajectory(Trajectory):
             velocity_mps = np.gradient(self.position_m, self._t, axis=0)
         self.velocity_mps = np.asarray(velocity_mps, dtype=np.float64)
         self._accel = np.gradient(self.velocity_mps, self._t, axis=0)
-        rotations = Rotation.from_quat(self.orientation_xyzw)
-        self._quat = rotations.as_quat()  # normalised
+        self._quat = quaternion.normalized(self.orientation_xyzw)
         # Per interval: the rotation vector log(R_k^T R_{k+1}), and from it the body angular rate.
         self._dt = np.diff(self._t)
-        self._step_rotvec = (rotations[:-1].inv() * rotations[1:]).as_rotvec()
+        self._step_rotvec = quaternion.to_rotvec(quaternion.compose(quaternion.inverse(self._quat[:-1]), self._quat[1:]))
         self._omega_body = self._step_rotvec / self._dt[:, None]
         self.source = source
 
