@@ -154,10 +154,12 @@ def _blas_thread_setter():
 def beams_at_points(beams: FrameBeams, pts: np.ndarray) -> np.ndarray:
     """The frame's image at ``pts`` [N, 3] from its beams, complex128 [N]."""
     out = np.zeros(pts.shape[0], np.complex128)
-    turn = np.exp(-1j * beams.k_rad_per_m * beams.shift_m)  # each beam's mean range shift, as a phase
+    # each beam's mean range shift as a phase, once per beam instead of once per pixel and tap
+    turn = np.exp(-1j * beams.k_rad_per_m * beams.shift_m).astype(np.complex64)[:, None]
+    signals = np.ascontiguousarray(np.stack([beams.main * turn, beams.slope * turn], axis=-1))  # [beams, bins, 2]
     _beams_at_points(out, np.ascontiguousarray(pts, np.float64), beams.centre_m, beams.axis, beams.alpha0,
-                     beams.dalpha, beams.inv_r_mid, beams.k_rad_per_m, beams.range_step_m, beams.main, beams.slope,
-                     beams.shift_m, beams.shift_slope_m, turn, _table())
+                     beams.dalpha, beams.inv_r_mid, beams.k_rad_per_m, beams.range_step_m, signals, beams.shift_m,
+                     beams.shift_slope_m, _table())
     return out
 
 
@@ -225,25 +227,14 @@ def _table() -> np.ndarray:
     return _TABLE[0]
 
 
-@numba.njit(inline="always", fastmath=True)
-def _read(sig, a, pos):
-    """Linear interpolation of beam a's profile at fractional bin ``pos`` (0 outside)."""
-    i = int(math.floor(pos))
-    if i < 0 or i + 1 >= sig.shape[1]:
-        return np.complex64(0.0)
-    f = np.float32(pos - i)
-    return sig[a, i] * (np.float32(1.0) - f) + sig[a, i + 1] * f
-
-
 @numba.njit(fastmath=True, cache=True, nogil=True)
-def _beams_at_points(out, pts, c, u, alpha0, dalpha, inv_r_mid, k, step, main, slope, shift, shift_slope, turn,
-                     table):
-    """Each pixel: ``TAPS`` beams around its angle, each read at the pixel's range (its own shift) with the
-    phase exp(-j k R) restored: exp(-j k 2r) once, the beam's exp(-j k shift) from ``turn``, and the small
-    exp(-j k shift_slope eps) by its series (a sine and cosine per tap cost more than the rest)."""
+def _beams_at_points(out, pts, c, u, alpha0, dalpha, inv_r_mid, k, step, signals, shift, shift_slope, table):
+    """Each pixel: ``TAPS`` beams around its angle, each read linearly at the pixel's range (its own shift),
+    the phase exp(-j k (2 r + shift_slope eps)) restored once (the beams' exp(-j k shift) is in ``signals``;
+    shift_slope changes by about a milliradian of phase across the taps, so the middle tap's stands for all)."""
     taps = table.shape[1]
     nf = table.shape[0] - 1
-    nb = main.shape[0]
+    nb, bins = signals.shape[0], signals.shape[1]
     for i in range(pts.shape[0]):
         dx, dy, dz = pts[i, 0] - c[0], pts[i, 1] - c[1], pts[i, 2] - c[2]
         r = math.sqrt(dx * dx + dy * dy + dz * dz)
@@ -254,18 +245,18 @@ def _beams_at_points(out, pts, c, u, alpha0, dalpha, inv_r_mid, k, step, main, s
             continue
         w = table[int((fa - ia) * nf + 0.5)]
         eps = 1.0 / r - inv_r_mid
-        acc = 0j
+        slope_gain = np.complex64(-1j * k * eps)
+        main = np.complex64(0.0)
         for t in range(taps):
             a = j0 + t
-            rr = 2.0 * r + shift[a] + shift_slope[a] * eps
-            pos = rr / step
-            v = _read(main, a, pos) - 1j * (k * eps) * _read(slope, a, pos)
-            x = k * shift_slope[a] * eps
-            if abs(x) < 0.25:  # series to x^5: error below 4e-7
-                x2 = x * x
-                ph = complex(1.0 - x2 * (0.5 - x2 / 24.0), -x * (1.0 - x2 * (1.0 / 6.0 - x2 / 120.0)))
-            else:
-                ph = complex(math.cos(x), -math.sin(x))
-            acc += w[t] * v * turn[a] * ph
-        ph0 = -2.0 * k * r
-        out[i] = acc * complex(math.cos(ph0), math.sin(ph0))
+            pos = (2.0 * r + shift[a] + shift_slope[a] * eps) / step
+            b = int(pos)
+            if b < 0 or b + 1 >= bins:
+                continue
+            f = np.float32(pos - b)
+            g = np.float32(1.0) - f
+            v = (signals[a, b, 0] * g + signals[a, b + 1, 0] * f
+                 + slope_gain * (signals[a, b, 1] * g + signals[a, b + 1, 1] * f))
+            main += w[t] * v
+        ph = -k * (2.0 * r + shift_slope[int(ia)] * eps)
+        out[i] = main * complex(math.cos(ph), math.sin(ph))
