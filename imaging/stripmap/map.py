@@ -24,6 +24,13 @@ from imaging.stripmap.refocus import TileRefocus
 #: The most frames ``StripMap.add_frames`` takes at once (each pixel notes which of them take it in one int64).
 MAX_BATCH_FRAMES = 62
 
+#: "polar" images a frame of more profiles than this through its beams, one of this many or fewer directly:
+#: the beams' fixed cost (their compression, the pass over the pixels) is then more than the kernel's
+#: pixels x profiles (on the soak's scene both cost 3.2-3.4 ms a frame at 64, 8 together; at 128 the beams
+#: 1.6x less, at 32 the kernel 1.4x less: benchmarks/stripmap_polar.py). A live map catching up (pre-summing
+#: 4x the reference radar's default and beyond) so goes direct.
+POLAR_MIN_PROFILES = 64
+
 #: The most pixels a map's mosaic (and its file) holds: 2 GB of complex64.
 MOSAIC_MAX_PIXELS = 1 << 28
 
@@ -204,7 +211,9 @@ class StripMap:
             ended = self._image_block(radar.name) if ffbp else FrameFootprint([], 0)
             return dataclasses.replace(ended, skipped="standing still", frames_standing=standing)
         n_frames = int(np.count_nonzero(moving))
-        polar = cfg.images_by_beams
+        p = presum or cfg.presum
+        per_frame = wf.n_tx * (wf.chirps_per_tx // p) * (1 if sum_rx else wf.n_rx)
+        polar = cfg.images_by_beams and per_frame > POLAR_MIN_PROFILES
         profiles, tx_m, rx_m, look, times = self.frames_profiles(
             radar, tx_order, [a for a, m in zip(adcs, moving) if m],
             [t for t, m in zip(frame_times_ns, moving) if m], trajectory, presum, weight, sum_rx, compress=not polar)
