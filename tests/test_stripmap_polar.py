@@ -89,7 +89,9 @@ def test_beams_at_points_is_numpys():
     slope = (rng.normal(size=(nb, bins)) + 1j * rng.normal(size=(nb, bins))).astype(np.complex64)
     shift = rng.normal(0, 1e-3, nb)
     shift_slope = np.full(nb, 2e-4) + rng.normal(0, 1e-8, nb)  # as across a frame's taps: well under a mrad
-    beams = FrameBeams(np.zeros(3), np.array([1.0, 0.0, 0.0]), -0.4, 0.05, 0.6, k, step, main, slope, shift, shift_slope)
+    turn = np.exp(-1j * k * shift).astype(np.complex64)[:, None]  # carried by the signals
+    beams = FrameBeams(np.zeros(3), np.array([1.0, 0.0, 0.0]), -0.4, 0.05, 0.6, k, step,
+                       np.concatenate([main * turn, slope * turn]), shift, shift_slope)
     pts = np.stack([rng.uniform(-0.2, 0.2, 200), rng.uniform(1.0, 1.4, 200), np.zeros(200)], axis=1)
     got = beams_at_points(beams, pts)
     table = _table()

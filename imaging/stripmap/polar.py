@@ -48,9 +48,10 @@ TAPS = 6
 class FrameBeams:
     """A frame's beam signals and where they sit.
 
-    ``main`` and ``slope`` [beams, bins] are range-compressed (two-way range ``range_step_m`` per bin);
-    a pixel at range r, angle alpha from ``centre_m`` reads them at 2 r + ``shift_m`` + ``shift_slope_m`` x eps,
-    eps = 1/r - ``inv_r_mid``, and takes main - j k eps slope."""
+    ``signals`` [2 x beams, bins], the beams' main signals then their slope signals, are range-compressed
+    (two-way range ``range_step_m`` per bin) and carry each beam's exp(-j k ``shift_m``); a pixel at range
+    r, angle alpha from ``centre_m`` reads them at 2 r + ``shift_m`` + ``shift_slope_m`` x eps, eps = 1/r -
+    ``inv_r_mid``, takes main - j k eps slope and restores exp(-j k (2 r + ``shift_slope_m`` eps))."""
 
     centre_m: np.ndarray  # [3]
     axis: np.ndarray  # [3], horizontal, across the look
@@ -59,8 +60,7 @@ class FrameBeams:
     inv_r_mid: float
     k_rad_per_m: float  # at the carrier (the centred sweep's middle frequency)
     range_step_m: float
-    main: np.ndarray  # complex64 [beams, bins]
-    slope: np.ndarray  # complex64 [beams, bins]
+    signals: np.ndarray  # complex64 [2 x beams, bins]
     shift_m: np.ndarray  # float64 [beams]
     shift_slope_m: np.ndarray  # float64 [beams]
 
@@ -114,12 +114,14 @@ def frame_beams(samples: np.ndarray, tx_m: np.ndarray, rx_m: np.ndarray, pts: np
         z = samples.T @ weights  # [n, 3 beams]: the one product over the frame's chirps
     dk = (2 * math.pi * frequency_step_hz / SPEED_OF_LIGHT_MPS * (np.arange(n) - m)).astype(np.float32)[:, None]
     b = beams
-    main = z[:, :b] - 1j * dk * z[:, b:2 * b]
-    slope_sig = (1 + dk / np.float32(k_c)) * z[:, 2 * b:]  # k_n / k_c: the slope's phase is k_n s eps
+    # each beam's mean range shift as its phase exp(-j k shift), here once per beam, not per pixel and tap
+    turn = np.exp(-1j * k_c * shift).astype(np.complex64)
+    main = (z[:, :b] - 1j * dk * z[:, b:2 * b]) * turn
+    slope_sig = (1 + dk / np.float32(k_c)) * z[:, 2 * b:] * turn  # k_n / k_c: the slope's phase is k_n s eps
     both = np.ascontiguousarray(np.concatenate([main, slope_sig], axis=1).T)
     prof = range_compress(both, f0_hz, frequency_step_hz, window=window, oversample=oversample, keep_samples=False)
-    return FrameBeams(centre, axis, float(lo), float(dalpha), inv_mid, k_c,
-                      prof.range_step_m, prof.data[:b], prof.data[b:], shift, shift_slope)
+    return FrameBeams(centre, axis, float(lo), float(dalpha), inv_mid, k_c, prof.range_step_m, prof.data, shift,
+                      shift_slope)
 
 
 @contextlib.contextmanager
@@ -155,11 +157,8 @@ def _blas_thread_setter():
 def beams_at_points(beams: FrameBeams, pts: np.ndarray) -> np.ndarray:
     """The frame's image at ``pts`` [N, 3] from its beams, complex128 [N]."""
     out = np.zeros(pts.shape[0], np.complex128)
-    # each beam's mean range shift as a phase, once per beam instead of once per pixel and tap
-    turn = np.exp(-1j * beams.k_rad_per_m * beams.shift_m).astype(np.complex64)[:, None]
-    signals = np.ascontiguousarray(np.stack([beams.main * turn, beams.slope * turn], axis=-1))  # [beams, bins, 2]
     _beams_at_points(out, np.ascontiguousarray(pts, np.float64), beams.centre_m, beams.axis, beams.alpha0,
-                     beams.dalpha, beams.inv_r_mid, beams.k_rad_per_m, beams.range_step_m, signals, beams.shift_m,
+                     beams.dalpha, beams.inv_r_mid, beams.k_rad_per_m, beams.range_step_m, beams.signals, beams.shift_m,
                      beams.shift_slope_m, _table())
     return out
 
@@ -233,7 +232,9 @@ def _beams_at_points(out, pts, c, u, alpha0, dalpha, inv_r_mid, k, step, signals
     shift_slope changes by about a milliradian of phase across the taps, so the middle tap's stands for all)."""
     taps = table.shape[1]
     nf = table.shape[0] - 1
-    nb, bins = signals.shape[0], signals.shape[1]
+    nb, bins = signals.shape[0] // 2, signals.shape[1]
+    inv_step = 1.0 / step
+    shift_bins, slope_bins = shift * inv_step, shift_slope * inv_step
     for i in range(pts.shape[0]):
         dx, dy, dz = pts[i, 0] - c[0], pts[i, 1] - c[1], pts[i, 2] - c[2]
         r = math.sqrt(dx * dx + dy * dy + dz * dz)
@@ -244,18 +245,22 @@ def _beams_at_points(out, pts, c, u, alpha0, dalpha, inv_r_mid, k, step, signals
             continue
         w = table[int((fa - ia) * nf + 0.5)]
         eps = 1.0 / r - inv_r_mid
-        slope_gain = np.complex64(-1j * k * eps)
-        main = np.complex64(0.0)
+        gain = np.float32(-k * eps)  # the slope signal's factor is -j k eps
+        base = 2.0 * r * inv_step
+        re, im = np.float32(0.0), np.float32(0.0)
         for t in range(taps):
             a = j0 + t
-            pos = (2.0 * r + shift[a] + shift_slope[a] * eps) / step
+            pos = base + shift_bins[a] + slope_bins[a] * eps
             b = int(pos)
             if b < 0 or b + 1 >= bins:
                 continue
             f = np.float32(pos - b)
             g = np.float32(1.0) - f
-            v = (signals[a, b, 0] * g + signals[a, b + 1, 0] * f
-                 + slope_gain * (signals[a, b, 1] * g + signals[a, b + 1, 1] * f))
-            main += w[t] * v
+            wt = w[t]
+            m = signals[a, b] * g + signals[a, b + 1] * f
+            s = signals[nb + a, b] * g + signals[nb + a, b + 1] * f
+            re += wt * (m.real - gain * s.imag)
+            im += wt * (m.imag + gain * s.real)
+        main = complex(re, im)
         ph = -k * (2.0 * r + shift_slope[int(ia)] * eps)
         out[i] = main * complex(math.cos(ph), math.sin(ph))
