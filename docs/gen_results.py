@@ -125,8 +125,10 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                            "The four-radar soak's smoke run.",
                            ".venv/bin/python benchmarks/soak.py --quick --radars left_front,left_rear,right_front,right_rear"),
     "soak_4radars_polar_1min": ("Soak: four radars, 1 minute, polar map (a loaded machine)",
-                                "The four radars at 1x with the map's default polar path, one minute on a machine "
-                                "other work loaded (its load average in the JSON): a check, not the 5-minute figure.",
+                                "The four radars at 1x with the map's default polar path for one minute, on a machine "
+                                "overloaded by other work (load_average_end, on 2 cores): the replay of 1.3 minutes took "
+                                "`minutes`, and the recorder and the odometry starved as much as the map, so it says "
+                                "nothing of the map's speed; the 5-minute soak on a quiet machine is the figure.",
                                 ".venv/bin/python benchmarks/soak.py --minutes 1 --radars left_front,left_rear,"
                                 "right_front,right_rear --name 4radars_polar_1min"),
     "soak_direct_2m": ("Soak: 2 m aperture, direct kernel",
