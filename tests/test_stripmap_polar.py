@@ -177,6 +177,9 @@ def test_refocusing_and_other_modes_image_directly():
     assert not StripMapConfig(refocus="pga").images_by_beams
     assert not StripMapConfig(mode="nearest").images_by_beams
     assert StripMap(StripMapConfig(mode="exact")).config.images_by_beams is False
+    assert not StripMapConfig(range_min_m=0.0).images_by_beams
+    assert not StripMapConfig(beam_half_angle_deg=80.0).images_by_beams
+    assert StripMapConfig(beam_half_angle_deg=70.0).images_by_beams
 
 
 def test_frames_of_few_profiles_go_direct(drive):

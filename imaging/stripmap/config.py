@@ -94,8 +94,11 @@ class StripMapConfig:
     @property
     def images_by_beams(self) -> bool:
         """Whether frames go through their beams ("polar"): not when refocusing (each frame's group images
-        come from the direct kernel) nor in "nearest" or "exact" mode (the beams are read linearly)."""
-        return self.algorithm == "polar" and not self.refocuses and self.mode == "linear"
+        come from the direct kernel), in "nearest" or "exact" mode (the beams are read linearly), with pixels
+        at the radar (``range_min_m`` 0) or beyond 70 degrees off broadside (the beams' angle, its sine,
+        flattens towards 90 degrees)."""
+        return (self.algorithm == "polar" and not self.refocuses and self.mode == "linear" and self.range_min_m > 0
+                and self.beam_half_angle_deg <= 70.0)
 
     @property
     def tile_m(self) -> float:
