@@ -326,6 +326,8 @@ def summarise(samples, checker, laps, frames_per_lap, lap_s, warm_up_s, replay_c
         "warnings_and_errors": sorted({e for e in checker.events if " info:" not in e})[:50],
         "replay_exit": replay_code, "replay_stderr_tail": replay_err.splitlines()[-5:],
         "daemon_exit": daemon_code, "daemon_log_tail": log_tail, "samples": samples,
+        # the machine's load at the end (1, 5, 15 min): other work on it shows here
+        "load_average_end": list(os.getloadavg()), "cpu_count": os.cpu_count(),
     }
     return result
 

@@ -59,6 +59,10 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
     "stripmap_ffbp": ("Live strip map with long apertures",
                       "The direct kernel against FFBP blocks in the live map: speed and the reflector's width.",
                       ".venv/bin/python benchmarks/stripmap_ffbp.py"),
+    "stripmap_polar": ("Live strip map: work per frame, direct against each frame's beams",
+                       "The live map's work per frame stage by stage, the direct kernel against the polar path "
+                       "(each frame through its beams), interleaved, and both maps against every frame at presum 1.",
+                       ".venv/bin/python benchmarks/stripmap_polar.py"),
     "stripmap_thinning": ("What the live map's catch-up costs",
                           "Pre-summing, RX sums and thinning: CPU saved against image error.",
                           ".venv/bin/python benchmarks/stripmap_thinning.py"),
@@ -134,6 +138,13 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
     "soak_4radars_quick": ("Soak: four radars, 3 minutes (quick)",
                            "The four-radar soak's smoke run.",
                            ".venv/bin/python benchmarks/soak.py --quick --radars left_front,left_rear,right_front,right_rear"),
+    "soak_4radars_polar_1min": ("Soak: four radars, 1 minute, polar map (a loaded machine)",
+                                "The four radars at 1x with the map's default polar path for one minute, on a machine "
+                                "overloaded by other work (load_average_end, on 2 cores): the replay of 1.3 minutes took "
+                                "`minutes`, and the recorder and the odometry starved as much as the map, so it says "
+                                "nothing of the map's speed; the 5-minute soak on a quiet machine is the figure.",
+                                ".venv/bin/python benchmarks/soak.py --minutes 1 --radars left_front,left_rear,"
+                                "right_front,right_rear --name 4radars_polar_1min"),
     "soak_direct_2m": ("Soak: 2 m aperture, direct kernel",
                        "The live map at a 2 m aperture with the direct kernel.",
                        ".venv/bin/python benchmarks/soak.py --minutes 3 --map-args \"--map-aperture 2\" --name direct_2m"),

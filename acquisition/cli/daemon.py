@@ -35,9 +35,10 @@ def register(sub) -> None:
     s.add_argument("--map-imu-aided", action="store_true",
                    help="correct each map tile once passed by the IMUs on the radars' own mounts (--radar-imu) first, "
                         "then --map-refocus if given")
-    s.add_argument("--map-algorithm", default="direct", choices=opt.MAP_ALGORITHMS,
-                   help="direct: every profile onto every pixel (default); ffbp: each radar's frames in blocks by fast "
-                        "factorized backprojection, for long apertures (--map-aperture of a metre or more)")
+    s.add_argument("--map-algorithm", default="polar", choices=opt.MAP_ALGORITHMS,
+                   help="polar: each frame through its own few beams, then once per pixel (default; the direct map to "
+                        "about -50 dB); direct: every profile onto every pixel; ffbp: each radar's frames in blocks by "
+                        "fast factorized backprojection, for long apertures (--map-aperture of a metre or more)")
     s.add_argument("--map-ffbp-block", type=int, default=8,
                    help="frames per block with --map-algorithm ffbp (default 8: 0.21 m at 0.5 m/s with the reference waveform); a pixel's aperture is "
                         "set to within a block's travel, so keep that a small part of --map-aperture (warned beyond 1/8)")

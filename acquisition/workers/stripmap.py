@@ -77,11 +77,11 @@ MAX_BATCH_FRAMES = 8
 class StripMapWorkerConfig:
     """``radars`` None: all of the rig's. ``map`` is the ``imaging.stripmap.StripMapConfig``. Frames wait
     for poses at most ``max_queue_s`` (of sensor time) before the oldest are dropped, counted; before that,
-    a backlog is imaged with more pre-summing (``catch_up_start_s``, ``catch_up_step_s``), then ("direct", no
+    a backlog is imaged with more pre-summing (``catch_up_start_s``, ``catch_up_step_s``), then ("polar" or "direct", no
     refocusing) with each TX's RX channels summed, then with only one frame of a radar in 2, 4 (up to
     ``max_thinning``; 1: never), counted too.
     Frames of one radar already queued and covered by poses are imaged together, up to ``max_batch_frames``
-    (with "direct" and no refocusing; the map is the same).
+    (with "polar" or "direct" and no refocusing; the map is the same).
     ``threads``: the backprojection kernel's threads. One by default: beside the drivers, the recorder and
     the odometry a second thread mostly waits for a core, and the same frames cost more CPU with two (14.8
     against 9.4 ms per frame on this two-core machine, benchmarks/stripmap.py); more only where the map has
@@ -132,7 +132,7 @@ class StripMapWorker(Worker):
         self.frame_ns = {name: r.waveform.frame_duration_ns for name, r in self.radars.items()}
         self.map = StripMap(config.map)
         # A block ("ffbp") is already a batch, and refocusing keeps every frame's own group images.
-        direct = config.map.algorithm == "direct" and not config.map.refocuses
+        direct = config.map.algorithm != "ffbp" and not config.map.refocuses
         self.batch_frames = config.max_batch_frames if direct else 1
         # refocusing keeps every channel's group images, and an "ffbp" block one layout of channels
         self.sums_rx = {name: direct and r.waveform.n_rx > 1 for name, r in self.radars.items()}

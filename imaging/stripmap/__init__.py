@@ -20,6 +20,13 @@ Several frames of one radar can go in together (``StripMap.add_frames``): each k
 map is the same, and what a frame costs besides the kernel (antenna placement, range compression, footprint,
 tile updates) is shared; a live map behind takes its queued frames that way.
 
+By default (``algorithm`` "polar") a frame's profiles do not go onto the pixels one by one: a frame is a
+tiny aperture (a few centimetres), so its image is first formed on a few beams across the footprint's
+angles, from its raw chirps in one matrix product, each beam range-compressed, and every pixel then reads
+the beams around its angle once (``imaging.stripmap.polar``): the same pixels and aperture window, the
+direct kernel's map to about -55 dB, for less work per frame. A frame pre-summed down to a few profiles (a
+live map catching up), refocusing maps and the "nearest" and "exact" modes go through the direct kernel.
+
 With ``refocus`` ("pga" or "entropy") a tile is refocused on its strongest scatterers once the radar has
 passed it: while it is being imaged each frame goes in as ``refocus_groups_per_frame`` slow-time group
 images (the same kernel calls, split by chirp time), which are exactly what ``imaging.autofocus`` estimates
@@ -45,8 +52,8 @@ attrs). Refocusing needs each frame's slow-time group images, which a block does
 Pure computation: arrays and dataclasses in, arrays out. ``acquisition.workers`` runs it on the bus.
 
 Modules, one idea each: ``config`` (``StripMapConfig``), ``presum`` (chirp sums and their phase spread),
-``footprint`` (where a frame images), ``refocus`` (the tiles' group images and their refocus), ``map``
-(``StripMap``). Every public name is importable from ``imaging.stripmap``.
+``footprint`` (where a frame images), ``polar`` (a frame through its beams), ``refocus`` (the tiles' group
+images and their refocus), ``map`` (``StripMap``). Every public name is importable from ``imaging.stripmap``.
 """
 
 from imaging.stripmap.config import ALGORITHMS, MAX_PIXEL_M, MIN_PIXEL_M, MODES, StripMapConfig, ffbp_block_travel_m

@@ -9,7 +9,7 @@ from imaging.core.config import require
 from imaging.core.rig import RadarConfig
 
 MODES = ("nearest", "linear", "exact")
-ALGORITHMS = ("direct", "ffbp")
+ALGORITHMS = ("polar", "direct", "ffbp")
 
 #: Limits of a map pixel, m: a tenth of a millimetre is far below the radar's resolution (a pixel of a
 #: nanometre would take minutes to refuse later, tile by tile); a metre above what a map shows.
@@ -48,9 +48,11 @@ class StripMapConfig:
     #: beyond it goes into the tiles it has, or is left out (counted): a long drive, or an odometry gone
     #: astray on a starved machine (tiles kilometres apart), must not take the machine's memory.
     max_tiles: int = 16384
-    #: "direct" (every profile onto every pixel of its footprint) or "ffbp" (blocks of frames by fast
-    #: factorized backprojection: for long apertures; see the module's docstring).
-    algorithm: str = "direct"
+    #: "polar" (each frame through its own few beams, then once per pixel: ``imaging.stripmap.polar``; a
+    #: refocusing map images directly, for each frame's group images), "direct" (every profile onto every pixel
+    #: of its footprint) or "ffbp" (blocks of frames by fast factorized backprojection: for long apertures;
+    #: see the package's docstring).
+    algorithm: str = "polar"
     #: Frames of one radar imaged together with "ffbp" (a block's travel is the aperture window's step).
     ffbp_block_frames: int = 8
 
@@ -76,7 +78,7 @@ class StripMapConfig:
         require(not self.refocuses or self.tile_px % 16 == 0, "tile_px",
                 f"must be a multiple of 16 to refocus tiles, got {self.tile_px}")
         require(self.radar_imu_keep_s > 0, "radar_imu_keep_s", "must be positive")
-        require(self.algorithm in ALGORITHMS, "algorithm", f"must be direct or ffbp, got {self.algorithm!r}")
+        require(self.algorithm in ALGORITHMS, "algorithm", f"must be one of {', '.join(ALGORITHMS)}, got {self.algorithm!r}")
         require(1 <= self.ffbp_block_frames <= 256, "ffbp_block_frames", f"must be 1 to 256, got {self.ffbp_block_frames}")
         require(self.algorithm != "ffbp" or not self.refocuses, "algorithm",
                 "ffbp images blocks of frames and cannot refocus (refocus needs each frame's group images); "
@@ -88,6 +90,15 @@ class StripMapConfig:
     def refocuses(self) -> bool:
         """Whether finished tiles are refocused (by autofocus, the radars' IMUs or both)."""
         return self.refocus != "none" or self.refocus_imu_aided
+
+    @property
+    def images_by_beams(self) -> bool:
+        """Whether frames go through their beams ("polar"): not when refocusing (each frame's group images
+        come from the direct kernel), in "nearest" or "exact" mode (the beams are read linearly), with pixels
+        at the radar (``range_min_m`` 0) or beyond 70 degrees off broadside (the beams' angle, its sine,
+        flattens towards 90 degrees)."""
+        return (self.algorithm == "polar" and not self.refocuses and self.mode == "linear" and self.range_min_m > 0
+                and self.beam_half_angle_deg <= 70.0)
 
     @property
     def tile_m(self) -> float:

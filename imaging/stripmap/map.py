@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from imaging.backprojection import backproject
+from imaging.core.geometry import antenna_track
 from imaging.core.rig import RadarConfig
 from imaging.core.trajectory import Trajectory
 from imaging.io.image_file import SarImage
@@ -15,12 +16,20 @@ from imaging.profiles import chirp_profiles
 from imaging.stripmap.config import StripMapConfig
 from imaging.stripmap.footprint import (FrameFootprint, footprint_mask, footprint_outline, footprint_tiles,
                                         merged_footprints)
+from imaging.stripmap.polar import beams_at_points, frame_beams
 from imaging.stripmap.presum import presum_chirps
 from imaging.stripmap.refocus import TileRefocus
 
 
 #: The most frames ``StripMap.add_frames`` takes at once (each pixel notes which of them take it in one int64).
 MAX_BATCH_FRAMES = 62
+
+#: "polar" images a frame of more profiles than this through its beams, one of this many or fewer directly:
+#: the beams' fixed cost (their compression, the pass over the pixels) is then more than the kernel's
+#: pixels x profiles (on the soak's scene both cost 3.2-3.4 ms a frame at 64, 8 together; at 128 the beams
+#: 1.6x less, at 32 the kernel 1.4x less: benchmarks/stripmap_polar.py). A live map catching up (pre-summing
+#: 4x the reference radar's default and beyond) so goes direct.
+POLAR_MIN_PROFILES = 64
 
 #: The most pixels a map's mosaic (and its file) holds: 2 GB of complex64.
 MOSAIC_MAX_PIXELS = 1 << 28
@@ -61,11 +70,12 @@ class StripMap:
         return self.frames_profiles(radar, tx_order, [adc], [frame_time_ns], trajectory, presum)
 
     def frames_profiles(self, radar: RadarConfig, tx_order: np.ndarray, adcs, frame_times_ns, trajectory: Trajectory,
-                        presum: int | None = None, weight: float = 1.0, sum_rx: bool = False):
+                        presum: int | None = None, weight: float = 1.0, sum_rx: bool = False, compress: bool = True):
         """As :meth:`frame_profiles`, for several frames of one radar at once (their profiles one after the
         other): one antenna placement and one range compression for all of them (``imaging.profiles.chirp_profiles``,
         as a one-shot image forms its profiles). ``weight`` scales the
-        profiles, ``sum_rx`` sums each TX's RX channels into one (see :meth:`add_frames`)."""
+        profiles, ``sum_rx`` sums each TX's RX channels into one (see :meth:`add_frames`). ``compress`` False:
+        the fast-time samples [P, samples] in place of the profiles (the "polar" path compresses beams)."""
         cfg = self.config
         presum = presum or cfg.presum
         wf = radar.waveform
@@ -83,9 +93,18 @@ class StripMap:
             samples = samples.sum(axis=1, keepdims=True)
         if weight != 1.0:
             samples *= np.float32(weight)  # the sums are this call's own arrays; compression is linear
+        chirp_times, tx_index = np.concatenate(chirp_times), np.concatenate(tx_index)
+        if not compress:  # "polar": the frame's beams are formed from the samples (imaging.stripmap.polar)
+            track = antenna_track(radar, trajectory, chirp_times, tx_index)
+            rx_m = track.rx_m.mean(axis=1, keepdims=True) if sum_rx else track.rx_m
+            n = samples.shape[1]
+            look = np.repeat(track.boresight[:, :2], n, axis=0)
+            look /= np.linalg.norm(look, axis=1, keepdims=True)
+            return (samples.reshape(-1, samples.shape[-1]), np.repeat(track.tx_m, n, axis=0), rx_m.reshape(-1, 3), look,
+                    np.repeat(chirp_times, n))
         # an RX sum is placed at its channels' centroid: for a symmetric row of them the sum's phase is the
         # centroid's, and its amplitude their array factor (-0.3 dB 4.3 degrees off boresight for 4 at lambda/2)
-        formed = chirp_profiles(samples, np.concatenate(chirp_times), np.concatenate(tx_index), radar, trajectory,
+        formed = chirp_profiles(samples, chirp_times, tx_index, radar, trajectory,
                                 window=cfg.window, oversample=cfg.oversample, keep_samples=cfg.mode == "exact",
                                 rx_centroid=sum_rx)
         look = np.repeat(formed.track.boresight[:, :2], samples.shape[1], axis=0)
@@ -192,9 +211,12 @@ class StripMap:
             ended = self._image_block(radar.name) if ffbp else FrameFootprint([], 0)
             return dataclasses.replace(ended, skipped="standing still", frames_standing=standing)
         n_frames = int(np.count_nonzero(moving))
+        p = presum or cfg.presum
+        per_frame = wf.n_tx * (wf.chirps_per_tx // p) * (1 if sum_rx else wf.n_rx)
+        polar = cfg.images_by_beams and per_frame > POLAR_MIN_PROFILES
         profiles, tx_m, rx_m, look, times = self.frames_profiles(
             radar, tx_order, [a for a, m in zip(adcs, moving) if m],
-            [t for t, m in zip(frame_times_ns, moving) if m], trajectory, presum, weight, sum_rx)
+            [t for t, m in zip(frame_times_ns, moving) if m], trajectory, presum, weight, sum_rx, compress=not polar)
         if ffbp:
             block = self._blocks.setdefault(radar.name, [])
             block.append((profiles, tx_m, rx_m, look))
@@ -202,7 +224,8 @@ class StripMap:
                 return FrameFootprint([], 0)
             return self._image_block(radar.name)
         # Each frame's mean phase centre and look decide its pixels, as if imaged alone.
-        per = profiles.data.shape[0] // n_frames
+        rows = profiles.shape[0] if polar else profiles.data.shape[0]
+        per = rows // n_frames
         centres = (0.5 * (tx_m + rx_m))[:, :2].reshape(n_frames, per, 2).mean(axis=1)
         looks = look.reshape(n_frames, per, 2).mean(axis=1)
         looks /= np.linalg.norm(looks, axis=1, keepdims=True)
@@ -211,7 +234,7 @@ class StripMap:
             self.frames_off_map += n_frames
             return FrameFootprint([], 0, skipped="map full", frames_standing=standing)
         self.frames += n_frames
-        self.profiles += profiles.data.shape[0]
+        self.profiles += rows
         refocused = self._refocus.finish(set(touched), self.tiles, self.tile_points, radar.name) if cfg.refocuses else []
         if not touched:
             return FrameFootprint([], 0, refocused=refocused, frames_imaged=n_frames, frames_standing=standing)
@@ -227,7 +250,10 @@ class StripMap:
                 takers.append(bit @ mask[:, iy, ix])
             where.append((taken, iy.size))
         pts = np.concatenate(points)
-        if not cfg.refocuses and n_frames == 1:
+        if polar:
+            values, groups = [self._polar_takers(radar, profiles, tx_m, rx_m, looks, pts,
+                                                 np.concatenate(takers) if n_frames > 1 else None, per)], []
+        elif not cfg.refocuses and n_frames == 1:
             values, groups = [backproject(profiles, tx_m, rx_m, pts, mode=cfg.mode)], []
         elif not cfg.refocuses:
             values, groups = [self._backproject_takers(profiles, tx_m, rx_m, pts, np.concatenate(takers), per)], []
@@ -261,6 +287,23 @@ class StripMap:
                                       samples=None if profiles.samples is None else profiles.samples[rows])
             sel = np.flatnonzero(inverse == c)
             values[sel] = backproject(sub, tx_m[rows], rx_m[rows], pts[sel], mode=self.config.mode)
+        return values
+
+    def _polar_takers(self, radar: RadarConfig, samples: np.ndarray, tx_m, rx_m, looks: np.ndarray, pts: np.ndarray,
+                      takers: np.ndarray | None, per: int) -> np.ndarray:
+        """Image each frame (rows f * per to (f + 1) * per of ``samples``) through its own beams onto the
+        pixels of ``pts`` its ``takers`` bit names (all of them for one frame; ``imaging.stripmap.polar``)."""
+        wf, cfg = radar.waveform, self.config
+        values = np.zeros(pts.shape[0], np.complex128)
+        for f in range(looks.shape[0]):
+            sel = slice(None) if takers is None else np.flatnonzero(takers >> f & 1)
+            rows = slice(f * per, (f + 1) * per)
+            mine = pts[sel]
+            if mine.shape[0] == 0:
+                continue
+            beams = frame_beams(samples[rows], tx_m[rows], rx_m[rows], mine, wf.f0_hz, wf.frequency_step_hz,
+                                cfg.window, cfg.oversample, looks[f])
+            values[sel] += beams_at_points(beams, mine)
         return values
 
     def flush(self) -> FrameFootprint:
@@ -407,7 +450,8 @@ class StripMap:
         """The map in the image schema (``imaging.io.image_file``)."""
         image, x, y = self.mosaic()
         cfg = self.config
-        meta = {"method": f"stripmap-{'ffbp' if cfg.algorithm == 'ffbp' else 'tdbp'}-{cfg.mode}", "aperture_limit_m": cfg.aperture_m,
+        method = "ffbp" if cfg.algorithm == "ffbp" else "polar" if cfg.images_by_beams else "tdbp"
+        meta = {"method": f"stripmap-{method}-{cfg.mode}", "aperture_limit_m": cfg.aperture_m,
                 "beam_half_angle_deg": cfg.beam_half_angle_deg, "presum": cfg.presum, "n_frames": self.frames,
                 "frames_standing_still": self.frames_standing, "frames_off_map": self.frames_off_map,
                 "tiles_refused": self.tiles_refused, "tiles_left_out": self.mosaic_tiles_left_out,
