@@ -16,6 +16,7 @@ from imaging.autofocus.consistency import consistency_of, half_band_blocks
 from imaging.autofocus.subapertures import GroupImages, entropy_and_gradient, group_images, image_entropy
 from imaging.autofocus.options import AutofocusOptions, AutofocusResult, ProfileBlock
 from imaging.autofocus.registry import METHODS
+from imaging.autofocus.weak_point import point_check
 from imaging.backprojection import backproject, patch_order
 from imaging.core.track_error import TrackError
 
@@ -135,6 +136,12 @@ def estimate_on_group_images(g: GroupImages, options: AutofocusOptions,
         # The full band may always depart from the halves' common part by 0.1 rad of two-way phase.
         consistency, agreed = consistency_of(g.time_s, lower, upper, delta, options.false_alarm, options.poly_order,
                                              max(options.sinusoids, 1), floor_m=0.1 / (2.0 * g.k))
+        if not consistency.passed:
+            # Too weak a target for the halves' estimates to agree: its own phase history may still hold
+            # the track error's lowest orders (imaging.autofocus.weak_point).
+            consistency = consistency.with_point(point_check(g, halves, options.false_alarm))
+            if consistency.passed:
+                agreed = consistency.point.displacement_m
         log.info("autofocus (%s): %s", options.method, consistency.describe())
         if agreed is None:
             applied = False
@@ -146,6 +153,13 @@ def estimate_on_group_images(g: GroupImages, options: AutofocusOptions,
             e1, _ = entropy_and_gradient(g, g.phase(delta))
             applied = e1 < e0
             note = "" if applied else "the consistent part did not sharpen the image; left unapplied"
+        elif consistency.scope == "point":
+            # The fit maximises the point's own power; the entropy of an image that is mostly noise need
+            # not fall with it, so it does not decide here.
+            delta, model = agreed, {"kind": "weak point", "method": options.method,
+                                    "legendre_orders": [2, consistency.point.dof + 1]}
+            e1, _ = entropy_and_gradient(g, g.phase(delta))
+            applied, note = True, ""
     if not applied:
         delta, model = np.zeros(g.b.shape[1]), None
         e1 = e0
