@@ -139,12 +139,12 @@ class Consistency:
     ``smooth_basis`` (``smooth_ratio``, ``smooth_critical_ratio``, ``smooth_dof``): a weak target's
     per-group values are noise, a bend and a vibration are a few numbers. ``scope``: "per-group" where the
     estimate agrees group by group, "smooth" where only its smooth part does (that part is what is
-    applied), "point" where neither does but the brightest pixel is a weak point whose own low-order fit
-    agrees in both halves (``point``, ``imaging.autofocus.weak_point``; that fit is applied), "" where
-    none. ``common_rms_m`` and ``uncertainty_m``: rms of the common part and of half the difference (the
+    applied), "point" where nothing the halves agree on sharpens the image but the brightest pixel is a
+    weak point whose own low-order fit agrees in both halves (``point``, ``imaging.autofocus.weak_point``;
+    that fit is applied), "" where none. ``common_rms_m`` and ``uncertainty_m``: rms of the common part and of half the difference (the
     estimate's uncertainty), in the scope that decided (per group where none did; for "point", the fit's
     rms and its Cramer-Rao bound). ``applied_agrees``: the estimate to apply lies within the critical ratio
-    of the common part. ``point``: the weak-point test, where it was made (the half-bands disagreed).
+    of the common part. ``point``: the weak-point test, where it was made (nothing agreed was applied).
     """
 
     ratio: float
@@ -173,8 +173,8 @@ class Consistency:
                    -math.inf if self.point is None else self.point.margin_db)
 
     def with_point(self, point: PointCheck) -> Consistency:
-        """This comparison with the weak-point test made: scope "point" where it passed (the halves'
-        estimates having disagreed)."""
+        """This comparison with the weak-point test made: scope "point" where it passed (made where
+        nothing the halves' estimates agree on was applied)."""
         if not point.passed:
             return dataclasses.replace(self, point=point)
         return dataclasses.replace(self, point=point, scope="point", applied_agrees=True,

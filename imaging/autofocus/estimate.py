@@ -136,12 +136,6 @@ def estimate_on_group_images(g: GroupImages, options: AutofocusOptions,
         # The full band may always depart from the halves' common part by 0.1 rad of two-way phase.
         consistency, agreed = consistency_of(g.time_s, lower, upper, delta, options.false_alarm, options.poly_order,
                                              max(options.sinusoids, 1), floor_m=0.1 / (2.0 * g.k))
-        if not consistency.passed:
-            # Too weak a target for the halves' estimates to agree: its own phase history may still hold
-            # the track error's lowest orders (imaging.autofocus.weak_point).
-            consistency = consistency.with_point(point_check(g, halves, options.false_alarm))
-            if consistency.passed:
-                agreed = consistency.point.displacement_m
         log.info("autofocus (%s): %s", options.method, consistency.describe())
         if agreed is None:
             applied = False
@@ -153,13 +147,18 @@ def estimate_on_group_images(g: GroupImages, options: AutofocusOptions,
             e1, _ = entropy_and_gradient(g, g.phase(delta))
             applied = e1 < e0
             note = "" if applied else "the consistent part did not sharpen the image; left unapplied"
-        elif consistency.scope == "point":
-            # The fit maximises the point's own power; the entropy of an image that is mostly noise need
-            # not fall with it, so it does not decide here.
-            delta, model = agreed, {"kind": "weak point", "method": options.method,
-                                    "legendre_orders": [2, consistency.point.dof + 1]}
-            e1, _ = entropy_and_gradient(g, g.phase(delta))
-            applied, note = True, ""
+        if not applied:
+            # Nothing the halves agree on sharpens the image: a target too weak for the method's estimates may
+            # still hold its track error's lowest orders in its own phase history (imaging.autofocus.weak_point).
+            consistency = consistency.with_point(point_check(g, halves, options.false_alarm))
+            if consistency.scope == "point":
+                log.info("autofocus (%s): %s", options.method, consistency.describe())
+                # The fit maximises the point's own power; the entropy of an image that is mostly noise
+                # need not fall with it, so it does not decide here.
+                delta = consistency.point.displacement_m
+                model = {"kind": "weak point", "method": options.method, "legendre_orders": [2, consistency.point.dof + 1]}
+                e1, _ = entropy_and_gradient(g, g.phase(delta))
+                applied, note = True, ""
     if not applied:
         delta, model = np.zeros(g.b.shape[1]), None
         e1 = e0
