@@ -76,8 +76,9 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
     "autofocus_decision": ("Autofocus decision: contrast gate against half-band consistency",
                            "Synthesised 77 GHz passes with a drift, a 6.1 Hz vibration and a 2 % scale error: a point "
                            "target's width against the true image's over image SNR, and clutter's correlation with the "
-                           "true image, for the forced estimate, the 20 dB contrast gate and the consistency decision; "
-                           "the consistency test's false-alarm rate on independent noise.",
+                           "true image, for the forced estimate, the 20 dB contrast gate and the consistency decision "
+                           "(with its weak-point test); the consistency test's false-alarm rate on independent noise; "
+                           "the weak point target over noise seeds and clutter over more seeds.",
                            ".venv/bin/python benchmarks/autofocus_decision.py"),
     "rio": ("Radar-inertial odometry",
             "Accuracy on long simulated drives (evaluated with evo), the filter's settings against speed, and a "

@@ -54,8 +54,13 @@ clutter) whose brightest pixel stands less than ``min_contrast_db`` above its ba
 is. The background is the median intensity of noise estimated from the dimmest tenth of the pixels; noise
 alone reaches 13 dB above it at a million pixels, a point target tens of dB.
 
+Where nothing the halves agree on sharpens the image, a weak point target is focused by its own phase
+history: its pixel detected above the brightest speckle its background could give at the same false-alarm
+rate, a bend (Legendre orders 2-3) fitted to that pixel alone, applied where both halves' fits agree
+within their noise (``weak_point``).
+
 Modules, one idea each: ``subapertures`` (the group images and their entropy), ``consistency`` (the
-half-band estimates and their comparison), ``pga``, ``track_model``
+half-band estimates and their comparison), ``weak_point`` (the weak point's test and fit), ``pga``, ``track_model``
 (the minimum-entropy model), ``registry`` (the methods by name: ``METHODS``, ``register_method``),
 ``per_profile`` (the per-group sharpening and the combination), ``estimate`` (``estimate_track_error`` and what every method shares), ``vibration`` (``fit_vibration``),
 ``options``; the track error itself is ``imaging.core.track_error``. Another method is one estimator

@@ -27,12 +27,16 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Iterable, Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.stats
 
 from imaging.core.track_error import remove_line
 from imaging.range_compression import RangeProfiles, range_compress
+
+if TYPE_CHECKING:
+    from imaging.autofocus.weak_point import PointCheck
 
 #: The false-alarm rate the consistency test is held to by default: the chance that two estimates fitted to
 #: nothing (clutter, noise) pass as one track error.
@@ -135,9 +139,12 @@ class Consistency:
     ``smooth_basis`` (``smooth_ratio``, ``smooth_critical_ratio``, ``smooth_dof``): a weak target's
     per-group values are noise, a bend and a vibration are a few numbers. ``scope``: "per-group" where the
     estimate agrees group by group, "smooth" where only its smooth part does (that part is what is
-    applied), "" where neither. ``common_rms_m`` and ``uncertainty_m``: rms of the common part and of half
-    the difference (the estimate's uncertainty), in the scope that decided (per group where none did).
-    ``applied_agrees``: the estimate to apply lies within the critical ratio of the common part.
+    applied), "point" where nothing the halves agree on sharpens the image but the brightest pixel is a
+    weak point whose own low-order fit agrees in both halves (``point``, ``imaging.autofocus.weak_point``;
+    that fit is applied), "" where none. ``common_rms_m`` and ``uncertainty_m``: rms of the common part and of half the difference (the
+    estimate's uncertainty), in the scope that decided (per group where none did; for "point", the fit's
+    rms and its Cramer-Rao bound). ``applied_agrees``: the estimate to apply lies within the critical ratio
+    of the common part. ``point``: the weak-point test, where it was made (nothing agreed was applied).
     """
 
     ratio: float
@@ -151,6 +158,7 @@ class Consistency:
     common_rms_m: float
     uncertainty_m: float
     applied_agrees: bool
+    point: PointCheck | None = None
 
     @property
     def passed(self) -> bool:
@@ -159,9 +167,19 @@ class Consistency:
     @property
     def margin_db(self) -> float:
         """The single number: how far the deciding ratio stands above its critical value (dB; the better of
-        the two tests; positive: consistent)."""
+        the tests made; positive: consistent)."""
         return max(10 * math.log10(max(self.ratio, 1e-12) / self.critical_ratio),
-                   10 * math.log10(max(self.smooth_ratio, 1e-12) / self.smooth_critical_ratio))
+                   10 * math.log10(max(self.smooth_ratio, 1e-12) / self.smooth_critical_ratio),
+                   -math.inf if self.point is None else self.point.margin_db)
+
+    def with_point(self, point: PointCheck) -> Consistency:
+        """This comparison with the weak-point test made: scope "point" where it passed (made where
+        nothing the halves' estimates agree on was applied)."""
+        if not point.passed:
+            return dataclasses.replace(self, point=point)
+        return dataclasses.replace(self, point=point, scope="point", applied_agrees=True,
+                                   common_rms_m=float(np.sqrt(np.mean(point.displacement_m ** 2))),
+                                   uncertainty_m=point.uncertainty_m)
 
     def as_attrs(self) -> dict:
         """The image file's attributes (docs/formats/image.md)."""
@@ -170,10 +188,14 @@ class Consistency:
                 "autofocus_consistency_smooth_ratio_db": 10 * math.log10(max(self.smooth_ratio, 1e-12)),
                 "autofocus_consistency_false_alarm": self.false_alarm,
                 "autofocus_consistent": int(self.passed and self.applied_agrees),
-                "autofocus_uncertainty_m": self.uncertainty_m, "autofocus_common_rms_m": self.common_rms_m}
+                "autofocus_uncertainty_m": self.uncertainty_m, "autofocus_common_rms_m": self.common_rms_m,
+                **({} if self.point is None else {
+                    "autofocus_point_contrast_db": 10 * math.log10(max(self.point.contrast, 1e-12)),
+                    "autofocus_point_margin_db": self.point.margin_db})}
 
     def describe(self) -> str:
         verdict = {"per-group": "consistent group by group", "smooth": "consistent in its smooth part",
+                   "point": "inconsistent, but a weak point's low-order fit agrees in both halves",
                    "": "inconsistent"}[self.scope]
         if self.scope and not self.applied_agrees:
             verdict += ", but the full-band estimate departs from it"

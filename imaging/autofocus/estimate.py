@@ -16,6 +16,7 @@ from imaging.autofocus.consistency import consistency_of, half_band_blocks
 from imaging.autofocus.subapertures import GroupImages, entropy_and_gradient, group_images, image_entropy
 from imaging.autofocus.options import AutofocusOptions, AutofocusResult, ProfileBlock
 from imaging.autofocus.registry import METHODS
+from imaging.autofocus.weak_point import point_check
 from imaging.backprojection import backproject, patch_order
 from imaging.core.track_error import TrackError
 
@@ -146,6 +147,18 @@ def estimate_on_group_images(g: GroupImages, options: AutofocusOptions,
             e1, _ = entropy_and_gradient(g, g.phase(delta))
             applied = e1 < e0
             note = "" if applied else "the consistent part did not sharpen the image; left unapplied"
+        if not applied:
+            # Nothing the halves agree on sharpens the image: a target too weak for the method's estimates may
+            # still hold its track error's lowest orders in its own phase history (imaging.autofocus.weak_point).
+            consistency = consistency.with_point(point_check(g, halves, options.false_alarm))
+            if consistency.scope == "point":
+                log.info("autofocus (%s): %s", options.method, consistency.describe())
+                # The fit maximises the point's own power; the entropy of an image that is mostly noise
+                # need not fall with it, so it does not decide here.
+                delta = consistency.point.displacement_m
+                model = {"kind": "weak point", "method": options.method, "legendre_orders": [2, consistency.point.dof + 1]}
+                e1, _ = entropy_and_gradient(g, g.phase(delta))
+                applied, note = True, ""
     if not applied:
         delta, model = np.zeros(g.b.shape[1]), None
         e1 = e0
