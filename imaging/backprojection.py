@@ -237,104 +237,91 @@ def _gather_accumulate(row, idx, frac, cos_, sin_, v0, v1, acc_re, acc_im, linea
 @numba.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, linear, max_extent_m, block, out):
     """Profiles p0..p1-1 of rows [P, n_bins + 3] (complex64, one zero guard bin before, two after) onto the
-    points (gx, gy, gz), added to out, in parallel over blocks of ``block`` consecutive points
-    (``interp_block`` each)."""
+    points (gx, gy, gz), added to out, in parallel over blocks of ``block`` consecutive points: with the
+    block-relative float32 geometry of the module's docstring where the block is no wider than
+    ``max_extent_m`` (PHASE_ROUNDING_RAD / (k 2^-24)), else in float64 (``_float64_block``)."""
     n_g = gx.size
+    hi = np.float64(rows.shape[1] - 2)
     n_blocks = (n_g + block - 1) // block
+    inv32 = np.float32(inv_dr)
+    k_turns32 = np.float32(k / _TWO_PI)
     for blk in numba.prange(n_blocks):
         g0 = blk * block
         nb = min(g0 + block, n_g) - g0
         acc_re = np.zeros(nb, np.float32)
         acc_im = np.zeros(nb, np.float32)
-        interp_block(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx[g0:g0 + nb], gy[g0:g0 + nb], gz[g0:g0 + nb],
-                     linear, max_extent_m, acc_re, acc_im)
+        idx = np.empty(nb, np.uint32)
+        frac = np.empty(nb, np.float32)
+        pixel_turns = np.empty(nb, np.float32)  # each pixel's phase, in turns
+        pairs = np.empty((nb, 2), np.complex64)
+        da = np.empty(nb, np.float32)
+        x_lo, x_hi = gx[g0:g0 + nb].min(), gx[g0:g0 + nb].max()
+        y_lo, y_hi = gy[g0:g0 + nb].min(), gy[g0:g0 + nb].max()
+        z_lo, z_hi = gz[g0:g0 + nb].min(), gz[g0:g0 + nb].max()
+        if max(x_hi - x_lo, y_hi - y_lo, z_hi - z_lo) > max_extent_m:
+            _float64_block(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx[g0:g0 + nb], gy[g0:g0 + nb], gz[g0:g0 + nb],
+                           linear, acc_re, acc_im)
+            for i in range(nb):
+                out[g0 + i] += complex(acc_re[i], acc_im[i])
+            continue
+        cx, cy, cz = 0.5 * (x_lo + x_hi), 0.5 * (y_lo + y_hi), 0.5 * (z_lo + z_hi)
+        dx = np.empty(nb, np.float32)
+        dy = np.empty(nb, np.float32)
+        dz = np.empty(nb, np.float32)
+        dd = np.empty(nb, np.float32)
+        for i in range(nb):
+            dx[i] = np.float32(gx[g0 + i] - cx)
+            dy[i] = np.float32(gy[g0 + i] - cy)
+            dz[i] = np.float32(gz[g0 + i] - cz)
+            dd[i] = dx[i] * dx[i] + dy[i] * dy[i] + dz[i] * dz[i]
+        radius = math.sqrt(np.float64(dd.max()))
+        for p in range(p0, p1):
+            ua0, ua1, ua2 = cx - tx[p, 0], cy - tx[p, 1], cz - tx[p, 2]
+            ub0, ub1, ub2 = cx - rx[p, 0], cy - rx[p, 1], cz - rx[p, 2]
+            ua = math.sqrt(ua0 * ua0 + ua1 * ua1 + ua2 * ua2)
+            ub = math.sqrt(ub0 * ub0 + ub1 * ub1 + ub2 * ub2)
+            dr_c = ua + ub - r_ref[p]
+            # The block centre's bin and phase in float64; per pixel only what the offset adds, in float32.
+            pos_c = (dr_c - r0) * inv_dr + 1.0
+            base = np.floor(pos_c)
+            frac_c = np.float32(pos_c - base)
+            lo = np.float32(-base)
+            top = np.float32(hi - base)
+            turns = k * dr_c * (1.0 / _TWO_PI)
+            turns_c = np.float32(turns - np.floor(turns + 0.5))
+            ibase = np.int32(base)
+            # A TX shared with the previous profile (the RX channels of one chirp) has the same offsets.
+            new_tx = p == p0 or tx[p, 0] != tx[p - 1, 0] or tx[p, 1] != tx[p - 1, 1] or tx[p, 2] != tx[p - 1, 2]
+            rx_series = series_applies(ub, radius)
+            b0, b1, b2 = np.float32(2.0 * ub0), np.float32(2.0 * ub1), np.float32(2.0 * ub2)
+            place = (frac_c, inv32, lo, top, ibase, turns_c, k_turns32, linear)
+            tx_alone = new_tx and (p + 1 == p1 or tx[p + 1, 0] != tx[p, 0] or tx[p + 1, 1] != tx[p, 1]
+                                   or tx[p + 1, 2] != tx[p, 2])
+            if tx_alone and rx_series and series_applies(ua, radius):
+                # One pass for both antennas where no other profile shares this TX (a one-antenna pass), its
+                # offsets not stored.
+                a0, a1, a2 = np.float32(2.0 * ua0), np.float32(2.0 * ua1), np.float32(2.0 * ua2)
+                ga, gb = _series_scales(ua), _series_scales(ub)
+                for i in range(nb):
+                    num_a = a0 * dx[i] + a1 * dy[i] + a2 * dz[i] + dd[i]
+                    num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
+                    _place(i, _series_offset(num_a, ga) + _series_offset(num_b, gb), place, idx, frac, pixel_turns)
+            else:
+                if new_tx:
+                    _range_offsets(ua0, ua1, ua2, ua, radius, dx, dy, dz, dd, da)
+                if rx_series:
+                    gb = _series_scales(ub)
+                    for i in range(nb):
+                        num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
+                        _place(i, da[i] + _series_offset(num_b, gb), place, idx, frac, pixel_turns)
+                else:
+                    b_n, b_n2 = np.float32(ub), np.float32(ub * ub)
+                    for i in range(nb):
+                        num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
+                        _place(i, da[i] + num_b / (math.sqrt(b_n2 + num_b) + b_n), place, idx, frac, pixel_turns)
+            _gather_pairs_accumulate(rows[p], idx, frac, pixel_turns, pairs, acc_re, acc_im, linear)
         for i in range(nb):
             out[g0 + i] += complex(acc_re[i], acc_im[i])
-
-
-@numba.njit(inline="always", fastmath=True)
-def interp_block(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, bx, by, bz, linear, max_extent_m, acc_re, acc_im):
-    """Profiles p0..p1-1 of rows [P, n_bins + 3] onto one block of points (bx, by, bz), added to (acc_re,
-    acc_im): with the block-relative float32 geometry of the module's docstring where the block is no wider
-    than ``max_extent_m`` (PHASE_ROUNDING_RAD / (k 2^-24)), else in float64 (``_float64_block``). Inlined
-    into every kernel that walks blocks (this module's, and FFBP's leaves: ``imaging.ffbp_leaves``)."""
-    x_lo, x_hi = bx.min(), bx.max()
-    y_lo, y_hi = by.min(), by.max()
-    z_lo, z_hi = bz.min(), bz.max()
-    if max(x_hi - x_lo, y_hi - y_lo, z_hi - z_lo) > max_extent_m:
-        _float64_block(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, bx, by, bz, linear, acc_re, acc_im)
-    else:
-        _float32_block(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, bx, by, bz, linear, acc_re, acc_im,
-                       0.5 * (x_lo + x_hi), 0.5 * (y_lo + y_hi), 0.5 * (z_lo + z_hi))
-
-
-@numba.njit(inline="always", fastmath=True)
-def _float32_block(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, bx, by, bz, linear, acc_re, acc_im, cx, cy, cz):
-    """``interp_block`` for a compact block: the float32 geometry relative to its centre (cx, cy, cz)."""
-    nb = bx.size
-    hi = np.float64(rows.shape[1] - 2)
-    inv32 = np.float32(inv_dr)
-    k_turns32 = np.float32(k / _TWO_PI)
-    idx = np.empty(nb, np.uint32)
-    frac = np.empty(nb, np.float32)
-    pixel_turns = np.empty(nb, np.float32)  # each pixel's phase, in turns
-    pairs = np.empty((nb, 2), np.complex64)
-    da = np.empty(nb, np.float32)
-    dx = np.empty(nb, np.float32)
-    dy = np.empty(nb, np.float32)
-    dz = np.empty(nb, np.float32)
-    dd = np.empty(nb, np.float32)
-    for i in range(nb):
-        dx[i] = np.float32(bx[i] - cx)
-        dy[i] = np.float32(by[i] - cy)
-        dz[i] = np.float32(bz[i] - cz)
-        dd[i] = dx[i] * dx[i] + dy[i] * dy[i] + dz[i] * dz[i]
-    radius = math.sqrt(np.float64(dd.max()))
-    for p in range(p0, p1):
-        ua0, ua1, ua2 = cx - tx[p, 0], cy - tx[p, 1], cz - tx[p, 2]
-        ub0, ub1, ub2 = cx - rx[p, 0], cy - rx[p, 1], cz - rx[p, 2]
-        ua = math.sqrt(ua0 * ua0 + ua1 * ua1 + ua2 * ua2)
-        ub = math.sqrt(ub0 * ub0 + ub1 * ub1 + ub2 * ub2)
-        dr_c = ua + ub - r_ref[p]
-        # The block centre's bin and phase in float64; per pixel only what the offset adds, in float32.
-        pos_c = (dr_c - r0) * inv_dr + 1.0
-        base = np.floor(pos_c)
-        frac_c = np.float32(pos_c - base)
-        lo = np.float32(-base)
-        top = np.float32(hi - base)
-        turns = k * dr_c * (1.0 / _TWO_PI)
-        turns_c = np.float32(turns - np.floor(turns + 0.5))
-        ibase = np.int32(base)
-        # A TX shared with the previous profile (the RX channels of one chirp) has the same offsets.
-        new_tx = p == p0 or tx[p, 0] != tx[p - 1, 0] or tx[p, 1] != tx[p - 1, 1] or tx[p, 2] != tx[p - 1, 2]
-        rx_series = series_applies(ub, radius)
-        b0, b1, b2 = np.float32(2.0 * ub0), np.float32(2.0 * ub1), np.float32(2.0 * ub2)
-        place = (frac_c, inv32, lo, top, ibase, turns_c, k_turns32, linear)
-        tx_alone = new_tx and (p + 1 == p1 or tx[p + 1, 0] != tx[p, 0] or tx[p + 1, 1] != tx[p, 1]
-                               or tx[p + 1, 2] != tx[p, 2])
-        if tx_alone and rx_series and series_applies(ua, radius):
-            # One pass for both antennas where no other profile shares this TX (a one-antenna pass), its
-            # offsets not stored.
-            a0, a1, a2 = np.float32(2.0 * ua0), np.float32(2.0 * ua1), np.float32(2.0 * ua2)
-            ga, gb = _series_scales(ua), _series_scales(ub)
-            for i in range(nb):
-                num_a = a0 * dx[i] + a1 * dy[i] + a2 * dz[i] + dd[i]
-                num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
-                _place(i, _series_offset(num_a, ga) + _series_offset(num_b, gb), place, idx, frac, pixel_turns)
-        else:
-            if new_tx:
-                _range_offsets(ua0, ua1, ua2, ua, radius, dx, dy, dz, dd, da)
-            if rx_series:
-                gb = _series_scales(ub)
-                for i in range(nb):
-                    num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
-                    _place(i, da[i] + _series_offset(num_b, gb), place, idx, frac, pixel_turns)
-            else:
-                b_n, b_n2 = np.float32(ub), np.float32(ub * ub)
-                for i in range(nb):
-                    num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
-                    _place(i, da[i] + num_b / (math.sqrt(b_n2 + num_b) + b_n), place, idx, frac, pixel_turns)
-        _gather_pairs_accumulate(rows[p], idx, frac, pixel_turns, pairs, acc_re, acc_im, linear)
 
 
 @numba.njit(inline="always", fastmath=True)
