@@ -33,7 +33,6 @@ tone anywhere in that band; :attr:`FactorizedPlan.error_bound_db` adds it up alo
 
 from __future__ import annotations
 
-import concurrent.futures
 import dataclasses
 import functools
 import math
@@ -45,6 +44,8 @@ from imaging.backprojection import backproject
 from imaging.core.config import require
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.core.grid import Grid
+from imaging.ffbp_leaves import image_leaves
+from imaging.ffbp_tasks import Pool, leaf_runs, row_ranges
 from imaging.ffbp_interpolation import (  # noqa: F401 - part of this module's interface
     BAND_MARGIN,
     TABLE_SHIFTS,
@@ -497,6 +498,13 @@ def run_factorized(plan: FactorizedPlan, profiles: RangeProfiles, tx_m: np.ndarr
         r = node.r0_m + node.dr_m * np.arange(node.nr)
         images[id(node)] = (img * np.exp(2j * k * r)[:, None]).astype(np.complex64)
 
+    def leaf_run(run: list) -> None:
+        """Consecutive leaves in one call of the leaf kernel (its GIL-free time is all of the work)."""
+        a, b = run[0].start, run[-1].stop
+        ref = None if reference_range_m is None else reference_range_m[a:b]
+        for node, img in zip(run, image_leaves(run, _slice(profiles, a, b), tx[a:b], rx[a:b], ref, a, z, o.mode)):
+            images[id(node)] = img
+
     def merge(node: Subaperture, i0: int, i1: int) -> None:
         d, g = images[id(node)], node.geometry
         for child in node.children:
@@ -515,19 +523,22 @@ def run_factorized(plan: FactorizedPlan, profiles: RangeProfiles, tx_m: np.ndarr
     threads = max(1, numba.get_num_threads())
     nodes = [n for root in roots for n in _subtree(root)]
     levels = sorted({n.level for n in nodes})
-    with _Pool(threads) as pool:
+    with Pool(threads) as pool:
         for level in levels:
             at = [n for n in nodes if n.level == level]
-            if level == 0:
+            if level == 0 and o.mode == "exact":
                 pool.run([functools.partial(leaf, n) for n in at])
+                continue
+            if level == 0:
+                pool.run([functools.partial(leaf_run, run) for run in leaf_runs(at, threads)])
                 continue
             for n in at:
                 images[id(n)] = np.zeros((n.nr, n.na), np.complex64)
-            pool.run([functools.partial(merge, n, i0, i1) for n in at for i0, i1 in _row_ranges(n.nr, n.na, threads)])
+            pool.run([functools.partial(merge, n, i0, i1) for n in at for i0, i1 in row_ranges(n.nr, n.na, threads)])
             for n in at:
                 for child in n.children:
                     del images[id(child)]
-        pool.run([functools.partial(to_pixels, i0, i1) for i0, i1 in _row_ranges(shape[0], shape[1], threads)])
+        pool.run([functools.partial(to_pixels, i0, i1) for i0, i1 in row_ranges(shape[0], shape[1], threads)])
     # Profiles that go straight onto the pixels: one call of the direct kernel, itself parallel.
     direct_roots = [r for r in plan.roots if r.direct]
     if direct_roots:
@@ -537,45 +548,10 @@ def run_factorized(plan: FactorizedPlan, profiles: RangeProfiles, tx_m: np.ndarr
     return out
 
 
-#: Samples per task of a merge or of the pixels: large enough that a task is milliseconds, not microseconds.
-TASK_SAMPLES = 16384
-
-
-def _row_ranges(rows: int, columns: int, threads: int) -> list:
-    """Row ranges of a [rows, columns] image, each about TASK_SAMPLES (at least 4 per thread when it is
-    large enough, so that an uneven split evens out)."""
-    n = max(1, min(rows, max(rows * columns // TASK_SAMPLES, 4 * threads if rows * columns >= 4 * threads * 1024 else 1)))
-    edges = np.linspace(0, rows, n + 1).astype(int)
-    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
-
-
 def _subtree(node: Subaperture):
     yield node
     for child in node.children:
         yield from _subtree(child)
-
-
-class _Pool:
-    """Run lists of tasks on ``threads`` threads, each taking the next task when it is free (on the calling
-    thread alone for one thread)."""
-
-    def __init__(self, threads: int):
-        self.executor = concurrent.futures.ThreadPoolExecutor(threads) if threads > 1 else None
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        if self.executor is not None:
-            self.executor.shutdown()
-
-    def run(self, tasks: list) -> None:
-        if self.executor is None or len(tasks) == 1:
-            for task in tasks:
-                task()
-            return
-        for future in [self.executor.submit(task) for task in tasks]:
-            future.result()  # re-raises a task's error here
 
 
 def backproject_factorized(profiles: RangeProfiles, tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray,
