@@ -498,12 +498,24 @@ def run_factorized(plan: FactorizedPlan, profiles: RangeProfiles, tx_m: np.ndarr
         r = node.r0_m + node.dr_m * np.arange(node.nr)
         images[id(node)] = (img * np.exp(2j * k * r)[:, None]).astype(np.complex64)
 
+    # Where a list of profile blocks is given, a call takes leaves of one block (its rows a view, not a copy
+    # of the run's profiles); a leaf across two blocks goes alone (a copy of its own profiles).
+    edges = None if isinstance(profiles, RangeProfiles) else np.cumsum([0] + [p.data.shape[0] for p in profiles])
+
     def leaf_run(run: list) -> None:
         """Consecutive leaves in one call of the leaf kernel (its GIL-free time is all of the work)."""
-        a, b = run[0].start, run[-1].stop
-        ref = None if reference_range_m is None else reference_range_m[a:b]
-        for node, img in zip(run, image_leaves(run, _slice(profiles, a, b), tx[a:b], rx[a:b], ref, a, z, o.mode)):
-            images[id(node)] = img
+        def source(i: int, node: Subaperture) -> int:
+            if edges is None:
+                return 0
+            first, last = np.searchsorted(edges, [node.start, node.stop - 1], "right")
+            return int(first) if first == last else -1 - i  # across two blocks: alone
+
+        for first, last in _equal_runs([source(i, n) for i, n in enumerate(run)]):
+            part = run[first:last]
+            a, b = part[0].start, part[-1].stop
+            ref = None if reference_range_m is None else reference_range_m[a:b]
+            for node, img in zip(part, image_leaves(part, _slice(profiles, a, b), tx[a:b], rx[a:b], ref, a, z, o.mode)):
+                images[id(node)] = img
 
     def merge(node: Subaperture, i0: int, i1: int) -> None:
         d, g = images[id(node)], node.geometry
@@ -546,6 +558,12 @@ def run_factorized(plan: FactorizedPlan, profiles: RangeProfiles, tx_m: np.ndarr
         for root in direct_roots:
             direct(root, pixels, out=out, parallel=True)
     return out
+
+
+def _equal_runs(values: list) -> list:
+    """(first, last + 1) of each run of equal consecutive values."""
+    edges = [0] + [i for i in range(1, len(values)) if values[i] != values[i - 1]] + [len(values)]
+    return list(zip(edges[:-1], edges[1:]))
 
 
 def _subtree(node: Subaperture):

@@ -127,6 +127,19 @@ def test_the_leaf_kernel_matches_numpy(mode):
         np.testing.assert_allclose(img, want, rtol=0, atol=1e-4 * np.abs(want).max())
 
 
+def test_profiles_in_blocks_give_the_same_image():
+    """Profiles handed over as a list of blocks (as ``sarbot image`` holds them), one boundary inside a leaf:
+    the same image as from one block of all of them."""
+    prof, tx, rx = pass_case(4)
+    x, y = np.arange(-0.3, 0.3, 0.01), np.arange(1.7, 2.2, 0.01)
+    plan = plan_factorized(tx, rx, x, y, 0.3, prof.carrier_hz, prof.bandwidth_hz, FactorizedOptions(leaf_profiles=256))
+    assert plan.levels >= 2 and not plan.direct_only
+    n = tx.shape[0]
+    blocks = [_slice(prof, 0, 1024), _slice(prof, 1024, 1500), _slice(prof, 1500, n)]
+    whole = run_factorized(plan, prof, tx, rx)
+    np.testing.assert_allclose(run_factorized(plan, blocks, tx, rx), whole, rtol=0, atol=1e-6 * np.abs(whole).max())
+
+
 @pytest.fixture(scope="module")
 def straight_pass():
     return pass_case(24)
