@@ -44,7 +44,7 @@ from imaging.backprojection import backproject
 from imaging.core.config import require
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.core.grid import Grid
-from imaging.ffbp_leaves import image_leaves
+from imaging.ffbp_leaves import image_leaves, load_kernel
 from imaging.ffbp_tasks import Pool, leaf_runs, row_ranges
 from imaging.ffbp_interpolation import (  # noqa: F401 - part of this module's interface
     BAND_MARGIN,
@@ -475,6 +475,7 @@ def run_factorized(plan: FactorizedPlan, profiles: RangeProfiles, tx_m: np.ndarr
     rx = np.asarray(rx_m, np.float64).reshape(-1, 3)
     if _count(profiles) != tx.shape[0] or plan.roots[-1].stop != tx.shape[0] or plan.roots[0].start != 0:
         raise ValueError(f"{_count(profiles)} profiles and {tx.shape[0]} antenna positions; the plan is for {plan.roots[-1].stop}")
+    load_kernel()  # once a process, whatever the plan (see imaging.ffbp_leaves.load_kernel)
     tab_r = interpolation_table(o.taps, o.oversample_range)
     tab_a = interpolation_table(o.taps, o.oversample_angle)
     k, z = plan.wavenumber, plan.z_m

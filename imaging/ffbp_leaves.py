@@ -13,6 +13,7 @@ threads.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numba
@@ -109,3 +110,14 @@ def image_leaves(leaves: list, profiles: RangeProfiles, tx_m: np.ndarray, rx_m: 
                    mode == "linear", 0.0, float(z_m), p0, p1, geometry, shape,
                    np.array(blocks, np.int64), np.concatenate(orders).astype(np.int64), offset, chunk, out)
     return [out[o:o + s].reshape(nr, na) for o, s, (nr, na) in zip(offset, sizes, shape)]
+
+
+@functools.lru_cache(maxsize=1)
+def load_kernel() -> None:
+    """Compile (or load from numba's cache) the leaf kernel now, once a process: a live worker warms up on a
+    block too small for leaves, and its first real block then stalled for the load (0.5 s on a busy
+    machine), enough for the strip map to fall behind and pre-sum."""
+    _leaves_kernel(np.zeros((1, 4), np.complex64), 0.0, 1.0, 1.0, np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(1), True,
+                   0.0, 0.0, np.zeros(1, np.int64), np.ones(1, np.int64), np.ones((1, 11)), np.ones((1, 2), np.int64),
+                   np.full(1, BLOCK, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64), PROFILE_CHUNK,
+                   np.zeros(1, np.complex64))
