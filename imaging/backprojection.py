@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import functools
 import math
+import types
 
 import numba
 import numpy as np
@@ -399,11 +400,22 @@ def _bp_exact(samples, f0, fstep, tx, rx, r_ref, gx, gy, gz, out):
         out[g] += acc
 
 
+def _serial(kernel, fastmath: bool):
+    """``kernel`` compiled to run on the calling thread alone, cached under a name of its own: numba's
+    cache keys a function by its name, first line and bytecode, not by ``parallel``, so a copy under the
+    kernel's own name loaded whichever of the two a process had compiled first (the serial code inside
+    threads that expected it, or the parallel one)."""
+    f = kernel.py_func
+    copy = types.FunctionType(f.__code__, f.__globals__, f.__name__ + "_serial", f.__defaults__, f.__closure__)
+    copy.__qualname__ = f.__qualname__ + "_serial"
+    return numba.njit(fastmath=fastmath, cache=True, nogil=True)(copy)
+
+
 # The same kernels on the calling thread alone, for callers that spread coarser work over the cores
 # themselves (FFBP's leaves): one parallel region per small call waits on every core at its end, and on a
 # machine where another process holds a core that wait is a scheduler time slice per call.
-_bp_interp_blocks_serial = numba.njit(fastmath=True, cache=True, nogil=True)(_bp_interp_blocks.py_func)
-_bp_exact_serial = numba.njit(fastmath=False, cache=True, nogil=True)(_bp_exact.py_func)
+_bp_interp_blocks_serial = _serial(_bp_interp_blocks, fastmath=True)
+_bp_exact_serial = _serial(_bp_exact, fastmath=False)
 
 
 def _guarded(data: np.ndarray) -> np.ndarray:
@@ -414,6 +426,15 @@ def _guarded(data: np.ndarray) -> np.ndarray:
     n_p, n_b = data.shape
     rows = np.zeros((n_p, n_b + 3), np.complex64)
     rows[:, 1:n_b + 1] = data
+    return rows
+
+
+def guarded_rows(profiles: RangeProfiles) -> np.ndarray:
+    """The profiles in the kernels' layout (``_guarded``): their ``rows`` where range compression wrote
+    them so (``guarded=True``), else one copy."""
+    rows, data = profiles.rows, profiles.data
+    if rows is None or rows.shape != (data.shape[0], data.shape[1] + 3) or not np.shares_memory(rows, data):
+        rows = _guarded(data)
     return rows
 
 
@@ -551,9 +572,7 @@ def backproject(
         (_bp_exact if parallel else _bp_exact_serial)(samples, profiles.f0_hz, profiles.frequency_step_hz, tx, rx, r_ref, gx, gy, gz, flat_out)
     else:
         k = 2.0 * math.pi * profiles.carrier_hz / SPEED_OF_LIGHT_MPS
-        rows = profiles.rows
-        if rows is None or rows.shape != (n_p, data.shape[1] + 3) or not np.shares_memory(rows, data):
-            rows = _guarded(data)  # profiles not compressed with guarded=True: one copy into the kernel's layout
+        rows = guarded_rows(profiles)
         width, block = patch_shape(np.asarray(grid_m))
         order = patch_order(shape, width, block)
         if order is not None:

@@ -33,7 +33,6 @@ tone anywhere in that band; :attr:`FactorizedPlan.error_bound_db` adds it up alo
 
 from __future__ import annotations
 
-import concurrent.futures
 import dataclasses
 import functools
 import math
@@ -45,6 +44,8 @@ from imaging.backprojection import backproject
 from imaging.core.config import require
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.core.grid import Grid
+from imaging.ffbp_leaves import image_leaves, load_kernel
+from imaging.ffbp_tasks import Pool, leaf_runs, row_ranges
 from imaging.ffbp_interpolation import (  # noqa: F401 - part of this module's interface
     BAND_MARGIN,
     TABLE_SHIFTS,
@@ -474,6 +475,7 @@ def run_factorized(plan: FactorizedPlan, profiles: RangeProfiles, tx_m: np.ndarr
     rx = np.asarray(rx_m, np.float64).reshape(-1, 3)
     if _count(profiles) != tx.shape[0] or plan.roots[-1].stop != tx.shape[0] or plan.roots[0].start != 0:
         raise ValueError(f"{_count(profiles)} profiles and {tx.shape[0]} antenna positions; the plan is for {plan.roots[-1].stop}")
+    load_kernel()  # once a process, whatever the plan (see imaging.ffbp_leaves.load_kernel)
     tab_r = interpolation_table(o.taps, o.oversample_range)
     tab_a = interpolation_table(o.taps, o.oversample_angle)
     k, z = plan.wavenumber, plan.z_m
@@ -497,6 +499,25 @@ def run_factorized(plan: FactorizedPlan, profiles: RangeProfiles, tx_m: np.ndarr
         r = node.r0_m + node.dr_m * np.arange(node.nr)
         images[id(node)] = (img * np.exp(2j * k * r)[:, None]).astype(np.complex64)
 
+    # Where a list of profile blocks is given, a call takes leaves of one block (its rows a view, not a copy
+    # of the run's profiles); a leaf across two blocks goes alone (a copy of its own profiles).
+    edges = None if isinstance(profiles, RangeProfiles) else np.cumsum([0] + [p.data.shape[0] for p in profiles])
+
+    def leaf_run(run: list) -> None:
+        """Consecutive leaves in one call of the leaf kernel (its GIL-free time is all of the work)."""
+        def source(i: int, node: Subaperture) -> int:
+            if edges is None:
+                return 0
+            first, last = np.searchsorted(edges, [node.start, node.stop - 1], "right")
+            return int(first) if first == last else -1 - i  # across two blocks: alone
+
+        for first, last in _equal_runs([source(i, n) for i, n in enumerate(run)]):
+            part = run[first:last]
+            a, b = part[0].start, part[-1].stop
+            ref = None if reference_range_m is None else reference_range_m[a:b]
+            for node, img in zip(part, image_leaves(part, _slice(profiles, a, b), tx[a:b], rx[a:b], ref, a, z, o.mode)):
+                images[id(node)] = img
+
     def merge(node: Subaperture, i0: int, i1: int) -> None:
         d, g = images[id(node)], node.geometry
         for child in node.children:
@@ -515,19 +536,22 @@ def run_factorized(plan: FactorizedPlan, profiles: RangeProfiles, tx_m: np.ndarr
     threads = max(1, numba.get_num_threads())
     nodes = [n for root in roots for n in _subtree(root)]
     levels = sorted({n.level for n in nodes})
-    with _Pool(threads) as pool:
+    with Pool(threads) as pool:
         for level in levels:
             at = [n for n in nodes if n.level == level]
-            if level == 0:
+            if level == 0 and o.mode == "exact":
                 pool.run([functools.partial(leaf, n) for n in at])
+                continue
+            if level == 0:
+                pool.run([functools.partial(leaf_run, run) for run in leaf_runs(at, threads)])
                 continue
             for n in at:
                 images[id(n)] = np.zeros((n.nr, n.na), np.complex64)
-            pool.run([functools.partial(merge, n, i0, i1) for n in at for i0, i1 in _row_ranges(n.nr, n.na, threads)])
+            pool.run([functools.partial(merge, n, i0, i1) for n in at for i0, i1 in row_ranges(n.nr, n.na, threads)])
             for n in at:
                 for child in n.children:
                     del images[id(child)]
-        pool.run([functools.partial(to_pixels, i0, i1) for i0, i1 in _row_ranges(shape[0], shape[1], threads)])
+        pool.run([functools.partial(to_pixels, i0, i1) for i0, i1 in row_ranges(shape[0], shape[1], threads)])
     # Profiles that go straight onto the pixels: one call of the direct kernel, itself parallel.
     direct_roots = [r for r in plan.roots if r.direct]
     if direct_roots:
@@ -537,45 +561,16 @@ def run_factorized(plan: FactorizedPlan, profiles: RangeProfiles, tx_m: np.ndarr
     return out
 
 
-#: Samples per task of a merge or of the pixels: large enough that a task is milliseconds, not microseconds.
-TASK_SAMPLES = 16384
-
-
-def _row_ranges(rows: int, columns: int, threads: int) -> list:
-    """Row ranges of a [rows, columns] image, each about TASK_SAMPLES (at least 4 per thread when it is
-    large enough, so that an uneven split evens out)."""
-    n = max(1, min(rows, max(rows * columns // TASK_SAMPLES, 4 * threads if rows * columns >= 4 * threads * 1024 else 1)))
-    edges = np.linspace(0, rows, n + 1).astype(int)
-    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+def _equal_runs(values: list) -> list:
+    """(first, last + 1) of each run of equal consecutive values."""
+    edges = [0] + [i for i in range(1, len(values)) if values[i] != values[i - 1]] + [len(values)]
+    return list(zip(edges[:-1], edges[1:]))
 
 
 def _subtree(node: Subaperture):
     yield node
     for child in node.children:
         yield from _subtree(child)
-
-
-class _Pool:
-    """Run lists of tasks on ``threads`` threads, each taking the next task when it is free (on the calling
-    thread alone for one thread)."""
-
-    def __init__(self, threads: int):
-        self.executor = concurrent.futures.ThreadPoolExecutor(threads) if threads > 1 else None
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        if self.executor is not None:
-            self.executor.shutdown()
-
-    def run(self, tasks: list) -> None:
-        if self.executor is None or len(tasks) == 1:
-            for task in tasks:
-                task()
-            return
-        for future in [self.executor.submit(task) for task in tasks]:
-            future.result()  # re-raises a task's error here
 
 
 def backproject_factorized(profiles: RangeProfiles, tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray,

@@ -10,15 +10,19 @@ from imaging.core.rig import default_rig
 from imaging.core.trajectory import PathWithTurns, StraightLine
 from imaging.factorized_backprojection import (
     FactorizedOptions,
+    _slice,
     _to_plane,
     backproject_factorized,
     plan_factorized,
     run_factorized,
 )
 from imaging.ffbp_interpolation import _tap_offsets, interpolation_error, interpolation_rms_error, interpolation_table
+from imaging.ffbp_leaves import image_leaves
 from imaging.range_compression import range_compress
 from imaging.sim.simulator import simulate_frames
 from imaging.sim.targets import PointTarget
+
+from reference_backprojection import backproject_reference
 
 TARGETS = [(0.0, 2.0), (-0.2, 2.1), (0.25, 1.8), (0.1, 2.3), (-0.3, 1.7)]
 
@@ -99,6 +103,41 @@ def test_the_pixel_kernel_matches_numpy():
     want = to_plane_reference(x, y, 0.3, d, root.geometry, plan.wavenumber, tab_r, tab_a)
     assert np.abs(want).min() > 0  # every pixel inside the root's grid
     np.testing.assert_allclose(got, want, rtol=0, atol=2e-5 * np.abs(want).max())
+
+
+@pytest.mark.parametrize("mode", ["linear", "nearest"])
+def test_the_leaf_kernel_matches_numpy(mode):
+    """A run of consecutive leaves in one call (imaging.ffbp_leaves) against plain numpy: each leaf's
+    profiles backprojected onto its polar grid, demodulated by exp(+j k 2 r); reference ranges included,
+    and the profiles handed over from a later first profile than 0."""
+    prof, tx, rx = pass_case(2)
+    x, y = np.linspace(-0.5, 0.5, 61), np.linspace(1.5, 2.5, 37)
+    plan = plan_factorized(tx, rx, x, y, 0.3, prof.carrier_hz, prof.bandwidth_hz, FactorizedOptions(leaf_profiles=128))
+    leaves = sorted((n for n in plan.nodes() if not n.children), key=lambda n: n.start)[3:6]
+    a, b = leaves[0].start, leaves[-1].stop
+    r_ref = np.random.default_rng(2).uniform(0, 0.05, tx.shape[0])
+    got = image_leaves(leaves, _slice(prof, a, b), tx[a:b], rx[a:b], r_ref[a:b], a, 0.3, mode)
+    for leaf, img in zip(leaves, got):
+        s = slice(leaf.start, leaf.stop)
+        want = backproject_reference(_slice(prof, leaf.start, leaf.stop), tx[s], rx[s], leaf.polar_points(0.3),
+                                     reference_range_m=r_ref[s], mode=mode)
+        want = want * np.exp(2j * plan.wavenumber * (leaf.r0_m + leaf.dr_m * np.arange(leaf.nr)))[:, None]
+        assert img.shape == (leaf.nr, leaf.na) and img.dtype == np.complex64
+        assert np.abs(want).max() > 0
+        np.testing.assert_allclose(img, want, rtol=0, atol=1e-4 * np.abs(want).max())
+
+
+def test_profiles_in_blocks_give_the_same_image():
+    """Profiles handed over as a list of blocks (as ``sarbot image`` holds them), one boundary inside a leaf:
+    the same image as from one block of all of them."""
+    prof, tx, rx = pass_case(4)
+    x, y = np.arange(-0.3, 0.3, 0.01), np.arange(1.7, 2.2, 0.01)
+    plan = plan_factorized(tx, rx, x, y, 0.3, prof.carrier_hz, prof.bandwidth_hz, FactorizedOptions(leaf_profiles=256))
+    assert plan.levels >= 2 and not plan.direct_only
+    n = tx.shape[0]
+    blocks = [_slice(prof, 0, 1024), _slice(prof, 1024, 1500), _slice(prof, 1500, n)]
+    whole = run_factorized(plan, prof, tx, rx)
+    np.testing.assert_allclose(run_factorized(plan, blocks, tx, rx), whole, rtol=0, atol=1e-6 * np.abs(whole).max())
 
 
 @pytest.fixture(scope="module")
