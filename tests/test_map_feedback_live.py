@@ -122,13 +122,16 @@ def test_the_live_map_s_velocity_errors_reach_the_odometry_s_filter(drive, tmp_p
     scene, sim_path = drive
     run = run_daemon(tmp_path, sim_path, True)
     counters = run["counters"]
-    if counters.get("scans_thinned_behind", 0):
-        # The pipeline did not keep up with real time (a machine loaded by other jobs): the map thinned its
-        # frames too, and tiles refocused over part of their aperture read no velocity error. Not this test's
-        # subject; seen at load averages of 20-26 on 2 cores.
+    if counters.get("scans_thinned_behind", 0) > 20:
+        # The pipeline did not keep up with real time (a machine loaded by other jobs: 89-140 of the ~400 scans
+        # thinned at load averages of 20-26 on 2 cores, 3 at 8): the map thinned its frames too, and tiles
+        # refocused over part of their aperture read no velocity error. Not this test's subject.
         pytest.skip(f"the machine is too loaded to run the daemon in real time: {counters}")
     assert counters.get("map_velocity_updates", 0) >= 1, counters
     assert counters["map_velocity_refused"] == 0
+    # The Doppler scale learnt from it moves the way the radars are off (they read 2 % low: up), by no more than
+    # the error (0.7 of each measured relative speed error is taken; 2.1 % was seen after one measurement).
+    assert 0 < counters["map_doppler_scale_ppm"] < 40_000, counters
     traj = run["trajectory"]
     truth = scene.trajectory.sample(traj.time_ns[-1:]).position_m[0]
     assert traj.position_m[-1, 0] - traj.position_m[0, 0] > 0.5 * (truth[0] - scene.trajectory.sample(traj.time_ns[:1]).position_m[0][0])
