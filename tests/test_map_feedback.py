@@ -164,6 +164,7 @@ def test_the_odometry_worker_takes_the_map_s_velocity_error_off_the_bus_and_scal
     assert worker.rio.ekf.state.v[0] == pytest.approx(0.408, abs=0.0002)
     assert worker.map_feedback.doppler_scale == pytest.approx(1 + 0.7 * 0.008 / 0.4)
     assert worker.counters()["map_velocity_updates"] == 1
+    assert worker.counters()["map_doppler_scale_ppm"] == 14000  # in health: 0.7 x 0.008 / 0.4
     sub.close()
     pub.close()
 

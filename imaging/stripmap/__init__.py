@@ -35,7 +35,10 @@ The group images of a tile are kept until then (``refocus_groups_per_frame`` x p
 With ``refocus_imu_aided`` the samples of an IMU on a radar's own mount (``add_radar_imu``) correct the
 tile first, as ``sarbot image --imu-aided`` does: its high-passed boresight acceleration, integrated twice
 over the groups' times, is the track error of that radar's groups, and autofocus (if any) estimates what
-is left.
+is left. Where the map's pixels are coarser than the aperture's cross-range resolution (1 cm against 5 mm for
+0.6 m at 1.5 m), autofocus estimates on the group images resampled onto finer pixels
+(``imaging.stripmap.group_grid``): on the map's own, the aperture's ends alias onto each other and a wrong
+speed read as a sawtooth of one-pixel ramps.
 
 With ``algorithm`` "ffbp" (for long apertures) the frames of each radar are imaged in blocks of
 ``ffbp_block_frames``: a block is one short subaperture, imaged by fast factorized backprojection

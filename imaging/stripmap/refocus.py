@@ -12,6 +12,7 @@ import numpy as np
 from imaging.backprojection import backproject, patch_order
 from imaging.core.track_error import TrackError, remove_line
 from imaging.stripmap.config import StripMapConfig
+from imaging.stripmap.group_grid import estimation_group_images
 
 
 @dataclasses.dataclass(frozen=True)
@@ -166,15 +167,24 @@ class TileRefocus:
         gx, gy = np.meshgrid(x, y)
         pts = np.stack([gx.ravel(), gy.ravel(), np.full(n * n, self.config.z_m)], axis=1)[order]
         b = np.stack([g[3][order] for g in groups])
-        g = assemble_group_images(b, time_s, np.array([g[1] for g in groups]),
-                                  np.array([g[2] for g in groups]), pts, np.ones(n * n, np.float32), self.k,
+        antenna, direction = np.array([g[1] for g in groups]), np.array([g[2] for g in groups])
+        g = assemble_group_images(b, time_s, antenna, direction, pts, np.ones(n * n, np.float32), self.k,
                                   self.range_resolution_m)
+        brightest = int(np.argmax(np.abs(b).sum(axis=0)))
+        seen = np.abs(b[:, brightest]) > 0
+        # Pixels coarser than the aperture's resolution alias its ends onto each other, and autofocus on them
+        # reads a wrong speed as a sawtooth (see imaging.stripmap.group_grid): it estimates on finer pixels.
+        fine = estimation_group_images(np.stack([g[3] for g in groups]).reshape(-1, n, n), x, y, self.config.z_m,
+                                       time_s, antenna, direction, self.k, self.range_resolution_m, pts[brightest],
+                                       seen) if autofocus else None
+        estimating = g if fine is None else fine
         if imu is not None:
             # The IMU's correction, applied to the group images as autofocus's own would be: what autofocus
             # then sees is the residual.
-            g.b *= np.exp(1j * g.phase(imu)).T[:, :, None].astype(np.complex64)
+            for h in {id(g): g, id(estimating): estimating}.values():
+                h.b *= np.exp(1j * h.phase(imu)).T[:, :, None].astype(np.complex64)
         if autofocus:
-            result = estimate_on_group_images(g, options)
+            result = estimate_on_group_images(estimating, options)
         else:
             zero = TrackError(time_s, np.zeros(time_s.size), "none")
             why = "autofocus off" if cfg.refocus == "none" else "no scatterer whole within the tile to focus on"
@@ -190,8 +200,6 @@ class TileRefocus:
                 time_s, remove_line(time_s, imu + residual), method, result.track_error.model if result.applied else None))
         # What the estimate says of the track holds where the tile's brightest pixel was integrated (its own
         # aperture); elsewhere in the tile's time span the groups carry little and the estimate is free.
-        brightest = int(np.argmax(np.abs(b).sum(axis=0)))
-        seen = np.abs(b[:, brightest]) > 0
         te = result.track_error
         if seen.sum() >= 4:
             te = dataclasses.replace(te, time_s=te.time_s[seen], displacement_m=remove_line(te.time_s[seen], te.displacement_m[seen]))
