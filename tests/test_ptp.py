@@ -341,14 +341,7 @@ def test_real_ptp4l_master_and_slave_over_a_veth_pair(veth_namespaces, tmp_path)
         assert changes[0].message.startswith("PTP host: port UNCALIBRATED -> ") or \
             changes[0].message.startswith("PTP host: port SLAVE -> ")
     finally:
-        for p in procs:
-            if p.poll() is None:
-                p.terminate()
-                try:
-                    p.wait(5)
-                except subprocess.TimeoutExpired:
-                    p.kill()
-                    p.wait()
+        _stop(procs)
 
 
 def _no_clock_rights_or_skip() -> None:
