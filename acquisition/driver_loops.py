@@ -96,12 +96,10 @@ def radar_driver_loop(receiver: UdpReceiver, radar: str, stream: RadarStream, pu
                     del nic_of[next(iter(nic_of))]
                 if card_times is not None:
                     card_times.observe(t_ns, receiver.last_nic_ns)
-            for frame in stream.feed(data, t_ns):
-                if hardware:
-                    _card_stamps(frame, nic_of, card_times)
-                pub.send(RadarFrameMessage(radar, frame))
-                if not frame.valid:
-                    report(t_ns)
+            frames = stream.feed(data, t_ns)
+            publish(frames)
+            if any(not frame.valid for frame in frames):
+                report(t_ns)
         if time.monotonic() - last_report > report_every_s:  # also when only rejected datagrams come
             if expire is not None:
                 publish(expire(time.time_ns()))

@@ -366,11 +366,9 @@ class FrameAssembler:
         through the frames before and after it, or one frame interval from the nearest one (0, 0 with
         neither)."""
         before = self._last_real
-        later = [j for j in self._partial if j > k]
-        after = None if not later else (min(later), self._partial[min(later)].header.frame_time_ns,
-                                        self._partial[min(later)].last_recv)
-        locked = before[3] if before is not None else (after is not None and
-                                                       self._partial[after[0]].header.ptp_locked)
+        j = min((j for j in self._partial if j > k), default=None)
+        after = None if j is None else (j, self._partial[j].header.frame_time_ns, self._partial[j].last_recv)
+        locked = before[3] if before is not None else (j is not None and self._partial[j].header.ptp_locked)
         if before is not None and after is not None:
             w = (k - before[0]) / (after[0] - before[0])
             return (before[1] + round(w * (after[1] - before[1])), before[2] + round(w * (after[2] - before[2])),
