@@ -28,8 +28,11 @@ mount error; the radar's own noise averages out over a tile), less what earlier 
 corrected since that time (``MapFeedback.applied``), so one error is not corrected twice. A velocity update
 alone is undone by the next radar scans (the filter trusts them, and they carry the same error), so
 ``MapFeedback`` also learns the error's likely cause, a scale of the radars' Doppler (a radar clock or chirp
-slope off): each measurement's relative speed error, ``scale_gain`` of it, goes into ``doppler_scale``, and
-``correct_scan`` applies it to the scans before the filter takes them.
+slope off), and ``correct_scan`` applies it to the scans before the filter takes them. The scale is a constant
+estimated by a scalar Kalman filter: each measurement's relative speed error (what earlier ones have not
+corrected) moves it by the filter's gain, weighted by the measurement's sigma against the scale's own. A fixed
+gain (0.7 of each error, as before) let the last measurement decide: over the live CI drive five measurements
+left the scale at 4.6 % for a 2.0 % error; with the filter's gain they average.
 
 Pure computation: used by the offline loop (``rio.feedback_drive``) and the live odometry worker.
 """
@@ -84,8 +87,12 @@ class MapFeedbackConfig:
     #: Also learn a scale of the radars' Doppler from the map (``MapFeedback.correct_scan``): a velocity
     #: update alone is pulled back by the next radar scans within a second when the radars' error persists.
     learn_doppler_scale: bool = True
-    #: The part of each measured relative speed error taken into the scale (below 1: the measurements are noisy).
-    scale_gain: float = 0.7
+    #: Prior standard deviation of the Doppler scale (relative): a radar clock is off by ppm, a chirp slope by
+    #: up to a few per cent.
+    scale_prior_sigma: float = 0.05
+    #: A measurement's relative speed error is never trusted better than this: the filter's velocity lags a
+    #: scale change it is given, and a tile's span may hold part of that lag.
+    scale_min_sigma: float = 0.0025
     #: The scale is learnt only while the filter's speed along the measured direction is at least this.
     scale_min_speed_mps: float = 0.1
 
@@ -176,6 +183,8 @@ class MapFeedback:
         self.rejected = 0
         #: the radars' Doppler is multiplied by this (``correct_scan``), learnt from the map's measurements
         self.doppler_scale = 1.0
+        #: variance of ``doppler_scale`` (relative, squared)
+        self.scale_variance = config.scale_prior_sigma ** 2
         self.scale_log: list[tuple[int, float]] = []  # (filter time ns, scale from then on)
 
     def scale_at(self, time_ns: int) -> float:
@@ -216,10 +225,17 @@ class MapFeedback:
                 self.applied.append((ekf.state.time_ns, ekf.state.v - before))
                 accepted.append(m)
                 if self.config.learn_doppler_scale and abs(speed) >= self.config.scale_min_speed_mps:
-                    # Speed too low by dv along the track: the Doppler reads (v - dv) / v of the truth.
-                    self.doppler_scale *= 1.0 + self.config.scale_gain * (m.velocity_error_mps - done) / speed
+                    self._learn_scale((m.velocity_error_mps - done) / speed, m.sigma_mps / abs(speed))
                     self.scale_log.append((ekf.state.time_ns, self.doppler_scale))
             else:
                 self.rejected += 1
         self.measurements.extend(accepted)
         return accepted
+
+    def _learn_scale(self, relative_error: float, relative_sigma: float) -> None:
+        """One scalar Kalman update of ``doppler_scale`` by a speed ``relative_error`` (truth faster than the
+        corrected Doppler by that part of the speed: the Doppler reads (v - dv) / v of the truth)."""
+        r = max(relative_sigma, self.config.scale_min_sigma) ** 2
+        gain = self.scale_variance / (self.scale_variance + r)
+        self.doppler_scale *= 1.0 + gain * relative_error
+        self.scale_variance *= 1.0 - gain
