@@ -196,7 +196,11 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
                     driver.use_host_clock()
                 said_missing = True  # it existed: a later loss is said as such ("serial port lost")
             if sub is not None and trigger_time_ns is None:
-                msg = sub.receive(timeout_ms=0 if driver.serial.in_waiting else 20)
+                # Never wait here: the serial read below is the loop's one wait. A wait for the radar frame
+                # kept the IMU's bytes in the port, and the samples read after it were stamped up to 20 ms
+                # late, which put the SyncIn estimate a sample late (the frame's own receive stamp is the
+                # kernel's, so taking it up a read later costs nothing).
+                msg = sub.receive(timeout_ms=0)
                 if msg is not None:
                     first = RadarFrameMessage.from_message(msg)
                     trigger_time_ns = first.frame.frame_time_ns
