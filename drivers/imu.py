@@ -65,14 +65,15 @@ def lower_hull(x_s: np.ndarray, y_s: np.ndarray) -> np.ndarray:
     return np.asarray(hull, int)
 
 
-def imu_time_at_host(imu_s: np.ndarray, host_s: np.ndarray, at_host_s: float) -> float | None:
-    """The IMU time whose sample would have been received at ``at_host_s`` with the least delay seen.
+def hull_edge_at_host(imu_s: np.ndarray, host_s: np.ndarray, at_host_s: float) -> tuple[float, ...] | None:
+    """The two points (x0, y0, x1, y1) of the lower hull of (IMU time, receive time) whose line gives the IMU
+    time of a sample received at ``at_host_s`` with the least delay seen; None when no part of the hull rises
+    (all samples read at once).
 
     ``imu_s``, increasing, and ``host_s`` are the samples' IMU times and receive times (s, any common
-    origins). The lower convex hull's rising part is inverted at ``at_host_s``: between two hull points it
-    is the line through them, so the error is at most their delay beyond the fastest (a tenth of a
-    millisecond on a quiet pty). Outside the hull's span the line through its first and last rising points
-    is extended. None when no part of the hull rises (all samples read at once)."""
+    origins). Between two points of the hull's rising part the IMU time is read off the line through them,
+    so its error is at most their delay beyond the fastest (a tenth of a millisecond on a quiet pty).
+    Outside the hull's span it is the line through its first and last rising points."""
     hull = lower_hull(imu_s, host_s)
     hx, hy = imu_s[hull], host_s[hull]
     rising = np.flatnonzero(np.diff(hy) > 0)
@@ -82,10 +83,8 @@ def imu_time_at_host(imu_s: np.ndarray, host_s: np.ndarray, at_host_s: float) ->
     hx, hy = hx[rising[0]:], hy[rising[0]:]
     k = int(np.searchsorted(hy, at_host_s))
     if 0 < k < len(hy):
-        x0, y0, x1, y1 = hx[k - 1], hy[k - 1], hx[k], hy[k]
-    else:
-        x0, y0, x1, y1 = hx[0], hy[0], hx[-1], hy[-1]
-    return float(x0 + (at_host_s - y0) * (x1 - x0) / (y1 - y0))
+        return float(hx[k - 1]), float(hy[k - 1]), float(hx[k]), float(hy[k])
+    return float(hx[0]), float(hy[0]), float(hx[-1]), float(hy[-1])
 
 
 class ImuClock:
@@ -102,6 +101,7 @@ class ImuClock:
         self._fit_imu: list[float] = []
         self._fit_host: list[float] = []
         self._drift: tuple[int, float | None] = (-1, None)  # (samples when fitted, ppm)
+        self.estimate_basis: tuple[int, float, int, float] | None = None  # see ticks_at_host
 
     def unwrap(self, raw: int) -> int:
         if self._last_raw is not None and raw < self._last_raw and self._last_raw - raw > 2**31:
@@ -134,9 +134,15 @@ class ImuClock:
             return None
         x = np.asarray(self._fit_imu) - self._fit_imu[0]
         y = np.asarray(self._fit_host) - self._fit_host[0]
-        imu_s = imu_time_at_host(x, y, host_time_ns * 1e-9 - self._fit_host[0])
-        if imu_s is None:
+        at_s = host_time_ns * 1e-9 - self._fit_host[0]
+        edge = hull_edge_at_host(x, y, at_s)
+        if edge is None:
             return None
+        x0, y0, x1, y1 = edge
+        imu_s = x0 + (at_s - y0) * (x1 - x0) / (y1 - y0)
+        # for the log: which samples it was read between, received how long from the host time asked
+        self.estimate_basis = (round((x0 + self._fit_imu[0]) * 1e9 / TICK_NS), (y0 - at_s) * 1e3,
+                               round((x1 + self._fit_imu[0]) * 1e9 / TICK_NS), (y1 - at_s) * 1e3)
         return int(round((imu_s + self._fit_imu[0]) * 1e9 / TICK_NS))
 
     def drift_ppm(self) -> float | None:
@@ -232,7 +238,9 @@ class ImuDriver:
         self.clock.trigger_ticks = ticks
         self.trigger_estimated = True
         log.warning("IMU: no SyncIn mark %.1f s after the trigger (its packet lost?): trigger tick %d estimated "
-                    "from the receive times", self.syncin_grace_s, ticks)
+                    "from the receive times, between the samples at ticks %d and %d (received %+.1f and %+.1f ms "
+                    "from the trigger's host time)", self.syncin_grace_s, ticks, *self.clock.estimate_basis[::2],
+                    *self.clock.estimate_basis[1::2])
 
     def use_host_clock(self) -> None:
         """Time the samples on the host clock: with no radar there is no first chirp, so no trigger time to

@@ -329,8 +329,15 @@ def test_the_driver_loop_stamps_samples_promptly_while_it_waits_for_the_first_ra
     from acquisition.driver_loops import imu_driver_loop
 
     n = 120
-    emu = XbusPty(np.zeros((n, 3)), np.tile([0.0, 0.0, 9.81], (n, 1)), rate_hz=100.0, speed=1.0,
-                  trigger_index=n + 1)  # no SyncIn, no radar frame: every sample waits for the trigger
+    written_ns = {}
+
+    class Timed(XbusPty):
+        def packet(self, k):
+            written_ns[self.start_ticks + k * 100] = time.time_ns()  # written right after it is made
+            return super().packet(k)
+
+    emu = Timed(np.zeros((n, 3)), np.tile([0.0, 0.0, 9.81], (n, 1)), rate_hz=100.0, speed=1.0,
+                trigger_index=n + 1)  # no SyncIn, no radar frame: every sample waits for the trigger
     stamps = []
 
     class Watched(ImuClock):
@@ -350,7 +357,6 @@ def test_the_driver_loop_stamps_samples_promptly_while_it_waits_for_the_first_ra
                                 kwargs={"radar_endpoints": [radar_pub.endpoint]})
         loop.start()
         time.sleep(0.3)
-        started_ns = time.time_ns()
         emu.start()
         emu.done.wait(5)
         time.sleep(0.1)
@@ -360,9 +366,7 @@ def test_the_driver_loop_stamps_samples_promptly_while_it_waits_for_the_first_ra
         imu_module.ImuClock = original
         emu.close()
         radar_pub.close(), imu_pub.close(), ctx.term()
-    ticks = np.array([t for t, _ in stamps]) - emu.start_ticks
-    host_ns = np.array([h for _, h in stamps])
-    # The emulator writes sample k at k / 100 Hz after it started (late when the host is busy, never early).
-    late_ms = (host_ns - started_ns - ticks * 100_000) * 1e-6
+    late_ms = np.array([(host - written_ns[ticks]) * 1e-6 for ticks, host in stamps])
     assert len(stamps) == n
-    assert np.median(late_ms) < 3.0, np.round(late_ms[:20], 1)
+    # 12-14 ms when the loop waited on the bus (a 20 ms wait: about 10 on average); 0.3 quiet, 3.5 at load 18
+    assert np.median(late_ms) < 7.0, np.round(late_ms[:20], 1)
