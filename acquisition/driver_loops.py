@@ -275,7 +275,8 @@ def publisher_heard_by_recorder(endpoint: str, role: str, stop, **kwargs) -> Bus
 
     A ZeroMQ publisher drops, unseen, what it sends before a subscriber's subscription has reached it: a radar
     already streaming when ``record`` started lost its first frames (0-3) and nobody counted them. Waiting
-    here, the device's own buffer (the UDP socket's, already bound; the serial port's) keeps them."""
+    here, the device's own buffer (the UDP socket's, already bound) keeps them. Not an IMU's: its serial port
+    is opened after this wait, and opening it throws away what waited in it (pyserial flushes the input)."""
     pub = BusPublisher(endpoint, watch_subscriptions=True, **kwargs)
     if not pub.wait_for_subscriber(RECORDER_LISTENING, RECORDER_WAIT_S, stop) and not stop.is_set():
         log.warning("%s: no recorder listening after %.0f s; publishing anyway", role, RECORDER_WAIT_S)

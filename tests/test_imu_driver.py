@@ -194,16 +194,42 @@ def test_the_driver_loop_says_when_the_trigger_is_estimated_and_sends_samples_in
     assert any(isinstance(m, Event) and "no SyncIn mark" in m.message for m in got)
 
 
+def _held_by_another_process(path: str) -> bool:
+    """Whether a process other than this one has ``path`` open (Linux: /proc/PID/fd)."""
+    import glob
+    import os
+
+    for fd in glob.glob("/proc/[0-9]*/fd/*"):
+        try:
+            if os.readlink(fd) == path and int(fd.split("/")[2]) != os.getpid():
+                return True
+        except (OSError, ValueError):
+            continue
+    return False
+
+
 def _record_imu_only(tmp_path, emu, duration_s, on_health=None, start_after_s=2.0):
     """`record` (the daemon, its IMU driver a real child process) with the robot's IMU and no radar; the
-    emulator starts ``start_after_s`` into the run."""
+    emulator starts ``start_after_s`` into the run, and not before the driver has the port open.
+
+    Opening a serial port flushes what waited in it (pyserial), and the driver opens it only once the
+    recorder listens: on a busy host that was up to 2.9 s into the run, and the first 76-352 samples
+    written from 2 s on were thrown away at the open."""
     import threading
 
     from acquisition.daemon import Setup, record
     from imaging.core.rig import default_rig
 
     setup = Setup(default_rig(), [], imu_port=emu.port, health_interval_s=0.5, flush_interval_s=0.2)
-    threading.Timer(start_after_s, emu.start).start()
+
+    def start_when_opened():
+        t0 = time.monotonic()
+        while not _held_by_another_process(emu.port) and time.monotonic() - t0 < 30:
+            time.sleep(0.05)
+        time.sleep(max(0.5, start_after_s - (time.monotonic() - t0)))  # its open's flush is over by then
+        emu.start()
+
+    threading.Thread(target=start_when_opened, daemon=True).start()
     reports = []
 
     def health(report):
