@@ -196,7 +196,11 @@ def imu_driver_loop(port: str, pub: BusPublisher, stop: threading.Event, trigger
                     driver.use_host_clock()
                 said_missing = True  # it existed: a later loss is said as such ("serial port lost")
             if sub is not None and trigger_time_ns is None:
-                msg = sub.receive(timeout_ms=0 if driver.serial.in_waiting else 20)
+                # Never wait here: the serial read below is the loop's one wait. A wait for the radar frame
+                # kept the IMU's bytes in the port, and the samples read after it were stamped up to 20 ms
+                # late, which put the SyncIn estimate a sample late (the frame's own receive stamp is the
+                # kernel's, so taking it up a read later costs nothing).
+                msg = sub.receive(timeout_ms=0)
                 if msg is not None:
                     first = RadarFrameMessage.from_message(msg)
                     trigger_time_ns = first.frame.frame_time_ns
@@ -271,7 +275,8 @@ def publisher_heard_by_recorder(endpoint: str, role: str, stop, **kwargs) -> Bus
 
     A ZeroMQ publisher drops, unseen, what it sends before a subscriber's subscription has reached it: a radar
     already streaming when ``record`` started lost its first frames (0-3) and nobody counted them. Waiting
-    here, the device's own buffer (the UDP socket's, already bound; the serial port's) keeps them."""
+    here, the device's own buffer (the UDP socket's, already bound) keeps them. Not an IMU's: its serial port
+    is opened after this wait, and opening it throws away what waited in it (pyserial flushes the input)."""
     pub = BusPublisher(endpoint, watch_subscriptions=True, **kwargs)
     if not pub.wait_for_subscriber(RECORDER_LISTENING, RECORDER_WAIT_S, stop) and not stop.is_set():
         log.warning("%s: no recorder listening after %.0f s; publishing anyway", role, RECORDER_WAIT_S)

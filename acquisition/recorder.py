@@ -157,7 +157,7 @@ class Recorder:
         chain = {"part": part, "previous_part": self.paths[-1].name if self.paths else ""} if split else None
         writer = RecordingWriter(path, self.rig.radars, imu=self.rig.imu, adc_dtype=self.adc_dtype,
                                  wire_format=self.wire_formats, root_attrs=chain, clock_state=True,
-                                 radar_attrs=self._radar_attrs)
+                                 radar_attrs=self._radar_attrs, events_time_base="host")
         for t, source in self._triggers:  # each part says how its times were tied to the first chirp
             writer.append_trigger(t, source)
         self.paths.append(path)
@@ -174,7 +174,7 @@ class Recorder:
         msg = self.sub.receive(timeout_ms=timeout_ms)
         if msg is not None:
             self._store(msg)
-            self._report_gaps(msg.topic, msg.sensor_time_ns)
+            self._report_gaps(msg.topic, msg.host_time_ns)  # /events is on the host clock
         if time.monotonic() - self._last_flush >= self.flush_interval_s:
             self.flush()
             if self._split_due():
@@ -212,7 +212,7 @@ class Recorder:
         self.unlocked_frames[m.radar] += 0 if f.ptp_locked else 1
         was = self.ptp_locked.get(m.radar)
         if was is not None and was != f.ptp_locked:
-            self._write_event(f.frame_time_ns, f"radar.{m.radar}", "info" if f.ptp_locked else "warning",
+            self._write_event(f.receive_ns, f"radar.{m.radar}", "info" if f.ptp_locked else "warning",
                               "clock PTP-locked again" if f.ptp_locked else
                               f"clock not PTP-locked: frames from {f.frame_counter} marked in /radar/{m.radar}/ptp_locked")
         self.ptp_locked[m.radar] = f.ptp_locked
@@ -223,13 +223,13 @@ class Recorder:
             receive_ns = f.nic_receive_ns
             if not receive_ns and f.receive_ns > 0:
                 if not self.nic_unstamped[m.radar]:
-                    self._write_event(f.frame_time_ns, f"radar.{m.radar}", "warning",
+                    self._write_event(f.receive_ns, f"radar.{m.radar}", "warning",
                                       f"frame {f.frame_counter}: its last datagram has no hardware receive stamp; such "
                                       "frames keep the host's stamp only (0 in nic_time_ns) and are left out of the receive delay")
                 self.nic_unstamped[m.radar] += 1
         jump = self.receive_delay[m.radar].add(receive_ns, f.frame_time_ns + self._frame_duration_ns[m.radar])
         if jump:
-            self._write_event(f.frame_time_ns, f"radar.{m.radar}", "warning", jump)
+            self._write_event(f.receive_ns, f"radar.{m.radar}", "warning", jump)
 
     def _check_imu_continuity(self, topic: str, b: ImuBatch) -> None:
         """Samples lost where one IMU driver process ended and the next began (killed, restarted).
@@ -264,7 +264,7 @@ class Recorder:
         text = (f"{topic}: {lost} sample(s) lost ({(gap_ns - (period or 0)) / 1e9:.3f} s) across a restart of its "
                 f"driver (counter {last_counter} to {int(counter[0])})")
         log.warning("%s", text)
-        self._write_event(int(t[0]), "recorder", "error", text)
+        self._write_event(int(b.host_time_ns[0]), "recorder", "error", text)  # /events is on the host clock
 
     def _store_imu(self, m: ImuBatch) -> None:
         self._check_imu_continuity(m.TOPIC, m)
@@ -281,7 +281,7 @@ class Recorder:
                 text = (f"samples of an IMU on radar {m.radar!r}, which the rig does not declare ([radar.{m.radar}.imu]): "
                         "not recorded")
                 log.error(text)
-                self._write_event(int(m.batch.time_ns[0]) if len(m) else 0, "recorder", "error", text)
+                self._write_event(time.time_ns(), "recorder", "error", text)
             self.radar_imu_unrecorded[m.radar] = self.radar_imu_unrecorded.get(m.radar, 0) + len(m)
             return
         b = m.batch

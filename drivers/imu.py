@@ -50,6 +50,43 @@ class ImuSample:
 MAX_DRIFT_SIGMA_PPM = 20.0
 
 
+def lower_hull(x_s: np.ndarray, y_s: np.ndarray) -> np.ndarray:
+    """Indices of the lower convex hull of the points (x, y), ``x`` increasing (Andrew's monotone chain)."""
+    hull: list[int] = []
+    for i in range(len(x_s)):
+        while len(hull) >= 2:
+            a, b = hull[-2], hull[-1]
+            # b is not below the chord a -> i: not on the lower hull
+            if (y_s[b] - y_s[a]) * (x_s[i] - x_s[a]) >= (y_s[i] - y_s[a]) * (x_s[b] - x_s[a]):
+                hull.pop()
+            else:
+                break
+        hull.append(i)
+    return np.asarray(hull, int)
+
+
+def hull_edge_at_host(imu_s: np.ndarray, host_s: np.ndarray, at_host_s: float) -> tuple[float, ...] | None:
+    """The two points (x0, y0, x1, y1) of the lower hull of (IMU time, receive time) whose line gives the IMU
+    time of a sample received at ``at_host_s`` with the least delay seen; None when no part of the hull rises
+    (all samples read at once).
+
+    ``imu_s``, increasing, and ``host_s`` are the samples' IMU times and receive times (s, any common
+    origins). Between two points of the hull's rising part the IMU time is read off the line through them,
+    so its error is at most their delay beyond the fastest (a tenth of a millisecond on a quiet pty).
+    Outside the hull's span it is the line through its first and last rising points."""
+    hull = lower_hull(imu_s, host_s)
+    hx, hy = imu_s[hull], host_s[hull]
+    rising = np.flatnonzero(np.diff(hy) > 0)
+    if rising.size == 0:
+        return None
+    # the hull is convex: once it rises it keeps rising
+    hx, hy = hx[rising[0]:], hy[rising[0]:]
+    k = int(np.searchsorted(hy, at_host_s))
+    if 0 < k < len(hy):
+        return float(hx[k - 1]), float(hy[k - 1]), float(hx[k]), float(hy[k])
+    return float(hx[0]), float(hy[0]), float(hx[-1]), float(hy[-1])
+
+
 class ImuClock:
     """Unwraps the 32-bit tick counter and maps ticks to PTP time once the trigger has been seen and its
     PTP time is known (``trigger_time_ns`` may be set later, e.g. from the first radar frame)."""
@@ -64,6 +101,7 @@ class ImuClock:
         self._fit_imu: list[float] = []
         self._fit_host: list[float] = []
         self._drift: tuple[int, float | None] = (-1, None)  # (samples when fitted, ppm)
+        self.estimate_basis: tuple[int, float, int, float] | None = None  # see ticks_at_host
 
     def unwrap(self, raw: int) -> int:
         if self._last_raw is not None and raw < self._last_raw and self._last_raw - raw > 2**31:
@@ -85,16 +123,27 @@ class ImuClock:
     def ticks_at_host(self, host_time_ns: int) -> int | None:
         """The IMU tick count at a host clock time, from the received samples (None with fewer than 50).
 
-        The line's slope is the least-squares fit; its offset is the lower envelope (the samples that
-        came through fastest), since serial and USB latency only ever delay a sample."""
+        Serial, USB and scheduling latency only ever delay a sample, so its receive time lies on or above
+        the line (IMU time -> host time of an instant delay) and the samples that came through fastest
+        carry the line. The estimate is the lower convex hull of (IMU time, receive time), read where it
+        reaches ``host_time_ns``: between the two fastest samples either side, so a run of late stamps (a
+        busy host reading several samples at once) does not tilt it. A least-squares slope through all
+        samples did: with the samples before the first radar frame stamped 5-24 ms late it put the trigger
+        up to a 100 Hz sample late. See docs/wire/xbus.md."""
         if len(self._fit_imu) < 50:
             return None
         x = np.asarray(self._fit_imu) - self._fit_imu[0]
         y = np.asarray(self._fit_host) - self._fit_host[0]
-        slope = np.polyfit(x, y, 1)[0] if np.ptp(x) > 0 else 1.0
-        offset = float(np.min(y - slope * x))
-        imu_s = (host_time_ns * 1e-9 - self._fit_host[0] - offset) / slope + self._fit_imu[0]
-        return int(round(imu_s * 1e9 / TICK_NS))
+        at_s = host_time_ns * 1e-9 - self._fit_host[0]
+        edge = hull_edge_at_host(x, y, at_s)
+        if edge is None:
+            return None
+        x0, y0, x1, y1 = edge
+        imu_s = x0 + (at_s - y0) * (x1 - x0) / (y1 - y0)
+        # for the log: which samples it was read between, received how long from the host time asked
+        self.estimate_basis = (round((x0 + self._fit_imu[0]) * 1e9 / TICK_NS), (y0 - at_s) * 1e3,
+                               round((x1 + self._fit_imu[0]) * 1e9 / TICK_NS), (y1 - at_s) * 1e3)
+        return int(round((imu_s + self._fit_imu[0]) * 1e9 / TICK_NS))
 
     def drift_ppm(self) -> float | None:
         """(host clock rate / IMU clock rate - 1) in ppm, from the receive times seen so far; None until the
@@ -144,7 +193,10 @@ class ImuDriver:
         self.host_clock = False  # see use_host_clock
 
     def read(self) -> list[ImuSample]:
-        """Whatever has arrived (waits up to the port timeout for the first byte)."""
+        """Whatever has arrived (waits up to the port timeout for the first byte).
+
+        The samples a read returns are stamped with its time: later than their bytes arrived when it took
+        several at once, never earlier, which the trigger estimate relies on (``ImuClock.ticks_at_host``)."""
         chunk = self.serial.read(max(1, self.serial.in_waiting))
         host = time.time_ns()
         out = []
@@ -186,7 +238,9 @@ class ImuDriver:
         self.clock.trigger_ticks = ticks
         self.trigger_estimated = True
         log.warning("IMU: no SyncIn mark %.1f s after the trigger (its packet lost?): trigger tick %d estimated "
-                    "from the receive times", self.syncin_grace_s, ticks)
+                    "from the receive times, between the samples at ticks %d and %d (received %+.1f and %+.1f ms "
+                    "from the trigger's host time)", self.syncin_grace_s, ticks, *self.clock.estimate_basis[::2],
+                    *self.clock.estimate_basis[1::2])
 
     def use_host_clock(self) -> None:
         """Time the samples on the host clock: with no radar there is no first chirp, so no trigger time to

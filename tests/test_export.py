@@ -427,3 +427,17 @@ def test_events_move_onto_the_sensor_clock():
     got = event_sensor_times_ns([span[0] + 5, span[1] + 1, *host, 1], offset, span)
     assert got.tolist() == [span[0] + 5, span[1], span[0] + 2_000_000_000, span[1], span[0]]
     assert event_sensor_times_ns([], offset, span).size == 0
+
+
+def test_events_the_recorder_says_are_on_the_host_clock_all_move():
+    """The recorder's /events say `time_base` "host": every row moves by the offset, also one that happens to
+    lie within a minute of the sensor span (a short run: host UTC is only TAI-UTC, 37 s, from PTP time),
+    which the guess for files that do not say leaves where it is."""
+    from acquisition.exporters import event_sensor_times_ns
+
+    span = (1_000_000_000_000, 1_100_000_000_000)  # 100 s of data on the sensor clock
+    offset = 37_000_000_000  # PTP (TAI) minus the host's CLOCK_REALTIME (UTC)
+    host = [span[0] - offset + 40_000_000_000, span[0] - offset + 90_000_000_000]
+    assert event_sensor_times_ns(host, offset, span, "host").tolist() == [span[0] + 40_000_000_000,
+                                                                         span[0] + 90_000_000_000]
+    assert event_sensor_times_ns(host, offset, span).tolist() == [span[0] + 3_000_000_000, span[0] + 53_000_000_000]

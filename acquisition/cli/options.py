@@ -146,11 +146,16 @@ def acquisition_options(s: argparse.ArgumentParser) -> None:
     from drivers.radar import registry
 
     s.add_argument("--config", required=True, help="rig TOML")
-    s.add_argument("-o", "--output", required=True, help="folder for the recording")
-    s.add_argument("--radar", action="append", metavar="NAME=[HOST:]PORT[,format=FORMAT][,OPTION=VALUE]",
+    s.add_argument("-o", "--output", required=True,
+                   help="folder for the recording (created if missing): recording_YYYYMMDDTHHMMSS.h5, the local "
+                        "time at the start; split parts _000.h5, _001.h5, ...; each file written is printed")
+    s.add_argument("--radar", action="append",
+                   metavar="NAME=[HOST:]PORT[,format=FORMAT][,source=ADDRESS][,id=RADAR_ID][,stamps=MODE][,OPTION=VALUE]",
                    help="where a radar's datagrams arrive (repeat per radar); HOST is the address to listen on "
                         f"(default 127.0.0.1); FORMAT one of the registered wire formats ({', '.join(registry.names())}; "
-                        f"default {registry.DEFAULT}), e.g. format=DCA1000,cfg=xwr18xx.cfg")
+                        f"default {registry.DEFAULT}); source= the only sender address accepted, id= the only radar id "
+                        "accepted (others are counted and ignored); stamps= auto, hardware or software (this link's "
+                        "--receive-stamps); the format's own options, e.g. format=DCA1000,cfg=xwr18xx.cfg")
     s.add_argument("--dca1000", action="append", metavar="NAME=[HOST:]PORT:CFG",
                    help="shorthand for --radar NAME=[HOST:]PORT,format=DCA1000,cfg=CFG (a TI radar through a DCA1000; "
                         "HOST: this host's address on the DCA1000's network, e.g. 192.168.33.30; default 127.0.0.1)")

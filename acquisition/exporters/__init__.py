@@ -78,19 +78,22 @@ def sensor_span_ns(rec) -> tuple[int, int] | None:
     return int(min(t.min() for t in times)), int(max(t.max() for t in times))
 
 
-def event_sensor_times_ns(event_times_ns, offset_ns: int, span_ns: tuple[int, int] | None) -> np.ndarray:
+def event_sensor_times_ns(event_times_ns, offset_ns: int, span_ns: tuple[int, int] | None,
+                          time_base: str = "") -> np.ndarray:
     """The recording's events on the sensor clock, which every other exported message carries.
 
-    The daemon stamps most events with the host clock (a driver's restart has no sensor time) and some
-    with the sensor clock (a loss the recorder sees between two samples). An event within the recording's
-    sensor span (give or take a minute) is on the sensor clock already; any other is moved by ``offset_ns``
-    (:func:`sensor_clock_offset_ns`); one that still lies outside the span (a damaged or hand-made stamp) is
-    put at the nearer end, so the file spans what the recording spans.
+    With ``time_base`` ``"host"`` (the recorder's files, ``Recording.events_time_base``) every event is on the
+    host clock and is moved by ``offset_ns`` (:func:`sensor_clock_offset_ns`). Files that do not say (older
+    recordings, imports) may mix the two: an event within the recording's sensor span (give or take a
+    minute) is taken to be on the sensor clock already, any other is moved. One that still lies outside the
+    span (a damaged or hand-made stamp) is put at the nearer end, so the file spans what the recording spans.
     """
     t = np.asarray(event_times_ns, np.int64)
     if span_ns is None or t.size == 0:
         return t
     lo, hi = span_ns
+    if time_base == "host":
+        return np.clip(t + offset_ns, lo, hi)
     margin = 60_000_000_000
     on_sensor_clock = (t >= lo - margin) & (t <= hi + margin)
     out = np.where(on_sensor_clock, t, t + offset_ns)

@@ -196,7 +196,8 @@ def export_mcap(recording: str | Path, output: str | Path, overwrite: bool = Fal
             for t, source in zip(rec.triggers(), rec.trigger_sources()):
                 out.json("/trigger", "sarbot.Trigger", {"timestamp": _stamp(t), "source": source}, t)
             events = rec.events()
-            times = event_sensor_times_ns([e[0] for e in events], sensor_clock_offset_ns(rec), span)
+            times = event_sensor_times_ns([e[0] for e in events], sensor_clock_offset_ns(rec), span,
+                                          rec.events_time_base())
             for t, (_, source, level, message) in zip(times, events):
                 out.typed("/events", LogChannel,
                           Log(timestamp=_foxglove_stamp(t), level=getattr(LogLevel, _LOG_LEVELS.get(level, "Info")),

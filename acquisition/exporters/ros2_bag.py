@@ -170,8 +170,8 @@ def export_ros2(recording: str | Path, output: str | Path, storage: str = "mcap"
             write("/trigger", TRIGGER, t, T[TRIGGER](header=header(t, "base_link"), source=source))
         events = rec.events()
         Log = T["rcl_interfaces/msg/Log"]
-        for t, (_, source, level, message) in zip(event_sensor_times_ns([e[0] for e in events],
-                                                                        sensor_clock_offset_ns(rec), span), events):
+        times = event_sensor_times_ns([e[0] for e in events], sensor_clock_offset_ns(rec), span, rec.events_time_base())
+        for t, (_, source, level, message) in zip(times, events):
             write("/events", "rcl_interfaces/msg/Log", t,
                   Log(stamp=stamp(t), level=_LOG_LEVELS.get(level, 20), name=source, msg=message, file="", function="",
                       line=0))

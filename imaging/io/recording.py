@@ -119,6 +119,10 @@ class RecordingWriter:
         receive stamp of the frame's last datagram, its PTP hardware clock; 0 where none) and ``/ptp/`` (the
         host's linuxptp state over time: time_ns, port_state, offset_from_master_ns, mean_path_delay_ns,
         phc2sys_offset_ns; NaN where unknown).
+    events_time_base : str
+        Stored as ``/events``' ``time_base`` attribute when given: ``"host"`` (the recorder) says every row's
+        time is the host's CLOCK_REALTIME; without it (imports, files before it) rows may mix host and
+        sensor times.
     radar_attrs : dict, optional
         Radar name -> extra attributes of its group (e.g. ``receive_stamp``), set at creation (SWMR forbids
         new attributes later).
@@ -137,6 +141,7 @@ class RecordingWriter:
         root_attrs: dict | None = None,
         clock_state: bool = False,
         radar_attrs: dict[str, dict] | None = None,
+        events_time_base: str = "",
     ):
         self.path = Path(path)
         if self.path.exists() and not overwrite:
@@ -216,6 +221,8 @@ class RecordingWriter:
             for name in ("offset_from_master_ns", "mean_path_delay_ns", "phc2sys_offset_ns"):
                 g.create_dataset(name, (0,), np.float64, maxshape=(None,), chunks=(256,), fletcher32=True)
         g = f.create_group("events")
+        if events_time_base:
+            g.attrs["time_base"] = events_time_base
         g.create_dataset("time_ns", (0,), np.int64, maxshape=(None,), chunks=(256,), fletcher32=True)
         for name in ("source", "level", "message"):
             g.create_dataset(name, (0,), _str_dtype(), maxshape=(None,), chunks=(256,))
@@ -539,6 +546,12 @@ class Recording:
         out = {k: g[k][()] for k in g}
         out["port_state"] = np.array([v.decode() if isinstance(v, bytes) else v for v in out["port_state"]], dtype=object)
         return out
+
+    def events_time_base(self) -> str:
+        """The clock of /events' times: ``"host"`` (CLOCK_REALTIME), or ``""`` where the file does not say
+        (then rows may mix host and sensor times)."""
+        value = self._f["events"].attrs.get("time_base", "")
+        return value.decode() if isinstance(value, bytes) else str(value)
 
     def events(self) -> list[tuple[int, str, str, str]]:
         """/events as (time_ns, source, level, message) rows."""
