@@ -34,9 +34,9 @@ one 16-byte pair; and on a CPU with AVX-512 numba is told to use all 512 bits (s
              cost proportional to the samples per chirp.
 
 The kernels run in parallel over blocks of grid points (or all on the calling thread: ``parallel=False``,
-for callers that spread coarser work over the cores themselves); inside a block over profiles (one
-profile row stays in L1 cache) and then over the block's points (vectorised by LLVM).
-Patches of a regular grid take ``imaging.lattice_kernel`` (linear mode)."""
+for callers that spread coarser work over the cores themselves); inside a block the loop runs over
+profiles (one profile row stays in L1 cache) and then over the block's points (vectorised by LLVM).
+"""
 
 from __future__ import annotations
 
@@ -212,8 +212,9 @@ def _gather_pairs_accumulate(row, idx, frac, turns, pairs, acc_re, acc_im, linea
 
 @numba.njit(inline="always", fastmath=True)
 def _gather_accumulate(row, idx, frac, cos_, sin_, v0, v1, acc_re, acc_im, linear):
-    """The second and third passes of a (block, profile): gather the profile at idx (scalar: LLVM will
-    not vectorise a gather here), then interpolate and accumulate value * exp(-j k dr) (vectorised)."""
+    """The second and third passes of a (block, profile): gather the profile at idx (scalar loads and
+    stores only: LLVM will not vectorise a gather here), then interpolate and accumulate value * exp(-j k dr)
+    (vectorised)."""
     nb = idx.size
     if linear:
         for i in range(nb):
@@ -418,8 +419,10 @@ _bp_exact_serial = _serial(_bp_exact, fastmath=False)
 
 
 def _guarded(data: np.ndarray) -> np.ndarray:
-    """Profiles as complex64 [P, bins + 3] with zero guard bins (one before, two after): outside its
-    range axis a profile is zero; the guards let the kernel clamp instead of branch."""
+    """Profiles as complex64 [P, bins + 3] with zero guard bins (one before, two after).
+
+    Outside its range axis a profile is zero; the guards let the kernel clamp instead of branch.
+    """
     n_p, n_b = data.shape
     rows = np.zeros((n_p, n_b + 3), np.complex64)
     rows[:, 1:n_b + 1] = data
@@ -436,36 +439,31 @@ def guarded_rows(profiles: RangeProfiles) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=32)
-def patch_pieces(ny: int, nx: int, width: int = PATCH, points: int = BLOCK) -> tuple[tuple[int, int, int, int], ...]:
-    """The patches (y0, h, x0, w) that ``patch_order`` walks one [ny, nx] layer in, in order: rows of patches
-    alternately left to right and right to left (a run of ``points`` that leaves a patch goes on into a
-    neighbouring one, never across the grid); the last, lower row of patches has wider ones."""
+def patch_order(shape: tuple[int, ...], width: int = PATCH, points: int = BLOCK) -> np.ndarray | None:
+    """The order that walks a grid of this shape ([..., ny, nx]) in patches of about ``points`` points,
+    ``width`` columns wide (PATCH x PATCH squares by default), each layer in turn; None for a 1-D set of points or a grid
+    within one patch (kept in the order given). Cached: ``form_image`` and the strip map backproject block
+    after block onto the same grid, FFBP's leaves onto grids of a few shapes (callers only index with it)."""
+    if len(shape) < 2:
+        return None
+    ny, nx = shape[-2], shape[-1]
     pw = max(1, min(width, nx))
     ph = max(1, points // pw)
+    if nx <= pw and ny <= ph:
+        return None
+    # Rows of patches alternately left to right and right to left: a run of ``points`` that leaves a
+    # patch (after a narrower one at the grid's edge) goes on into a neighbouring one, never across the
+    # grid; the last, lower row of patches has wider ones, of about as many points.
     pieces, y0, backwards = [], 0, False
     while y0 < ny:
         h = min(ph, ny - y0)
         w = pw if h == ph else min(nx, -(-ph * pw // h))
         starts = range(0, nx, w)
-        pieces += [(y0, h, x0, min(w, nx - x0)) for x0 in (reversed(starts) if backwards else starts)]
+        for x0 in reversed(starts) if backwards else starts:
+            iy, ix = np.mgrid[y0:y0 + h, x0:min(x0 + w, nx)]
+            pieces.append((iy * nx + ix).ravel())
         y0, backwards = y0 + h, not backwards
-    return tuple(pieces)
-
-
-@functools.lru_cache(maxsize=32)
-def patch_order(shape: tuple[int, ...], width: int = PATCH, points: int = BLOCK) -> np.ndarray | None:
-    """The order that walks a grid of this shape ([..., ny, nx]) in patches (``patch_pieces``), each layer in
-    turn; None for a 1-D set of points or a grid within one patch (kept in the order given). Cached:
-    ``form_image`` and the strip map backproject block after block onto the same grid, FFBP's leaves onto
-    grids of a few shapes (callers only index with it)."""
-    if len(shape) < 2:
-        return None
-    ny, nx = shape[-2], shape[-1]
-    pw = max(1, min(width, nx))
-    if nx <= pw and ny <= max(1, points // pw):
-        return None
-    layer = np.concatenate([(iy * nx + ix).ravel() for iy, ix in (np.mgrid[y0:y0 + h, x0:x0 + w]
-                                                                   for y0, h, x0, w in patch_pieces(ny, nx, width, points))])
+    layer = np.concatenate(pieces)
     layers = int(np.prod(shape[:-2], dtype=np.int64))
     order = (np.arange(layers)[:, None] * (ny * nx) + layer[None, :]).ravel()
     order.flags.writeable = False  # shared by every call on this shape
@@ -564,7 +562,8 @@ def backproject(
         out = np.zeros(shape, np.complex128)
     elif out.shape != shape or out.dtype != np.complex128:
         raise ValueError(f"out must be complex128 of shape {shape} (the grid's), got {out.dtype} {out.shape}")
-    # A non-contiguous ``out`` (a slice of a larger image) has no flat view: a buffer, added at the end.
+    # The kernels write through a flat view; a non-contiguous ``out`` (a slice of a larger image) has none,
+    # so they accumulate into a contiguous buffer that is added to it at the end.
     flat_out = out.reshape(-1) if out.flags.c_contiguous else np.zeros(out.size, np.complex128)
     if mode == "exact":
         if profiles.samples is None:
@@ -581,18 +580,11 @@ def backproject(
         kernel = _bp_interp_blocks if parallel else _bp_interp_blocks_serial
         max_extent_m = PHASE_ROUNDING_RAD / (k * 2.0 ** -24)
         acc = flat_out if order is None else np.zeros(flat_out.size, np.complex128)
-        from imaging.lattice_kernel import lattice_plan  # patches of a regular grid (it imports this module)
-        lattice = (lattice_plan(np.asarray(grid_m), patch_pieces(shape[-2], shape[-1], width, block), block)
-                   if mode == "linear" and order is not None else None)
         # Profiles in chunks, all grid blocks per chunk: the chunk's rows stay in cache while every block
         # reads them, instead of every block streaming all profiles from memory.
         for p0 in range(0, n_p, PROFILE_CHUNK):
-            args = (rows, p0, min(p0 + PROFILE_CHUNK, n_p), profiles.range_start_m, 1.0 / profiles.range_step_m, k,
-                    tx, rx, r_ref, gx, gy, gz)
-            if lattice is None:
-                kernel(*args, mode == "linear", max_extent_m, block, acc)
-            else:
-                lattice.run(args, kernel, (True, max_extent_m, block), acc, parallel)
+            kernel(rows, p0, min(p0 + PROFILE_CHUNK, n_p), profiles.range_start_m, 1.0 / profiles.range_step_m, k,
+                   tx, rx, r_ref, gx, gy, gz, mode == "linear", max_extent_m, block, acc)
         if order is not None:
             flat_out[order] += acc
     if not out.flags.c_contiguous:
