@@ -38,6 +38,7 @@ import argparse
 import dataclasses
 import functools
 import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -258,10 +259,71 @@ def run_pass(rec: Recording, radars: list[str], map_config, worker_config: dict,
     return Pass(dict(parts.s), whole, frames, sensor_s, status, dict(sorted(batch_sizes.items())))
 
 
-def timed_pass(rec, radars, map_config, worker_config, limit_frames=None) -> Pass:
+# -- the code the cuts replaced, kept here to measure them against it in the same process ---------------
+def _footprints_before(self, centres, looks):
+    """StripMap._footprints before 'footprint_masks': one numpy mask per tile."""
+    cfg = self.config
+    touched, masks = [], []
+    room = cfg.max_tiles - len(self.tiles)
+    refused = 0
+    for key in self.footprint_tiles(centres, looks):
+        x, y = self.tile_points(key)
+        if len(centres) == 1:
+            mask = self.footprint_mask(x[None, :], y[:, None], centres[0], looks[0])[None]
+        else:
+            mask = self.footprint_mask(x[None, :], y[:, None], centres, looks)
+        if not mask.any():
+            continue
+        if key not in self.tiles:
+            if room <= 0:
+                refused += 1
+                continue
+            room -= 1
+        touched.append(key)
+        masks.append(mask)
+    self.tiles_refused += refused
+    return touched, masks, refused
+
+
+def _trajectory_before(self):
+    """StripMapWorker._trajectory before: every pose batch held (5 s and more)."""
+    t = np.concatenate([b.time_ns for b in self.poses])
+    if t.size < 2:
+        return None
+    return SampledTrajectory(t, np.concatenate([b.position_m for b in self.poses]),
+                             np.concatenate([b.orientation_xyzw for b in self.poses]),
+                             np.concatenate([b.velocity_mps for b in self.poses]), source="rio")
+
+
+def _presum_before(adc, tx_order, n_tx, presum):
+    """presum_chirps before its kernel, for I/Q pairs (TXs in turn: a reshape and numpy's sum)."""
+    tx_order = np.asarray(tx_order)
+    groups, tx_index = [], []
+    for tx in range(n_tx):
+        k = np.flatnonzero(tx_order == tx)
+        n = k.size // presum * presum
+        groups.append(k[:n].reshape(-1, presum))
+        tx_index.append(np.full(n // presum, tx))
+    groups, tx_index = np.concatenate(groups), np.concatenate(tx_index)
+    g = tx_order.size // n_tx // presum
+    sums = adc[:g * presum * n_tx].reshape(g, presum, n_tx, *adc.shape[1:]).sum(axis=1, dtype=np.float32)
+    sums = sums.swapaxes(0, 1).reshape(n_tx * g, *adc.shape[1:])
+    return np.ascontiguousarray(sums).view(np.complex64)[..., 0], groups, tx_index
+
+
+BEFORE = [(stripmap_map.StripMap, "_footprints", _footprints_before),
+          (StripMapWorker, "_trajectory", _trajectory_before),
+          (stripmap_map, "presum_chirps", _presum_before)]
+
+
+def timed_pass(rec, radars, map_config, worker_config, limit_frames=None, before: bool = False) -> Pass:
+    """A pass with every part timed; ``before``: with the code the cuts replaced (``BEFORE``)."""
     parts = Parts()
+    patched = {(owner, attr) for owner, attr, _ in TIMED + (BEFORE if before else [])}
     saved = [(owner, attr, getattr(owner, attr) if isinstance(owner, types.ModuleType) else owner.__dict__[attr])
-             for owner, attr, _ in TIMED]
+             for owner, attr in patched]
+    for owner, attr, fn in BEFORE if before else []:
+        setattr(owner, attr, fn)
     for owner, attr, name in TIMED:
         setattr(owner, attr, parts.wrap(name, getattr(owner, attr)))
     try:
@@ -316,22 +378,32 @@ def main(argv: list[str]) -> int:
            "range_m": [map_config.range_min_m, map_config.range_max_m], "pose_batch_s": POSE_BATCH_S,
            "pose_hold_s": POSE_HOLD_S, "publish_every_s": PUBLISH_EVERY_S, "radar_frames_per_s_at_1x": frames_per_s}
     with Recording(path) as rec:
-        passes = []
-        for r in range(args.repeats):
-            p = timed_pass(rec, RADARS, map_config, {})
-            passes.append(p)
-            print(f"pass {r}: {1e3 * p.whole_cpu_s / p.frames:.2f} ms CPU a frame, {p.whole_cpu_s / p.sensor_s:.3f} of a "
-                  f"core at 1x; batches {p.batch_sizes}", flush=True)
-        best = min(passes, key=lambda p: p.whole_cpu_s / p.frames)
-        out["polar"] = summary(best, frames_per_s)
-        out["passes_cpu_ms_per_frame"] = [1e3 * p.whole_cpu_s / p.frames for p in passes]
+        passes = {"before": [], "now": []}
+        for r in range(args.repeats):  # the code before the cuts and now, in turn: the machine's load cancels
+            for which in passes:
+                p = timed_pass(rec, RADARS, map_config, {}, before=which == "before")
+                passes[which].append(p)
+                print(f"pass {r}, {which}: {1e3 * p.whole_cpu_s / p.frames:.2f} ms CPU a frame, "
+                      f"{p.whole_cpu_s / p.sensor_s:.3f} of a core at 1x; batches {p.batch_sizes}", flush=True)
+        best = {w: min(ps, key=lambda p: p.whole_cpu_s / p.frames) for w, ps in passes.items()}
+        out["polar"] = summary(best["now"], frames_per_s)
+        out["polar_before_cuts"] = summary(best["before"], frames_per_s)
+        out["passes_cpu_ms_per_frame"] = {w: [1e3 * p.whole_cpu_s / p.frames for p in ps] for w, ps in passes.items()}
+        out["before_over_now_each_round"] = [b.whole_cpu_s / b.frames / (n.whole_cpu_s / n.frames)
+                                             for b, n in zip(passes["before"], passes["now"])]
+        out["cuts"] = {"footprint masks": "one numba kernel for every tile (imaging.stripmap.footprint.footprint_masks)",
+                       "trajectory": "the worker's poses from the oldest queued frame on, not its whole 5 s window",
+                       "presum": "I/Q pairs summed by a numba kernel (imaging.stripmap.presum._sum_pairs)"}
+        print("ratio before/now each round:", [round(v, 3) for v in out["before_over_now_each_round"]])
         for k, v in out["polar"]["parts_cpu_ms_per_frame"].items():
-            print(f"  {v:7.3f} ms  {k}")
+            print(f"  {v:7.3f} ms  {out['polar_before_cuts']['parts_cpu_ms_per_frame'].get(k, 0.0):7.3f} before  {k}")
         if args.refocus_frames:
             refocus = dataclasses.replace(map_config, algorithm="direct", refocus="pga")
             p = timed_pass(rec, RADARS, refocus, {}, limit_frames=args.refocus_frames)
             out["refocus_pga_direct"] = summary(p, frames_per_s)
             print(f"refocusing (pga): {1e3 * p.whole_cpu_s / p.frames:.1f} ms CPU a frame", flush=True)
+    out["commit"] = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                                   text=True).stdout.strip()
     out.update(load_average_before=list(load_before), load_average_after=list(os.getloadavg()),
                cpu_count=os.cpu_count(), numba_threads=1)
     RESULTS.mkdir(parents=True, exist_ok=True)

@@ -14,8 +14,8 @@ from imaging.core.trajectory import Trajectory
 from imaging.io.image_file import SarImage
 from imaging.profiles import chirp_profiles
 from imaging.stripmap.config import StripMapConfig
-from imaging.stripmap.footprint import (FrameFootprint, footprint_mask, footprint_outline, footprint_tiles,
-                                        merged_footprints)
+from imaging.stripmap.footprint import (FrameFootprint, footprint_mask, footprint_masks, footprint_outline,
+                                        footprint_tiles, merged_footprints)
 from imaging.stripmap.polar import beams_at_points, frame_beams
 from imaging.stripmap.presum import presum_chirps
 from imaging.stripmap.refocus import TileRefocus
@@ -133,12 +133,12 @@ class StripMap:
         touched, masks = [], []
         room = cfg.max_tiles - len(self.tiles)
         refused = 0
-        for key in self.footprint_tiles(centres, looks):
-            x, y = self.tile_points(key)
-            if len(centres) == 1:  # the common case, without a frame axis to broadcast over
-                mask = self.footprint_mask(x[None, :], y[:, None], centres[0], looks[0])[None]
-            else:
-                mask = self.footprint_mask(x[None, :], y[:, None], centres, looks)
+        keys = self.footprint_tiles(centres, looks)
+        if not keys:
+            return touched, masks, refused
+        xy = [self.tile_points(key) for key in keys]
+        all_masks = footprint_masks(cfg, np.array([p[0] for p in xy]), np.array([p[1] for p in xy]), centres, looks)
+        for key, mask in zip(keys, all_masks):
             if not mask.any():
                 continue
             if key not in self.tiles:
