@@ -124,14 +124,20 @@ TIMED = [
     (stripmap_polar, "range_compress", "range compression (polar: beam signals)"),
     (stripmap_polar, "_weights", "polar beams: weights"),
     (stripmap_polar, "_extent", "polar beams: pixel extent"),
-    (stripmap_map, "frame_beams", "polar beams: product over the chirps, signals"),
+    (stripmap_map, "masked_extent", "polar beams: pixel extent"),
+    (stripmap_map, "frame_beams", "polar beams: set-up"),
+    (stripmap_polar, "frame_beams_over", "polar beams: product over the chirps, signals"),
+    (stripmap_map, "frame_beams_over", "polar beams: product over the chirps, signals"),
     (stripmap_map, "beams_at_points", "pixels: beams read at the pixels (polar)"),
+    (stripmap_map, "beams_at_masked", "pixels: beams read at the pixels (polar)"),
     (stripmap_map, "backproject", "pixels: direct kernel"),
     (stripmap_map.StripMap, "_footprints", "footprint (tiles, pixel masks)"),
     (stripmap_map.StripMap, "frames_profiles", "profiles rest (chirp times, looks, stacking)"),
     (stripmap_map.StripMap, "_polar_takers", "polar: frames' pixel selection"),
+    (stripmap_map.StripMap, "_polar_masked", "polar: one frame's tiles stacked"),
+    (stripmap_map.StripMap, "_pixel_values", "pixel lists"),
     (SampledTrajectory, "sample", "trajectory sampling"),
-    (stripmap_map.StripMap, "add_frames", "add_frames rest (pixel lists, tile updates, track sampling)"),
+    (stripmap_map.StripMap, "add_frames", "add_frames rest (tile updates, centres and looks)"),
     (StripMapWorker, "_trajectory", "worker: poses into a trajectory"),
     (StripMapWorker, "_image_ready", "worker: imaging loop rest (batching, catch-up, accounting)"),
     (StripMapWorker, "handle", "worker: queueing frames and poses"),
@@ -311,7 +317,18 @@ def _presum_before(adc, tx_order, n_tx, presum):
     return np.ascontiguousarray(sums).view(np.complex64)[..., 0], groups, tx_index
 
 
+def _polar_masked_before(self, radar, samples, tx_m, rx_m, look_xy, touched, masks):
+    """A frame's beams read at the list of its pixels, as before ``beams_at_masked``."""
+    pts = []
+    for key, mask in zip(touched, masks):
+        x, y = self.tile_points(key)
+        iy, ix = np.nonzero(mask[0])
+        pts.append(np.stack([x[ix], y[iy], np.full(iy.size, self.config.z_m)], axis=1))
+    return self._polar_takers(radar, samples, tx_m, rx_m, look_xy[None], np.concatenate(pts), None, samples.shape[0])
+
+
 BEFORE = [(stripmap_map.StripMap, "_footprints", _footprints_before),
+          (stripmap_map.StripMap, "_polar_masked", _polar_masked_before),
           (StripMapWorker, "_trajectory", _trajectory_before),
           (stripmap_map, "presum_chirps", _presum_before)]
 
@@ -393,7 +410,9 @@ def main(argv: list[str]) -> int:
                                              for b, n in zip(passes["before"], passes["now"])]
         out["cuts"] = {"footprint masks": "one numba kernel for every tile (imaging.stripmap.footprint.footprint_masks)",
                        "trajectory": "the worker's poses from the oldest queued frame on, not its whole 5 s window",
-                       "presum": "I/Q pairs summed by a numba kernel (imaging.stripmap.presum._sum_pairs)"}
+                       "presum": "I/Q pairs summed by a numba kernel (imaging.stripmap.presum._sum_pairs)",
+                       "pixels": "one frame's beams read at its tiles' masked pixels, without a list of them "
+                                 "(imaging.stripmap.polar.beams_at_masked)"}
         print("ratio before/now each round:", [round(v, 3) for v in out["before_over_now_each_round"]])
         for k, v in out["polar"]["parts_cpu_ms_per_frame"].items():
             print(f"  {v:7.3f} ms  {out['polar_before_cuts']['parts_cpu_ms_per_frame'].get(k, 0.0):7.3f} before  {k}")

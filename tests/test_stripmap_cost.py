@@ -1,6 +1,7 @@
 """The map's cheaper paths per frame give the numbers of the paths they replace: the footprint masks of many
-tiles in one kernel are numpy's pixel for pixel, and the worker's trajectory over the poses its queued
-frames need places them as the whole pose window does."""
+tiles in one kernel are numpy's pixel for pixel, the worker's trajectory over the poses its queued frames
+need places them as the whole pose window does, and a frame's beams read at its masked pixels are its
+beams read at their list (benchmarks/stripmap_capacity.py measures what each saves)."""
 
 import math
 
@@ -63,3 +64,35 @@ def test_the_workers_trajectory_over_its_queued_frames_places_them_as_the_whole_
     for field in ("position_m", "velocity_mps", "angular_velocity_body_radps"):
         np.testing.assert_allclose(getattr(a, field), getattr(b, field), rtol=0, atol=1e-9)
     np.testing.assert_allclose(np.abs(np.sum(a.orientation_xyzw * b.orientation_xyzw, axis=1)), 1.0, atol=1e-12)
+
+
+def test_one_frame_read_at_its_masked_pixels_is_the_frame_read_at_its_pixel_list():
+    """A frame as the live map takes it one at a time ("polar"): its beams read straight at the pixels its
+    tile masks take give the numbers of its beams read at the list of those pixels (``_polar_takers``)."""
+    from imaging.core.trajectory import StraightLine
+
+    rig = default_rig()
+    radar = rig.radars[0]
+    wf = radar.waveform
+    sm = StripMap(StripMapConfig(aperture_m=0.3, range_min_m=1.0, range_max_m=4.0, presum=4))
+    t0 = 10 ** 9
+    drive = StraightLine(speed_mps=0.4, t0_ns=t0)
+    noise = np.random.default_rng(2).integers(-512, 512, (wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp, 2),
+                                              dtype=np.int16)
+    samples, tx_m, rx_m, look, _ = sm.frames_profiles(radar, radar.waveform.tdm_tx_order(), [noise], [t0 + 10 ** 8],
+                                                      drive, compress=False)
+    centres = (0.5 * (tx_m + rx_m))[:, :2].mean(axis=0, keepdims=True)
+    looks = look.mean(axis=0, keepdims=True)
+    looks /= np.linalg.norm(looks, axis=1, keepdims=True)
+    touched, masks, _ = sm._footprints(centres, looks)
+    assert len(touched) > 5
+    pts = []
+    for key, mask in zip(touched, masks):
+        x, y = sm.tile_points(key)
+        iy, ix = np.nonzero(mask[0])
+        pts.append(np.stack([x[ix], y[iy], np.full(iy.size, sm.config.z_m)], axis=1))
+    pts = np.concatenate(pts)
+    want = sm._polar_takers(radar, samples, tx_m, rx_m, looks, pts, None, samples.shape[0])
+    got = sm._polar_masked(radar, samples, tx_m, rx_m, looks[0], touched, masks)
+    assert got.shape == want.shape and np.count_nonzero(want) > 0.9 * want.size
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * np.abs(want).max())
