@@ -96,3 +96,17 @@ def test_one_frame_read_at_its_masked_pixels_is_the_frame_read_at_its_pixel_list
     got = sm._polar_masked(radar, samples, tx_m, rx_m, looks[0], touched, masks)
     assert got.shape == want.shape and np.count_nonzero(want) > 0.9 * want.size
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * np.abs(want).max())
+
+
+def test_a_sampled_trajectorys_velocity_alone_is_its_samples():
+    """The map's moving check asks only the velocity: the same numbers as a whole sample's, clipped the same
+    way before the first pose and after the last."""
+    drive = PathWithTurns(segments=(("straight", 0.3), ("arc", 0.5, 120.0)), speed_mps=0.4, accel_mps2=0.5,
+                          start_delay_s=0.5, t0_ns=10 ** 9)
+    t = 10 ** 9 + np.arange(0, 4_000_000_000, 2_500_000, dtype=np.int64)
+    s = drive.sample(t)
+    traj = SampledTrajectory(t, s.position_m, s.orientation_xyzw, s.velocity_mps)
+    asked = np.concatenate([[t[0] - 10 ** 8], np.random.default_rng(4).integers(t[0], t[-1], 500), [t[-1] + 10 ** 8]])
+    assert np.array_equal(traj.velocity(asked), traj.sample(asked).velocity_mps)
+    assert np.array_equal(drive.velocity(asked), drive.sample(asked).velocity_mps)
+    assert np.ptp(traj.velocity(asked)[:, 1]) > 0.3  # the turn: the velocity's direction changes

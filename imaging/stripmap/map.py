@@ -205,7 +205,7 @@ class StripMap:
             return merged_footprints([self.add_frames(radar, tx_order, [a], [t], trajectory, presum, weight, sum_rx)
                             for a, t in zip(adcs, frame_times_ns)])
         mid = np.asarray(frame_times_ns, np.int64) + wf.frame_duration_ns // 2
-        moving = np.linalg.norm(trajectory.sample(mid).velocity_mps[:, :2], axis=1) >= cfg.min_speed_mps
+        moving = np.linalg.norm(trajectory.velocity(mid)[:, :2], axis=1) >= cfg.min_speed_mps
         standing = int(np.count_nonzero(~moving))
         self.frames_standing += standing
         if not moving.any():
