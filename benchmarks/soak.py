@@ -21,6 +21,13 @@ the map's (last frame imaged), with the highest of every status message in betwe
 10 s shows there too) and how much of the map's lag is waiting for the odometry's poses. At the end: frames sent against frames recorded, memory per process after
 warm-up (its drift, goal within 20 MB, and its largest excursion), and the lag over the run (goal: flat).
 
+CPU accounting (``cpu_accounting``): the daemon's processes, the emulated hardware, this script and the
+rest of the machine (other users), against what the map's frames need at 1x as measured in one process
+(docs/results/stripmap_capacity.json), with a ``verdict``: the daemon could not keep up, or the machine
+was full (with the emulator, or with others' work). ``--emulator-nice 19`` runs the emulated hardware at
+the lowest priority, so it takes only what the daemon leaves (``replay_behind_1x_s`` says whether it
+still sent at 1x). ``--summary-of`` accounts an earlier run's samples again.
+
 Writes docs/results/soak.json and docs/results/soak.png (docs/results/soak_quick.* with --quick); with other
 radars than the left pair, soak_<N>radars.* (all four: ``--radars left_front,left_rear,right_front,right_rear``);
 with other map settings (``--map-args``), soak_<--name>.*.
@@ -32,6 +39,7 @@ import argparse
 import json
 import math
 import os
+import resource
 import shlex
 import signal
 import subprocess
@@ -118,7 +126,8 @@ def simulate(work: Path) -> Path:
     return path
 
 
-def soak(minutes: float, work: Path, radars: list[str], map_args: list[str] = ()) -> dict:
+def soak(minutes: float, work: Path, radars: list[str], map_args: list[str] = (), emulator_nice: int = 0) -> dict:
+    """The soak; ``emulator_nice``: the emulated hardware (the replay: senders and IMU) niced that far."""
     with Recording(simulate(work)) as rec:
         frames_per_lap = rec.n_frames(radars[0])
         lap_s = frames_per_lap * float(np.median(np.diff(rec.frame_time_ns(radars[0])))) * 1e-9
@@ -158,14 +167,17 @@ def soak(minutes: float, work: Path, radars: list[str], map_args: list[str] = ()
     warm_up_s = time.monotonic() - t_warm
     print(f"soak: pipeline warm after {warm_up_s:.0f} s; replaying {laps} laps of {lap_s:.1f} s "
           f"({laps * lap_s / 60:.1f} min)", flush=True)
+    replay_started = time.monotonic()
     replay = subprocess.Popen([*SARBOT, "replay", str(sim_path), "--imu-link", str(imu_link), "--laps", str(laps),
                                "--start-delay", "1", *[a for n, p in ports.items() for a in ("--radar", f"{n}=127.0.0.1:{p}")]],
-                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              preexec_fn=(lambda: os.nice(emulator_nice)) if emulator_nice else None)
     try:
         t0 = time.monotonic()
         cpu_before: dict[int, float] = {}
         wait_before: dict[int, float] = {}
         machine_before = machine_cpu_s()
+        own_before = own_cpu_s()
         map_busy_before = 0.0
         next_sample = t0 + SAMPLE_EVERY_S
         while replay.poll() is None or time.monotonic() < next_sample - SAMPLE_EVERY_S + 5:
@@ -210,6 +222,9 @@ def soak(minutes: float, work: Path, radars: list[str], map_args: list[str] = ()
                         100 * (cpu - cpu_before[pid]) / SAMPLE_EVERY_S, 1)
                 if cpu is not None:
                     cpu_before[pid] = cpu
+            own = own_cpu_s()
+            sample["soak_cpu_pct"] = round(100 * (own - own_before) / SAMPLE_EVERY_S, 1)
+            own_before = own
             machine = machine_cpu_s()
             sample["machine_cpu_pct"] = {k: round(100 * (machine[k] - machine_before[k]) / SAMPLE_EVERY_S, 1)
                                          for k in machine}
@@ -247,6 +262,7 @@ def soak(minutes: float, work: Path, radars: list[str], map_args: list[str] = ()
             proc.kill()
         raise
     replay_out, replay_err = replay.communicate(timeout=120)
+    replay_s = time.monotonic() - replay_started
     time.sleep(3.0)
     daemon.send_signal(signal.SIGINT)
     try:
@@ -265,7 +281,79 @@ def soak(minutes: float, work: Path, radars: list[str], map_args: list[str] = ()
     result = summarise(samples, checker, laps, frames_per_lap, lap_s, warm_up_s, replay.returncode, replay_err,
                        daemon.returncode, log_text.splitlines()[-20:])
     result["drivers_realtime"] = "not granted" not in log_text
+    # The emulator keeps 1x if it finishes its laps on time (its start delay and 0.1 s start aside): a
+    # replay starved of CPU sends late, and the daemon then sees less than 1x.
+    result["emulator_nice"] = emulator_nice
+    result["replay_s"] = replay_s
+    result["replay_behind_1x_s"] = replay_s - laps * lap_s - 1.1
+    result["cpu_accounting"] = cpu_accounting(samples, radars)
     return result
+
+
+def own_cpu_s() -> float:
+    """This script's CPU so far (its bus subscriptions and the checking of every recorded part), s."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+def map_needs_core_fraction(radars: list[str]) -> dict | None:
+    """What the map's frames need of one core at 1x, from docs/results/stripmap_capacity.json (measured in one
+    process on the soak's scene, four radars), scaled to ``radars``; None without that file."""
+    path = RESULTS / "stripmap_capacity.json"
+    if not path.exists():
+        return None
+    capacity = json.loads(path.read_text())
+    return {"core_fraction": capacity["polar"]["core_fraction_at_1x"] * len(radars) / len(capacity["radars"]),
+            "commit": capacity.get("commit"), "cpu_ms_per_frame": capacity["polar"]["cpu_ms_per_frame"]}
+
+
+def cpu_accounting(samples: list[dict], radars: list[str]) -> dict:
+    """Where the machine's CPU went over the run (means of the 10 s samples, % of one core): the daemon's
+    processes, the emulated hardware (the replay: a sender per radar and the IMU; on the robot these are
+    devices), this script, and everything else on the machine (``other``: other users), with what was left
+    idle; and whether the map got what its frames need (``map_needs_core_fraction``). ``verdict`` says which
+    it was: the daemon could not keep up, or the machine was full (with the emulator, or with others' work)."""
+    rows = [s for s in samples if s.get("cpu_pct") and "machine_cpu_pct" in s]
+    if not rows:
+        return {}
+
+    def mean(values) -> float:
+        values = [v for v in values if v is not None]
+        return round(float(np.mean(values)), 1) if values else 0.0
+
+    names = sorted({n for s in rows for n in s["cpu_pct"]})
+    per_process = {n: mean([s["cpu_pct"].get(n) for s in rows]) for n in names}
+    daemon = round(sum(per_process.values()), 1)
+    emulator = mean([s.get("replay_cpu_pct") for s in rows])
+    own = mean([s.get("soak_cpu_pct") for s in rows])
+    busy = mean([s["machine_cpu_pct"]["busy"] for s in rows])
+    idle = mean([s["machine_cpu_pct"]["idle"] for s in rows])
+    other = round(max(busy - daemon - emulator - own, 0.0), 1)
+    map_got = per_process.get("sarbot-stripmap", 0.0)
+    map_waited = mean([s.get("waiting_for_core_pct", {}).get("sarbot-stripmap") for s in rows])
+    needs = map_needs_core_fraction(radars)
+    out = {"cores": os.cpu_count(), "daemon_pct": daemon, "daemon_per_process_pct": per_process,
+           "emulator_pct": emulator, "soak_script_pct": own, "other_pct": other, "idle_pct": idle,
+           "machine_busy_pct": busy, "map_pct": map_got, "map_waiting_for_core_pct": map_waited,
+           "map_needs_pct": None if needs is None else round(100 * needs["core_fraction"], 1), "map_needs_from": needs}
+    if needs is None:
+        out["verdict"] = "unknown: no docs/results/stripmap_capacity.json to say what the map needs"
+        return out
+    short = 100 * needs["core_fraction"] - map_got
+    # Idle time the map could have had: a machine with a core's tenth or more idle was not full.
+    full = idle < 10.0
+    if short <= 0 or not full:
+        out["verdict"] = (f"the daemon: the map got {map_got:.0f} % of a core (it needs {out['map_needs_pct']:.0f} %) "
+                          f"with {idle:.0f} % of the machine idle")
+    elif other > short:
+        out["verdict"] = (f"the machine was full with others' work: the map got {map_got:.0f} % of a core against the "
+                          f"{out['map_needs_pct']:.0f} % its frames need, {other:.0f} % went to other processes on the "
+                          f"machine, {emulator:.0f} % to the emulated hardware, {idle:.0f} % idle")
+    else:
+        out["verdict"] = (f"the machine was full with the emulator: the map got {map_got:.0f} % of a core against the "
+                          f"{out['map_needs_pct']:.0f} % its frames need, the emulated hardware took {emulator:.0f} % "
+                          f"(on the robot, devices), other processes {other:.0f} %, {idle:.0f} % idle")
+    return out
 
 
 def rss_summary(samples: list[dict], duration_s: float) -> dict:
@@ -371,23 +459,27 @@ def main() -> int:
                          "two cores, fill this machine: see the module notes)")
     ap.add_argument("--map-args", default="", help="more `sarbot run` options for the map, quoted (e.g. \"--map-algorithm "
                     "ffbp --map-aperture 2 --map-pixel 0.004\"); the results then go to soak_<--name>.*")
-    ap.add_argument("--name", help="the results' name with --map-args (soak_NAME.json)")
+    ap.add_argument("--name", help="the results' name with --map-args or --emulator-nice (soak_NAME.json)")
+    ap.add_argument("--emulator-nice", type=int, default=0,
+                    help="run the emulated hardware (the replay's senders and IMU) niced this far (19: it takes what "
+                         "the daemon leaves; whether it still kept 1x is in replay_behind_1x_s)")
     args = ap.parse_args()
-    if args.map_args and not args.name:
-        ap.error("--map-args needs --name (the results must not overwrite the default soak's)")
+    if (args.map_args or args.emulator_nice) and not args.name:
+        ap.error("--map-args and --emulator-nice need --name (the results must not overwrite the default soak's)")
     if args.summary_of:
         path = Path(args.summary_of)
         result = json.loads(path.read_text())
         result["rss"] = rss_summary(result["samples"], result["samples"][-1]["t_s"])
         result["rss_flat"] = all(g["drift_mb"] <= RSS_GOAL_MB for g in result["rss"].values())
+        result["cpu_accounting"] = cpu_accounting(result["samples"], result.get("radars") or list(result["frames_recorded"]))
         path.write_text(strict_json.dumps(result, indent=1) + "\n")
         chart(result, path.with_suffix(".png"))
-        print(strict_json.dumps(result["rss"], indent=1))
+        print(strict_json.dumps({"rss": result["rss"], "cpu_accounting": result["cpu_accounting"]}, indent=1))
         return 0 if result["no_loss"] and result["rss_flat"] else 1
     minutes = 3.0 if args.quick else args.minutes
     radars = args.radars.split(",")
     with tempfile.TemporaryDirectory(prefix="sarbot-soak-") as tmp:
-        result = soak(minutes, Path(tmp), radars, shlex.split(args.map_args))
+        result = soak(minutes, Path(tmp), radars, shlex.split(args.map_args), args.emulator_nice)
     result["radars"] = radars
     result["map_args"] = args.map_args
     result["commit"] = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,

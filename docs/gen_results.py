@@ -63,6 +63,12 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                        "The live map's work per frame stage by stage, the direct kernel against the polar path "
                        "(each frame through its beams), interleaved, and both maps against every frame at presum 1.",
                        ".venv/bin/python benchmarks/stripmap_polar.py"),
+    "stripmap_capacity": ("The live map's capacity: CPU per frame, part by part",
+                          "The strip-map worker's CPU per frame on the soak's four radars (the daemon's own worker in one "
+                          "process, CPU time, each part timed apart: bus decode, pre-summing, antenna placement, beams, "
+                          "pixels, footprints, publishing), the share of one core it needs at 1x, and the code before "
+                          "this issue's cuts against now, interleaved; what a refocusing map costs apart.",
+                          ".venv/bin/python benchmarks/stripmap_capacity.py"),
     "stripmap_thinning": ("What the live map's catch-up costs",
                           "Pre-summing, RX sums and thinning: CPU saved against image error.",
                           ".venv/bin/python benchmarks/stripmap_thinning.py"),
@@ -152,6 +158,13 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                            "senders included), so the map pre-sums nearly every frame beyond its factor.",
                            ".venv/bin/python benchmarks/soak.py --minutes 1.5 --radars left_front,left_rear,"
                            "right_front,right_rear --name columns_check"),
+    "soak_4radars_emulator_nice19": ("Soak: four radars, 1 minute, the emulator niced",
+                                     "The four radars at 1x for a minute with the emulated hardware (senders, IMU) at "
+                                     "nice 19, on the machine as shared with other work: `cpu_accounting` splits the "
+                                     "CPU between the daemon, the emulator and the rest of the machine, against what "
+                                     "the map needs (stripmap_capacity), and says which kept the map short.",
+                                     ".venv/bin/python benchmarks/soak.py --minutes 1 --radars left_front,left_rear,"
+                                     "right_front,right_rear --emulator-nice 19 --name 4radars_emulator_nice19"),
     "soak_direct_2m": ("Soak: 2 m aperture, direct kernel",
                        "The live map at a 2 m aperture with the direct kernel.",
                        ".venv/bin/python benchmarks/soak.py --minutes 3 --map-args \"--map-aperture 2\" --name direct_2m"),

@@ -61,6 +61,10 @@ class Trajectory(abc.ABC):
     def position(self, time_ns: np.ndarray) -> np.ndarray:
         return self.sample(time_ns).position_m
 
+    def velocity(self, time_ns: np.ndarray) -> np.ndarray:
+        """Velocity [N, 3] at ``time_ns``, m/s: ``sample(time_ns).velocity_mps``."""
+        return self.sample(time_ns).velocity_mps
+
 
 def _seconds(time_ns: np.ndarray, t0_ns: int) -> np.ndarray:
     # Subtract in integers first: float64 seconds since 1970 in ns would lose ~100 ns of precision.
@@ -311,6 +315,14 @@ class SampledTrajectory(Trajectory):
         quat = _quat_multiply(self._quat[k], _quat_from_rotvec(u * self._step_rotvec[k]))
         return TrajectorySample(np.asarray(time_ns, np.int64).ravel(), lerp(self.position_m), quat,
                                 lerp(self.velocity_mps), self._omega_body[k], lerp(self._accel))
+
+    def velocity(self, time_ns: np.ndarray) -> np.ndarray:
+        """``sample(time_ns).velocity_mps`` without the rest of the sample (the attitude's slerp is most of a
+        sample's cost, and the live map asks every frame whether the robot moves)."""
+        t = np.clip(_seconds(time_ns, self.t0_ns), self._t[0], self._t[-1])
+        k = np.clip(np.searchsorted(self._t, t, side="right") - 1, 0, self._dt.size - 1)
+        u = ((t - self._t[k]) / self._dt[k])[:, None]
+        return self.velocity_mps[k] + u * (self.velocity_mps[k + 1] - self.velocity_mps[k])
 
     @classmethod
     def from_trajectory(cls, trajectory: Trajectory, time_ns: np.ndarray, source: str | None = None):

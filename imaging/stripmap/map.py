@@ -14,9 +14,10 @@ from imaging.core.trajectory import Trajectory
 from imaging.io.image_file import SarImage
 from imaging.profiles import chirp_profiles
 from imaging.stripmap.config import StripMapConfig
-from imaging.stripmap.footprint import (FrameFootprint, footprint_mask, footprint_outline, footprint_tiles,
-                                        merged_footprints)
-from imaging.stripmap.polar import beams_at_points, frame_beams
+from imaging.stripmap.footprint import (FrameFootprint, footprint_mask, footprint_masks, footprint_outline,
+                                        footprint_tiles, merged_footprints)
+from imaging.stripmap.polar import (beams_at_masked, beams_at_points, frame_axes, frame_beams, frame_beams_over,
+                                    masked_extent)
 from imaging.stripmap.presum import presum_chirps
 from imaging.stripmap.refocus import TileRefocus
 
@@ -133,12 +134,12 @@ class StripMap:
         touched, masks = [], []
         room = cfg.max_tiles - len(self.tiles)
         refused = 0
-        for key in self.footprint_tiles(centres, looks):
-            x, y = self.tile_points(key)
-            if len(centres) == 1:  # the common case, without a frame axis to broadcast over
-                mask = self.footprint_mask(x[None, :], y[:, None], centres[0], looks[0])[None]
-            else:
-                mask = self.footprint_mask(x[None, :], y[:, None], centres, looks)
+        keys = self.footprint_tiles(centres, looks)
+        if not keys:
+            return touched, masks, refused
+        xy = [self.tile_points(key) for key in keys]
+        all_masks = footprint_masks(cfg, np.array([p[0] for p in xy]), np.array([p[1] for p in xy]), centres, looks)
+        for key, mask in zip(keys, all_masks):
             if not mask.any():
                 continue
             if key not in self.tiles:
@@ -204,7 +205,7 @@ class StripMap:
             return merged_footprints([self.add_frames(radar, tx_order, [a], [t], trajectory, presum, weight, sum_rx)
                             for a, t in zip(adcs, frame_times_ns)])
         mid = np.asarray(frame_times_ns, np.int64) + wf.frame_duration_ns // 2
-        moving = np.linalg.norm(trajectory.sample(mid).velocity_mps[:, :2], axis=1) >= cfg.min_speed_mps
+        moving = np.linalg.norm(trajectory.velocity(mid)[:, :2], axis=1) >= cfg.min_speed_mps
         standing = int(np.count_nonzero(~moving))
         self.frames_standing += standing
         if not moving.any():
@@ -238,6 +239,28 @@ class StripMap:
         refocused = self._refocus.finish(set(touched), self.tiles, self.tile_points, radar.name) if cfg.refocuses else []
         if not touched:
             return FrameFootprint([], 0, refocused=refocused, frames_imaged=n_frames, frames_standing=standing)
+        if polar and n_frames == 1:  # a live map keeping up: its beams read at the masked pixels, no list of them
+            where = [(mask[0], int(np.count_nonzero(mask[0]))) for mask in masks]
+            values, groups = [self._polar_masked(radar, profiles, tx_m, rx_m, looks[0], touched, masks)], []
+        else:
+            values, groups, where = self._pixel_values(radar, profiles, tx_m, rx_m, look, looks, times, frame_times_ns,
+                                                       touched, masks, n_frames, per, polar)
+        start = 0
+        for key, (taken, m) in zip(touched, where):
+            tile = self._tile(key)
+            for v in values:
+                tile[taken] += v[start:start + m]  # a boolean mask: faster here than the indices
+            if cfg.refocuses:
+                self._refocus.keep(key, groups, values, taken, start, m, radar.name)
+            start += m
+        pairs = sum(int(np.count_nonzero(m)) for m in masks) * per  # each frame's pixels times its profiles
+        return FrameFootprint(touched, pairs, refocused=refocused, frames_imaged=n_frames, frames_standing=standing)
+
+    def _pixel_values(self, radar, profiles, tx_m, rx_m, look, looks, times, frame_times_ns, touched, masks,
+                      n_frames: int, per: int, polar: bool):
+        """The frames' values at every pixel any of them takes, tile by tile ([values], their group images when
+        refocusing, and per tile (its pixels taken, how many))."""
+        cfg, wf = self.config, radar.waveform
         # Every pixel any frame takes, tile by tile, and which of the frames take it (bit f: frame f).
         bit = np.int64(1) << np.arange(n_frames, dtype=np.int64)
         points, takers, where = [], [], []
@@ -259,16 +282,21 @@ class StripMap:
             values, groups = [self._backproject_takers(profiles, tx_m, rx_m, pts, np.concatenate(takers), per)], []
         else:  # one frame (add_frames refocuses frame by frame)
             values, groups = self._refocus.group_values(profiles, tx_m, rx_m, look, times, int(frame_times_ns[0]), wf, pts)
-        start = 0
-        for key, (taken, m) in zip(touched, where):
-            tile = self._tile(key)
-            for v in values:
-                tile[taken] += v[start:start + m]  # a boolean mask: faster here than the indices
-            if cfg.refocuses:
-                self._refocus.keep(key, groups, values, taken, start, m, radar.name)
-            start += m
-        pairs = sum(int(np.count_nonzero(m)) for m in masks) * per  # each frame's pixels times its profiles
-        return FrameFootprint(touched, pairs, refocused=refocused, frames_imaged=n_frames, frames_standing=standing)
+        return values, groups, where
+
+    def _polar_masked(self, radar: RadarConfig, samples: np.ndarray, tx_m, rx_m, look_xy: np.ndarray, touched,
+                      masks) -> np.ndarray:
+        """One frame through its beams onto the pixels its ``masks`` take, in their pixel list's order
+        (``_polar_takers`` for one frame, without the list of points)."""
+        wf, cfg = radar.waveform, self.config
+        xy = [self.tile_points(key) for key in touched]
+        x, y = np.array([p[0] for p in xy]), np.array([p[1] for p in xy])
+        taken = np.stack([m[0] for m in masks])
+        centre, axis, _ = frame_axes(tx_m, rx_m, look_xy)
+        extent = masked_extent(centre, axis, x, y, cfg.z_m, taken)
+        beams = frame_beams_over(samples, tx_m, rx_m, extent, cfg.z_m, wf.f0_hz, wf.frequency_step_hz, cfg.window,
+                                 cfg.oversample, look_xy)
+        return beams_at_masked(beams, x, y, cfg.z_m, taken)
 
     def _backproject_takers(self, profiles, tx_m, rx_m, pts: np.ndarray, takers: np.ndarray, per: int) -> np.ndarray:
         """Backproject each pixel of ``pts`` from the frames its ``takers`` bits name (frame f: profiles

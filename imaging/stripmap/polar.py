@@ -89,15 +89,30 @@ def frame_beams(samples: np.ndarray, tx_m: np.ndarray, rx_m: np.ndarray, pts: np
     look_xy : ndarray, shape (2,)
         The frame's horizontal look direction (the pixels lie on that side).
     """
-    n = samples.shape[1]
+    centre, axis, _ = frame_axes(tx_m, rx_m, look_xy)
+    extent = _extent(np.ascontiguousarray(pts, np.float64), centre, axis)
+    return frame_beams_over(samples, tx_m, rx_m, extent, float(pts[0, 2]), f0_hz, frequency_step_hz, window, oversample,
+                            look_xy)
+
+
+def frame_axes(tx_m: np.ndarray, rx_m: np.ndarray, look_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A frame's phase centre, its horizontal axis across the look and its horizontal look, each [3]."""
     centre = 0.5 * (tx_m + rx_m).mean(axis=0)
     normal = np.array([look_xy[0], look_xy[1], 0.0]) / math.hypot(look_xy[0], look_xy[1])
-    axis = np.array([-normal[1], normal[0], 0.0])
+    return centre, np.array([-normal[1], normal[0], 0.0]), normal
+
+
+def frame_beams_over(samples: np.ndarray, tx_m: np.ndarray, rx_m: np.ndarray, extent: tuple, z_m: float, f0_hz: float,
+                     frequency_step_hz: float, window: str, oversample: int, look_xy: np.ndarray) -> FrameBeams:
+    """As :func:`frame_beams`, for pixels on the plane ``z_m`` within ``extent`` (nearest and farthest range,
+    smallest and largest alpha: ``_extent``'s, or ``masked_extent``'s)."""
+    n = samples.shape[1]
+    centre, axis, normal = frame_axes(tx_m, rx_m, look_xy)
     m = (n - 1) // 2  # range_compress's centring: the carrier is the middle sample's frequency
     carrier_hz = f0_hz + m * frequency_step_hz
     k_c = 2 * math.pi * carrier_hz / SPEED_OF_LIGHT_MPS
     k_max = 2 * math.pi * (f0_hz + (n - 1) * frequency_step_hz) / SPEED_OF_LIGHT_MPS
-    r_near, r_far, a_min, a_max = _extent(np.ascontiguousarray(pts, np.float64), centre, axis)
+    r_near, r_far, a_min, a_max = extent
     # The angular band: the phase of profile p changes with alpha by k (its two antennas' offset along u).
     reach = np.abs(((tx_m - centre) + (rx_m - centre)) @ axis).max()
     dalpha = math.pi / (k_max * max(reach, 1e-4) * OVERSAMPLE_ANGLE)
@@ -109,7 +124,7 @@ def frame_beams(samples: np.ndarray, tx_m: np.ndarray, rx_m: np.ndarray, pts: np
     weights = np.empty((samples.shape[0], 3 * beams), np.complex64)
     shift, shift_slope = np.empty(beams), np.empty(beams)
     _weights(weights, shift, shift_slope, np.ascontiguousarray(tx_m, np.float64), np.ascontiguousarray(rx_m, np.float64),
-             centre, axis, normal, float(pts[0, 2]), alpha_a, r_near, r_far, inv_mid, k_c)
+             centre, axis, normal, z_m, alpha_a, r_near, r_far, inv_mid, k_c)
     with one_blas_thread():  # OpenBLAS's own threads cost 15x the CPU of one on this small product
         z = samples.T @ weights  # [n, 3 beams]: the one product over the frame's chirps
     dk = (2 * math.pi * frequency_step_hz / SPEED_OF_LIGHT_MPS * (np.arange(n) - m)).astype(np.float32)[:, None]
@@ -154,6 +169,27 @@ def _blas_thread_setter():
     return None
 
 
+def masked_extent(beams_centre: np.ndarray, axis: np.ndarray, x: np.ndarray, y: np.ndarray, z_m: float,
+                  masks: np.ndarray) -> tuple:
+    """``_extent`` of the pixels the masks take: x [T, nx], y [T, ny] the tiles' pixel centres, ``masks`` [T, ny,
+    nx]; the same numbers as ``_extent`` of their pixel list, without making it."""
+    return _masked_extent(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(y, np.float64), float(z_m),
+                          np.ascontiguousarray(masks), beams_centre, axis)
+
+
+def beams_at_masked(beams: FrameBeams, x: np.ndarray, y: np.ndarray, z_m: float, masks: np.ndarray) -> np.ndarray:
+    """``beams_at_points`` of the pixels the masks take, in the order of their pixel list (tile by tile, row by
+    row): x [T, nx], y [T, ny], ``masks`` [T, ny, nx]; complex128 [pixels taken]. The same numbers, without
+    the list of points (a live frame's pixel lists were as much of its CPU as reading the beams,
+    benchmarks/stripmap_capacity.py); to float rounding, as the kernels are compiled with fastmath."""
+    masks = np.ascontiguousarray(masks)
+    out = np.zeros(int(np.count_nonzero(masks)), np.complex128)
+    _beams_at_masked(out, np.ascontiguousarray(x, np.float64), np.ascontiguousarray(y, np.float64), float(z_m), masks,
+                     beams.centre_m, beams.axis, beams.alpha0, beams.dalpha, beams.inv_r_mid, beams.k_rad_per_m,
+                     beams.range_step_m, beams.signals, beams.shift_m, beams.shift_slope_m, _table())
+    return out
+
+
 def beams_at_points(beams: FrameBeams, pts: np.ndarray) -> np.ndarray:
     """The frame's image at ``pts`` [N, 3] from its beams, complex128 [N]."""
     out = np.zeros(pts.shape[0], np.complex128)
@@ -175,6 +211,21 @@ def _extent(pts, c, u):
         r = math.sqrt(dx * dx + dy * dy + dz * dz)
         a = (dx * u[0] + dy * u[1] + dz * u[2]) / r
         r_lo, r_hi, a_lo, a_hi = min(r_lo, r), max(r_hi, r), min(a_lo, a), max(a_hi, a)
+    return r_lo, r_hi, a_lo, a_hi
+
+
+@numba.njit(cache=True, nogil=True)
+def _masked_extent(x, y, z, masks, c, u):
+    """``_extent`` of the masked pixels (min and max do not depend on the order)."""
+    r_lo, r_hi, a_lo, a_hi = np.inf, 0.0, np.inf, -np.inf
+    for t in range(masks.shape[0]):
+        for i in range(masks.shape[1]):
+            for j in range(masks.shape[2]):
+                if masks[t, i, j]:
+                    dx, dy, dz = x[t, j] - c[0], y[t, i] - c[1], z - c[2]
+                    r = math.sqrt(dx * dx + dy * dy + dz * dz)
+                    a = (dx * u[0] + dy * u[1] + dz * u[2]) / r
+                    r_lo, r_hi, a_lo, a_hi = min(r_lo, r), max(r_hi, r), min(a_lo, a), max(a_hi, a)
     return r_lo, r_hi, a_lo, a_hi
 
 
@@ -230,37 +281,60 @@ def _beams_at_points(out, pts, c, u, alpha0, dalpha, inv_r_mid, k, step, signals
     """Each pixel: ``TAPS`` beams around its angle, each read linearly at the pixel's range (its own shift),
     the phase exp(-j k (2 r + shift_slope eps)) restored once (the beams' exp(-j k shift) is in ``signals``;
     shift_slope changes by about a milliradian of phase across the taps, so the middle tap's stands for all)."""
-    taps = table.shape[1]
-    nf = table.shape[0] - 1
-    nb, bins = signals.shape[0] // 2, signals.shape[1]
     inv_step = 1.0 / step
     shift_bins, slope_bins = shift * inv_step, shift_slope * inv_step
     for i in range(pts.shape[0]):
-        dx, dy, dz = pts[i, 0] - c[0], pts[i, 1] - c[1], pts[i, 2] - c[2]
-        r = math.sqrt(dx * dx + dy * dy + dz * dz)
-        fa = ((dx * u[0] + dy * u[1] + dz * u[2]) / r - alpha0) / dalpha
-        ia = math.floor(fa)
-        j0 = int(ia) - taps // 2 + 1
-        if j0 < 0 or j0 + taps > nb:
+        out[i] = _beam_pixel(pts[i, 0], pts[i, 1], pts[i, 2], c, u, alpha0, dalpha, inv_r_mid, k, inv_step, signals,
+                             shift_bins, slope_bins, shift_slope, table)
+
+
+@numba.njit(fastmath=True, cache=True, nogil=True)
+def _beams_at_masked(out, x, y, z, masks, c, u, alpha0, dalpha, inv_r_mid, k, step, signals, shift, shift_slope, table):
+    """``_beams_at_points`` over the masked pixels of tiles, in their pixel list's order."""
+    inv_step = 1.0 / step
+    shift_bins, slope_bins = shift * inv_step, shift_slope * inv_step
+    n = 0
+    for t in range(masks.shape[0]):
+        for i in range(masks.shape[1]):
+            for j in range(masks.shape[2]):
+                if masks[t, i, j]:
+                    out[n] = _beam_pixel(x[t, j], y[t, i], z, c, u, alpha0, dalpha, inv_r_mid, k, inv_step, signals,
+                                         shift_bins, slope_bins, shift_slope, table)
+                    n += 1
+
+
+@numba.njit(fastmath=True, cache=True, nogil=True, inline="always")
+def _beam_pixel(px, py, pz, c, u, alpha0, dalpha, inv_r_mid, k, inv_step, signals, shift_bins, slope_bins, shift_slope,
+                table):
+    """One pixel's value (0 outside the beams)."""
+    taps = table.shape[1]
+    nf = table.shape[0] - 1
+    nb, bins = signals.shape[0] // 2, signals.shape[1]
+    dx, dy, dz = px - c[0], py - c[1], pz - c[2]
+    r = math.sqrt(dx * dx + dy * dy + dz * dz)
+    fa = ((dx * u[0] + dy * u[1] + dz * u[2]) / r - alpha0) / dalpha
+    ia = math.floor(fa)
+    j0 = int(ia) - taps // 2 + 1
+    if j0 < 0 or j0 + taps > nb:
+        return 0j
+    w = table[int((fa - ia) * nf + 0.5)]
+    eps = 1.0 / r - inv_r_mid
+    gain = np.float32(-k * eps)  # the slope signal's factor is -j k eps
+    base = 2.0 * r * inv_step
+    re, im = np.float32(0.0), np.float32(0.0)
+    for t in range(taps):
+        a = j0 + t
+        pos = base + shift_bins[a] + slope_bins[a] * eps
+        b = int(pos)
+        if b < 0 or b + 1 >= bins:
             continue
-        w = table[int((fa - ia) * nf + 0.5)]
-        eps = 1.0 / r - inv_r_mid
-        gain = np.float32(-k * eps)  # the slope signal's factor is -j k eps
-        base = 2.0 * r * inv_step
-        re, im = np.float32(0.0), np.float32(0.0)
-        for t in range(taps):
-            a = j0 + t
-            pos = base + shift_bins[a] + slope_bins[a] * eps
-            b = int(pos)
-            if b < 0 or b + 1 >= bins:
-                continue
-            f = np.float32(pos - b)
-            g = np.float32(1.0) - f
-            wt = w[t]
-            m = signals[a, b] * g + signals[a, b + 1] * f
-            s = signals[nb + a, b] * g + signals[nb + a, b + 1] * f
-            re += wt * (m.real - gain * s.imag)
-            im += wt * (m.imag + gain * s.real)
-        main = complex(re, im)
-        ph = -k * (2.0 * r + shift_slope[int(ia)] * eps)
-        out[i] = main * complex(math.cos(ph), math.sin(ph))
+        f = np.float32(pos - b)
+        g = np.float32(1.0) - f
+        wt = w[t]
+        m = signals[a, b] * g + signals[a, b + 1] * f
+        s = signals[nb + a, b] * g + signals[nb + a, b + 1] * f
+        re += wt * (m.real - gain * s.imag)
+        im += wt * (m.imag + gain * s.real)
+    main = complex(re, im)
+    ph = -k * (2.0 * r + shift_slope[int(ia)] * eps)
+    return main * complex(math.cos(ph), math.sin(ph))

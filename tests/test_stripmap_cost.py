@@ -1,0 +1,112 @@
+"""The map's cheaper paths per frame give the numbers of the paths they replace: the footprint masks of many
+tiles in one kernel are numpy's pixel for pixel, the worker's trajectory over the poses its queued frames
+need places them as the whole pose window does, and a frame's beams read at its masked pixels are its
+beams read at their list (benchmarks/stripmap_capacity.py measures what each saves)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from imaging.core.rig import default_rig
+from imaging.core.trajectory import PathWithTurns, SampledTrajectory
+from imaging.stripmap import StripMap, StripMapConfig
+from imaging.stripmap.footprint import footprint_mask, footprint_masks
+
+
+@pytest.mark.parametrize("frames", [1, 3])
+def test_the_footprint_masks_of_many_tiles_are_numpys_pixel_for_pixel(frames):
+    config = StripMapConfig(aperture_m=0.3, range_min_m=1.0, range_max_m=4.0, beam_half_angle_deg=45.0)
+    sm = StripMap(config)
+    rng = np.random.default_rng(5)
+    centres = rng.uniform(-0.5, 0.5, (frames, 2))
+    angle = 0.7 + 0.02 * np.arange(frames)  # diagonal: a box of tiles the footprint crosses
+    looks = np.stack([np.cos(angle), np.sin(angle)], axis=1)
+    keys = sm.footprint_tiles(centres, looks)
+    assert len(keys) > 15  # a footprint's box of tiles, some taken in part, some not at all
+    x = np.array([sm.tile_points(k)[0] for k in keys])
+    y = np.array([sm.tile_points(k)[1] for k in keys])
+    got = footprint_masks(config, x, y, centres, looks)
+    assert got.shape == (len(keys), frames, 64, 64)
+    partial = 0
+    for t in range(len(keys)):
+        want = footprint_mask(config, x[t][None, :], y[t][:, None], centres, looks)
+        assert np.array_equal(got[t], want)
+        partial += bool(want.any() and not want.all())
+    assert partial >= 5 and got.any(axis=(1, 2, 3)).sum() < len(keys)
+
+
+def test_the_workers_trajectory_over_its_queued_frames_places_them_as_the_whole_window_does():
+    """Poses in 10 ms batches over 4 s of a turn; frames queued from 3 s on. The trajectory the worker
+    builds from the batches those frames need samples the frames' chirp times as the one over every batch
+    held (to float rounding of the time origin), and it holds far fewer poses."""
+    from acquisition.messages import PoseBatch
+    from acquisition.workers.stripmap import QueuedFrame, StripMapWorker, StripMapWorkerConfig
+
+    rig = default_rig()
+    drive = PathWithTurns(segments=(("straight", 0.4), ("arc", 0.6, 90.0)), speed_mps=0.4, t0_ns=10 ** 9)
+    worker = StripMapWorker(StripMapWorkerConfig(rig, [rig.radar_names[0]], StripMapConfig(), "tcp://unused:1",
+                                                 "unused.h5"), None)
+    t = 10 ** 9 + np.arange(0, 4_000_000_000, 2_500_000, dtype=np.int64)  # 400 Hz
+    for batch in np.split(t, t.size // 4):
+        s = drive.sample(batch)
+        worker.handle(PoseBatch(batch, s.position_m, s.orientation_xyzw, s.velocity_mps), live=True)
+    name = rig.radar_names[0]
+    frame_times = 10 ** 9 + 3_000_000_000 + np.arange(6) * 52_000_000
+    for k, ft in enumerate(frame_times):
+        worker.frames.append(QueuedFrame(name, np.zeros((1, 1, 1, 2), np.int16), int(ft), int(ft)))
+    whole = SampledTrajectory(*(np.concatenate([getattr(b, f) for b in worker.poses])
+                                for f in ("time_ns", "position_m", "orientation_xyzw", "velocity_mps")))
+    mine = worker._trajectory()
+    assert mine.time_ns.size < whole.time_ns.size // 3 and mine.time_ns[0] < frame_times[0]
+    chirps = (frame_times[:, None] + np.arange(0, 40_000_000, 156_000)[None, :]).ravel()
+    a, b = mine.sample(chirps), whole.sample(chirps)
+    for field in ("position_m", "velocity_mps", "angular_velocity_body_radps"):
+        np.testing.assert_allclose(getattr(a, field), getattr(b, field), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(np.abs(np.sum(a.orientation_xyzw * b.orientation_xyzw, axis=1)), 1.0, atol=1e-12)
+
+
+def test_one_frame_read_at_its_masked_pixels_is_the_frame_read_at_its_pixel_list():
+    """A frame as the live map takes it one at a time ("polar"): its beams read straight at the pixels its
+    tile masks take give the numbers of its beams read at the list of those pixels (``_polar_takers``)."""
+    from imaging.core.trajectory import StraightLine
+
+    rig = default_rig()
+    radar = rig.radars[0]
+    wf = radar.waveform
+    sm = StripMap(StripMapConfig(aperture_m=0.3, range_min_m=1.0, range_max_m=4.0, presum=4))
+    t0 = 10 ** 9
+    drive = StraightLine(speed_mps=0.4, t0_ns=t0)
+    noise = np.random.default_rng(2).integers(-512, 512, (wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp, 2),
+                                              dtype=np.int16)
+    samples, tx_m, rx_m, look, _ = sm.frames_profiles(radar, radar.waveform.tdm_tx_order(), [noise], [t0 + 10 ** 8],
+                                                      drive, compress=False)
+    centres = (0.5 * (tx_m + rx_m))[:, :2].mean(axis=0, keepdims=True)
+    looks = look.mean(axis=0, keepdims=True)
+    looks /= np.linalg.norm(looks, axis=1, keepdims=True)
+    touched, masks, _ = sm._footprints(centres, looks)
+    assert len(touched) > 5
+    pts = []
+    for key, mask in zip(touched, masks):
+        x, y = sm.tile_points(key)
+        iy, ix = np.nonzero(mask[0])
+        pts.append(np.stack([x[ix], y[iy], np.full(iy.size, sm.config.z_m)], axis=1))
+    pts = np.concatenate(pts)
+    want = sm._polar_takers(radar, samples, tx_m, rx_m, looks, pts, None, samples.shape[0])
+    got = sm._polar_masked(radar, samples, tx_m, rx_m, looks[0], touched, masks)
+    assert got.shape == want.shape and np.count_nonzero(want) > 0.9 * want.size
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * np.abs(want).max())
+
+
+def test_a_sampled_trajectorys_velocity_alone_is_its_samples():
+    """The map's moving check asks only the velocity: the same numbers as a whole sample's, clipped the same
+    way before the first pose and after the last."""
+    drive = PathWithTurns(segments=(("straight", 0.3), ("arc", 0.5, 120.0)), speed_mps=0.4, accel_mps2=0.5,
+                          start_delay_s=0.5, t0_ns=10 ** 9)
+    t = 10 ** 9 + np.arange(0, 4_000_000_000, 2_500_000, dtype=np.int64)
+    s = drive.sample(t)
+    traj = SampledTrajectory(t, s.position_m, s.orientation_xyzw, s.velocity_mps)
+    asked = np.concatenate([[t[0] - 10 ** 8], np.random.default_rng(4).integers(t[0], t[-1], 500), [t[-1] + 10 ** 8]])
+    assert np.array_equal(traj.velocity(asked), traj.sample(asked).velocity_mps)
+    assert np.array_equal(drive.velocity(asked), drive.sample(asked).velocity_mps)
+    assert np.ptp(traj.velocity(asked)[:, 1]) > 0.3  # the turn: the velocity's direction changes
