@@ -90,7 +90,8 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                         ".venv/bin/python benchmarks/autofocus_taper.py"),
     "rio": ("Radar-inertial odometry",
             "Accuracy on long simulated drives (evaluated with evo), the filter's settings against speed, and a "
-            "real ROS bag.",
+            "real ROS bag. Accuracy with the midpoint strapdown (issue 35); its speeds were taken on a machine loaded "
+            "by others and are not comparable (quiet-machine speeds: rio.json at fae5f5c, docs/benchmark-notes.md).",
             ".venv/bin/python benchmarks/odometry.py"),
     "calibration": ("Online calibration of the radars' mounts and clocks",
                     "A simulated calibration drive with every radar's mount wrong (2 deg yaw, 1 deg pitch, 2 cm lever "
