@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import os
 import sys
 import tempfile
 import time
@@ -144,6 +145,7 @@ def main() -> int:
             print(f"{name}={value}: {row['realtime_multiple']:.0f}x real time, drift {row['final_drift_percent']:.3f} %, "
                   f"ATE {row['ate_rmse_percent']:.3f} %")
         out["real_bag"] = real_bag(Path(tmp))
+    out["load_average_1min"] = os.getloadavg()[0]  # the speeds mean little on a loaded machine
     RESULTS.mkdir(parents=True, exist_ok=True)
     name = "rio_quick" if args.quick else "rio"
     (RESULTS / f"{name}.json").write_text(strict_json.dumps(out, indent=2))

@@ -4,7 +4,8 @@ Nominal state: position p and velocity v in the world frame n (z up), attitude R
 accelerometer bias b_a and gyro bias b_g. Error state (15): dp, dv, dtheta (body frame, R = R_hat Exp(dtheta)),
 db_a, db_g. Strapdown propagation at IMU rate; radar ego-velocity updates (sensor frame, lever arm and
 angular rate included) with chi-square gating and the Joseph form; zero-velocity and zero-rate updates at
-standstill; static initialisation of roll, pitch and gyro bias. Pure computation: arrays in, states out.
+standstill; static initialisation of roll, pitch and gyro bias. The strapdown (midpoint attitude, second
+order) is in ``rio.strapdown``. Pure computation: arrays in, states out.
 
 Online calibration (switchable, ``add_radar_calibration``): each radar added gets 7 more error states after
 the 15 -- its mount rotation (3, sensor frame: R_m = R_m_hat Exp(dtheta_m)), its lever arm (3, body frame)
@@ -24,6 +25,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from imaging.core.constants import CHI2_999, GRAVITY_MPS2
+from rio.strapdown import _exp_so3_nb, _strapdown, _strapdown_batch
 
 GRAVITY = np.array([0.0, 0.0, -GRAVITY_MPS2])
 
@@ -157,80 +159,6 @@ class CalibrationEstimate:
 class UpdateResult:
     accepted: bool
     chi2: float
-
-
-@numba.njit(cache=True)
-def _exp_so3_nb(phi):
-    angle = math.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
-    K = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
-    if angle < 1e-8:
-        return np.eye(3) + K + 0.5 * K @ K
-    return np.eye(3) + (math.sin(angle) / angle) * K + ((1.0 - math.cos(angle)) / (angle * angle)) * (K @ K)
-
-
-@numba.njit(cache=True)
-def _strapdown(p, v, R, P, f, w, dt, q_density):
-    """One IMU step: nominal state (bias-corrected specific force f and rate w held over dt) and covariance
-    P <- F P F^T + Q dt for the error state [dp, dv, dtheta, dba, dbg]."""
-    a = R @ f
-    a[2] -= GRAVITY_MPS2
-    p_new = p + v * dt + 0.5 * a * dt * dt
-    v_new = v + a * dt
-    R_new = R @ _exp_so3_nb(w * dt)
-    sf = np.array([[0.0, -f[2], f[1]], [f[2], 0.0, -f[0]], [-f[1], f[0], 0.0]])
-    E = _exp_so3_nb(-w * dt)
-    F = np.eye(15)
-    F[0:3, 3:6] = np.eye(3) * dt
-    F[3:6, 6:9] = -(R @ sf) * dt
-    F[3:6, 9:12] = -R * dt
-    F[6:9, 6:9] = E
-    F[6:9, 12:15] = -np.eye(3) * dt
-    n = P.shape[0]
-    if n == 15:
-        out = F @ P @ F.T
-    else:
-        # Calibration states are constants: their transition is the identity, so only the core block and
-        # its correlations with them change.
-        out = P.copy()
-        out[:15, :15] = F @ P[:15, :15] @ F.T
-        cross = F @ P[:15, 15:]
-        out[:15, 15:] = cross
-        out[15:, :15] = cross.T
-    for i in range(n):
-        out[i, i] += q_density[i] * dt
-    return p_new, v_new, R_new, 0.5 * (out + out.T)
-
-
-@numba.njit(cache=True)
-def _strapdown_batch(p, v, R, P, t_ns, f_last, w_last, ba, bg, times, accs, gyros, record, q_density):
-    """Propagate through IMU samples ``times``/``accs``/``gyros`` in order (zero-order hold: each interval
-    uses the sample at its start), recording the state after every sample flagged in ``record``."""
-    m = 0
-    for i in range(record.size):
-        if record[i]:
-            m += 1
-    out_t = np.empty(m, np.int64)
-    out_p = np.empty((m, 3))
-    out_v = np.empty((m, 3))
-    out_R = np.empty((m, 3, 3))
-    out_P = np.empty((m, 15))
-    j = 0
-    for i in range(times.size):
-        dt = (times[i] - t_ns) * 1e-9
-        if dt > 0:
-            p, v, R, P = _strapdown(p, v, R, P, f_last - ba, w_last - bg, dt, q_density)
-            t_ns = times[i]
-        f_last = accs[i]
-        w_last = gyros[i]
-        if record[i]:
-            out_t[j] = t_ns
-            out_p[j] = p
-            out_v[j] = v
-            out_R[j] = R
-            for k in range(15):
-                out_P[j, k] = P[k, k]
-            j += 1
-    return p, v, R, P, t_ns, f_last, w_last, out_t, out_p, out_v, out_R, out_P
 
 
 @numba.njit(cache=True)

@@ -89,17 +89,27 @@ def test_drift_with_calibration_equals_the_true_rig(curvy, true_rig_run):
 
 def test_calibration_standard_deviations_are_consistent_over_seeds():
     """NEES of the observable axes (yaw, lever x, y, time offset: 4 dof per radar) over seeds: a filter
-    whose standard deviations fit its errors averages 4."""
+    whose standard deviations fit its errors averages 4.
+
+    The standard deviations must cover the errors: the mean stays below 4. They are conservative: with the
+    midpoint strapdown the mean is 1.1 (per axis 0.26, 0.51, 0.19, 0.15), and still 1.9 with the velocity
+    floor at the Doppler fit's measured 4.5 mm/s instead of SIM_EKF's 8 mm/s. The lower bound (was 4 * 0.3)
+    is therefore 4 * 0.15: it catches standard deviations several times too large, not the filter's
+    conservatism measured here. With the start-attitude strapdown of before the mean was 3.0, most of it lever
+    arm x (2.45), whose error averaged +0.61 mm over these 12 radar-drives (now +0.07 mm): the last assertion.
+    """
     traj = calibration_drive(repeats=4)
     observable = [AXIS_KEYS.index(k) for k in ("yaw", "lever_x", "lever_y", "time_offset")]
-    nees = []
+    nees, lever_x_errors_m = [], []
     for seed in (11, 12, 13):
         imu, wrong, _ = simulate_drive(traj, 60.0, seed)
         result = calibrate(imu, wrong, RioOptions(ekf=SIM_EKF))
         for name, r in result.radars.items():
             e = estimate_errors(result, name)[observable]
             nees.append(float(np.sum((e / r.estimate.sigma[observable]) ** 2)))
-    assert 4 * 0.3 < np.mean(nees) < 4 * 2.0, nees
+            lever_x_errors_m.append(e[1])
+    assert 4 * 0.15 < np.mean(nees) < 4.0, nees
+    assert abs(np.mean(lever_x_errors_m)) < 0.00025, lever_x_errors_m  # no common lever-arm x bias
 
 
 def test_brisk_starts_and_stops_bring_every_time_offset_within_half_a_millisecond():
