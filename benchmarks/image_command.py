@@ -12,9 +12,12 @@ one), places the antennas, backprojects, writes the image and its PNG (the pixel
 matplotlib figure is timed apart). ``form_image`` is the same without the files. Its throughput (grid
 points x profiles per second of wall time) is printed as a fraction of the kernel's on the same profiles
 in the same process, with the time of each stage, and what the process start costs, step by step, in a
-new process of its own (``fixed_costs``).
+new process of its own (``fixed_costs``: with the cyclic garbage collector paused during the start-up, as
+the command runs it, and running, alternating), and scipy's range FFT against numpy's (``range_fft``).
+``baseline_comparison`` is the command against its kernel at issue 34's commit and now, alternating, on the
+cases the issue's figure could have come from (benchmarks/command_versions.py, which also runs alone).
 
-    python benchmarks/image_command.py [--quick]
+    python benchmarks/image_command.py [--quick] [--baseline COMMIT | --no-baseline]
 
 Writes docs/results/image_command.json.
 """
@@ -47,7 +50,7 @@ from imaging.sim.scene import DEFAULT_START_TIME_NS, Scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.sim.targets import PointTarget  # noqa: E402
 from imaging.core import strict_json  # noqa: E402
-from command_versions import BASELINE, CASES, QUICK_CASES, compare  # noqa: E402
+from command_versions import BASELINE, CASES, QUICK_CASES, compare, uptime  # noqa: E402
 
 #: The command's environment: this one without PYTHONDONTWRITEBYTECODE (see the module's docstring).
 COMMAND_ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
@@ -265,7 +268,7 @@ def main() -> int:
     args = ap.parse_args()
     cases = {"benchmark_case": (4, 128, 1), "larger_case": (8, 256, 1)} if args.quick else \
         {"benchmark_case": (16, 256, 5), "larger_case": (32, 512, 2)}
-    load_before = os.getloadavg()
+    load_before, uptime_before = os.getloadavg(), uptime()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         results = {name: measure_case(tmp, name, *case) for name, case in cases.items()}
@@ -274,9 +277,7 @@ def main() -> int:
                                 "-o", str(tmp / "imp.h5"), "--grid", results["benchmark_case"]["case"]["grid"]])
         start = fixed_costs(bench)
         fft = range_fft()
-        name = "image_command_quick" if args.quick else "image_command"
-        previous = json.loads((RESULTS / f"{name}.json").read_text()) if (RESULTS / f"{name}.json").exists() else {}
-        baseline = previous.get("baseline_comparison") if args.no_baseline else \
+        baseline = None if args.no_baseline else \
             compare(args.baseline, QUICK_CASES if args.quick else CASES, 1 if args.quick else 3, tmp)
     for gc_mode, found in start.items():
         print(f"process start, {gc_mode}: " + ", ".join(f"{k} {v:.3f}" for k, v in found["steps_s"].items())
@@ -287,12 +288,17 @@ def main() -> int:
         "quick": args.quick,
         "command_is": "a new process: python -m acquisition.cli image (sarbot's byte code cached, as after an install)",
         "load_average": {"before": load_before, "after": os.getloadavg()},
+        "uptime": {"before": uptime_before, "after": uptime()},
         "command_imports": imports,
         "process_start": start,
         "range_fft": fft,
         "baseline_comparison": baseline,
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
+    name = "image_command_quick" if args.quick else "image_command"
+    if baseline is None:  # kept as command_versions.py last measured it
+        previous = json.loads((RESULTS / f"{name}.json").read_text()) if (RESULTS / f"{name}.json").exists() else {}
+        result["baseline_comparison"] = previous.get("baseline_comparison")
     (RESULTS / f"{name}.json").write_text(strict_json.dumps(result, indent=2))
     print(f"wrote {RESULTS / (name + '.json')}")
     return 0
