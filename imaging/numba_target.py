@@ -66,9 +66,9 @@ def set_up_target() -> None:
     """Build numba's typing and lowering registries now, as its first compiled call or cache load would.
 
     numba builds them once a process (importing its implementations of Python and numpy, and scipy.linalg
-    for BLAS): about 0.3 s, the largest single step of a new process that images. A command calls this
-    during its start-up (see acquisition/cli/start_up.py) so that the cost lands there rather than inside
-    the first kernel call; calling it again costs nothing.
+    for BLAS): about 0.3 s, the largest single step of a new process that images. ``sarbot image`` calls
+    this in its start-up, which it runs with the garbage collector paused, rather than inside the first
+    kernel call; calling it again costs nothing.
     """
     from numba.core.registry import cpu_target
 
