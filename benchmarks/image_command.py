@@ -12,9 +12,12 @@ one), places the antennas, backprojects, writes the image and its PNG (the pixel
 matplotlib figure is timed apart). ``form_image`` is the same without the files. Its throughput (grid
 points x profiles per second of wall time) is printed as a fraction of the kernel's on the same profiles
 in the same process, with the time of each stage, and what the process start costs, step by step, in a
-new process of its own (``fixed_costs``).
+new process of its own (``fixed_costs``: with the cyclic garbage collector paused during the start-up, as
+the command runs it, and running, alternating), and scipy's range FFT against numpy's (``range_fft``).
+``baseline_comparison`` is the command against its kernel at issue 34's commit and now, alternating, on the
+cases the issue's figure could have come from (benchmarks/command_versions.py, which also runs alone).
 
-    python benchmarks/image_command.py [--quick]
+    python benchmarks/image_command.py [--quick] [--baseline COMMIT | --no-baseline]
 
 Writes docs/results/image_command.json.
 """
@@ -47,38 +50,77 @@ from imaging.sim.scene import DEFAULT_START_TIME_NS, Scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.sim.targets import PointTarget  # noqa: E402
 from imaging.core import strict_json  # noqa: E402
+from command_versions import BASELINE, CASES, QUICK_CASES, compare, uptime  # noqa: E402
 
 #: The command's environment: this one without PYTHONDONTWRITEBYTECODE (see the module's docstring).
 COMMAND_ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
 
-#: What the start of ``sarbot image`` costs, step by step, in a new process: each import on top of the
-#: ones before it; numba's target set-up (its typing and lowering registries, and with them scipy.linalg,
-#: which numba imports for BLAS), which the first compiled call does; then a first image of one frame on
-#: four pixels (the kernel's load from numba's cache, its threads' start), then the same image again (what
-#: it costs once all that is done).
+#: What the start of ``sarbot image`` costs, step by step, in a new process, in the command's order: each
+#: import on top of the ones before it; numba's target set-up (its typing and lowering registries, and with
+#: them scipy.linalg, which numba imports for BLAS whether or not a kernel uses it); scipy.fft after that
+#: (scipy.special, for its FFTLog); sarbot's own modules; then a first image of one frame on four pixels (the
+#: kernel's load from numba's cache, its threads' start), then the same image again (what it costs once all
+#: that is done). With argv[2] "paused" the start-up runs as the command runs it (the cyclic garbage
+#: collector paused, then frozen: acquisition/cli/start_up.py); with "running" the collector runs as
+#: usual. The last line also gives the collections' count and time (gc.callbacks).
 FIXED_COSTS = r"""
-import json, sys, time
+import gc, json, sys, time
 t = [time.perf_counter()]
-steps = []
+steps, collections, began = [], {"full": 0, "all": 0, "seconds": 0.0}, [0.0]
+def on_gc(phase, info):
+    if phase == "start":
+        began[0] = time.perf_counter()
+        return
+    collections["seconds"] += time.perf_counter() - began[0]
+    collections["all"] += 1
+    collections["full"] += info["generation"] == 2
+gc.callbacks.append(on_gc)
 def step(name):
     t.append(time.perf_counter()); steps.append((name, t[-1] - t[-2]))
-import numpy; step("numpy")
-import h5py; step("h5py")
-import scipy.fft; step("scipy.fft")
-import numba; step("numba")
-import acquisition.cli.imaging; step("sarbot command line")
-from imaging.image_formation import ImagingOptions, image_recording; step("sarbot imaging")
-from imaging.io.recording import Recording
-from imaging.plot import save_image_pixels_png
-from imaging.io.image_file import write_image; step("sarbot files")
-from numba.core.registry import cpu_target
-cpu_target.target_context.refresh(); step("numba's target set-up (with scipy.linalg)")
-def one(): 
+from acquisition.cli.start_up import collector_paused
+import contextlib
+with collector_paused() if sys.argv[2] == "paused" else contextlib.nullcontext():
+    import numpy; step("numpy")
+    import h5py; step("h5py")
+    import numba; step("numba")
+    from numba.core.registry import cpu_target
+    cpu_target.target_context.refresh(); step("numba's target set-up (with scipy.linalg)")
+    import scipy.fft; step("scipy.fft (after scipy.linalg: scipy.special)")
+    import acquisition.cli.imaging
+    from imaging.image_formation import ImagingOptions, image_recording
+    from imaging.io.recording import Recording
+    from imaging.plot import save_image_pixels_png
+    from imaging.io.image_file import write_image; step("sarbot's modules")
+def one():
     with Recording(sys.argv[1]) as rec:
         return image_recording(rec, "left_front", "0:0.002:0.002,2:2.002:0.002", "truth", slice(0, 1), ImagingOptions())
 one(); step("first image of one frame (the kernel from numba's cache, its threads)")
 one(); step("the same image again")
-print(json.dumps(steps))
+gc.collect(); step("a full collection at the end (as at exit)")
+print(json.dumps({"steps": steps, "collections": collections}))
+"""
+
+#: The range FFT: scipy's (what range compression uses) against numpy's on the benchmark case's rows
+#: (1,024 profiles of one frame, 16x zero-padding), complex64 both: same numbers? time of each, best of 5.
+RANGE_FFT = r"""
+import json, sys, time
+import numpy as np, scipy.fft
+from imaging.core.rig import default_rig
+wf = default_rig().radar("left_front").waveform
+n, n_fft = wf.samples_per_chirp, 16 * wf.samples_per_chirp
+rows = np.zeros((1024, n_fft), np.complex64)
+rng = np.random.default_rng(0)
+rows[:, :n] = rng.standard_normal((1024, n)) + 1j * rng.standard_normal((1024, n))
+def best(f):
+    times = []
+    for _ in range(5):
+        x = rows.copy(); t = time.process_time(); f(x); times.append(time.process_time() - t)
+    return min(times)
+a, b = scipy.fft.fft(rows.copy(), axis=-1, overwrite_x=True), np.fft.fft(rows, axis=-1)
+print(json.dumps({"samples": n, "n_fft": n_fft, "rows": 1024, "numpy_dtype": str(b.dtype), "bit_identical": bool(np.array_equal(a, b)),
+                  "largest_difference_of_peak": float(np.abs(a - b).max() / np.abs(a).max()),
+                  "scipy_cpu_s": best(lambda x: scipy.fft.fft(x, axis=-1, overwrite_x=True)),
+                  "numpy_cpu_s": best(lambda x: np.fft.fft(x, axis=-1, out=x))}))
 """
 
 RESULTS = ROOT / "docs" / "results"
@@ -111,12 +153,33 @@ def import_times(cmd: list) -> dict:
     return {"total_s": sum(top.values()), "largest_s": largest}
 
 
-def fixed_costs(rec_path: Path) -> dict:
-    """``FIXED_COSTS`` in a new process, twice (the first warms the page cache): seconds per step."""
-    for _ in range(2):
-        out = subprocess.run([sys.executable, "-c", FIXED_COSTS, str(rec_path)], check=True, cwd=ROOT, env=COMMAND_ENV,
-                             capture_output=True, text=True).stdout
-    return dict(json.loads(out.splitlines()[-1]))
+def fixed_costs(rec_path: Path, rounds: int = 3) -> dict:
+    """``FIXED_COSTS`` in new processes, the collector paused (as the command) and running, alternating, after
+    one run that warms the page cache: seconds per step (the median over rounds), the start-up's total, and
+    the garbage collections' count and time."""
+    runs = {"paused": [], "running": []}
+    for i in range(rounds + 1):
+        for gc_mode, found in runs.items():
+            out = subprocess.run([sys.executable, "-c", FIXED_COSTS, str(rec_path), gc_mode], check=True, cwd=ROOT,
+                                 env=COMMAND_ENV, capture_output=True, text=True).stdout
+            if i:
+                found.append(json.loads(out.splitlines()[-1]))
+    result = {}
+    for gc_mode, found in runs.items():
+        names = [name for name, _ in found[0]["steps"]]
+        steps = {name: statistics.median(dict(r["steps"])[name] for r in found) for name in names}
+        result[f"collector_{gc_mode}"] = {
+            "steps_s": steps, "total_s": statistics.median(sum(dict(r["steps"]).values()) for r in found),
+            "collections": {key: statistics.median(r["collections"][key] for r in found)
+                            for key in ("all", "full", "seconds")}}
+    return result
+
+
+def range_fft() -> dict:
+    """``RANGE_FFT`` in a new process: scipy's FFT against numpy's on the range rows."""
+    out = subprocess.run([sys.executable, "-c", RANGE_FFT], check=True, cwd=ROOT, env=COMMAND_ENV, capture_output=True,
+                         text=True).stdout
+    return json.loads(out.splitlines()[-1])
 
 
 def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int) -> dict:
@@ -198,10 +261,14 @@ def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int) -
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--baseline", default=BASELINE, help=f"the earlier commit to compare with (default {BASELINE}, "
+                    "issue 34's; see benchmarks/command_versions.py)")
+    ap.add_argument("--no-baseline", action="store_true",
+                    help="keep the JSON's baseline_comparison as it is (command_versions.py measures it alone)")
     args = ap.parse_args()
     cases = {"benchmark_case": (4, 128, 1), "larger_case": (8, 256, 1)} if args.quick else \
         {"benchmark_case": (16, 256, 5), "larger_case": (32, 512, 2)}
-    load_before = os.getloadavg()
+    load_before, uptime_before = os.getloadavg(), uptime()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         results = {name: measure_case(tmp, name, *case) for name, case in cases.items()}
@@ -209,17 +276,29 @@ def main() -> int:
         imports = import_times([sys.executable, "-X", "importtime", "-m", "acquisition.cli", "-q", "image", str(bench),
                                 "-o", str(tmp / "imp.h5"), "--grid", results["benchmark_case"]["case"]["grid"]])
         start = fixed_costs(bench)
-    print("process start: " + ", ".join(f"{k} {v:.3f}" for k, v in start.items()))
+        fft = range_fft()
+        baseline = None if args.no_baseline else \
+            compare(args.baseline, QUICK_CASES if args.quick else CASES, 1 if args.quick else 3, tmp)
+    for gc_mode, found in start.items():
+        print(f"process start, {gc_mode}: " + ", ".join(f"{k} {v:.3f}" for k, v in found["steps_s"].items())
+              + f"; total {found['total_s']:.3f} s, collections {found['collections']}")
+    print(f"range FFT: {fft}")
     result = {
         **results,
         "quick": args.quick,
         "command_is": "a new process: python -m acquisition.cli image (sarbot's byte code cached, as after an install)",
         "load_average": {"before": load_before, "after": os.getloadavg()},
+        "uptime": {"before": uptime_before, "after": uptime()},
         "command_imports": imports,
-        "process_start_seconds": start,
+        "process_start": start,
+        "range_fft": fft,
+        "baseline_comparison": baseline,
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     name = "image_command_quick" if args.quick else "image_command"
+    if baseline is None:  # kept as command_versions.py last measured it
+        previous = json.loads((RESULTS / f"{name}.json").read_text()) if (RESULTS / f"{name}.json").exists() else {}
+        result["baseline_comparison"] = previous.get("baseline_comparison")
     (RESULTS / f"{name}.json").write_text(strict_json.dumps(result, indent=2))
     print(f"wrote {RESULTS / (name + '.json')}")
     return 0

@@ -60,3 +60,16 @@ def skip_extension_search() -> None:
     from numba.core import entrypoints
 
     entrypoints._already_initialized = True  # noqa: SLF001 - numba's flag that the search was done
+
+
+def set_up_target() -> None:
+    """Build numba's typing and lowering registries now, as its first compiled call or cache load would.
+
+    numba builds them once a process (importing its implementations of Python and numpy, and scipy.linalg
+    for BLAS): about 0.3 s, the largest single step of a new process that images. ``sarbot image`` calls
+    this in its start-up, which it runs with the garbage collector paused, rather than inside the first
+    kernel call; calling it again costs nothing.
+    """
+    from numba.core.registry import cpu_target
+
+    cpu_target.target_context.refresh()

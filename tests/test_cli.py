@@ -65,6 +65,24 @@ def test_image_imports_autofocus_only_when_asked(recording, tmp_path):
     assert res.stdout.strip().endswith("imported") and "not imported" not in res.stdout
 
 
+def test_image_start_up_is_not_gone_through_by_the_garbage_collector(recording, tmp_path):
+    """The ~120,000 objects of ``sarbot image``'s imports and numba's set-up are made with the cyclic
+    collector paused and then frozen: no full collection goes through them (before, three did during
+    the start and one at exit, each through 50,000-112,000 objects)."""
+    code = ("import gc, sys; sizes = []; "
+            "gc.callbacks.append(lambda phase, info: sizes.append(len(gc.get_objects(2))) "
+            "if phase == 'start' and info['generation'] == 2 else None); "
+            "from acquisition.cli import main; code = main(sys.argv[1:]); gc.collect(); "
+            "print('frozen', gc.get_freeze_count(), 'full collections through', sizes); sys.exit(code)")
+    args = [recording, "-o", tmp_path / "a.h5", "--frames", "10:20", "--grid", "-0.05:0.05:0.005,1.9:2.1:0.005"]
+    res = subprocess.run([sys.executable, "-c", code, "image", *map(str, args)], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    words = res.stdout.splitlines()[-1].split(" ", 2)
+    assert words[0] == "frozen" and int(words[1]) > 50_000
+    sizes = json.loads(words[2].removeprefix("full collections through "))
+    assert sizes and max(sizes) < 20_000  # the last: the test's own gc.collect()
+
+
 def test_image_imports_neither_matplotlib_nor_scipy_rotations(recording, tmp_path):
     """``sarbot image`` writes its PNG (the image's pixels) without matplotlib, places its antennas without
     scipy's Rotation (half a second of a whole process between them) and does not let numba search every

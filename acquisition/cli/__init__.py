@@ -17,6 +17,7 @@ import sys
 from ..processes import configure_logging, ensure_jit_cache_dir
 from .exit_codes import run_command
 from .options import ArgumentParser, join_negative_values
+from .start_up import collector_paused
 
 #: The command families, in the order their commands are listed, each with the commands it registers: a
 #: command's parser is built alone (``sarbot image`` need not build, nor import for, ``record``'s options).
@@ -72,6 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     # Before anything imports numba: a choice list read from its module (autofocus methods) may import it.
     ensure_jit_cache_dir()
     argv = join_negative_values(sys.argv[1:] if argv is None else list(argv))
-    args = build_parser(command_of(argv)).parse_args(argv)
+    with collector_paused():  # the command's modules live as long as the process (see start_up)
+        args = build_parser(command_of(argv)).parse_args(argv)
     configure_logging(-1 if args.quiet else args.verbose)  # also every process the command starts (environment)
     return run_command(args.func, args)

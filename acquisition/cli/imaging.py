@@ -15,6 +15,7 @@ from imaging.core.errors import SarbotError
 
 from . import options as opt
 from .exit_codes import EXIT_OK, EXIT_USAGE
+from .start_up import collector_paused
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
@@ -121,11 +122,15 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_image(args) -> int:
-    from imaging.image_formation import ImagingOptions, image_recording
-    from imaging.io.image_file import write_image
-    from imaging.io.recording import Recording
+    with collector_paused():  # the modules and numba's registries live as long as the process
+        from imaging.image_formation import ImagingOptions, image_recording
+        from imaging.io.image_file import write_image
+        from imaging.io.recording import Recording
+        from imaging.numba_target import set_up_target
 
-    from ..progress import Progress
+        from ..progress import Progress
+
+        set_up_target()
 
     out = Path(args.output)
     png = Path(args.png) if args.png else out.with_suffix(".png")
@@ -139,7 +144,8 @@ def cmd_image(args) -> int:
                              algorithm=args.algorithm, aperture_window=args.aperture_window)
     autofocus = None
     if args.autofocus != "none":  # imaging.autofocus (scipy.optimize) costs 0.6 s to import: only when asked
-        from imaging.autofocus import AutofocusOptions
+        with collector_paused():
+            from imaging.autofocus import AutofocusOptions
 
         autofocus = AutofocusOptions(method=args.autofocus, sinusoids=args.autofocus_sinusoids,
                                      decision=args.autofocus_decision)
