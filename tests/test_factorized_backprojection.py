@@ -124,6 +124,15 @@ def test_the_leaf_kernel_matches_numpy(mode):
         want = want * np.exp(2j * plan.wavenumber * (leaf.r0_m + leaf.dr_m * np.arange(leaf.nr)))[:, None]
         assert img.shape == (leaf.nr, leaf.na) and img.dtype == np.complex64
         assert np.abs(want).max() > 0
+        if mode == "nearest":
+            # The kernel's geometry is float32 (about 1e-6 bins): where a profile's position is within 1e-5 bins of
+            # half a bin, nearest may take the other bin, as the direct kernel's float32 blocks may.
+            pts = leaf.polar_points(0.3).reshape(-1, 1, 3)
+            dr = np.linalg.norm(pts - tx[s], axis=2) + np.linalg.norm(pts - rx[s], axis=2) - r_ref[s]
+            pos = (dr - prof.range_axis_m[0]) / prof.range_step_m
+            tie = (np.abs(pos - np.floor(pos) - 0.5) < 1e-5).any(axis=1).reshape(img.shape)
+            assert tie.mean() < 0.01
+            img, want = img[~tie], want[~tie]
         np.testing.assert_allclose(img, want, rtol=0, atol=1e-4 * np.abs(want).max())
 
 
