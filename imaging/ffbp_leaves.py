@@ -48,81 +48,91 @@ def _polar_leaves_kernel(rows, r0, inv_dr, k, tx, rx, r_ref, linear, z, leaf_p0,
     Geometry relative to the leaf's centre c (see the module's docstring): per grid point its range r and unit
     vector e from c, per antenna its offset s from c, and |g - m| - r = (s.s - 2 r e.s) / (|g - m| + r)
     in float32, by g's series (``imaging.backprojection._series_offset``) where it converges."""
-    hi = np.float64(rows.shape[1] - 2)  # largest position: j + 1 stays inside the trailing guard
-    inv32 = np.float32(inv_dr)
-    k_turns = k / _TWO_PI
-    k_turns32 = np.float32(k_turns)
     for leaf in range(geometry.shape[0]):
         g = geometry[leaf]
         na = shape[leaf, 1]
         n = shape[leaf, 0] * na
-        h = z - g[2]
-        r_min = g[7]  # the nearest row: where g's series converges most slowly
         for g0 in range(0, n, BLOCK):
-            nb = min(g0 + BLOCK, n) - g0
-            i_first = g0 // na
-            r_first = g[7] + i_first * g[8]
-            ex = np.empty(nb, np.float32)
-            ey = np.empty(nb, np.float32)
-            ez = np.empty(nb, np.float32)
-            two_r = np.empty(nb, np.float32)
-            inv_r = np.empty(nb, np.float32)
-            inv_r2 = np.empty(nb, np.float32)
-            r_bins = np.empty(nb, np.float32)  # 2 (r - r_first) in bins: small, a fine float32 position
+            _leaf_block(rows, r0, inv_dr, k, tx, rx, r_ref, linear, z, leaf_p0[leaf], leaf_p1[leaf], g, na, g0,
+                        min(g0 + BLOCK, n) - g0, out[offset[leaf] + g0:])
+
+
+@numba.njit(fastmath=True, cache=True, nogil=True)
+def _leaf_block(rows, r0, inv_dr, k, tx, rx, r_ref, linear, z, p0, p1, g, na, g0, nb, out):
+    """Points g0..g0+nb-1 of a leaf's grid (``g`` as ``Subaperture.geometry``, ``na`` columns): profiles p0..p1-1
+    onto them, demodulated, into out[:nb]. A function of its own, not inlined: LLVM vectorised its loops
+    inside the whole kernel 5-20x worse (the direct kernel's float32 blocks, run serially, show the same)."""
+    hi = np.float64(rows.shape[1] - 2)  # largest position: j + 1 stays inside the trailing guard
+    inv32 = np.float32(inv_dr)
+    k_turns = k / _TWO_PI
+    k_turns32 = np.float32(k_turns)
+    h = z - g[2]
+    r_min = g[7]  # the nearest row: where g's series converges most slowly
+    i_first = g0 // na
+    r_first = g[7] + i_first * g[8]
+    ex = np.empty(nb, np.float32)
+    ey = np.empty(nb, np.float32)
+    ez = np.empty(nb, np.float32)
+    two_r = np.empty(nb, np.float32)
+    inv_r = np.empty(nb, np.float32)
+    inv_r2 = np.empty(nb, np.float32)
+    r_bins = np.empty(nb, np.float32)  # 2 (r - r_first) in bins: small, a fine float32 position
+    for i in range(nb):
+        row = (g0 + i) // na
+        r = g[7] + row * g[8]
+        alpha = g[9] + ((g0 + i) % na) * g[10]
+        # Subaperture.plane_points: the point of the plane z at range r and cosine alpha, over r.
+        b = math.sqrt(max(r * r * (1.0 - alpha * alpha) - h * h, 0.0)) / r
+        ex[i] = np.float32(alpha * g[3] + b * g[5])
+        ey[i] = np.float32(alpha * g[4] + b * g[6])
+        ez[i] = np.float32(h / r)
+        two_r[i] = np.float32(2.0 * r)
+        inv_r[i] = np.float32(1.0 / r)
+        inv_r2[i] = np.float32(1.0 / (r * r))
+        r_bins[i] = np.float32(2.0 * (row - i_first) * g[8] * inv_dr)
+    acc_re = np.zeros(nb, np.float32)
+    acc_im = np.zeros(nb, np.float32)
+    idx = np.empty(nb, np.uint32)
+    frac = np.empty(nb, np.float32)
+    turns = np.empty(nb, np.float32)
+    pairs = np.empty((nb, 2), np.complex64)
+    da = np.empty(nb, np.float32)
+    c_0, c_1, c_2, c_3, c_4, c_5 = (np.float32(_G[0]), np.float32(_G[1]), np.float32(_G[2]), np.float32(_G[3]),
+                                    np.float32(_G[4]), np.float32(_G[5]))
+    for p in range(p0, p1):
+        # The block's first row's bin and the phase in float64; per point only what its offset adds,
+        # in float32.
+        pos_c = (2.0 * r_first - r_ref[p] - r0) * inv_dr + 1.0
+        base = np.floor(pos_c)
+        frac_c = np.float32(pos_c - base)
+        lo = np.float32(-base)
+        top = np.float32(hi - base)
+        ibase = np.int32(base)
+        t_ref = -k_turns * r_ref[p]
+        turns_c = np.float32(t_ref - np.floor(t_ref + 0.5))
+        # A TX shared with the previous profile (the RX channels of one chirp) has the same offsets.
+        if p == p0 or tx[p, 0] != tx[p - 1, 0] or tx[p, 1] != tx[p - 1, 1] or tx[p, 2] != tx[p - 1, 2]:
+            _offsets_from_centre(tx[p, 0] - g[0], tx[p, 1] - g[1], tx[p, 2] - g[2], r_min, ex, ey, ez, two_r,
+                                 inv_r, inv_r2, da)
+        # The RX's offsets and the points' bins and phases in one pass (as the direct kernel's float32 blocks).
+        s0, s1, s2 = rx[p, 0] - g[0], rx[p, 1] - g[1], rx[p, 2] - g[2]
+        sb = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+        b0, b1, b2, ssb = np.float32(s0), np.float32(s1), np.float32(s2), np.float32(sb * sb)
+        if series_applies(r_min, sb):
             for i in range(nb):
-                row = (g0 + i) // na
-                r = g[7] + row * g[8]
-                alpha = g[9] + ((g0 + i) % na) * g[10]
-                # Subaperture.plane_points: the point of the plane z at range r and cosine alpha, over r.
-                b = math.sqrt(max(r * r * (1.0 - alpha * alpha) - h * h, 0.0)) / r
-                ex[i] = np.float32(alpha * g[3] + b * g[5])
-                ey[i] = np.float32(alpha * g[4] + b * g[6])
-                ez[i] = np.float32(h / r)
-                two_r[i] = np.float32(2.0 * r)
-                inv_r[i] = np.float32(1.0 / r)
-                inv_r2[i] = np.float32(1.0 / (r * r))
-                r_bins[i] = np.float32(2.0 * (row - i_first) * g[8] * inv_dr)
-            acc_re = np.zeros(nb, np.float32)
-            acc_im = np.zeros(nb, np.float32)
-            idx = np.empty(nb, np.uint32)
-            frac = np.empty(nb, np.float32)
-            turns = np.empty(nb, np.float32)
-            pairs = np.empty((nb, 2), np.complex64)
-            da = np.empty(nb, np.float32)
-            db = np.empty(nb, np.float32)
-            p0, p1 = leaf_p0[leaf], leaf_p1[leaf]
-            for p in range(p0, p1):
-                # The block's first row's bin and the phase in float64; per point only what its offset adds,
-                # in float32.
-                pos_c = (2.0 * r_first - r_ref[p] - r0) * inv_dr + 1.0
-                base = np.floor(pos_c)
-                frac_c = np.float32(pos_c - base)
-                lo = np.float32(-base)
-                top = np.float32(hi - base)
-                ibase = np.int32(base)
-                t_ref = -k_turns * r_ref[p]
-                turns_c = np.float32(t_ref - np.floor(t_ref + 0.5))
-                # A TX shared with the previous profile (the RX channels of one chirp) has the same offsets.
-                if p == p0 or tx[p, 0] != tx[p - 1, 0] or tx[p, 1] != tx[p - 1, 1] or tx[p, 2] != tx[p - 1, 2]:
-                    _offsets_from_centre(tx[p, 0] - g[0], tx[p, 1] - g[1], tx[p, 2] - g[2], r_min, ex, ey, ez, two_r,
-                                         inv_r, inv_r2, da)
-                _offsets_from_centre(rx[p, 0] - g[0], rx[p, 1] - g[1], rx[p, 2] - g[2], r_min, ex, ey, ez, two_r,
-                                     inv_r, inv_r2, db)
-                for i in range(nb):
-                    d = da[i] + db[i]
-                    lp = frac_c + r_bins[i] + d * inv32
-                    lp = lp if lp > lo else lo
-                    lp = lp if lp < top else top
-                    if linear:
-                        fl = np.floor(lp)
-                        idx[i] = np.uint32(ibase + np.int32(fl))
-                        frac[i] = lp - fl
-                    else:
-                        idx[i] = np.uint32(ibase + np.int32(np.floor(lp + np.float32(0.5))))
-                    turns[i] = turns_c + k_turns32 * d
-                _gather_pairs_accumulate(rows[p], idx, frac, turns, pairs, acc_re, acc_im, linear)
+                num = ssb - two_r[i] * (ex[i] * b0 + ey[i] * b1 + ez[i] * b2)
+                t = num * inv_r2[i]
+                d = da[i] + (num * inv_r[i]) * (c_0 + t * (c_1 + t * (c_2 + t * (c_3 + t * (c_4 + t * c_5)))))
+                idx[i], frac[i], turns[i] = _place_polar(d, r_bins[i], frac_c, inv32, lo, top, ibase, turns_c, k_turns32, linear)
+        else:
             for i in range(nb):
-                out[offset[leaf] + g0 + i] = np.complex64(complex(acc_re[i], acc_im[i]))
+                num = ssb - two_r[i] * (ex[i] * b0 + ey[i] * b1 + ez[i] * b2)
+                r32 = np.float32(0.5) * two_r[i]
+                d = da[i] + num / (math.sqrt(r32 * r32 + num) + r32)
+                idx[i], frac[i], turns[i] = _place_polar(d, r_bins[i], frac_c, inv32, lo, top, ibase, turns_c, k_turns32, linear)
+        _gather_pairs_accumulate(rows[p], idx, frac, turns, pairs, acc_re, acc_im, linear)
+    for i in range(nb):
+        out[i] = np.complex64(complex(acc_re[i], acc_im[i]))
 
 
 @numba.njit(inline="always", fastmath=True)
@@ -144,6 +154,21 @@ def _offsets_from_centre(s0, s1, s2, r_min, ex, ey, ez, two_r, inv_r, inv_r2, ou
             num = ss - two_r[i] * (ex[i] * a0 + ey[i] * a1 + ez[i] * a2)
             r32 = np.float32(0.5) * two_r[i]
             out[i] = num / (math.sqrt(r32 * r32 + num) + r32)
+
+
+@numba.njit(inline="always", fastmath=True)
+def _place_polar(d, r_bins, frac_c, inv32, lo, top, ibase, turns_c, k_turns32, linear):
+    """A point's bin (index, fraction) and demodulated phase in turns from its offset ``d`` = |g - tx| + |g - rx|
+    - 2 r and its bin past its block's first row's, ``r_bins``. Scalars in and out: an array handed to an
+    inlined function in a loop costs a reference count's increment and decrement every iteration (the loop then
+    ran 15x slower, serially compiled)."""
+    lp = frac_c + r_bins + d * inv32
+    lp = lp if lp > lo else lo
+    lp = lp if lp < top else top
+    if linear:
+        fl = np.floor(lp)
+        return np.uint32(ibase + np.int32(fl)), lp - fl, turns_c + k_turns32 * d
+    return np.uint32(ibase + np.int32(np.floor(lp + np.float32(0.5)))), np.float32(0.0), turns_c + k_turns32 * d
 
 
 def image_leaves(leaves: list, profiles: RangeProfiles, tx_m: np.ndarray, rx_m: np.ndarray,
