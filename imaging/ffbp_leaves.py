@@ -17,10 +17,14 @@ taken off before it is ever added). With t = (s.s - 2 r e.s) / r^2, a few hundre
 Taylor series (``imaging.backprojection._series_offset``): multiply-adds only, no square root or division,
 where its error stays below SERIES_TOLERANCE_M (else the quotient itself). Per point only e, r, 1 / r and
 1 / r^2 are kept (float32), per profile only s; a TX shared by consecutive profiles (the RX channels of one
-chirp) is ranged once for all of them. The first row's bin and the reference range's phase are float64 per
-profile, as the direct kernel's block centre. Before this, the leaves ran the direct kernel's float64 blocks
-(its float32 blocks, sized for a fine Cartesian grid, were slower still on a coarse polar one): two float64
-square roots and a float64 phase per backprojection, 4-6x this kernel's time.
+chirp) is ranged once for all of them. The bin of a block's first row and the reference range's phase are
+float64 per profile, as the direct kernel's block centre. Before this, the leaves ran the direct kernel's
+float64 blocks (its float32 blocks, sized for a fine Cartesian grid, were slower still on a coarse polar one):
+two float64 square roots and a float64 phase per backprojection, 1.2-1.5x this kernel's time on one thread.
+
+Numba note: an inlined helper that is handed arrays inside a loop over points costs a reference count's
+increment and decrement per point (here it made the loop 15x slower); the helpers below take and return
+scalars there, and the array-taking ones run once a profile.
 """
 
 from __future__ import annotations
