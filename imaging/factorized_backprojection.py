@@ -332,7 +332,7 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
         dr = 1.0 / (2 * (envelope + two_over_lambda * f_r) * BAND_MARGIN * o.oversample_range)
         da = min(1.0 / (2 * max(two_over_lambda * f_a, 1e-9) * BAND_MARGIN * o.oversample_angle), 0.1)
         node.dr_m, node.da = dr, da
-        # _sample reads taps/2 - 1 samples below the floor of a position and taps/2 above it.
+        # The merge and pixel kernels read taps/2 - 1 samples below the floor of a position and taps/2 above it.
         node.r0_m = float(r.min() - half_taps * dr)
         node.nr = int(math.floor((r.max() - node.r0_m) / dr)) + half_taps + 1
         node.a0 = float(max(alpha.min() - half_taps * da, -1.0))

@@ -16,40 +16,14 @@ import numpy as np
 from imaging.backprojection import _cos_sin
 
 
-@numba.njit(inline="always", fastmath=True)
-def _sample(d, geom, gx, gy, gz, tab_r, tab_a):
-    """Interpolate the demodulated polar image ``d`` [nr, na] of the subaperture ``geom`` at world point g;
-    returns (value, |g - c|). Outside the grid (or too near its edge for all taps): 0."""
-    taps = tab_r.shape[1]
-    nf = tab_r.shape[0] - 1
-    dx, dy, dz = gx - geom[0], gy - geom[1], gz - geom[2]
-    rc = math.sqrt(dx * dx + dy * dy + dz * dz)
-    fr = (rc - geom[7]) / geom[8]
-    fa = ((dx * geom[3] + dy * geom[4]) / rc - geom[9]) / geom[10]
-    ir = math.floor(fr)
-    ia = math.floor(fa)
-    i0 = int(ir) - taps // 2 + 1
-    j0 = int(ia) - taps // 2 + 1
-    if i0 < 0 or j0 < 0 or i0 + taps > d.shape[0] or j0 + taps > d.shape[1]:
-        return np.complex64(0.0), rc
-    wr = tab_r[int((fr - ir) * nf + 0.5)]
-    wa = tab_a[int((fa - ia) * nf + 0.5)]
-    acc = np.complex64(0.0)
-    for a in range(taps):
-        row = np.complex64(0.0)
-        for b in range(taps):
-            row += d[i0 + a, j0 + b] * wa[b]
-        acc += row * wr[a]
-    return acc, rc
-
-
 @numba.njit(fastmath=True, cache=True, nogil=True)
 def _merge_rows(out, i0, i1, pg, child, cg, z, k, tab_r, tab_a):
     """Add one child's contribution to rows i0..i1-1 of the parent's demodulated polar image ``out`` [nr, na].
 
-    Serial: ``run_factorized`` hands row ranges of every merge of a level to its own threads. ``_sample``
-    written out, with the child's spacings inverted once, float32 sums of the taps and the direct kernel's
-    polynomial sine and cosine (libm's took a third of the time): 1.3x faster than calling it."""
+    Serial: ``run_factorized`` hands row ranges of every merge of a level to its own threads. The child's
+    spacings are inverted once, the taps summed in float32 and the phase's sine and cosine are the direct
+    kernel's polynomials (libm's took a third of the time); the sampling is written out here and in
+    ``_to_plane_rows``, not an inlined helper handed the arrays at every sample (1.35x slower)."""
     na = out.shape[1]
     h = z - pg[2]
     taps = tab_r.shape[1]
@@ -75,7 +49,7 @@ def _merge_rows(out, i0, i1, pg, child, cg, z, k, tab_r, tab_a):
             r0 = int(ir) - taps // 2 + 1
             a0 = int(ia) - taps // 2 + 1
             if r0 < 0 or a0 < 0 or r0 + taps > nrc or a0 + taps > nac:
-                continue  # outside the child's grid (or too near its edge for all taps): 0, as _sample
+                continue  # outside the child's grid (or too near its edge for all taps): 0
             wr = int((fr - ir) * nf + 0.5)
             wa = int((fa - ia) * nf + 0.5)
             acc_re = np.float32(0.0)
@@ -98,12 +72,42 @@ def _merge_rows(out, i0, i1, pg, child, cg, z, k, tab_r, tab_a):
 @numba.njit(fastmath=True, cache=True, nogil=True)
 def _to_plane_rows(out, i0, i1, x, y, z, d, g, k, tab_r, tab_a):
     """Add the root's image at the pixels (x[j], y[i], z), rows i0..i1-1, to ``out`` [ny, nx], its phase
-    restored."""
+    restored (sampled as in ``_merge_rows``)."""
+    taps = tab_r.shape[1]
+    nf = tab_r.shape[0] - 1
+    nr, na = d.shape[0], d.shape[1]
+    inv_dr, inv_da = 1.0 / g[8], 1.0 / g[10]
+    dz = z - g[2]
     for i in range(i0, i1):
+        dy = y[i] - g[1]
         for j in range(x.size):
-            v, rc = _sample(d, g, x[j], y[i], z, tab_r, tab_a)
+            dx = x[j] - g[0]
+            rc = math.sqrt(dx * dx + dy * dy + dz * dz)
+            fr = (rc - g[7]) * inv_dr
+            fa = ((dx * g[3] + dy * g[4]) / rc - g[9]) * inv_da
+            ir = math.floor(fr)
+            ia = math.floor(fa)
+            r0 = int(ir) - taps // 2 + 1
+            a0 = int(ia) - taps // 2 + 1
+            if r0 < 0 or a0 < 0 or r0 + taps > nr or a0 + taps > na:
+                continue  # outside the root's grid (or too near its edge for all taps): 0
+            wr = int((fr - ir) * nf + 0.5)
+            wa = int((fa - ia) * nf + 0.5)
+            acc_re = np.float32(0.0)
+            acc_im = np.float32(0.0)
+            for a in range(taps):
+                row_re = np.float32(0.0)
+                row_im = np.float32(0.0)
+                for t in range(taps):
+                    v = d[r0 + a, a0 + t]
+                    w = tab_a[wa, t]
+                    row_re += v.real * w
+                    row_im += v.imag * w
+                w = tab_r[wr, a]
+                acc_re += row_re * w
+                acc_im += row_im * w
             c, s = _cos_sin(-2.0 * k * rc)
-            out[i, j] += v * complex(c, s)
+            out[i, j] += complex(acc_re * c - acc_im * s, acc_re * s + acc_im * c)
 
 
 def _to_plane(out, x, y, z, d, g, k, tab_r, tab_a):

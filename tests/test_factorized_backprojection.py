@@ -70,8 +70,8 @@ def test_the_interpolator_reconstructs_tones_within_its_stated_error(taps, overs
 
 
 def sample_reference(px, py, z, d, g, tab_r, tab_a):
-    """numpy version of _sample: the demodulated polar image d of the subaperture g interpolated at the plane
-    points (px, py, z); returns (values, |p - c|)."""
+    """numpy version of the merge and pixel kernels' sampling: the demodulated polar image d of the subaperture g
+    interpolated at the plane points (px, py, z); returns (values, |p - c|)."""
     taps, nf = tab_r.shape[1], tab_r.shape[0] - 1
     dx, dy, dz = px - g[0], py - g[1], z - g[2]
     rc = np.sqrt(dx ** 2 + dy ** 2 + dz ** 2)
