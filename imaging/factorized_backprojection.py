@@ -45,6 +45,7 @@ from imaging.core.config import require
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.core.grid import Grid
 from imaging.ffbp_leaves import image_leaves, load_kernel
+from imaging.ffbp_merge import _merge_rows, _to_plane, _to_plane_rows  # noqa: F401 - _to_plane: tests use it
 from imaging.ffbp_tasks import Pool, leaf_runs, row_ranges
 from imaging.ffbp_interpolation import (  # noqa: F401 - part of this module's interface
     BAND_MARGIN,
@@ -80,71 +81,6 @@ class FactorizedOptions:
         require(1.2 <= self.oversample_angle <= 16, "oversample_angle", f"must be in [1.2, 16], got {self.oversample_angle}")
         require(self.taps in (2, 4, 6, 8, 10, 12), "taps", f"must be an even number from 2 to 12, got {self.taps}")
         require(self.mode in ("nearest", "linear", "exact"), "mode", f"must be nearest, linear or exact, got {self.mode!r}")
-
-
-# -- numba kernels -------------------------------------------------------------------------------------
-@numba.njit(inline="always", fastmath=True)
-def _sample(d, geom, gx, gy, gz, tab_r, tab_a):
-    """Interpolate the demodulated polar image ``d`` [nr, na] of the subaperture ``geom`` at world point g;
-    returns (value, |g - c|). Outside the grid (or too near its edge for all taps): 0."""
-    taps = tab_r.shape[1]
-    nf = tab_r.shape[0] - 1
-    dx, dy, dz = gx - geom[0], gy - geom[1], gz - geom[2]
-    rc = math.sqrt(dx * dx + dy * dy + dz * dz)
-    fr = (rc - geom[7]) / geom[8]
-    fa = ((dx * geom[3] + dy * geom[4]) / rc - geom[9]) / geom[10]
-    ir = math.floor(fr)
-    ia = math.floor(fa)
-    i0 = int(ir) - taps // 2 + 1
-    j0 = int(ia) - taps // 2 + 1
-    if i0 < 0 or j0 < 0 or i0 + taps > d.shape[0] or j0 + taps > d.shape[1]:
-        return np.complex64(0.0), rc
-    wr = tab_r[int((fr - ir) * nf + 0.5)]
-    wa = tab_a[int((fa - ia) * nf + 0.5)]
-    acc = np.complex64(0.0)
-    for a in range(taps):
-        row = np.complex64(0.0)
-        for b in range(taps):
-            row += d[i0 + a, j0 + b] * wa[b]
-        acc += row * wr[a]
-    return acc, rc
-
-
-@numba.njit(fastmath=True, cache=True, nogil=True)
-def _merge_rows(out, i0, i1, pg, child, cg, z, k, tab_r, tab_a):
-    """Add one child's contribution to rows i0..i1-1 of the parent's demodulated polar image ``out`` [nr, na].
-
-    Serial: ``run_factorized`` hands row ranges of every merge of a level to its own threads."""
-    na = out.shape[1]
-    h = z - pg[2]
-    for i in range(i0, i1):
-        r = pg[7] + i * pg[8]
-        for j in range(na):
-            along = (pg[9] + j * pg[10]) * r
-            b2 = r * r - along * along - h * h
-            if b2 <= 0.0:
-                continue
-            b = math.sqrt(b2)
-            v, rc = _sample(child, cg, pg[0] + along * pg[3] + b * pg[5], pg[1] + along * pg[4] + b * pg[6], z,
-                            tab_r, tab_a)
-            ph = -2.0 * k * (rc - r)
-            out[i, j] += v * np.complex64(complex(math.cos(ph), math.sin(ph)))
-
-
-@numba.njit(fastmath=True, cache=True, nogil=True)
-def _to_plane_rows(out, i0, i1, x, y, z, d, g, k, tab_r, tab_a):
-    """Add the root's image at the pixels (x[j], y[i], z), rows i0..i1-1, to ``out`` [ny, nx], its phase
-    restored."""
-    for i in range(i0, i1):
-        for j in range(x.size):
-            v, rc = _sample(d, g, x[j], y[i], z, tab_r, tab_a)
-            ph = -2.0 * k * rc
-            out[i, j] += v * complex(math.cos(ph), math.sin(ph))
-
-
-def _to_plane(out, x, y, z, d, g, k, tab_r, tab_a):
-    """Add the root's image at all pixels (x[j], y[i], z) to ``out`` [ny, nx], its phase restored."""
-    _to_plane_rows(out, 0, y.size, x, y, z, d, g, k, tab_r, tab_a)
 
 
 # -- the plan: the tree, each subaperture's polar grid -------------------------------------------------------
@@ -396,7 +332,7 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
         dr = 1.0 / (2 * (envelope + two_over_lambda * f_r) * BAND_MARGIN * o.oversample_range)
         da = min(1.0 / (2 * max(two_over_lambda * f_a, 1e-9) * BAND_MARGIN * o.oversample_angle), 0.1)
         node.dr_m, node.da = dr, da
-        # _sample reads taps/2 - 1 samples below the floor of a position and taps/2 above it.
+        # The merge and pixel kernels read taps/2 - 1 samples below the floor of a position and taps/2 above it.
         node.r0_m = float(r.min() - half_taps * dr)
         node.nr = int(math.floor((r.max() - node.r0_m) / dr)) + half_taps + 1
         node.a0 = float(max(alpha.min() - half_taps * da, -1.0))
