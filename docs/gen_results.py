@@ -32,7 +32,6 @@ MAX_COLUMNS = 12
 MAX_TEXT = 90
 
 #: Said of the odometry and calibration results not re-run since the strapdown changed (issue 35).
-BEFORE_MIDPOINT_STRAPDOWN = " Measured before the odometry's midpoint strapdown (rio/strapdown.py), not re-run since."
 
 #: stem -> (title, what it measures, command that reproduces it). Order of the page.
 SECTIONS: dict[str, tuple[str, str, str]] = {
@@ -103,34 +102,34 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                     "A simulated calibration drive with every radar's mount wrong (2 deg yaw, 1 deg pitch, 2 cm lever "
                     "arm) and one radar 5 ms late: each axis's error and standard deviation against the drive's length "
                     "(pitch and the lever arm along z are not taken: a floor robot cannot show them), and the "
-                    "odometry's drift with the true rig, the wrong rig and the wrong rig calibrated online." + BEFORE_MIDPOINT_STRAPDOWN,
+                    "odometry's drift with the true rig, the wrong rig and the wrong rig calibrated online.",
                     ".venv/bin/python benchmarks/calibration.py"),
     "calibration_stripmap": ("What calibration buys the image",
                              "Point targets seen by each radar of the miscalibrated rig while the robot sets off into a "
                              "turn (raw frames along the true track), imaged by backprojection on what each odometry run "
                              "believes: the true rig, the wrong rig file, the wrong rig calibrated online (trajectory, "
                              "refined mounts and time offset), and the true rig's odometry with the wrong mounts and "
-                             "clock. Peak and main-lobe width against the image on the true rig's odometry." + BEFORE_MIDPOINT_STRAPDOWN,
+                             "clock. Peak and main-lobe width against the image on the true rig's odometry.",
                              ".venv/bin/python benchmarks/calibration_stripmap.py"),
     "calibration_time_offset": ("What limits the time-offset calibration",
                                 "The Doppler fit's real velocity error per sensor axis against its own standard "
                                 "deviation (and the floor that would close the gap), and on 120 s calibration drives "
                                 "(2 seeds, 4 radars) the time offset's error, its standard deviation and the NEES of "
                                 "the observable axes (yaw, lever x, y, time offset) for the drive's acceleration and "
-                                "the filter's velocity floor." + BEFORE_MIDPOINT_STRAPDOWN,
+                                "the filter's velocity floor.",
                                 ".venv/bin/python benchmarks/calibration_time_offset.py --configs 1.0:0.008,1.0:0.0045,2.0:0.008"),
     "calibration_unobservable": ("What the axes calibration refuses cost",
                                  "Every radar's mount tilted 1 deg about its array's axis (a sideways radar's pitch) "
                                  "and 2 cm too high, not calibrated (sarbot calibrate refuses both on a floor robot): the "
                                  "geometry (antenna shift, cone angle, Doppler), the odometry's ATE against the true "
                                  "rig's on the calibration drives, and point targets imaged where the robot sets off "
-                                 "into a turn against the true rig's image." + BEFORE_MIDPOINT_STRAPDOWN,
+                                 "into a turn against the true rig's image.",
                                  ".venv/bin/python benchmarks/calibration_unobservable.py"),
     "map_feedback": ("The map corrects the odometry",
                      "Simulated straight drives at 0.4 m/s with the radars' Doppler 2 % low: the odometry's error along "
                      "the track at the end, and every point target's peak in the live map as imaged (before refocus) "
                      "against the map on the true trajectory, without and with the map's velocity errors fed back "
-                     "(rio.map_feedback: filter updates plus the Doppler scale learnt from them)." + BEFORE_MIDPOINT_STRAPDOWN,
+                     "(rio.map_feedback: filter updates plus the Doppler scale learnt from them).",
                      ".venv/bin/python benchmarks/map_feedback.py"),
     "pointcloud": ("Point clouds from raw frames",
                    "What each live odometry scan costs before the filter sees it, stage by stage.",

@@ -18,7 +18,7 @@ from imaging.autofocus.options import AutofocusOptions, AutofocusResult, Profile
 from imaging.autofocus.registry import METHODS
 from imaging.autofocus.weak_point import point_check
 from imaging.backprojection import backproject, patch_order
-from imaging.core.track_error import TrackError
+from imaging.core.track_error import TrackError, remove_line
 
 log = logging.getLogger("sarbot.imaging.autofocus")
 
@@ -137,10 +137,23 @@ def estimate_on_group_images(g: GroupImages, options: AutofocusOptions,
         consistency, agreed = consistency_of(g.time_s, lower, upper, delta, options.false_alarm, options.poly_order,
                                              max(options.sinusoids, 1), floor_m=0.1 / (2.0 * g.k))
         log.info("autofocus (%s): %s", options.method, consistency.describe())
-        if agreed is None:
+        if agreed is None and consistency.passed:
+            # The halves agree and the full band departs from them (PGA's estimate at the aperture's ends, where
+            # its window over the full band's scatterers differs): what two disjoint halves of the data agree on
+            # is the estimate that is consistent, so that is what may be applied (its smooth part where only
+            # that agrees). It agrees with itself by construction.
+            common = 0.5 * (remove_line(g.time_s, lower) + remove_line(g.time_s, upper))
+            consistency, agreed = consistency_of(g.time_s, lower, upper, common, options.false_alarm,
+                                                 options.poly_order, max(options.sinusoids, 1))
+            delta, model = agreed, {"kind": "half-band common part", "method": options.method, "model": model}
+            e1, _ = entropy_and_gradient(g, g.phase(delta))
+            applied = e1 < e0
+            note = ("the full-band estimate departs from the half-band estimates; their common part applied" if applied
+                    else "the full-band estimate departs from the half-band estimates, and their common part did "
+                         "not sharpen the image; left unapplied")
+        elif agreed is None:
             applied = False
-            note = ("the half-band estimates disagree; left unapplied" if not consistency.passed else
-                    "the estimate departs from the half-band estimates; left unapplied")
+            note = "the half-band estimates disagree; left unapplied"
         elif consistency.scope == "smooth":
             # Only the smooth part is consistent: that part is applied, the per-group rest is noise.
             delta, model = agreed, {"kind": "consistent smooth part", "method": options.method, "model": model}
