@@ -36,36 +36,6 @@ def test_the_footprint_masks_of_many_tiles_are_numpys_pixel_for_pixel(frames):
     assert partial >= 5 and got.any(axis=(1, 2, 3)).sum() < len(keys)
 
 
-def test_the_workers_trajectory_over_its_queued_frames_places_them_as_the_whole_window_does():
-    """Poses in 10 ms batches over 4 s of a turn; frames queued from 3 s on. The trajectory the worker
-    builds from the batches those frames need samples the frames' chirp times as the one over every batch
-    held (to float rounding of the time origin), and it holds far fewer poses."""
-    from acquisition.messages import PoseBatch
-    from acquisition.workers.stripmap import QueuedFrame, StripMapWorker, StripMapWorkerConfig
-
-    rig = default_rig()
-    drive = PathWithTurns(segments=(("straight", 0.4), ("arc", 0.6, 90.0)), speed_mps=0.4, t0_ns=10 ** 9)
-    worker = StripMapWorker(StripMapWorkerConfig(rig, [rig.radar_names[0]], StripMapConfig(), "tcp://unused:1",
-                                                 "unused.h5"), None)
-    t = 10 ** 9 + np.arange(0, 4_000_000_000, 2_500_000, dtype=np.int64)  # 400 Hz
-    for batch in np.split(t, t.size // 4):
-        s = drive.sample(batch)
-        worker.handle(PoseBatch(batch, s.position_m, s.orientation_xyzw, s.velocity_mps), live=True)
-    name = rig.radar_names[0]
-    frame_times = 10 ** 9 + 3_000_000_000 + np.arange(6) * 52_000_000
-    for k, ft in enumerate(frame_times):
-        worker.frames.append(QueuedFrame(name, np.zeros((1, 1, 1, 2), np.int16), int(ft), int(ft)))
-    whole = SampledTrajectory(*(np.concatenate([getattr(b, f) for b in worker.poses])
-                                for f in ("time_ns", "position_m", "orientation_xyzw", "velocity_mps")))
-    mine = worker._trajectory()
-    assert mine.time_ns.size < whole.time_ns.size // 3 and mine.time_ns[0] < frame_times[0]
-    chirps = (frame_times[:, None] + np.arange(0, 40_000_000, 156_000)[None, :]).ravel()
-    a, b = mine.sample(chirps), whole.sample(chirps)
-    for field in ("position_m", "velocity_mps", "angular_velocity_body_radps"):
-        np.testing.assert_allclose(getattr(a, field), getattr(b, field), rtol=0, atol=1e-9)
-    np.testing.assert_allclose(np.abs(np.sum(a.orientation_xyzw * b.orientation_xyzw, axis=1)), 1.0, atol=1e-12)
-
-
 def test_one_frame_read_at_its_masked_pixels_is_the_frame_read_at_its_pixel_list():
     """A frame as the live map takes it one at a time ("polar"): its beams read straight at the pixels its
     tile masks take give the numbers of its beams read at the list of those pixels (``_polar_takers``)."""

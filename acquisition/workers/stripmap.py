@@ -167,6 +167,10 @@ class StripMapWorker(Worker):
             noise = rng.integers(-512, 512, shape, dtype=np.int16)
             noise.flags.writeable = False  # as a frame off the bus is: numba compiles read-only arrays apart
             scratch.add_frame(radar, self.orders[name], noise, t0 + 500_000_000, traj)
+            # A worker behind images queued frames together (add_frames), whose path compiles apart: warmed too,
+            # or a cold cache's first batch stalls the live map for seconds (fresh-clone CI's demo: 25 s behind).
+            later = [t0 + 600_000_000, t0 + 600_000_000 + int(wf.frame_interval_s * 1e9)]
+            scratch.add_frames(radar, self.orders[name], [noise, noise], later, traj)
         scratch.flush()  # "ffbp": a one-frame block compiles the factorized kernels
 
     def _add_poses(self, batch: PoseBatch) -> None:
@@ -223,25 +227,17 @@ class StripMapWorker(Worker):
         return isinstance(message, PoseEnd)
 
     def _trajectory(self):
-        """The poses as a trajectory, from the batch before the one holding the oldest queued frame's start
-        on: a frame is placed by the poses around its own chirps (linear and slerp between neighbours), and
-        the whole window's (5 s, hundreds of batches) concatenated and set up again for every frame was a
-        sixth of the map's CPU per frame (benchmarks/stripmap_capacity.py)."""
+        """The poses held as a trajectory, all of them. (A window from the oldest queued frame on saved about
+        0.3 ms a frame; it was taken out while fresh-clone CI's demo lost frames as "standing still", a failure
+        the batched path's warm-up turned out to explain, and it has not been put back untested.)"""
         from imaging.core.trajectory import SampledTrajectory
 
-        poses = self.poses
-        first = len(poses) - 1
-        if self.frames:
-            start = int(self.frames[0].frame_time_ns)
-            while first > 0 and int(poses[first].time_ns[0]) > start:
-                first -= 1
-        batches = [poses[i] for i in range(max(first - 1, 0), len(poses))]
-        t = np.concatenate([b.time_ns for b in batches])
+        t = np.concatenate([b.time_ns for b in self.poses])
         if t.size < 2:
             return None
-        return SampledTrajectory(t, np.concatenate([b.position_m for b in batches]),
-                                 np.concatenate([b.orientation_xyzw for b in batches]),
-                                 np.concatenate([b.velocity_mps for b in batches]), source="rio")
+        return SampledTrajectory(t, np.concatenate([b.position_m for b in self.poses]),
+                                 np.concatenate([b.orientation_xyzw for b in self.poses]),
+                                 np.concatenate([b.velocity_mps for b in self.poses]), source="rio")
 
     def _image_ready(self, final: bool = False, budget_s: float | None = None) -> None:
         """Image the queued frames the poses cover, oldest first; live, for at most ``budget_s``."""
