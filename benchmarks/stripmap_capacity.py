@@ -344,16 +344,6 @@ def _footprints_before(self, centres, looks):
     return touched, masks, refused
 
 
-def _trajectory_before(self):
-    """StripMapWorker._trajectory before: every pose batch held (5 s and more)."""
-    t = np.concatenate([b.time_ns for b in self.poses])
-    if t.size < 2:
-        return None
-    return SampledTrajectory(t, np.concatenate([b.position_m for b in self.poses]),
-                             np.concatenate([b.orientation_xyzw for b in self.poses]),
-                             np.concatenate([b.velocity_mps for b in self.poses]), source="rio")
-
-
 def _presum_before(adc, tx_order, n_tx, presum):
     """presum_chirps before its kernel, for I/Q pairs (TXs in turn: a reshape and numpy's sum)."""
     tx_order = np.asarray(tx_order)
@@ -388,7 +378,6 @@ def _velocity_before(self, time_ns):
 BEFORE = [(stripmap_map.StripMap, "_footprints", _footprints_before),
           (SampledTrajectory, "velocity", _velocity_before),
           (stripmap_map.StripMap, "_polar_masked", _polar_masked_before),
-          (StripMapWorker, "_trajectory", _trajectory_before),
           (stripmap_map, "presum_chirps", _presum_before)]
 
 
@@ -453,7 +442,6 @@ def main(argv: list[str]) -> int:
         out["load_average_1min_at_each_pass"] = loads
         out["before_over_now_each_pass"] = [b.whole_cpu_s / n.whole_cpu_s for b, n in zip(passes["before"], passes["now"])]
         out["cuts"] = {"footprint masks": "one numba kernel for every tile (imaging.stripmap.footprint.footprint_masks)",
-                       "trajectory": "the worker's poses from the oldest queued frame on, not its whole 5 s window",
                        "presum": "I/Q pairs summed by a numba kernel (imaging.stripmap.presum._sum_pairs)",
                        "moving check": "the trajectory's velocity alone (SampledTrajectory.velocity), not a whole sample",
                        "pixels": "one frame's beams read at its tiles' masked pixels, without a list of them "
