@@ -145,6 +145,8 @@ class Consistency:
     estimate's uncertainty), in the scope that decided (per group where none did; for "point", the fit's
     rms and its Cramer-Rao bound). ``applied_agrees``: the estimate to apply lies within the critical ratio
     of the common part. ``point``: the weak-point test, where it was made (nothing agreed was applied).
+    ``common_m``: the common part itself in the scope that decided [Q] (line removed; its smooth part for
+    "smooth"): what the two halves agree on, which may be applied where the estimate departs from it.
     """
 
     ratio: float
@@ -159,6 +161,7 @@ class Consistency:
     uncertainty_m: float
     applied_agrees: bool
     point: PointCheck | None = None
+    common_m: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
 
     @property
     def passed(self) -> bool:
@@ -240,5 +243,6 @@ def consistency_of(time_s: np.ndarray, lower_m: np.ndarray, upper_m: np.ndarray,
     else:
         scope_common, scope_diff = common, diff
     result = Consistency(ratio, critical, dof, s_ratio, s_critical, float(basis.shape[1]), false_alarm, scope,
-                         float(np.sqrt(np.mean(scope_common ** 2))), float(np.sqrt(np.mean(scope_diff ** 2))), agrees)
+                         float(np.sqrt(np.mean(scope_common ** 2))), float(np.sqrt(np.mean(scope_diff ** 2))), agrees,
+                         common_m=scope_common)
     return result, out

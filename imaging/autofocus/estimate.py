@@ -18,7 +18,7 @@ from imaging.autofocus.options import AutofocusOptions, AutofocusResult, Profile
 from imaging.autofocus.registry import METHODS
 from imaging.autofocus.weak_point import point_check
 from imaging.backprojection import backproject, patch_order
-from imaging.core.track_error import TrackError, remove_line
+from imaging.core.track_error import TrackError
 
 log = logging.getLogger("sarbot.imaging.autofocus")
 
@@ -142,10 +142,9 @@ def estimate_on_group_images(g: GroupImages, options: AutofocusOptions,
             # its window over the full band's scatterers differs): what two disjoint halves of the data agree on
             # is the estimate that is consistent, so that is what may be applied (its smooth part where only
             # that agrees). It agrees with itself by construction.
-            common = 0.5 * (remove_line(g.time_s, lower) + remove_line(g.time_s, upper))
-            consistency, agreed = consistency_of(g.time_s, lower, upper, common, options.false_alarm,
-                                                 options.poly_order, max(options.sinusoids, 1))
-            delta, model = agreed, {"kind": "half-band common part", "method": options.method, "model": model}
+            consistency = dataclasses.replace(consistency, applied_agrees=True)
+            delta = consistency.common_m
+            model = {"kind": "half-band common part", "method": options.method, "model": model}
             e1, _ = entropy_and_gradient(g, g.phase(delta))
             applied = e1 < e0
             note = ("the full-band estimate departs from the half-band estimates; their common part applied" if applied
