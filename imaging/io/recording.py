@@ -229,10 +229,6 @@ class RecordingWriter:
         f.swmr_mode = True
 
     # -- appending --------------------------------------------------------------------------------
-    @staticmethod
-    def _append(column: "_Column", values) -> None:
-        column.append(values)
-
     def append_frames(self, radar: str, adc, frame_time_ns, frame_counter, host_time_ns, valid=None) -> None:
         """Append F frames of one radar; ``adc`` complex [F, chirps, rx, samples] (or int16 with trailing 2)."""
         g = self._columns[f"radar/{radar}"]
@@ -240,38 +236,38 @@ class RecordingWriter:
         frame_time_ns = np.atleast_1d(np.asarray(frame_time_ns, np.int64))
         if adc.shape[1:] != g["adc"].shape[1:] or adc.shape[0] != frame_time_ns.size:
             raise ValueError(f"radar {radar}: adc shape {adc.shape} does not fit {g['adc'].shape[1:]} x {frame_time_ns.size} frames")
-        self._append(g["adc"], adc.astype(g["adc"].dtype, copy=False))
-        self._append(g["frame_time_ns"], frame_time_ns)
-        self._append(g["frame_counter"], np.atleast_1d(frame_counter).astype(np.uint32))
-        self._append(g["host_time_ns"], np.atleast_1d(np.asarray(host_time_ns, np.int64)))
+        g["adc"].append(adc.astype(g["adc"].dtype, copy=False))
+        g["frame_time_ns"].append(frame_time_ns)
+        g["frame_counter"].append(np.atleast_1d(frame_counter).astype(np.uint32))
+        g["host_time_ns"].append(np.atleast_1d(np.asarray(host_time_ns, np.int64)))
         if valid is None:
             valid = np.ones(frame_time_ns.size, np.uint8)
-        self._append(g["valid"], np.atleast_1d(valid).astype(np.uint8))
+        g["valid"].append(np.atleast_1d(valid).astype(np.uint8))
 
     def append_scans(self, radar: str, frame_time_ns, frame_counter, host_time_ns, valid=None) -> None:
         """Frame (scan) bookkeeping of a radar that delivers point clouds and no ADC."""
         g = self._columns[f"radar/{radar}"]
         frame_time_ns = np.atleast_1d(np.asarray(frame_time_ns, np.int64))
-        self._append(g["frame_time_ns"], frame_time_ns)
-        self._append(g["frame_counter"], np.atleast_1d(frame_counter).astype(np.uint32))
-        self._append(g["host_time_ns"], np.atleast_1d(np.asarray(host_time_ns, np.int64)))
-        self._append(g["valid"], np.ones(frame_time_ns.size, np.uint8) if valid is None else np.atleast_1d(valid).astype(np.uint8))
+        g["frame_time_ns"].append(frame_time_ns)
+        g["frame_counter"].append(np.atleast_1d(frame_counter).astype(np.uint32))
+        g["host_time_ns"].append(np.atleast_1d(np.asarray(host_time_ns, np.int64)))
+        g["valid"].append(np.ones(frame_time_ns.size, np.uint8) if valid is None else np.atleast_1d(valid).astype(np.uint8))
 
     def append_detections(self, radar: str, time_ns, scan, xyz_m, doppler_mps, snr_db) -> None:
         """Detections [D] of one or more scans (sensor frame)."""
         d = self._columns[f"radar/{radar}/detections"]
-        self._append(d["time_ns"], np.atleast_1d(np.asarray(time_ns, np.int64)))
-        self._append(d["scan"], np.atleast_1d(scan).astype(np.uint32))
-        self._append(d["xyz_m"], np.asarray(xyz_m, np.float32).reshape(-1, 3))
-        self._append(d["doppler_mps"], np.atleast_1d(doppler_mps).astype(np.float32))
-        self._append(d["snr_db"], np.atleast_1d(snr_db).astype(np.float32))
+        d["time_ns"].append(np.atleast_1d(np.asarray(time_ns, np.int64)))
+        d["scan"].append(np.atleast_1d(scan).astype(np.uint32))
+        d["xyz_m"].append(np.asarray(xyz_m, np.float32).reshape(-1, 3))
+        d["doppler_mps"].append(np.atleast_1d(doppler_mps).astype(np.float32))
+        d["snr_db"].append(np.atleast_1d(snr_db).astype(np.float32))
 
     def append_truth(self, sample: TrajectorySample) -> None:
         g = self._columns["truth"]
-        self._append(g["time_ns"], sample.time_ns)
-        self._append(g["position_m"], sample.position_m)
-        self._append(g["orientation_xyzw"], sample.orientation_xyzw)
-        self._append(g["velocity_mps"], sample.velocity_mps)
+        g["time_ns"].append(sample.time_ns)
+        g["position_m"].append(sample.position_m)
+        g["orientation_xyzw"].append(sample.orientation_xyzw)
+        g["velocity_mps"].append(sample.velocity_mps)
 
     def append_radar_imu(self, radar: str, time_ns, gyro_radps, accel_mps2, counter, host_time_ns) -> None:
         """Samples of the IMU on a radar's own mount (the radar's axes), ``/radar/<name>/imu``."""
@@ -281,17 +277,17 @@ class RecordingWriter:
         self._append_imu(self._columns["imu"], time_ns, gyro_radps, accel_mps2, counter, host_time_ns)
 
     def _append_imu(self, g, time_ns, gyro_radps, accel_mps2, counter, host_time_ns) -> None:
-        self._append(g["time_ns"], np.asarray(time_ns, np.int64))
-        self._append(g["gyro_radps"], gyro_radps)
-        self._append(g["accel_mps2"], accel_mps2)
-        self._append(g["counter"], np.asarray(counter).astype(np.uint32))
-        self._append(g["host_time_ns"], np.asarray(host_time_ns, np.int64))
+        g["time_ns"].append(np.asarray(time_ns, np.int64))
+        g["gyro_radps"].append(gyro_radps)
+        g["accel_mps2"].append(accel_mps2)
+        g["counter"].append(np.asarray(counter).astype(np.uint32))
+        g["host_time_ns"].append(np.asarray(host_time_ns, np.int64))
 
     def append_trigger(self, time_ns, source: str | list[str]) -> None:
         time_ns = np.atleast_1d(np.asarray(time_ns, np.int64))
         sources = [source] * time_ns.size if isinstance(source, str) else list(source)
-        self._append(self._columns["trigger/time_ns"], time_ns)
-        self._append(self._columns["trigger/source"], sources)
+        self._columns["trigger/time_ns"].append(time_ns)
+        self._columns["trigger/source"].append(sources)
 
     def append_can(self, time_ns, arbitration_id, dlc, data) -> None:
         """CAN frames as received: ``data`` [K, <=64] uint8, padded with zeros to 64."""
@@ -300,34 +296,34 @@ class RecordingWriter:
         if data.shape[1] < 64:
             data = np.pad(data, ((0, 0), (0, 64 - data.shape[1])))
         g = self._columns["can"]
-        self._append(g["time_ns"], time_ns)
-        self._append(g["arbitration_id"], np.atleast_1d(arbitration_id).astype(np.uint32))
-        self._append(g["dlc"], np.atleast_1d(dlc).astype(np.uint8))
-        self._append(g["data"], data[:, :64])
+        g["time_ns"].append(time_ns)
+        g["arbitration_id"].append(np.atleast_1d(arbitration_id).astype(np.uint32))
+        g["dlc"].append(np.atleast_1d(dlc).astype(np.uint8))
+        g["data"].append(data[:, :64])
 
     def append_frame_clock(self, radar: str, ptp_locked, nic_time_ns=0) -> None:
         """Whether each frame just appended came from a PTP-locked clock, and the network card's receive stamp
         of its last datagram (0: none) (a writer with ``clock_state``)."""
-        self._append(self._columns[f"radar/{radar}/ptp_locked"], np.atleast_1d(ptp_locked).astype(np.uint8))
+        self._columns[f"radar/{radar}/ptp_locked"].append(np.atleast_1d(ptp_locked).astype(np.uint8))
         n = np.atleast_1d(ptp_locked).size
-        self._append(self._columns[f"radar/{radar}/nic_time_ns"], np.broadcast_to(np.asarray(nic_time_ns, np.int64), (n,)))
+        self._columns[f"radar/{radar}/nic_time_ns"].append(np.broadcast_to(np.asarray(nic_time_ns, np.int64), (n,)))
 
     def append_ptp(self, time_ns: int, port_state: str, offset_from_master_ns=None, mean_path_delay_ns=None,
                    phc2sys_offset_ns=None) -> None:
         """One reading of the host's PTP state (a writer with ``clock_state``); None is stored as NaN."""
         g = self._columns["ptp"]
-        self._append(g["time_ns"], [int(time_ns)])
-        self._append(g["port_state"], [port_state])
+        g["time_ns"].append([int(time_ns)])
+        g["port_state"].append([port_state])
         for name, value in (("offset_from_master_ns", offset_from_master_ns), ("mean_path_delay_ns", mean_path_delay_ns),
                             ("phc2sys_offset_ns", phc2sys_offset_ns)):
-            self._append(g[name], [np.nan if value is None else float(value)])
+            g[name].append([np.nan if value is None else float(value)])
 
     def append_event(self, time_ns: int, source: str, level: str, message: str) -> None:
         g = self._columns["events"]
-        self._append(g["time_ns"], [time_ns])
-        self._append(g["source"], [source])
-        self._append(g["level"], [level])
-        self._append(g["message"], [message])
+        g["time_ns"].append([time_ns])
+        g["source"].append([source])
+        g["level"].append([level])
+        g["message"].append([message])
 
     def has_radar_imu(self, radar: str) -> bool:
         """Whether the file has ``/radar/<radar>/imu`` (the rig declared an IMU on that radar's mount)."""
