@@ -69,6 +69,7 @@ from imaging.sim.scene import load_scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.stripmap import StripMapConfig  # noqa: E402
 import imaging.profiles  # noqa: E402
+import imaging.stripmap.footprint as stripmap_footprint  # noqa: E402
 import imaging.stripmap.map as stripmap_map  # noqa: E402
 import imaging.stripmap.polar as stripmap_polar  # noqa: E402
 
@@ -320,9 +321,10 @@ def run_passes(rec: Recording, radars: list[str], map_config, variants: list[str
 
 # -- the code the cuts replaced, kept here to measure them against it in the same process ---------------
 def _footprints_before(self, centres, looks):
-    """StripMap._footprints before 'footprint_masks': one numpy mask per tile."""
+    """StripMap._footprints before 'footprint_masks': one numpy mask per tile, each tile's pixel centres
+    from its own tile_points call."""
     cfg = self.config
-    touched, masks = [], []
+    touched, masks, xs, ys = [], [], [], []
     room = cfg.max_tiles - len(self.tiles)
     refused = 0
     for key in self.footprint_tiles(centres, looks):
@@ -340,8 +342,12 @@ def _footprints_before(self, centres, looks):
             room -= 1
         touched.append(key)
         masks.append(mask)
+        xs.append(x)
+        ys.append(y)
     self.tiles_refused += refused
-    return touched, masks, refused
+    n = cfg.tile_px
+    return stripmap_footprint.TilesTaken(touched, np.array(masks).reshape(-1, len(centres), n, n),
+                                         np.array(xs).reshape(-1, n), np.array(ys).reshape(-1, n), refused)
 
 
 def _presum_before(adc, tx_order, n_tx, presum):
@@ -360,10 +366,11 @@ def _presum_before(adc, tx_order, n_tx, presum):
     return np.ascontiguousarray(sums).view(np.complex64)[..., 0], groups, tx_index
 
 
-def _polar_masked_before(self, radar, samples, tx_m, rx_m, look_xy, touched, masks):
-    """A frame's beams read at the list of its pixels, as before ``beams_at_masked``."""
+def _polar_masked_before(self, radar, samples, tx_m, rx_m, look_xy, taken):
+    """A frame's beams read at the list of its pixels, as before ``beams_at_masked`` (the tiles' pixel
+    centres from tile_points again)."""
     pts = []
-    for key, mask in zip(touched, masks):
+    for key, mask in zip(taken.keys, taken.masks):
         x, y = self.tile_points(key)
         iy, ix = np.nonzero(mask[0])
         pts.append(np.stack([x[ix], y[iy], np.full(iy.size, self.config.z_m)], axis=1))
@@ -375,7 +382,18 @@ def _velocity_before(self, time_ns):
     return self.sample(time_ns).velocity_mps
 
 
+def _trajectory_before(self):
+    """StripMapWorker._trajectory before its window: every pose held."""
+    t = np.concatenate([b.time_ns for b in self.poses])
+    if t.size < 2:
+        return None
+    return SampledTrajectory(t, np.concatenate([b.position_m for b in self.poses]),
+                             np.concatenate([b.orientation_xyzw for b in self.poses]),
+                             np.concatenate([b.velocity_mps for b in self.poses]), source="rio")
+
+
 BEFORE = [(stripmap_map.StripMap, "_footprints", _footprints_before),
+          (StripMapWorker, "_trajectory", _trajectory_before),
           (SampledTrajectory, "velocity", _velocity_before),
           (stripmap_map.StripMap, "_polar_masked", _polar_masked_before),
           (stripmap_map, "presum_chirps", _presum_before)]
@@ -445,7 +463,11 @@ def main(argv: list[str]) -> int:
                        "presum": "I/Q pairs summed by a numba kernel (imaging.stripmap.presum._sum_pairs)",
                        "moving check": "the trajectory's velocity alone (SampledTrajectory.velocity), not a whole sample",
                        "pixels": "one frame's beams read at its tiles' masked pixels, without a list of them "
-                                 "(imaging.stripmap.polar.beams_at_masked)"}
+                                 "(imaging.stripmap.polar.beams_at_masked)",
+                       "trajectory window": "the worker's trajectory from the pose batch before the oldest queued "
+                                            "frame's on, not every pose held (StripMapWorker._trajectory)",
+                       "tile points": "the tiles' pixel centres once a frame, in one operation "
+                                      "(StripMap._footprints' TilesTaken), not a tile_points call per tile twice"}
         print("ratio before/now each pass:", [round(v, 3) for v in out["before_over_now_each_pass"]])
         for k, v in out["polar"]["parts_cpu_ms_per_frame"].items():
             print(f"  {v:7.3f} ms  {out['polar_before_cuts']['parts_cpu_ms_per_frame'].get(k, 0.0):7.3f} before  {k}")
