@@ -25,7 +25,8 @@ Each part's CPU is timed exclusively (a part called inside another is not counte
 functions the worker calls: the bus decode, the worker's queueing, pre-summing, antenna placement, range
 compression (the direct path's profiles; the polar path's beam signals), the polar beams (their weights, the
 product over the chirps), the beams read at the pixels (or the direct kernel), footprints (tiles and pixel
-masks), the rest of ``add_frames`` (pixel lists and tile updates), the worker's imaging loop, publishing.
+masks), the tile updates, the rest of ``add_frames`` (pixel lists, centres and looks), the worker's
+imaging loop, publishing.
 Refocus is off in the soak (``--map-refocus none``, the default): its cost is measured apart on a few
 frames. The sum of the parts is checked against the whole loop's CPU.
 
@@ -143,7 +144,8 @@ TIMED = [
     (stripmap_map.StripMap, "_pixel_values", "pixel lists"),
     (SampledTrajectory, "sample", "trajectory sampling"),
     (SampledTrajectory, "velocity", "trajectory sampling"),
-    (stripmap_map.StripMap, "add_frames", "add_frames rest (tile updates, centres and looks)"),
+    (stripmap_map.StripMap, "_add_to_tiles", "tile updates (values added at the masked pixels)"),
+    (stripmap_map.StripMap, "add_frames", "add_frames rest (centres and looks, moving check)"),
     (StripMapWorker, "_trajectory", "worker: poses into a trajectory"),
     (StripMapWorker, "_image_ready", "worker: imaging loop rest (batching, catch-up, accounting)"),
     (StripMapWorker, "handle", "worker: queueing frames and poses"),
@@ -382,6 +384,16 @@ def _velocity_before(self, time_ns):
     return self.sample(time_ns).velocity_mps
 
 
+def _add_to_tiles_before(self, touched, where, values):
+    """StripMap._add_to_tiles before its kernel: numpy's masked addition per tile."""
+    start = 0
+    for key, (pixels, m) in zip(touched, where):
+        tile = self._tile(key)
+        for v in values:
+            tile[pixels] += v[start:start + m]
+        start += m
+
+
 def _trajectory_before(self):
     """StripMapWorker._trajectory before its window: every pose held."""
     t = np.concatenate([b.time_ns for b in self.poses])
@@ -394,6 +406,7 @@ def _trajectory_before(self):
 
 BEFORE = [(stripmap_map.StripMap, "_footprints", _footprints_before),
           (StripMapWorker, "_trajectory", _trajectory_before),
+          (stripmap_map.StripMap, "_add_to_tiles", _add_to_tiles_before),
           (SampledTrajectory, "velocity", _velocity_before),
           (stripmap_map.StripMap, "_polar_masked", _polar_masked_before),
           (stripmap_map, "presum_chirps", _presum_before)]
@@ -467,7 +480,9 @@ def main(argv: list[str]) -> int:
                        "trajectory window": "the worker's trajectory from the pose batch before the oldest queued "
                                             "frame's on, not every pose held (StripMapWorker._trajectory)",
                        "tile points": "the tiles' pixel centres once a frame, in one operation "
-                                      "(StripMap._footprints' TilesTaken), not a tile_points call per tile twice"}
+                                      "(StripMap._footprints' TilesTaken), not a tile_points call per tile twice",
+                       "tile updates": "a frame's values added at each tile's masked pixels by a numba kernel "
+                                       "(StripMap._add_to_tiles), not numpy's masked +="}
         print("ratio before/now each pass:", [round(v, 3) for v in out["before_over_now_each_pass"]])
         for k, v in out["polar"]["parts_cpu_ms_per_frame"].items():
             print(f"  {v:7.3f} ms  {out['polar_before_cuts']['parts_cpu_ms_per_frame'].get(k, 0.0):7.3f} before  {k}")

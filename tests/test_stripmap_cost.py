@@ -65,6 +65,34 @@ def test_the_tiles_a_frame_takes_carry_their_tile_points_and_masks(frames):
     assert np.array_equal(some.x_m, taken.x_m[:3]) and np.array_equal(some.masks, taken.masks[:3])
 
 
+@pytest.mark.parametrize("dtype", [np.complex128, np.complex64])
+def test_values_added_to_tiles_are_numpys_masked_additions_bit_for_bit(dtype):
+    """``_add_to_tiles`` (a kernel per tile) sums what numpy's ``tile[pixels] += v`` sums, in the same order:
+    into tiles already holding values and new ones, two value lists (refocusing's groups) one after the
+    other, complex64 values taken to complex128 as numpy takes them."""
+    rng = np.random.default_rng(7)
+    sm = StripMap(StripMapConfig())
+    n = sm.config.tile_px
+    touched = [(0, 0), (1, 0), (-2, 5), (3, 3)]
+    pixels = [rng.random((n, n)) < p for p in (0.1, 0.5, 1.0, 0.0)]
+    where = [(m, int(np.count_nonzero(m))) for m in pixels]
+    total = sum(c for _, c in where)
+    values = [(rng.standard_normal(total) + 1j * rng.standard_normal(total)).astype(dtype) for _ in range(2)]
+    for key in touched[:2]:
+        sm._tile(key)[:] = rng.standard_normal((n, n)) + 1j * rng.standard_normal((n, n))
+    want = {key: tile.copy() for key, tile in sm.tiles.items()}
+    for v in values:
+        start = 0
+        for key, (m, c) in zip(touched, where):
+            want.setdefault(key, np.zeros((n, n), np.complex128))[m] += v[start:start + c]
+            start += c
+    sm._add_to_tiles(touched, where, values)
+    assert sm.tiles.keys() == want.keys()
+    for key, tile in want.items():
+        assert sm.tiles[key].dtype == np.complex128 and np.array_equal(sm.tiles[key], tile)
+    assert np.count_nonzero(sm.tiles[(3, 3)]) == 0 and np.count_nonzero(sm.tiles[(-2, 5)]) == n * n
+
+
 def test_one_frame_read_at_its_masked_pixels_is_the_frame_read_at_its_pixel_list():
     """A frame as the live map takes it one at a time ("polar"): its beams read straight at the pixels its
     tile masks take give the numbers of its beams read at the list of those pixels (``_polar_takers``)."""
