@@ -25,13 +25,15 @@ Each part's CPU is timed exclusively (a part called inside another is not counte
 functions the worker calls: the bus decode, the worker's queueing, pre-summing, antenna placement, range
 compression (the direct path's profiles; the polar path's beam signals), the polar beams (their weights, the
 product over the chirps), the beams read at the pixels (or the direct kernel), footprints (tiles and pixel
-masks), the rest of ``add_frames`` (pixel lists and tile updates), the worker's imaging loop, publishing.
+masks), the tile updates, the rest of ``add_frames`` (pixel lists, centres and looks), the worker's
+imaging loop, publishing.
 Refocus is off in the soak (``--map-refocus none``, the default): its cost is measured apart on a few
 frames. The sum of the parts is checked against the whole loop's CPU.
 
-The cuts this issue made are measured against the code they replaced (kept here, ``BEFORE``): two workers,
-one on that code and one on today's, take every message in turn, so the machine's load falls on both alike
-(CPU time still grows with it: the caches are shared with others' work; the load average is recorded).
+The cuts this issue made are measured against the code they replaced (kept here, ``BEFORE``), and the latest
+round's against the code before it alone (``PREVIOUS``): three workers, one on each, take every message in
+turn, so the machine's load falls on all alike (CPU time still grows with it: the caches are shared with
+others' work; the load average is recorded).
 
 Writes docs/results/stripmap_capacity.json.
 """
@@ -69,6 +71,7 @@ from imaging.sim.scene import load_scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.stripmap import StripMapConfig  # noqa: E402
 import imaging.profiles  # noqa: E402
+import imaging.stripmap.footprint as stripmap_footprint  # noqa: E402
 import imaging.stripmap.map as stripmap_map  # noqa: E402
 import imaging.stripmap.polar as stripmap_polar  # noqa: E402
 
@@ -142,7 +145,8 @@ TIMED = [
     (stripmap_map.StripMap, "_pixel_values", "pixel lists"),
     (SampledTrajectory, "sample", "trajectory sampling"),
     (SampledTrajectory, "velocity", "trajectory sampling"),
-    (stripmap_map.StripMap, "add_frames", "add_frames rest (tile updates, centres and looks)"),
+    (stripmap_map.StripMap, "_add_to_tiles", "tile updates (values added at the masked pixels)"),
+    (stripmap_map.StripMap, "add_frames", "add_frames rest (centres and looks, moving check)"),
     (StripMapWorker, "_trajectory", "worker: poses into a trajectory"),
     (StripMapWorker, "_image_ready", "worker: imaging loop rest (batching, catch-up, accounting)"),
     (StripMapWorker, "handle", "worker: queueing frames and poses"),
@@ -217,12 +221,14 @@ def install(variants: list[str]) -> list:
     """Put a dispatcher in place of every function in ``TIMED`` and ``BEFORE``: it calls the variant
     ``Switch.which``'s implementation, timed into that variant's parts. Returns what to restore."""
     before = {(owner, attr): fn for owner, attr, fn in BEFORE}
+    previous = {(owner, attr): fn for owner, attr, fn in PREVIOUS}
     names = {(owner, attr): name for owner, attr, name in TIMED}
     saved = []
     for owner, attr in dict.fromkeys([(o, a) for o, a, _ in TIMED] + list(before)):
         original = getattr(owner, attr) if isinstance(owner, types.ModuleType) else owner.__dict__[attr]
         saved.append((owner, attr, original))
-        impl = {"now": original, "before": before.get((owner, attr), original)}
+        impl = {"now": original, "before": before.get((owner, attr), original),
+                "previous": previous.get((owner, attr), original)}
         setattr(owner, attr, _dispatcher(impl, names.get((owner, attr)), attr == "add_frames"))
     return saved
 
@@ -320,9 +326,10 @@ def run_passes(rec: Recording, radars: list[str], map_config, variants: list[str
 
 # -- the code the cuts replaced, kept here to measure them against it in the same process ---------------
 def _footprints_before(self, centres, looks):
-    """StripMap._footprints before 'footprint_masks': one numpy mask per tile."""
+    """StripMap._footprints before 'footprint_masks': one numpy mask per tile, each tile's pixel centres
+    from its own tile_points call."""
     cfg = self.config
-    touched, masks = [], []
+    touched, masks, xs, ys = [], [], [], []
     room = cfg.max_tiles - len(self.tiles)
     refused = 0
     for key in self.footprint_tiles(centres, looks):
@@ -340,8 +347,12 @@ def _footprints_before(self, centres, looks):
             room -= 1
         touched.append(key)
         masks.append(mask)
+        xs.append(x)
+        ys.append(y)
     self.tiles_refused += refused
-    return touched, masks, refused
+    n = cfg.tile_px
+    return stripmap_footprint.TilesTaken(touched, np.array(masks).reshape(-1, len(centres), n, n),
+                                         np.array(xs).reshape(-1, n), np.array(ys).reshape(-1, n), refused)
 
 
 def _presum_before(adc, tx_order, n_tx, presum):
@@ -360,10 +371,11 @@ def _presum_before(adc, tx_order, n_tx, presum):
     return np.ascontiguousarray(sums).view(np.complex64)[..., 0], groups, tx_index
 
 
-def _polar_masked_before(self, radar, samples, tx_m, rx_m, look_xy, touched, masks):
-    """A frame's beams read at the list of its pixels, as before ``beams_at_masked``."""
+def _polar_masked_before(self, radar, samples, tx_m, rx_m, look_xy, taken):
+    """A frame's beams read at the list of its pixels, as before ``beams_at_masked`` (the tiles' pixel
+    centres from tile_points again)."""
     pts = []
-    for key, mask in zip(touched, masks):
+    for key, mask in zip(taken.keys, taken.masks):
         x, y = self.tile_points(key)
         iy, ix = np.nonzero(mask[0])
         pts.append(np.stack([x[ix], y[iy], np.full(iy.size, self.config.z_m)], axis=1))
@@ -375,7 +387,84 @@ def _velocity_before(self, time_ns):
     return self.sample(time_ns).velocity_mps
 
 
+def _add_to_tiles_before(self, touched, where, values):
+    """StripMap._add_to_tiles before its kernel: numpy's masked addition per tile."""
+    start = 0
+    for key, (pixels, m) in zip(touched, where):
+        tile = self._tile(key)
+        for v in values:
+            tile[pixels] += v[start:start + m]
+        start += m
+
+
+def _trajectory_before(self):
+    """StripMapWorker._trajectory before its window: every pose held."""
+    t = np.concatenate([b.time_ns for b in self.poses])
+    if t.size < 2:
+        return None
+    return SampledTrajectory(t, np.concatenate([b.position_m for b in self.poses]),
+                             np.concatenate([b.orientation_xyzw for b in self.poses]),
+                             np.concatenate([b.velocity_mps for b in self.poses]), source="rio")
+
+
+def _footprints_previous(self, centres, looks):
+    """StripMap._footprints at 7ca2ad5: footprint_masks, with a tile_points call per tile (the pixel centres
+    made again by _polar_masked_previous)."""
+    cfg = self.config
+    n = cfg.tile_px
+    touched, masks = [], []
+    room = cfg.max_tiles - len(self.tiles)
+    refused = 0
+    keys = self.footprint_tiles(centres, looks)
+    if not keys:
+        return stripmap_footprint.TilesTaken([], np.zeros((0, len(centres), n, n), bool), None, None, 0)
+    xy = [self.tile_points(key) for key in keys]
+    all_masks = stripmap_map.footprint_masks(cfg, np.array([p[0] for p in xy]), np.array([p[1] for p in xy]), centres,
+                                             looks)
+    kept = []
+    for i, (key, mask) in enumerate(zip(keys, all_masks)):
+        if not mask.any():
+            continue
+        if key not in self.tiles:
+            if room <= 0:
+                refused += 1
+                continue
+            room -= 1
+        touched.append(key)
+        masks.append(mask)
+        kept.append(i)
+    self.tiles_refused += refused
+    # stacked here rather than in _polar_masked (np.stack of the tiles' masks), as then: one copy either way;
+    # the pixel centres for the batched path's pixel lists (a tile_points call per tile then)
+    return stripmap_footprint.TilesTaken(touched, np.array(masks).reshape(-1, len(centres), n, n),
+                                         np.array([xy[i][0] for i in kept]), np.array([xy[i][1] for i in kept]), refused)
+
+
+def _polar_masked_previous(self, radar, samples, tx_m, rx_m, look_xy, taken):
+    """StripMap._polar_masked at 7ca2ad5: the tiles' pixel centres from tile_points again."""
+    wf, cfg = radar.waveform, self.config
+    xy = [self.tile_points(key) for key in taken.keys]
+    x, y = np.array([p[0] for p in xy]), np.array([p[1] for p in xy])
+    masks = taken.masks[:, 0]
+    centre, axis, _ = stripmap_map.frame_axes(tx_m, rx_m, look_xy)
+    extent = stripmap_map.masked_extent(centre, axis, x, y, cfg.z_m, masks)
+    beams = stripmap_map.frame_beams_over(samples, tx_m, rx_m, extent, cfg.z_m, wf.f0_hz, wf.frequency_step_hz,
+                                          cfg.window, cfg.oversample, look_xy)
+    return stripmap_map.beams_at_masked(beams, x, y, cfg.z_m, masks)
+
+
+#: The code before this round's cuts alone (issue 34 item 5: the trajectory window, the tiles' pixel centres
+#: once a frame, the tile updates' kernel), the commit the docs' figures had been measured on (7ca2ad5); the
+#: glue in add_frames between them is today's.
+PREVIOUS = [(StripMapWorker, "_trajectory", _trajectory_before),
+            (stripmap_map.StripMap, "_add_to_tiles", _add_to_tiles_before),
+            (stripmap_map.StripMap, "_footprints", _footprints_previous),
+            (stripmap_map.StripMap, "_polar_masked", _polar_masked_previous)]
+
+
 BEFORE = [(stripmap_map.StripMap, "_footprints", _footprints_before),
+          (StripMapWorker, "_trajectory", _trajectory_before),
+          (stripmap_map.StripMap, "_add_to_tiles", _add_to_tiles_before),
           (SampledTrajectory, "velocity", _velocity_before),
           (stripmap_map.StripMap, "_polar_masked", _polar_masked_before),
           (stripmap_map, "presum_chirps", _presum_before)]
@@ -426,29 +515,44 @@ def main(argv: list[str]) -> int:
            "range_m": [map_config.range_min_m, map_config.range_max_m], "pose_batch_s": POSE_BATCH_S,
            "pose_hold_s": POSE_HOLD_S, "publish_every_s": PUBLISH_EVERY_S, "radar_frames_per_s_at_1x": frames_per_s}
     with Recording(path) as rec:
-        passes = {"before": [], "now": []}
+        passes = {"before": [], "previous": [], "now": []}
         loads = []  # CPU time grows with the machine's load too (caches shared with others' work)
         for r in range(args.repeats):
             loads.append(os.getloadavg()[0])
-            # the code before the cuts and now, message by message in turn: the machine's load falls on both alike
-            for which, p in run_passes(rec, RADARS, map_config, ["before", "now"]).items():
+            # the code before the cuts, before this round's and now, message by message in turn: the machine's
+            # load falls on all alike
+            for which, p in run_passes(rec, RADARS, map_config, list(passes)).items():
                 passes[which].append(p)
                 print(f"pass {r}, {which}: {1e3 * p.whole_cpu_s / p.frames:.2f} ms CPU a frame, "
                       f"{p.whole_cpu_s / p.sensor_s:.3f} of a core at 1x; batches {p.batch_sizes}", flush=True)
         best = {w: min(ps, key=lambda p: p.whole_cpu_s / p.frames) for w, ps in passes.items()}
         out["polar"] = summary(best["now"], frames_per_s)
         out["polar_before_cuts"] = summary(best["before"], frames_per_s)
+        out["polar_before_this_round"] = summary(best["previous"], frames_per_s)
         out["passes_cpu_ms_per_frame"] = {w: [1e3 * p.whole_cpu_s / p.frames for p in ps] for w, ps in passes.items()}
         out["load_average_1min_at_each_pass"] = loads
         out["before_over_now_each_pass"] = [b.whole_cpu_s / n.whole_cpu_s for b, n in zip(passes["before"], passes["now"])]
+        out["before_this_round_over_now_each_pass"] = [b.whole_cpu_s / n.whole_cpu_s
+                                                       for b, n in zip(passes["previous"], passes["now"])]
+        out["this_round"] = ("issue 34 item 5: the trajectory window, the tiles' pixel centres once a frame, the tile "
+                             "updates' kernel; 'polar_before_this_round' is the code before them alone (7ca2ad5), "
+                             "with today's glue in add_frames")
         out["cuts"] = {"footprint masks": "one numba kernel for every tile (imaging.stripmap.footprint.footprint_masks)",
                        "presum": "I/Q pairs summed by a numba kernel (imaging.stripmap.presum._sum_pairs)",
                        "moving check": "the trajectory's velocity alone (SampledTrajectory.velocity), not a whole sample",
                        "pixels": "one frame's beams read at its tiles' masked pixels, without a list of them "
-                                 "(imaging.stripmap.polar.beams_at_masked)"}
+                                 "(imaging.stripmap.polar.beams_at_masked)",
+                       "trajectory window": "the worker's trajectory from the pose batch before the oldest queued "
+                                            "frame's on, not every pose held (StripMapWorker._trajectory)",
+                       "tile points": "the tiles' pixel centres once a frame, in one operation "
+                                      "(StripMap._footprints' TilesTaken), not a tile_points call per tile twice",
+                       "tile updates": "a frame's values added at each tile's masked pixels by a numba kernel "
+                                       "(StripMap._add_to_tiles), not numpy's masked +="}
         print("ratio before/now each pass:", [round(v, 3) for v in out["before_over_now_each_pass"]])
+        print("ratio before this round/now each pass:", [round(v, 3) for v in out["before_this_round_over_now_each_pass"]])
         for k, v in out["polar"]["parts_cpu_ms_per_frame"].items():
-            print(f"  {v:7.3f} ms  {out['polar_before_cuts']['parts_cpu_ms_per_frame'].get(k, 0.0):7.3f} before  {k}")
+            print(f"  {v:7.3f} ms  {out['polar_before_this_round']['parts_cpu_ms_per_frame'].get(k, 0.0):7.3f} previous  "
+                  f"{out['polar_before_cuts']['parts_cpu_ms_per_frame'].get(k, 0.0):7.3f} before  {k}")
         if args.refocus_frames:
             refocus = dataclasses.replace(map_config, algorithm="direct", refocus="pga")
             p = run_passes(rec, RADARS, refocus, ["now"], limit_frames=args.refocus_frames)["now"]

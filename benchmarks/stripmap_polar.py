@@ -90,7 +90,8 @@ def frame_stages(sm: StripMap, radar, order, adc, t_ns: int, truth, polar: bool,
     look = track.boresight[:, :2].mean(axis=0)
     look /= np.linalg.norm(look)
     centre = (0.5 * (tx + rx))[:, :2].mean(axis=0)
-    touched, masks, _ = sm._footprints(centre[None], look[None])
+    taken = sm._footprints(centre[None], look[None])
+    touched, masks = taken.keys, taken.masks
     st.lap("footprint (tiles, pixel masks)")
     pts, where = [], []
     for key, mask in zip(touched, masks):

@@ -69,7 +69,8 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                           "The strip-map worker's CPU per frame on the soak's four radars (the daemon's own worker in one "
                           "process, CPU time, each part timed apart: bus decode, pre-summing, antenna placement, beams, "
                           "pixels, footprints, publishing), the share of one core it needs at 1x, and the code before "
-                          "this issue's cuts against now, interleaved; what a refocusing map costs apart.",
+                          "this issue's cuts and before its last round against now, interleaved; what a refocusing "
+                          "map costs apart.",
                           ".venv/bin/python benchmarks/stripmap_capacity.py"),
     "stripmap_thinning": ("What the live map's catch-up costs",
                           "Pre-summing, RX sums and thinning: CPU saved against image error.",

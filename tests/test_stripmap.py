@@ -858,3 +858,78 @@ def test_frames_queued_behind_keep_the_poses_they_need(drive, monkeypatch):
     s = truth.sample(t[-10:])
     worker.handle(PoseBatch(t[-10:] + 10 ** 9, s.position_m, s.orientation_xyzw, s.velocity_mps), live=True)
     assert worker.poses[-1].time_ns[-1] - worker.poses[1].time_ns[0] <= 500_000_000
+
+
+@pytest.mark.parametrize("live", [True, False], ids=["live", "draining"])
+def test_the_workers_trajectory_holds_only_the_poses_its_queued_frames_need(drive, live):
+    """Three minutes of poses before the drive (standing at its start), then the drive's, 400 Hz in 10 ms
+    batches: its frames, also under a second radar's name arriving a frame and a half late (the queue is not
+    in time order), imaged as frames and poses arrive (poses 40 ms behind), or all at the end with every pose
+    held (draining). The map is the one imaged on a trajectory of every pose, to float rounding, and no
+    trajectory the worker builds reaches more than two batches back from the oldest frame queued."""
+    from acquisition.messages import PoseBatch, RadarFrameMessage
+    from acquisition.workers.stripmap import StripMapWorker, StripMapWorkerConfig
+    from drivers.radar.stream import RadarFrame
+    from imaging.core.rig import Rig
+    from imaging.core.samples import complex_to_iq
+    from imaging.core.trajectory import SampledTrajectory
+
+    rec, radar, truth, order = drive
+    twin = dataclasses.replace(radar, name="twin")
+    adc, times = rec.adc(RADAR), rec.frame_time_ns(RADAR)
+    frame_ns, interval_ns = radar.waveform.frame_duration_ns, int(radar.waveform.frame_interval_s * 1e9)
+    step, start = 2_500_000, int(truth.time_ns[0])
+    standing = np.arange(start - 180 * 10 ** 9, start, step, dtype=np.int64)
+    driving = np.arange(start, int(truth.time_ns[-1]), step, dtype=np.int64)
+    s, first = truth.sample(driving), truth.sample(driving[:1])
+    pose_t = np.concatenate([standing, driving])
+    position = np.concatenate([np.repeat(first.position_m, standing.size, axis=0), s.position_m])
+    attitude = np.concatenate([np.repeat(first.orientation_xyzw, standing.size, axis=0), s.orientation_xyzw])
+    velocity = np.concatenate([np.zeros((standing.size, 3)), s.velocity_mps])
+    every_pose = SampledTrajectory(pose_t, position, attitude, velocity)
+    events = [(int(pose_t[a + 3]) + 40_000_000, 0, PoseBatch(pose_t[a:a + 4], position[a:a + 4], attitude[a:a + 4],
+                                                             velocity[a:a + 4]))
+              for a in range(0, pose_t.size - 3, 4)]
+    for k in range(len(times)):
+        iq = complex_to_iq(adc[k], 1000.0)
+        end = int(times[k]) + frame_ns
+        events.append((end, 1, RadarFrameMessage(RADAR, RadarFrame(k, int(times[k]), end, True, 0, iq))))
+        events.append((end + 3 * interval_ns // 2, 1, RadarFrameMessage("twin", RadarFrame(k, int(times[k]), end, True,
+                                                                                            0, iq))))
+    events.sort(key=lambda e: (e[0], e[1]))
+    config = StripMapConfig(pixel_m=0.02, aperture_m=0.3, range_min_m=1.5, range_max_m=2.5, z_m=0.3, presum=4)
+
+    def run(full: bool):
+        worker = StripMapWorker(StripMapWorkerConfig(Rig((radar, twin)), None, config, "tcp://unused:1", "unused.h5",
+                                                     catch_up_start_s=100.0), None)
+        built, windowed = [], worker._trajectory
+
+        def trajectory():
+            oldest = min(int(f.frame_time_ns) for f in worker.frames)
+            traj = every_pose if full else windowed()
+            built.append((int(traj.time_ns[0]), oldest, traj.time_ns.size, sum(b.time_ns.size for b in worker.poses)))
+            return traj
+
+        worker._trajectory = trajectory
+        for _, _, message in events:
+            worker.handle(message, live=live)
+            if live:
+                worker._image_ready(budget_s=None)
+        worker._image_ready(final=True)
+        return worker, built
+
+    reference, _ = run(full=True)
+    worker, built = run(full=False)
+    assert worker.status.frames_imaged == reference.status.frames_imaged >= 2 * len(times) - 4
+    assert worker.status.frames_standing_still == reference.status.frames_standing_still
+    assert worker.map.tiles.keys() == reference.map.tiles.keys()
+    # float rounding: the time origin's, through the beams' float32 signals (2e-9 of the peak seen, -176 dB)
+    assert error_db(worker.map.mosaic()[0], reference.map.mosaic()[0]) < -150
+    peak = max(np.abs(t).max() for t in reference.map.tiles.values())
+    for key, tile in reference.map.tiles.items():
+        np.testing.assert_allclose(worker.map.tiles[key], tile, rtol=0, atol=1e-8 * peak)
+    # Each trajectory starts within two batches before the oldest frame queued: of minutes of poses held
+    # (draining) or 5 s (live), it holds the drive's (every frame queued) or a few dozen.
+    assert all(oldest - 2 * 4 * step <= t0 <= oldest for t0, oldest, _, _ in built)
+    assert max(n for _, _, n, _ in built) <= (100 if live else driving.size + 2 * 4)
+    assert max(held for _, _, _, held in built) > (2_000 if live else 70_000)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import itertools
 import logging
 import time
 import typing
@@ -227,17 +228,29 @@ class StripMapWorker(Worker):
         return isinstance(message, PoseEnd)
 
     def _trajectory(self):
-        """The poses held as a trajectory, all of them. (A window from the oldest queued frame on saved about
-        0.3 ms a frame; it was taken out while fresh-clone CI's demo lost frames as "standing still", a failure
-        the batched path's warm-up turned out to explain, and it has not been put back untested.)"""
+        """The poses the queued frames need, as a trajectory: from the pose batch before the one holding the
+        oldest queued frame's start on (all of them with no frame queued). A frame is placed by the poses
+        around its own chirps (linear and slerp between neighbours, the acceleration a central difference one
+        pose further), so this places every queued frame as all the poses held do, to float rounding of the
+        time origin (tests/test_stripmap.py). All of them (5 s live, minutes while draining), concatenated
+        and set up again for every call, were a ninth of the map's CPU a frame
+        (benchmarks/stripmap_capacity.py)."""
         from imaging.core.trajectory import SampledTrajectory
 
-        t = np.concatenate([b.time_ns for b in self.poses])
+        poses = self.poses
+        first = len(poses) - 1
+        if self.frames:
+            # the oldest frame, not the first queued: the radars' frames arrive interleaved, not in time order
+            start = min(int(f.frame_time_ns) for f in self.frames)
+            while first > 0 and int(poses[first].time_ns[0]) > start:
+                first -= 1
+        batches = list(itertools.islice(poses, max(first - 1, 0), None))
+        t = np.concatenate([b.time_ns for b in batches])
         if t.size < 2:
             return None
-        return SampledTrajectory(t, np.concatenate([b.position_m for b in self.poses]),
-                                 np.concatenate([b.orientation_xyzw for b in self.poses]),
-                                 np.concatenate([b.velocity_mps for b in self.poses]), source="rio")
+        return SampledTrajectory(t, np.concatenate([b.position_m for b in batches]),
+                                 np.concatenate([b.orientation_xyzw for b in batches]),
+                                 np.concatenate([b.velocity_mps for b in batches]), source="rio")
 
     def _image_ready(self, final: bool = False, budget_s: float | None = None) -> None:
         """Image the queued frames the poses cover, oldest first; live, for at most ``budget_s``."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import typing
 
 import numba
 import numpy as np
@@ -26,6 +27,19 @@ class FrameFootprint:
     frames_imaged: int = 0
     frames_standing: int = 0  # frames of the call left out standing still
 
+
+
+class TilesTaken(typing.NamedTuple):
+    """The tiles frames image into (``StripMap._footprints``), with what imaging them needs: the frames'
+    pixel masks [T, F, tile_px, tile_px] (rows along y), the tiles' pixel centres x [T, tile_px] and y
+    [T, tile_px] (``StripMap.tile_points``'s, made once a frame), and how many new tiles ``max_tiles``
+    refused."""
+
+    keys: list
+    masks: np.ndarray
+    x_m: np.ndarray
+    y_m: np.ndarray
+    refused: int
 
 
 def merged_footprints(footprints: list[FrameFootprint]) -> FrameFootprint:
