@@ -99,6 +99,17 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
             "real ROS bag. Accuracy with the midpoint strapdown (issue 35); its speeds were taken on a machine loaded "
             "by others and are not comparable (quiet-machine speeds: rio.json at fae5f5c, docs/benchmark-notes.md).",
             ".venv/bin/python benchmarks/odometry.py"),
+    "odometry_versions": ("Which change moved the odometry's figures",
+                          "The odometry benchmark's accuracy figures (7- and 10-lap drives, one radar, the real bag's "
+                          "loop end) with the filter of earlier commits on the same recordings: the standstill changes "
+                          "(1b9f9b5, 7744ef7) moved them, the midpoint strapdown (a6d4858 against this checkout) did not.",
+                          ".venv/bin/python benchmarks/odometry_versions.py"),
+    "strapdown_rules": ("Strapdown integration rules without the filter",
+                        "Dead reckoning on exact IMU data of the 7-lap drive, restarted from the truth every 10 s: "
+                        "the sample at the interval's start rotated at its start or its midpoint (the filter's), the "
+                        "trapezoid of both ends, the sample stamped at the interval's end; on point samples (the "
+                        "simulator's) and on interval averages (what an integrating IMU gives).",
+                        ".venv/bin/python benchmarks/strapdown_rules.py"),
     "calibration": ("Online calibration of the radars' mounts and clocks",
                     "A simulated calibration drive with every radar's mount wrong (2 deg yaw, 1 deg pitch, 2 cm lever "
                     "arm) and one radar 5 ms late: each axis's error and standard deviation against the drive's length "
