@@ -860,6 +860,36 @@ def test_frames_queued_behind_keep_the_poses_they_need(drive, monkeypatch):
     assert worker.poses[-1].time_ns[-1] - worker.poses[1].time_ns[0] <= 500_000_000
 
 
+def test_poses_are_kept_for_the_earliest_queued_frame_not_the_first(drive, monkeypatch):
+    """The radars' frames reach the queue interleaved, not in time order: a late radar's frame queued after a
+    later one keeps the poses that place it (pose forgetting once looked only at the first frame queued)."""
+    from acquisition.messages import PoseBatch, RadarFrameMessage
+    from acquisition.workers import stripmap as worker_module
+    from acquisition.workers.stripmap import StripMapWorker, StripMapWorkerConfig
+    from drivers.radar.stream import RadarFrame
+    from imaging.core.rig import Rig
+    from imaging.core.samples import complex_to_iq
+
+    monkeypatch.setattr(worker_module, "POSE_WINDOW_NS", 500_000_000)  # the drive is 3 s; the window 0.5 s
+    rec, radar, truth, order = drive
+    twin = dataclasses.replace(radar, name="twin")
+    adc, times = rec.adc(RADAR), rec.frame_time_ns(RADAR)
+    config = StripMapConfig(pixel_m=0.02, aperture_m=0.3, range_min_m=1.5, range_max_m=2.5, z_m=0.3, presum=8)
+    worker = StripMapWorker(StripMapWorkerConfig(Rig((radar, twin)), None, config, "tcp://unused:1", "unused.h5",
+                                                 catch_up_start_s=10.0), None)
+    last = len(times) - 1
+    for name, k in ((RADAR, last), ("twin", 0)):  # the late radar's first frame is queued second
+        iq = complex_to_iq(adc[k], 1000.0)
+        worker.handle(RadarFrameMessage(name, RadarFrame(k, int(times[k]), int(times[k]), True, 0, iq)), live=True)
+    t = truth.time_ns
+    for a in range(0, t.size, 10):
+        s = truth.sample(t[a:a + 10])
+        worker.handle(PoseBatch(t[a:a + 10], s.position_m, s.orientation_xyzw, s.velocity_mps), live=True)
+    assert times[last] - times[0] > 500_000_000  # the first queued frame alone would let the earliest one's poses go
+    assert worker.poses[0].time_ns[0] <= times[0]
+    assert worker._trajectory().time_ns[0] <= times[0]
+
+
 @pytest.mark.parametrize("live", [True, False], ids=["live", "draining"])
 def test_the_workers_trajectory_holds_only_the_poses_its_queued_frames_need(drive, live):
     """Three minutes of poses before the drive (standing at its start), then the drive's, 400 Hz in 10 ms

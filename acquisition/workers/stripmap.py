@@ -215,12 +215,17 @@ class StripMapWorker(Worker):
     def lost_on_bus(self, missed: dict[str, int]) -> None:
         self.status.frames_lost_on_bus = sum(missed.get(RadarFrameMessage.topic_of(n), 0) for n in self.radars)
 
+    def _oldest_frame_ns(self) -> int:
+        """The earliest queued frame's start, ns: not the first queued, as the radars' frames arrive interleaved,
+        not in time order."""
+        return min(int(f.frame_time_ns) for f in self.frames)
+
     def _forget_poses(self) -> None:
         """Drop the pose batches neither the last POSE_WINDOW_NS nor any queued frame needs."""
         poses = self.poses
         keep_from = int(poses[-1].time_ns[-1]) - POSE_WINDOW_NS
         if self.frames:
-            keep_from = min(keep_from, int(self.frames[0].frame_time_ns))
+            keep_from = min(keep_from, self._oldest_frame_ns())
         while len(poses) > 2 and poses[1].time_ns[0] <= keep_from:
             poses.popleft()
 
@@ -240,8 +245,7 @@ class StripMapWorker(Worker):
         poses = self.poses
         first = len(poses) - 1
         if self.frames:
-            # the oldest frame, not the first queued: the radars' frames arrive interleaved, not in time order
-            start = min(int(f.frame_time_ns) for f in self.frames)
+            start = self._oldest_frame_ns()
             while first > 0 and int(poses[first].time_ns[0]) > start:
                 first -= 1
         batches = list(itertools.islice(poses, max(first - 1, 0), None))
