@@ -110,8 +110,8 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
     "calibration_states": ("What the calibration states do by themselves",
                            "On the true rig (nothing wrong), the odometry's ATE with calibration states against "
                            "without: every axis free, and each group of axes freed alone (the others held at the "
-                           "truth), on 40 s and 120 s calibration drives; how far each freed axis moved from the "
-                           "truth; the Doppler fit's vertical-velocity error per m/s along the boresight.",
+                           "truth), on 120 s calibration drives; how far each freed axis moved from the truth; the "
+                           "Doppler fit's vertical-velocity error per m/s along the boresight and along the array.",
                            ".venv/bin/python benchmarks/calibration_states.py"),
     "calibration_stripmap": ("What calibration buys the image",
                              "Point targets seen by each radar of the miscalibrated rig while the robot sets off into a "
