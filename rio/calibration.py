@@ -242,9 +242,25 @@ def calibrate(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOpt
                                   f"standard deviation {_axis_value(i, est.sigma[i])} left, {_axis_value(i, limit[i])} "
                                   "needed)")
                    for i in range(7) if not accepted[i]}
+        # A refused axis keeps the rig's value, so it keeps the rig's standard deviation too: the filter's
+        # would call the rig's value (a 5 ms late clock kept at 0) known to within what the drive nearly showed.
+        sigma = np.where(accepted, est.sigma, prior_sigma(options, name))
         radars[name] = RadarCalibrationResult(name, prior_mounts[name], prior_offsets[name], est, accepted, reasons,
-                                              sigma=est.sigma.copy())
+                                              sigma=sigma)
     return CalibrationResult(radars, res, drive)
+
+
+def prior_sigma(options: RioOptions, name: str) -> np.ndarray:
+    """[7] The standard deviations radar ``name``'s calibration starts from (rad, m, s): the rig's
+    ``[radar.NAME.calibration]`` (``options.calibration_priors``) where it gives them, else the filter's defaults."""
+    c, p = options.ekf, options.calibration_priors.get(name)
+    rotation = (np.radians(p.rotation_sigma_deg) if p is not None and p.rotation_sigma_deg is not None
+                else np.full(3, c.calibration_rotation_sigma_rad))
+    translation = (np.asarray(p.translation_sigma_m, float) if p is not None and p.translation_sigma_m is not None
+                   else np.full(3, c.calibration_translation_sigma_m))
+    offset = (p.time_offset_sigma_s if p is not None and p.time_offset_sigma_s is not None
+              else c.calibration_time_offset_sigma_s)
+    return np.concatenate([rotation, translation, [offset]])
 
 
 def _excitation_text(axis: int, e: RadarExcitation) -> str:

@@ -63,10 +63,12 @@ def simulate_drive(trajectory, duration_s: float, seed: int):
     return ImuData(imu.time_ns, imu.gyro_radps, imu.accel_mps2), wrong, right
 
 
-def estimate_errors(result, name: str) -> np.ndarray:
-    """A calibration's error against the truth [7]: rotation (rad, sensor axes), lever arm (m), time offset (s)."""
+def estimate_errors(result, name: str, late_stamps: bool = True) -> np.ndarray:
+    """A calibration's error against the truth [7]: rotation (rad, sensor axes), lever arm (m), time offset (s).
+    ``late_stamps``: the calibration ran on ``simulate_drive``'s wrong scans (LATE_RADAR's stamps LATE_S late);
+    False: on its true ones (every radar's offset 0)."""
     truth = default_rig().radar(name).mount
     est = result.radars[name].estimate
     rot = (truth.rotation.inv() * est.mount.rotation).as_rotvec()
     return np.concatenate([rot, est.mount.translation_m - truth.translation_m,
-                           [est.time_offset_s - (LATE_S if name == LATE_RADAR else 0.0)]])
+                           [est.time_offset_s - (LATE_S if late_stamps and name == LATE_RADAR else 0.0)]])

@@ -243,7 +243,9 @@ class RadarInertialEkf:
                               time_offset_sigma_s: float | None = None) -> RadarCalibration:
         """Estimate radar ``name``'s mount and time offset online, starting from ``mount`` and
         ``time_offset_s`` (the rig's values) with these prior standard deviations (None: the config's;
-        0: that part stays fixed). Call after ``initialise_static``."""
+        0: that part stays fixed). The rotation's and the lever arm's are one value for all three axes or
+        one per axis (a rig file's ``[radar.NAME.calibration]``, see docs/config/rig.md). Call after
+        ``initialise_static``."""
         if name in self.calibration:
             return self.calibration[name]
         c = self.config
@@ -254,7 +256,8 @@ class RadarInertialEkf:
         n = s.P.shape[0]
         P = np.zeros((n + N_CALIBRATION, n + N_CALIBRATION))
         P[:n, :n] = s.P
-        P[n:, n:] = np.diag(np.repeat(np.square(sig), [3, 3, 1]))
+        P[n:, n:] = np.diag(np.square(np.concatenate([np.broadcast_to(np.asarray(sig[0], float), 3),
+                                                      np.broadcast_to(np.asarray(sig[1], float), 3), [float(sig[2])]])))
         s.P = P
         self._q_density = np.concatenate([self._q_density, np.zeros(N_CALIBRATION)])
         cal = RadarCalibration(name, n, np.array(mount.rotation_matrix, float), np.array(mount.translation_m, float),
