@@ -396,3 +396,63 @@ def test_the_driver_loop_stamps_samples_promptly_while_it_waits_for_the_first_ra
     assert len(stamps) == n
     # 12-14 ms when the loop waited on the bus (a 20 ms wait: about 10 on average); 0.3 quiet, 3.5 at load 18
     assert np.median(late_ms) < 7.0, np.round(late_ms[:20], 1)
+
+
+def test_a_syncin_sent_before_the_recorder_listens_is_the_run_s_trigger(tmp_path, monkeypatch):
+    """The IMU driver opened its serial port only once the recorder listened, and opening a port flushes what
+    waited in it (pyserial): a SyncIn sent before was lost, and the run fell back to the receive-time
+    estimate. Now the driver opens the port at once and reads it while it waits, holding what it would
+    publish until the recorder listens. Here the recorder subscribes only after the IMU (its first sample
+    the SyncIn) and the radar have been sending for a while: the recording's trigger is the SyncIn's, and
+    it holds every sample from it on."""
+    import socket
+    import threading
+
+    from test_round_trip import RIG, make_source
+
+    import acquisition.daemon as daemon
+    from acquisition.processes import free_port
+    from acquisition.replay import imu_emulator, replay_radar
+    from drivers.radar.link import RadarLink
+    from imaging.io.recording import Recording
+
+    src = tmp_path / "source.h5"
+    make_source(src, n_frames=60)
+    port = free_port(socket.SOCK_DGRAM)
+    source = Recording(src)
+    sent = source.imu()
+    emu = imu_emulator(source, speed=1.0)  # its first sample carries the SyncIn mark
+    emu.stall_timeout_s = 30.0
+    radar = threading.Thread(target=replay_radar, args=(source, "left", ("127.0.0.1", port), 1.0), daemon=True)
+    order = []
+
+    class LateRecorder(daemon.Recorder):
+        def __init__(self, *args, **kwargs):
+            t0 = time.monotonic()
+            # The drivers' processes start; 8 s at most (an IMU driver that opens its port only for the
+            # recorder never does: it waits 10 s for it).
+            while not _held_by_another_process(emu.port) and time.monotonic() - t0 < 8.0:
+                time.sleep(0.05)
+            order.append(("port open", _held_by_another_process(emu.port)))
+            emu.start()
+            radar.start()
+            time.sleep(0.5)  # the SyncIn and half a second of samples and frames sent: then the recorder listens
+            order.append(("recorder", emu.done.is_set()))
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(daemon, "Recorder", LateRecorder)
+    setup = daemon.Setup(RIG, [RadarLink("left", port)], imu_port=emu.port, health_interval_s=0.5, flush_interval_s=0.2)
+    duration_s = (int(sent["time_ns"][-1]) - int(sent["time_ns"][0])) * 1e-9 + 2.0
+    try:
+        (path,) = daemon.record(setup, tmp_path / "out", duration_s=duration_s, path=tmp_path / "out" / "late.h5")
+    finally:
+        radar.join(30)
+        emu.close()
+        source.close()
+    assert order[1] == ("recorder", False), order  # the recorder listened while the IMU was still sending
+    with Recording(path) as rec:
+        assert rec.trigger_sources() == ["imu_syncin"], [e[3] for e in rec.events()]
+        assert rec.triggers().tolist() == [int(sent["time_ns"][0])]  # the first radar frame's time: the first chirp
+        got = rec.imu()
+        np.testing.assert_array_equal(got["time_ns"], sent["time_ns"])  # all of it, from the SyncIn on
+        np.testing.assert_array_equal(got["counter"], sent["counter"])
