@@ -212,9 +212,10 @@ def _record_imu_only(tmp_path, emu, duration_s, on_health=None, start_after_s=2.
     """`record` (the daemon, its IMU driver a real child process) with the robot's IMU and no radar; the
     emulator starts ``start_after_s`` into the run, and not before the driver has the port open.
 
-    Opening a serial port flushes what waited in it (pyserial), and the driver opens it only once the
-    recorder listens: on a busy host that was up to 2.9 s into the run, and the first 76-352 samples
-    written from 2 s on were thrown away at the open."""
+    Opening a serial port flushes what waited in it (pyserial). The driver opened it only once the recorder
+    listened: on a busy host that was up to 2.9 s into the run, and the first 76-352 samples written from 2 s
+    on were thrown away at the open. It now opens the port at once, but its process still takes a while to
+    start."""
     import threading
 
     from acquisition.daemon import Setup, record
@@ -456,3 +457,38 @@ def test_a_syncin_sent_before_the_recorder_listens_is_the_run_s_trigger(tmp_path
         got = rec.imu()
         np.testing.assert_array_equal(got["time_ns"], sent["time_ns"])  # all of it, from the SyncIn on
         np.testing.assert_array_equal(got["counter"], sent["counter"])
+
+
+def test_what_the_imu_driver_publishes_before_the_recorder_listens_is_held_and_sent_in_order():
+    """``PublisherHoldingForRecorder``: messages sent before the recorder's subscription arrive after it,
+    in order and all of them; with no recorder at all they go out once the wait is over (and at close)."""
+    import zmq
+
+    from acquisition.bus import RECORDER_LISTENING, BusSubscriber
+    from acquisition.driver_loops import PublisherHoldingForRecorder
+    from acquisition.messages import Event, decode
+
+    ctx = zmq.Context()
+    pub = PublisherHoldingForRecorder("tcp://127.0.0.1:0", "imu", wait_s=30.0, context=ctx)
+    for k in range(3):
+        pub.send(Event(k, "imu", "info", f"before {k}"))
+    assert len(pub.held) == 3
+    sub = BusSubscriber(pub.endpoint, topics=[Event.TOPIC, RECORDER_LISTENING], context=ctx)
+    deadline = time.monotonic() + 5
+    while not pub.pub.has_subscriber(RECORDER_LISTENING) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    pub.send(Event(3, "imu", "info", "after"))
+    assert pub.held is None
+    got = [decode(sub.receive(timeout_ms=2000)) for _ in range(4)]
+    assert [m.message for m in got] == ["before 0", "before 1", "before 2", "after"]
+    sub.close()
+    pub.close()
+    # nobody listening: held until the wait is over, then sent anyway
+    quiet = PublisherHoldingForRecorder("tcp://127.0.0.1:0", "imu", wait_s=0.2, context=ctx)
+    quiet.send(Event(0, "imu", "info", "held"))
+    assert quiet.held is not None and len(quiet.held) == 1
+    time.sleep(0.3)
+    quiet.send(Event(1, "imu", "info", "late"))
+    assert quiet.held is None
+    quiet.close()
+    ctx.term()
