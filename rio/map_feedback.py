@@ -248,7 +248,8 @@ class MapFeedback:
         correction the rescaled scans give from then on (the filter's velocity follows the scans), so
         counting both took a measurement's error off twice. A second tile of the same span (the other
         radar's, refocused a call later) then read as an error of the opposite sign: refused by the gate at
-        a 0.5 mm/s sigma, or taken, it undid half the scale learnt (the live CI run with an update refused)."""
+        a 0.5 mm/s sigma (the likely cause of the live CI run's refused update), or taken at 1 mm/s, it undid
+        half the scale learnt."""
         return sum(self._corrected_parts(time_ns, direction, speed_mps))
 
     def _corrected_parts(self, time_ns: int, direction: np.ndarray, speed_mps: float) -> tuple[float, float]:
