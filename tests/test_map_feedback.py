@@ -88,6 +88,9 @@ def test_the_update_with_a_known_velocity_error_recovers_it_along_its_direction_
 
 def test_an_error_already_corrected_since_is_not_corrected_twice():
     ekf = moving_filter()
+    # The filter is past the tiles' span (4.25-5.75 s): it was at 0 s, so nothing counted as corrected since
+    # and the second tile passed only because the gate refused it.
+    ekf.state.time_ns += 6 * 10**9
     feedback = MapFeedback()
     te, geo = passing_tile((0.008, 0.0))
     (first,) = feedback.apply(ekf, [(te, geo)])
@@ -97,6 +100,7 @@ def test_an_error_already_corrected_since_is_not_corrected_twice():
     te2, geo2 = passing_tile((0.008, 0.0), range_m=1.8)
     feedback.apply(ekf, [(te2, geo2)])
     assert ekf.state.v[0] == pytest.approx(after_first, abs=0.0003)
+    assert feedback.rejected == 0, feedback.updates[-1].line()  # taken, and found to be corrected already
 
 
 def test_the_other_radar_s_tile_of_the_same_span_reads_as_no_error_left():
