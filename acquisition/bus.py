@@ -80,19 +80,32 @@ class BusPublisher:
     def wait_for_subscriber(self, topic: str, timeout_s: float, stop=None) -> bool:
         """Wait until a subscriber has subscribed to ``topic`` (or ``timeout_s`` passes, or ``stop`` is set);
         True if one has. Needs ``watch_subscriptions``. A driver waits so for the recorder
-        (``RECORDER_LISTENING``) before it publishes: its socket buffer (a radar's UDP socket, the serial
-        port) keeps what arrives meanwhile, where messages published before would be dropped unseen."""
+        (``RECORDER_LISTENING``) before it publishes: its socket buffer (a radar's UDP socket) keeps what
+        arrives meanwhile, where messages published before would be dropped unseen."""
         deadline = time.monotonic() + timeout_s
         while topic not in self.subscriptions:
             left_ms = int((deadline - time.monotonic()) * 1e3)
             if left_ms <= 0 or (stop is not None and stop.is_set()):
                 return False
-            if self.socket.poll(min(left_ms, 100), zmq.POLLIN):
-                note = self.socket.recv()
-                if note[:1] == b"\x01":
-                    self.subscriptions.add(note[1:].decode(errors="replace"))
-                elif note[:1] == b"\x00":
-                    self.subscriptions.discard(note[1:].decode(errors="replace"))
+            self._hear_subscriptions(min(left_ms, 100))
+        return True
+
+    def has_subscriber(self, topic: str) -> bool:
+        """Whether a subscriber has subscribed to ``topic`` by now, without waiting. Needs
+        ``watch_subscriptions``."""
+        while topic not in self.subscriptions and self._hear_subscriptions(0):
+            pass
+        return topic in self.subscriptions
+
+    def _hear_subscriptions(self, timeout_ms: int) -> bool:
+        """Take one (un)subscription note off the socket, waiting up to ``timeout_ms``; whether one came."""
+        if not self.socket.poll(timeout_ms, zmq.POLLIN):
+            return False
+        note = self.socket.recv()
+        if note[:1] == b"\x01":
+            self.subscriptions.add(note[1:].decode(errors="replace"))
+        elif note[:1] == b"\x00":
+            self.subscriptions.discard(note[1:].decode(errors="replace"))
         return True
 
     def send(self, message) -> int:

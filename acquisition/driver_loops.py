@@ -275,12 +275,57 @@ def publisher_heard_by_recorder(endpoint: str, role: str, stop, **kwargs) -> Bus
 
     A ZeroMQ publisher drops, unseen, what it sends before a subscriber's subscription has reached it: a radar
     already streaming when ``record`` started lost its first frames (0-3) and nobody counted them. Waiting
-    here, the device's own buffer (the UDP socket's, already bound) keeps them. Not an IMU's: its serial port
-    is opened after this wait, and opening it throws away what waited in it (pyserial flushes the input)."""
+    here, the device's own buffer (the UDP socket's, already bound) keeps them. Not for a serial device
+    (``PublisherHoldingForRecorder``): opening a serial port throws away what waited in it (pyserial flushes
+    the input), and its buffer is a few kilobytes."""
     pub = BusPublisher(endpoint, watch_subscriptions=True, **kwargs)
     if not pub.wait_for_subscriber(RECORDER_LISTENING, RECORDER_WAIT_S, stop) and not stop.is_set():
         log.warning("%s: no recorder listening after %.0f s; publishing anyway", role, RECORDER_WAIT_S)
     return pub
+
+
+class PublisherHoldingForRecorder:
+    """A driver's publisher that sends nothing before the recorder listens: what the driver publishes
+    before is held, in order, and sent once the recorder has subscribed (or after ``wait_s``, with a
+    warning), so the driver can read its device from the start instead of waiting.
+
+    For the IMU: the SyncIn mark comes in one packet, and the driver opened its port only once the recorder
+    listened, which flushed a SyncIn sent before (the run fell back to the receive-time estimate). Holding
+    costs memory for at most ``wait_s`` of the device's data (10 s of IMU batches: some 200 messages)."""
+
+    def __init__(self, endpoint: str, role: str, wait_s: float = RECORDER_WAIT_S, **kwargs):
+        self.pub = BusPublisher(endpoint, watch_subscriptions=True, **kwargs)
+        self.endpoint = self.pub.endpoint
+        self.role = role
+        self.held: list | None = []  # None once the recorder listens (or the wait is over)
+        self.deadline = time.monotonic() + wait_s
+        self.wait_s = wait_s
+
+    def send(self, message) -> None:
+        if self.held is not None:
+            if not self._release():
+                self.held.append(message)
+                return
+        self.pub.send(message)
+
+    def _release(self) -> bool:
+        """Send what is held if the recorder listens now or the wait is over; whether it was sent."""
+        heard = self.pub.has_subscriber(RECORDER_LISTENING)
+        if not heard and time.monotonic() < self.deadline:
+            return False
+        if not heard:
+            log.warning("%s: no recorder listening after %.0f s; publishing anyway", self.role, self.wait_s)
+        held, self.held = self.held, None
+        for message in held:
+            self.pub.send(message)
+        return True
+
+    def close(self) -> None:
+        """Send what is still held (the recorder may listen by now), then close."""
+        if self.held is not None:
+            self.deadline = 0.0
+            self._release()
+        self.pub.close()
 
 
 def radar_process(link: RadarLink, waveform: Waveform, endpoint: str, stop, bound_port=None) -> None:
@@ -314,7 +359,9 @@ def imu_process(port: str, endpoint: str, radar_endpoints: list[str], stop, cloc
                 frame_duration_ns: dict[str, int] | None = None, radar: str | None = None) -> None:
     """An IMU's driver process: the robot's, or with ``radar`` the one on that radar's mount."""
     become_child(imu_role(radar), realtime=True)
-    pub = publisher_heard_by_recorder(endpoint, imu_role(radar), stop)
+    # The port is opened and read from the start, not once the recorder listens: opening it flushes what
+    # waited in it (a SyncIn sent before was lost), so what the loop publishes waits here instead.
+    pub = PublisherHoldingForRecorder(endpoint, imu_role(radar))
     log.info("IMU%s on %s", "" if radar is None else f" of radar {radar}", port)
     try:
         imu_driver_loop(port, pub, stop, radar_endpoints=radar_endpoints, clock_reference=clock_reference,

@@ -212,9 +212,10 @@ def _record_imu_only(tmp_path, emu, duration_s, on_health=None, start_after_s=2.
     """`record` (the daemon, its IMU driver a real child process) with the robot's IMU and no radar; the
     emulator starts ``start_after_s`` into the run, and not before the driver has the port open.
 
-    Opening a serial port flushes what waited in it (pyserial), and the driver opens it only once the
-    recorder listens: on a busy host that was up to 2.9 s into the run, and the first 76-352 samples
-    written from 2 s on were thrown away at the open."""
+    Opening a serial port flushes what waited in it (pyserial). The driver opened it only once the recorder
+    listened: on a busy host that was up to 2.9 s into the run, and the first 76-352 samples written from 2 s
+    on were thrown away at the open. It now opens the port at once, but its process still takes a while to
+    start."""
     import threading
 
     from acquisition.daemon import Setup, record
@@ -396,3 +397,104 @@ def test_the_driver_loop_stamps_samples_promptly_while_it_waits_for_the_first_ra
     assert len(stamps) == n
     # 12-14 ms when the loop waited on the bus (a 20 ms wait: about 10 on average); 0.3 quiet, 3.5 at load 18
     assert np.median(late_ms) < 7.0, np.round(late_ms[:20], 1)
+
+
+def test_a_syncin_sent_before_the_recorder_listens_is_the_run_s_trigger(tmp_path, monkeypatch):
+    """The IMU driver opened its serial port only once the recorder listened, and opening a port flushes what
+    waited in it (pyserial): a SyncIn sent before was lost, and the run fell back to the receive-time
+    estimate. Now the driver opens the port at once and reads it while it waits, holding what it would
+    publish until the recorder listens. Here the recorder subscribes only after the IMU (its first sample
+    the SyncIn) and the radar have been sending for a while: the recording's trigger is the SyncIn's, and
+    it holds every sample from it on."""
+    import socket
+    import threading
+
+    from test_round_trip import RIG, make_source
+
+    import acquisition.daemon as daemon
+    from acquisition.processes import free_port
+    from acquisition.replay import imu_emulator, replay_radar
+    from drivers.radar.link import RadarLink
+    from imaging.io.recording import Recording
+
+    src = tmp_path / "source.h5"
+    make_source(src, n_frames=60)
+    port = free_port(socket.SOCK_DGRAM)
+    source = Recording(src)
+    sent = source.imu()
+    frame_times = source.frame_time_ns("left")
+    emu = imu_emulator(source, speed=1.0)  # its first sample carries the SyncIn mark
+    emu.stall_timeout_s = 30.0
+    radar = threading.Thread(target=replay_radar, args=(source, "left", ("127.0.0.1", port), 1.0), daemon=True)
+    order = []
+
+    class LateRecorder(daemon.Recorder):
+        def __init__(self, *args, **kwargs):
+            t0 = time.monotonic()
+            # The drivers' processes start; 8 s at most (an IMU driver that opens its port only for the
+            # recorder never does: it waits 10 s for it).
+            while not _held_by_another_process(emu.port) and time.monotonic() - t0 < 8.0:
+                time.sleep(0.05)
+            order.append(("port open", _held_by_another_process(emu.port)))
+            time.sleep(1.0)  # the IMU driver's subscription to the radar's frames (for the trigger's time) is in
+            emu.start()
+            radar.start()
+            time.sleep(0.5)  # the SyncIn and half a second of samples and frames sent: then the recorder listens
+            order.append(("recorder", emu.done.is_set()))
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(daemon, "Recorder", LateRecorder)
+    setup = daemon.Setup(RIG, [RadarLink("left", port)], imu_port=emu.port, health_interval_s=0.5, flush_interval_s=0.2)
+    duration_s = (int(sent["time_ns"][-1]) - int(sent["time_ns"][0])) * 1e-9 + 2.0
+    try:
+        (path,) = daemon.record(setup, tmp_path / "out", duration_s=duration_s, path=tmp_path / "out" / "late.h5")
+    finally:
+        radar.join(30)
+        emu.close()
+        source.close()
+    assert order[1] == ("recorder", False), order  # the recorder listened while the IMU was still sending
+    with Recording(path) as rec:
+        assert rec.trigger_sources() == ["imu_syncin"], [e[3] for e in rec.events()]
+        (trigger,) = rec.triggers().tolist()
+        # The trigger's time is the first radar frame's the IMU driver saw: the first chirp's (a driver whose
+        # subscription to the radar came after that frame takes the next one's, 52 ms on: not this test's subject).
+        assert trigger in frame_times[:2].tolist(), (trigger - frame_times[0]) * 1e-6
+        got = rec.imu()
+        # all of it, from the SyncIn sample on, which is at the trigger: timed by its ticks, not estimated
+        np.testing.assert_array_equal(got["counter"], sent["counter"])
+        np.testing.assert_array_equal(got["time_ns"], sent["time_ns"] - sent["time_ns"][0] + trigger)
+
+
+def test_what_the_imu_driver_publishes_before_the_recorder_listens_is_held_and_sent_in_order():
+    """``PublisherHoldingForRecorder``: messages sent before the recorder's subscription arrive after it,
+    in order and all of them; with no recorder at all they go out once the wait is over (and at close)."""
+    import zmq
+
+    from acquisition.bus import RECORDER_LISTENING, BusSubscriber
+    from acquisition.driver_loops import PublisherHoldingForRecorder
+    from acquisition.messages import Event, decode
+
+    ctx = zmq.Context()
+    pub = PublisherHoldingForRecorder("tcp://127.0.0.1:0", "imu", wait_s=30.0, context=ctx)
+    for k in range(3):
+        pub.send(Event(k, "imu", "info", f"before {k}"))
+    assert len(pub.held) == 3
+    sub = BusSubscriber(pub.endpoint, topics=[Event.TOPIC, RECORDER_LISTENING], context=ctx)
+    deadline = time.monotonic() + 5
+    while not pub.pub.has_subscriber(RECORDER_LISTENING) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    pub.send(Event(3, "imu", "info", "after"))
+    assert pub.held is None
+    got = [decode(sub.receive(timeout_ms=2000)) for _ in range(4)]
+    assert [m.message for m in got] == ["before 0", "before 1", "before 2", "after"]
+    sub.close()
+    pub.close()
+    # nobody listening: held until the wait is over, then sent anyway
+    quiet = PublisherHoldingForRecorder("tcp://127.0.0.1:0", "imu", wait_s=0.2, context=ctx)
+    quiet.send(Event(0, "imu", "info", "held"))
+    assert quiet.held is not None and len(quiet.held) == 1
+    time.sleep(0.3)
+    quiet.send(Event(1, "imu", "info", "late"))
+    assert quiet.held is None
+    quiet.close()
+    ctx.term()

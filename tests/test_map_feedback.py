@@ -88,6 +88,9 @@ def test_the_update_with_a_known_velocity_error_recovers_it_along_its_direction_
 
 def test_an_error_already_corrected_since_is_not_corrected_twice():
     ekf = moving_filter()
+    # The filter is past the tiles' span (4.25-5.75 s): it was at 0 s, so nothing counted as corrected since
+    # and the second tile passed only because the gate refused it.
+    ekf.state.time_ns += 6 * 10**9
     feedback = MapFeedback()
     te, geo = passing_tile((0.008, 0.0))
     (first,) = feedback.apply(ekf, [(te, geo)])
@@ -97,6 +100,41 @@ def test_an_error_already_corrected_since_is_not_corrected_twice():
     te2, geo2 = passing_tile((0.008, 0.0), range_m=1.8)
     feedback.apply(ekf, [(te2, geo2)])
     assert ekf.state.v[0] == pytest.approx(after_first, abs=0.0003)
+    assert feedback.rejected == 0, feedback.updates[-1].line()  # taken, and found to be corrected already
+
+
+def test_the_other_radar_s_tile_of_the_same_span_reads_as_no_error_left():
+    """The live strip map refocuses each radar's tiles in a call of its own, so the left and the right tile of
+    one span reach the filter as two measurements, the second once the first is taken. What is corrected
+    since the span counted the first one twice: its velocity change, and the Doppler scale learnt from it,
+    which every scan holds from then on. The second, agreeing with the first, read as -8.1 mm/s: at a 0.5 mm/s
+    sigma the gate refused it (chi2 132, the live CI run's refused update), at 1 mm/s it undid half the
+    scale (2.0 -> 1.0 %). Now it reads as no error left; without the scale learnt, the first's velocity
+    change is what holds the correction, and is counted as before."""
+    for sigma in (0.0005, 0.001):
+        for learn in (True, False):
+            ekf = moving_filter()
+            feedback = MapFeedback(MapFeedbackConfig(learn_doppler_scale=learn))
+            span_ns = ekf.state.time_ns - 10**9  # the tiles' span centre: a second before the filter's time
+            for radar in ("left_front", "right_front"):
+                m = LookVelocityMeasurement(span_ns, 1.5, np.array([1.0, 0.0, 0.0]), 0.008, sigma, (radar,), 1)
+                feedback.apply_measurements(ekf, [m])
+                ekf.state.time_ns += 10**8
+            first, second = feedback.updates
+            assert feedback.rejected == 0 and second.accepted, second.line()
+            assert first.residual_mps == pytest.approx(0.008) and abs(second.residual_mps) < 1e-4, second.line()
+            assert second.chi2 < 0.1 and second.innovation_sigma_mps == pytest.approx(math.sqrt(2) * sigma, rel=0.05)
+            assert ekf.state.v[0] == pytest.approx(0.408, abs=0.0002)
+            if learn:
+                # 0.4 m/s after the first: the scans of the span read 1 / 1.01995 of the scans now
+                assert second.corrected_by_scale_mps == pytest.approx(0.408 * (1 - 1 / 1.01995), abs=2e-5)
+                assert second.corrected_by_updates_mps == 0.0
+                assert feedback.doppler_scale == pytest.approx(1.02, abs=0.0005)  # not 1.0098
+            else:
+                assert second.corrected_by_updates_mps == pytest.approx(0.008, abs=2e-5)
+                assert feedback.doppler_scale == 1.0
+    # what the odometry worker logs and says on the bus for each
+    assert "residual +8.00 +- 20.02 mm/s" in first.line() and "accepted" in first.line()
 
 
 def test_a_measurement_far_outside_the_filter_s_uncertainty_is_refused():

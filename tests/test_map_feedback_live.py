@@ -101,7 +101,11 @@ def run_daemon(tmp_path, sim_path, feedback: bool) -> dict:
         held.release.set()
         emulator.join(30)
     traj = read_trajectory(traj_path)
-    return {"counters": states[-1] if states else {}, "trajectory": traj}
+    from imaging.io.recording import Recording
+
+    with Recording(out / "recording.h5") as rec:  # each map update the odometry met (rio.map_feedback.MapUpdate)
+        updates = [e[3] for e in rec.events() if e[1] == "rio" and e[3].startswith("map velocity error")]
+    return {"counters": states[-1] if states else {}, "trajectory": traj, "map_updates": updates}
 
 
 @pytest.fixture(scope="module")
@@ -127,11 +131,15 @@ def test_the_live_map_s_velocity_errors_reach_the_odometry_s_filter(drive, tmp_p
         # thinned at load averages of 20-26 on 2 cores, 3 at 8): the map thinned its frames too, and tiles
         # refocused over part of their aperture read no velocity error. Not this test's subject.
         pytest.skip(f"the machine is too loaded to run the daemon in real time: {counters}")
-    assert counters.get("map_velocity_updates", 0) >= 1, counters
-    assert counters["map_velocity_refused"] == 0
+    # What the filter made of each map measurement (its residual, sigma, the scale around it), for a failure.
+    updates = "\n".join(run["map_updates"])
+    print(f"{counters}\n{updates}")  # -s: the run's updates also when it passes
+    assert counters.get("map_velocity_updates", 0) >= 1, f"{counters}\n{updates}"
+    assert counters["map_velocity_refused"] == 0, f"{counters}\n{updates}"
+    assert len(run["map_updates"]) == counters["map_velocity_updates"], updates
     # The Doppler scale learnt from it moves the way the radars are off (they read 2 % low: up), by no more than
     # the error (0.7 of each measured relative speed error is taken; 2.1 % was seen after one measurement).
-    assert 0 < counters["map_doppler_scale_ppm"] < 40_000, counters
+    assert 0 < counters["map_doppler_scale_ppm"] < 40_000, f"{counters}\n{updates}"
     traj = run["trajectory"]
     truth = scene.trajectory.sample(traj.time_ns[-1:]).position_m[0]
     assert traj.position_m[-1, 0] - traj.position_m[0, 0] > 0.5 * (truth[0] - scene.trajectory.sample(traj.time_ns[:1]).position_m[0][0])

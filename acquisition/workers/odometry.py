@@ -153,7 +153,7 @@ class OdometryWorker(Worker):
             return
         if isinstance(message, MapVelocityError):
             if self.map_feedback is not None and self.rio.ekf is not None:
-                self.map_feedback.apply_measurements(self.rio.ekf, [message.measurement()])
+                self._take_map_measurement(message.measurement())
             return
         if not isinstance(message, RadarFrameMessage) or message.radar not in self.radars or not message.frame.valid:
             return
@@ -175,6 +175,17 @@ class OdometryWorker(Worker):
             self.pub.send(PointCloudMessage(name, t_scan, pc.xyz_m, pc.doppler_mps))
         scan = RadarScan(t_scan, name, radar.mount, pc.xyz_m, pc.doppler_mps)
         self._publish(self.rio.add_scan(self.map_feedback.correct_scan(scan) if self.map_feedback is not None else scan))
+
+    def _take_map_measurement(self, measurement) -> None:
+        """One of the map's velocity errors into the filter; what the filter made of it (its residual, sigma
+        and the Doppler scale around it: ``rio.map_feedback.MapUpdate``) is logged and said on the bus (into
+        /events), so an update the gate refuses can be explained afterwards."""
+        feedback = self.map_feedback
+        seen = len(feedback.updates)
+        feedback.apply_measurements(self.rio.ekf, [measurement])
+        for update in feedback.updates[seen:]:
+            log.info("RIO: %s", update.line())
+            self.pub.send(Event(time.time_ns(), "rio", "info" if update.accepted else "warning", update.line()))
 
     def _note_silence(self, now: float) -> None:
         """Radars with no frame for ``radar_silence_s`` are not waited for (said once on the bus); with none
