@@ -212,8 +212,10 @@ def test_it_equals_the_direct_kernel_to_its_error_estimate(straight_pass):
     assert cost["leaf_backprojections"] < cost["direct_backprojections"] / 10
 
 
-@pytest.mark.parametrize("options,limit_db", [(FactorizedOptions(taps=8), -55.0), (FactorizedOptions(taps=4, oversample_range=3, oversample_angle=3), -40.0)])
+@pytest.mark.parametrize("options,limit_db", [(FactorizedOptions(taps=8, leaf_taps=8, leaf_oversample=2.0), -55.0),
+                                              (FactorizedOptions(taps=4, oversample_range=3, oversample_angle=3), -40.0)])
 def test_more_taps_or_oversampling_buy_accuracy(straight_pass, options, limit_db):
+    """8 taps on 2x grids throughout (the leaves' too), or 4 taps on 3x merged grids."""
     prof, tx, rx = straight_pass
     x, y = np.arange(-0.4, 0.4, 0.005), np.arange(1.7, 2.1, 0.005)
     img = backproject_factorized(prof, tx, rx, x, y, 0.3, options=options)
