@@ -28,7 +28,11 @@ vibration or a bend widen the grid rather than alias it.
 Interpolation. Separable, ``taps`` x ``taps`` per sample, with coefficients that minimise the squared error
 over the band the grid is oversampled for (the optimum for band-limited signals, Knab's kind of
 interpolator), tabulated at 2048 fractional shifts. :func:`interpolation_error` gives the worst error of a
-tone anywhere in that band; :attr:`FactorizedPlan.error_bound_db` adds it up along the tree.
+tone anywhere in that band; :attr:`FactorizedPlan.error_bound_db` adds it up along the tree. The leaves'
+grids are sampled coarser (1.5x over Nyquist against 2x) and read with more taps (8 against 6): a leaf's grid
+costs a backprojection per profile (512 of them) and point, a merged grid only taps^2 multiply-adds per child
+and point, so this trades a third of the leaves' work for a little more in the first merge
+(benchmarks/ffbp.py charts the settings' speed against their error).
 """
 
 from __future__ import annotations
