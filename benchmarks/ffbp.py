@@ -5,8 +5,16 @@ targets at about 2 m; the image 1 m x 0.6 m at 2 mm pixels (the cross-range reso
 at 2 m is about 2 mm). The direct kernel (``imaging.backprojection.backproject``, linear, 8x oversampled
 profiles) is the baseline, run in the same process on the same profiles; the error is FFBP's image
 against it (energy of the difference over the image's, dB), beside the plan's bound and estimate. On the
-longest aperture, FFBP's run on 1 and on 2 threads, with the machine as it is and with another process
-keeping one core busy.
+longest aperture:
+
+* ``frontier``: speed against error over FFBP's settings (leaf size, the leaves' and the merged grids'
+  oversampling and taps), each run alternated with the default's in the same rounds (``speed_over_default``,
+  the median of the rounds' ratios: a load that comes and goes hits both alike), and as the CPU time of a
+  run on one thread (``cpu_speed_over_default``: on a loaded machine the steadier figure);
+* ``threads``: FFBP's run on 1 and on 2 threads, with the machine as it is (interleaved with the direct
+  kernel) and with another process keeping one core busy;
+* ``reach``: the default's error where the plan works harder: the scene further out (3.5 and 5 m, pixels
+  scaled with range; the profiles reach 6.6 m) and a 4 m aperture, on a smaller image (150 x 100 pixels).
 
     python benchmarks/ffbp.py [--quick]
 
@@ -16,6 +24,7 @@ Writes docs/results/ffbp.json and docs/results/ffbp.png (``ffbp_quick.*`` with -
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import platform
 import subprocess
@@ -104,6 +113,88 @@ def threads_study(plan, prof, tx, rx, t_direct_2: float, repeats: int, direct=No
     return out
 
 
+#: The settings charted on the longest aperture (FactorizedOptions' fields; the first is the default).
+FRONTIER = [{}, {"leaf_oversample": None, "leaf_taps": None},
+            {"leaf_oversample": 1.3, "leaf_taps": 10}, {"leaf_oversample": 1.3, "leaf_taps": 12},
+            {"leaf_oversample": 1.4, "leaf_taps": 8}, {"leaf_oversample": 1.4, "leaf_taps": 10},
+            {"leaf_oversample": 1.6, "leaf_taps": 8}, {"leaf_oversample": 1.75, "leaf_taps": 8},
+            {"leaf_oversample": 1.5, "leaf_taps": 10}, {"leaf_profiles": 256}, {"leaf_profiles": 1024},
+            {"taps": 4, "oversample_range": 3, "oversample_angle": 3}, {"taps": 8},
+            {"taps": 6, "oversample_range": 3, "oversample_angle": 3}, {"taps": 8, "oversample_range": 1.6, "oversample_angle": 1.6}]
+
+
+def settings(options: FactorizedOptions) -> dict:
+    return {f: getattr(options, f) for f in ("leaf_profiles", "taps", "oversample_range", "oversample_angle",
+                                             "leaf_oversample", "leaf_taps")}
+
+
+def cpu_1_thread(plan, prof, tx, rx) -> float:
+    """CPU seconds of a run on one thread (all of it on the calling thread): the work, which time taken by
+    other processes' turns on the core does not add to (their use of the caches still does)."""
+    numba.set_num_threads(1)
+    try:
+        t = time.thread_time()
+        run_factorized(plan, prof, tx, rx)
+        return time.thread_time() - t
+    finally:
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+
+
+def frontier(prof, tx, rx, x, y, ref, t_direct: float, rounds: int) -> list:
+    """Each of FRONTIER's settings: plan, run alternated with the default's run, error against ``ref``."""
+    default = FactorizedOptions()
+    plan_default = plan_factorized(tx, rx, x, y, 0.3, prof.carrier_hz, prof.bandwidth_hz, default)
+    rows = []
+    for fields in FRONTIER:
+        options = dataclasses.replace(default, **fields)
+        t_plan, plan = timed(lambda: plan_factorized(tx, rx, x, y, 0.3, prof.carrier_hz, prof.bandwidth_hz, options), 1)
+        img = run_factorized(plan, prof, tx, rx)  # (compiles what is new)
+        ratios, runs, cpu_ratios = [], [], []
+        for _ in range(rounds):
+            t_default = timed(lambda: run_factorized(plan_default, prof, tx, rx), 1)[0]
+            t_run = timed(lambda: run_factorized(plan, prof, tx, rx), 1)[0]
+            ratios.append(t_default / t_run)
+            runs.append(t_run)
+            cpu_ratios.append(cpu_1_thread(plan_default, prof, tx, rx) / cpu_1_thread(plan, prof, tx, rx))
+        cost = plan.cost()
+        row = {**settings(options), "plan_s": t_plan, "run_s": min(runs), "speed_over_default": float(np.median(ratios)),
+               "cpu_speed_over_default": float(np.median(cpu_ratios)),
+               "speedup": t_direct / min(runs), "error_db": error_db(img, ref), "error_estimate_db": plan.error_estimate_db,
+               "error_bound_db": plan.error_bound_db, "leaf_backprojections": cost["leaf_backprojections"],
+               "multiply_adds": cost["multiply_adds"], "levels": plan.levels}
+        rows.append(row)
+        print(f"  {fields or 'default'}: {row['speed_over_default']:.2f}x the default's speed "
+              f"({row['cpu_speed_over_default']:.2f}x in CPU time on one thread), error {row['error_db']:.1f} dB "
+              f"(estimate {row['error_estimate_db']:.1f}), leaves {cost['leaf_backprojections'] / 1e6:.0f} M "
+              f"backprojections, plan {t_plan:.2f} s", flush=True)
+    return rows
+
+
+def reach(quick: bool) -> list:
+    """The default's error against the direct kernel where the plan works harder: further out, longer."""
+    # The profiles reach 6.6 m (13.2 m of two-way range): 5 m is as far out as the image fits in them.
+    cases = [(0.5, 2.0)] if quick else [(2.0, 2.0), (2.0, 3.5), (2.0, 5.0), (4.0, 2.0)]
+    rows = []
+    for aperture_m, range_m in cases:
+        samples, wf, tx, rx, _ = make_case(int(round(aperture_m / (SPEED_MPS * 0.052))), 2, 2)
+        prof = range_compress(samples, wf.f0_hz, wf.frequency_step_hz, oversample=8, guarded=True)
+        del samples
+        pixel_m = 0.004 * range_m / 2.0
+        x = np.arange(-75, 75) * pixel_m
+        y = range_m + np.arange(-50, 50) * pixel_m
+        xx, yy = np.meshgrid(x, y)
+        ref = backproject(prof, tx, rx, np.stack([xx, yy, np.full_like(xx, 0.3)], axis=-1))
+        plan = plan_factorized(tx, rx, x, y, 0.3, prof.carrier_hz, prof.bandwidth_hz, FactorizedOptions())
+        row = {"aperture_m": aperture_m, "range_m": range_m, "pixel_m": pixel_m, "levels": plan.levels,
+               "error_db": error_db(run_factorized(plan, prof, tx, rx), ref), "error_estimate_db": plan.error_estimate_db,
+               "error_bound_db": plan.error_bound_db}
+        rows.append(row)
+        del prof
+        print(f"  reach: {aperture_m:g} m aperture, scene at {range_m:g} m: error {row['error_db']:.1f} dB "
+              f"(estimate {row['error_estimate_db']:.1f}), {plan.levels} levels", flush=True)
+    return rows
+
+
 def run_case(n_frames: int, x, y, configs, repeats: int, study_threads: bool = False) -> dict:
     samples, wf, tx, rx, _ = make_case(n_frames, 2, 2)
     prof = range_compress(samples, wf.f0_hz, wf.frequency_step_hz, oversample=8, guarded=True)
@@ -120,19 +211,31 @@ def run_case(n_frames: int, x, y, configs, repeats: int, study_threads: bool = F
         t_plan, plan = timed(lambda: plan_factorized(tx, rx, x, y, 0.3, prof.carrier_hz, prof.bandwidth_hz, options), 1)
         run_factorized(plan, prof, tx, rx)  # compile
         t_run, img = timed(lambda: run_factorized(plan, prof, tx, rx), repeats)
-        row = {"taps": options.taps, "oversample_range": options.oversample_range,
-               "oversample_angle": options.oversample_angle, "leaf_profiles": options.leaf_profiles,
-               "plan_s": t_plan, "run_s": t_run, "speedup": t_direct / (t_plan + t_run), "error_db": error_db(img, ref),
+        row = {**settings(options), "plan_s": t_plan, "run_s": t_run, "speedup": t_direct / (t_plan + t_run), "error_db": error_db(img, ref),
                "error_bound_db": plan.error_bound_db, "error_estimate_db": plan.error_estimate_db, "cost": plan.cost()}
         case["ffbp"].append(row)
-        print(f"  taps {options.taps} oversample {options.oversample_range:g}/{options.oversample_angle:g}: "
+        print(f"  taps {options.taps} oversample {options.oversample_range:g}/{options.oversample_angle:g}, leaves "
+              f"{options.leaf_taps} taps oversampled {options.leaf_oversample:g}: "
               f"plan {t_plan:.2f} s + run {t_run:.2f} s -> {row['speedup']:.1f}x the direct kernel, error "
               f"{row['error_db']:.1f} dB (estimate {row['error_estimate_db']:.1f}, bound {row['error_bound_db']:.1f}), "
               f"{plan.levels} levels, {len(plan.roots)} roots", flush=True)
         if study_threads and options == configs[0]:
             row["threads"] = threads_study(plan, prof, tx, rx, t_direct, max(2, repeats),
                                            direct=lambda: backproject(prof, tx, rx, grid))
+    if study_threads:
+        case["frontier"] = frontier(prof, tx, rx, x, y, ref, t_direct, max(2, repeats))
     return case
+
+
+def label(row: dict) -> str:
+    """The settings that differ from the default's, briefly."""
+    default = FactorizedOptions()
+    names = {"leaf_profiles": "leaf", "taps": "taps", "oversample_range": "os_r", "oversample_angle": "os_a",
+             "leaf_oversample": "leaf os", "leaf_taps": "leaf taps"}
+    if row["leaf_oversample"] is None and row["leaf_taps"] is None:
+        return "leaves as merged grids (before)"
+    parts = [f"{short} {row[f]}" for f, short in names.items() if row[f] != getattr(default, f)]
+    return ", ".join(parts) or "default"
 
 
 def chart(result: dict, path: Path) -> None:
@@ -141,29 +244,30 @@ def chart(result: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, (ax1, ax3, ax2) = plt.subplots(1, 3, figsize=(16, 4.8))
     main = result["cases"][-1]
-    for row in main["ffbp"]:
-        ax1.plot(row["error_db"], row["speedup"], "o", color="C0")
-        ax1.plot(row["error_estimate_db"], row["speedup"], "x", color="C1")
-        ax1.annotate(f"{row['taps']} taps, x{row['oversample_range']:g}", (row["error_db"], row["speedup"]),
-                     textcoords="offset points", xytext=(5, 4), fontsize=8)
+    for row in main.get("frontier", []):
+        speed = row["cpu_speed_over_default"]
+        ax1.plot(row["error_db"], speed, "o", color="C3" if label(row) == "default" else "C0")
+        ax1.plot(row["error_estimate_db"], speed, "x", color="C1")
+        ax1.annotate(label(row), (row["error_db"], speed), textcoords="offset points", xytext=(4, 3), fontsize=6.5)
     ax1.axvline(-40, color="0.6", ls="--", lw=0.8)
-    ax1.axhline(10, color="0.6", ls="--", lw=0.8)
+    ax1.axvline(-41, color="0.8", ls=":", lw=0.8)
     ax1.plot([], [], "o", color="C0", label="measured error")
-    ax1.plot([], [], "x", color="C1", label="plan's estimate")
-    ax1.set(xlabel="error against the direct kernel, dB", ylabel="speed-up over the direct kernel",
-            title=f"{main['aperture_m']:.1f} m aperture, {main['pixels'] / 1e3:.0f} k pixels")
-    ax1.legend(fontsize=8)
-    default = FactorizedOptions()
-    ap, sp = [], []
-    for case in result["cases"]:
-        for row in case["ffbp"]:
-            if (row["taps"], row["oversample_range"]) == (default.taps, default.oversample_range):
-                ap.append(case["aperture_m"])
-                sp.append(row["speedup"])
+    ax1.plot([], [], "x", color="C1", label="plan's estimate (flat spectrum)")
+    ax1.set(xlabel="error against the direct kernel, dB", ylabel="speed over the default's (CPU time, 1 thread)",
+            title=f"settings, {main['aperture_m']:.1f} m aperture, {main['pixels'] / 1e3:.0f} k pixels")
+    ax1.legend(fontsize=7)
+    names = [f"{r['aperture_m']:g} m at {r['range_m']:g} m" for r in result["reach"]]
+    ax3.plot(names, [r["error_db"] for r in result["reach"]], "o", label="measured")
+    ax3.plot(names, [r["error_estimate_db"] for r in result["reach"]], "x", label="plan's estimate")
+    ax3.axhline(-40, color="0.6", ls="--", lw=0.8)
+    ax3.set(ylabel="error, dB", title="default settings: aperture at scene range")
+    ax3.legend(fontsize=7)
+    ap = [case["aperture_m"] for case in result["cases"]]
+    sp = [case["ffbp"][0]["speedup"] for case in result["cases"]]
     ax2.plot(ap, sp, "o-")
-    ax2.set(xlabel="aperture, m", ylabel="speed-up (default settings)", title="speed-up against aperture length")
+    ax2.set(xlabel="aperture, m", ylabel="speed-up with its plan (default settings)", title="speed-up against aperture length")
     ax2.set_ylim(bottom=0)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -181,20 +285,18 @@ def main() -> int:
         apertures, x, y, repeats = [0.5, 1.0, 2.0], np.arange(-0.5, 0.5, 0.002), np.arange(1.7, 2.3, 0.002), 2
     uptime_before = load_text()
     default = FactorizedOptions()
-    sweep = [default, FactorizedOptions(taps=4, oversample_range=3, oversample_angle=3), FactorizedOptions(taps=8),
-             FactorizedOptions(taps=6, oversample_range=3, oversample_angle=3)]
     backproject(*[range_compress(np.ones((4, 175), complex), 76e9, 22.75e6, oversample=8, guarded=True)],
                 np.zeros((4, 3)), np.zeros((4, 3)), np.ones((2, 2, 3)))  # compile the direct kernel outside the timing
     cases = []
     for aperture in apertures:
-        configs = sweep if aperture == apertures[-1] else [default]
+        configs = [default]
         cases.append(run_case(int(round(aperture / frame_m)), x, y, configs, repeats, study_threads=aperture == apertures[-1]))
     result = {"machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(), "numba": numba.__version__,
                           "python": platform.python_version(), "load_average": os.getloadavg(),
                           "uptime_before": uptime_before, "uptime_after": load_text()},
               "case": {"speed_mps": SPEED_MPS, "range_m": 2.0, "pixel_m": float(x[1] - x[0]), "image_m": [float(np.ptp(x)), float(np.ptp(y))],
                        "profile_oversample": 8, "direct_mode": "linear", "quick": args.quick},
-              "cases": cases}
+              "cases": cases, "default": settings(default), "reach": reach(args.quick)}
     RESULTS.mkdir(parents=True, exist_ok=True)
     name = "ffbp_quick" if args.quick else "ffbp"
     (RESULTS / f"{name}.json").write_text(strict_json.dumps(result, indent=2))

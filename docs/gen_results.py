@@ -52,8 +52,13 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                       "The command as a new process against its kernel alone, with the time of every stage.",
                       ".venv/bin/python benchmarks/image_command.py"),
     "ffbp": ("Fast factorized backprojection",
-             "FFBP against the direct kernel on the same profiles: speed-up against error energy and aperture.",
+             "FFBP against the direct kernel on the same profiles: speed-up against error energy and aperture; "
+             "the settings' speed against their error; the default's error further out and longer.",
              ".venv/bin/python benchmarks/ffbp.py"),
+    "ffbp_leaves": ("FFBP's leaf kernel, part by part",
+                    "The leaf kernel on one thread, nanoseconds a backprojection: as it runs, without prefetching, "
+                    "its geometry and its gather alone, with the rows in cache, against the direct kernel.",
+                    ".venv/bin/python benchmarks/ffbp_leaves.py"),
     "stripmap": ("Live strip map",
                  "The streaming strip map: frames per second against the sensor rate, and map error against an "
                  "offline full-resolution map, per setting.",

@@ -28,7 +28,11 @@ vibration or a bend widen the grid rather than alias it.
 Interpolation. Separable, ``taps`` x ``taps`` per sample, with coefficients that minimise the squared error
 over the band the grid is oversampled for (the optimum for band-limited signals, Knab's kind of
 interpolator), tabulated at 2048 fractional shifts. :func:`interpolation_error` gives the worst error of a
-tone anywhere in that band; :attr:`FactorizedPlan.error_bound_db` adds it up along the tree.
+tone anywhere in that band; :attr:`FactorizedPlan.error_bound_db` adds it up along the tree. The leaves'
+grids are sampled coarser (1.5x over Nyquist against 2x) and read with more taps (8 against 6): a leaf's grid
+costs a backprojection per profile (512 of them) and point, a merged grid only taps^2 multiply-adds per child
+and point, so this trades a third of the leaves' work for a little more in the first merge
+(benchmarks/ffbp.py charts the settings' speed against their error).
 """
 
 from __future__ import annotations
@@ -66,13 +70,18 @@ class FactorizedOptions:
 
     ``leaf_profiles``: profiles per leaf subaperture (the reference radar's 16 channels x 32 chirps is 512).
     ``oversample_range`` / ``oversample_angle``: grid oversampling over Nyquist. ``taps``: interpolation
-    taps per dimension (even). ``mode``: the direct kernel's interpolation for the leaves.
+    taps per dimension (even). ``leaf_oversample`` / ``leaf_taps``: the same for the leaves' grids, in range
+    and angle (None: as the others). A leaf's grid costs a backprojection per profile and point, a merged
+    grid ``taps``^2 multiply-adds per child and point: so the leaves' grids are coarse and read with more
+    taps. ``mode``: the direct kernel's interpolation for the leaves.
     """
 
     leaf_profiles: int = 512
     oversample_range: float = 2.0
     oversample_angle: float = 2.0
     taps: int = 6
+    leaf_oversample: float | None = 1.5
+    leaf_taps: int | None = 8
     mode: str = "linear"
 
     def __post_init__(self) -> None:
@@ -80,7 +89,17 @@ class FactorizedOptions:
         require(1.2 <= self.oversample_range <= 16, "oversample_range", f"must be in [1.2, 16], got {self.oversample_range}")
         require(1.2 <= self.oversample_angle <= 16, "oversample_angle", f"must be in [1.2, 16], got {self.oversample_angle}")
         require(self.taps in (2, 4, 6, 8, 10, 12), "taps", f"must be an even number from 2 to 12, got {self.taps}")
+        require(self.leaf_oversample is None or 1.2 <= self.leaf_oversample <= 16, "leaf_oversample",
+                f"must be in [1.2, 16], got {self.leaf_oversample}")
+        require(self.leaf_taps in (None, 2, 4, 6, 8, 10, 12), "leaf_taps", f"must be an even number from 2 to 12, got {self.leaf_taps}")
         require(self.mode in ("nearest", "linear", "exact"), "mode", f"must be nearest, linear or exact, got {self.mode!r}")
+
+    def sampling(self, leaf: bool) -> tuple[float, float, int]:
+        """(oversample in range, oversample in angle, taps) of a leaf's grid or of a merged one."""
+        if not leaf:
+            return self.oversample_range, self.oversample_angle, self.taps
+        return (self.leaf_oversample or self.oversample_range, self.leaf_oversample or self.oversample_angle,
+                self.leaf_taps or self.taps)
 
 
 # -- the plan: the tree, each subaperture's polar grid -------------------------------------------------------
@@ -167,39 +186,49 @@ class FactorizedPlan:
         """Worst-case error of a pixel relative to the sum of the magnitudes behind it, dB: every merge
         and the final step interpolate once in range and once in angle (each at most
         :func:`interpolation_error` for data within the band its grid is sampled for), and the errors add
-        coherently along the ``levels + 1`` interpolations between a leaf and a pixel. The leaves' own
+        coherently along the ``levels + 1`` interpolations between a leaf and a pixel, the first of them
+        reading the leaf's grid (``FactorizedOptions.sampling``). The leaves' own
         error is the direct kernel's."""
         if self.direct_only:
             return -math.inf
-        o = self.options
-        er, ea = interpolation_error(o.taps, o.oversample_range), interpolation_error(o.taps, o.oversample_angle)
-        per_step = er + ea + er * ea
-        return float(20 * np.log10((1 + per_step) ** (self.levels + 1) - 1))
+        growth = 1.0
+        for leaf, steps in ((True, 1), (False, self.levels)):
+            osr, osa, taps = self.options.sampling(leaf)
+            er, ea = interpolation_error(taps, osr), interpolation_error(taps, osa)
+            growth *= (1 + er + ea + er * ea) ** steps
+        return float(20 * np.log10(growth - 1))
 
     @property
     def error_estimate_db(self) -> float:
         """Expected error energy relative to the image's, dB: the interpolations' RMS errors
         (:func:`interpolation_rms_error`, data spread evenly over the band) adding in power over the
-        ``2 (levels + 1)`` one-dimensional interpolations between a leaf and a pixel. Measured errors sit
+        ``2 (levels + 1)`` one-dimensional interpolations between a leaf and a pixel (two of them reading the
+        leaf's grid). Measured errors sit
         near it (tests and benchmarks/ffbp.py); the bound above is what no band-limited input exceeds."""
         if self.direct_only:
             return -math.inf
-        o = self.options
-        power = interpolation_rms_error(o.taps, o.oversample_range) ** 2 + interpolation_rms_error(o.taps, o.oversample_angle) ** 2
-        return float(10 * np.log10(power * (self.levels + 1)))
+        power = 0.0
+        for leaf, steps in ((True, 1), (False, self.levels)):
+            osr, osa, taps = self.options.sampling(leaf)
+            power += steps * (interpolation_rms_error(taps, osr) ** 2 + interpolation_rms_error(taps, osa) ** 2)
+        return float(10 * np.log10(power))
 
     def cost(self) -> dict:
         """Operation counts: backprojections (profile x point) at the leaves, interpolated samples in the
-        merges and at the pixels (taps^2 multiply-adds each), against the direct kernel's profile x pixel
-        count."""
+        merges and at the pixels (taps^2 multiply-adds each, ``leaf_taps``^2 where a leaf's grid is read;
+        all of them in ``multiply_adds``), against the direct kernel's profile x pixel count."""
         n_pix = self.x_m.size * self.y_m.size
         nodes = list(self.nodes())
         leaves = [n for n in nodes if not n.children]
+        taps2 = {leaf: self.options.sampling(leaf)[2] ** 2 for leaf in (True, False)}
         merged = sum(n.nr * n.na * len(n.children) for n in nodes if n.children)
+        merge_mac = sum(n.nr * n.na * taps2[not c.children] for n in nodes for c in n.children)
+        pixel_mac = n_pix * sum(taps2[not r.children] for r in self.roots if not r.direct)
         return {"leaf_backprojections": int(sum((n.stop - n.start) * (n_pix if n.direct else n.nr * n.na) for n in leaves)),
                 "merge_interpolations": int(merged),
                 "pixel_interpolations": int(n_pix * sum(not r.direct for r in self.roots)),
-                "taps_squared": self.options.taps ** 2, "roots": len(self.roots), "levels": self.levels,
+                "taps_squared": self.options.taps ** 2, "leaf_taps_squared": taps2[True],
+                "multiply_adds": int(merge_mac + pixel_mac), "roots": len(self.roots), "levels": self.levels,
                 "direct_backprojections": int(self.roots[-1].stop - self.roots[0].start) * n_pix}
 
 
@@ -286,7 +315,6 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
     overall = _horizontal_axis(m, None)
     two_over_lambda = 2 * (carrier_hz + bandwidth_hz / 2) / SPEED_OF_LIGHT_MPS
     envelope = bandwidth_hz / SPEED_OF_LIGHT_MPS  # the range profile's band, cycles per metre of range
-    half_taps = o.taps // 2
     n_pix = x_m.size * y_m.size
 
     def build(start: int, stop: int) -> Subaperture:
@@ -307,6 +335,8 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
         """Size ``node``'s grid to cover the plane points ``needed_xy`` [M, 2] (the image's outline, or
         the outline of its parent's grid) with the taps to interpolate anywhere inside."""
         c, u, n = node.centre_m, node.axis, node.normal
+        oversample_range, oversample_angle, taps = o.sampling(leaf=not node.children)
+        half_taps = taps // 2
         h = z_m - c[2]
         b_image = float(((image_xy - c[:2]) @ n).min())
         if b_image <= 0:
@@ -329,8 +359,8 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
         rs, as_ = rs[~near], as_[~near]
         centres = _extreme_points(m[node.start:node.stop], u, n)
         f_r, f_a = _polar_derivatives(node, centres, rs, as_, z_m)
-        dr = 1.0 / (2 * (envelope + two_over_lambda * f_r) * BAND_MARGIN * o.oversample_range)
-        da = min(1.0 / (2 * max(two_over_lambda * f_a, 1e-9) * BAND_MARGIN * o.oversample_angle), 0.1)
+        dr = 1.0 / (2 * (envelope + two_over_lambda * f_r) * BAND_MARGIN * oversample_range)
+        da = min(1.0 / (2 * max(two_over_lambda * f_a, 1e-9) * BAND_MARGIN * oversample_angle), 0.1)
         node.dr_m, node.da = dr, da
         # The merge and pixel kernels read taps/2 - 1 samples below the floor of a position and taps/2 above it.
         node.r0_m = float(r.min() - half_taps * dr)
@@ -356,7 +386,7 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
         place(node, image_xy)
         if node.children and 2 * node.nr * node.na > n_pix:
             return [r for child in node.children for r in choose_roots(child)]
-        if not node.children and (node.stop - node.start) * node.nr * node.na + n_pix * o.taps ** 2 > (node.stop - node.start) * n_pix:
+        if not node.children and (node.stop - node.start) * node.nr * node.na + n_pix * o.sampling(True)[2] ** 2 > (node.stop - node.start) * n_pix:
             node.direct = True  # cheaper straight onto the pixels
         return [node]
 
@@ -371,7 +401,7 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
     # onto the pixels, which is never dearer than that.
     cost = plan.cost()
     largest = max((n.nr * n.na for n in plan.nodes() if not n.direct), default=0)
-    operations = cost["leaf_backprojections"] + cost["taps_squared"] * (cost["merge_interpolations"] + cost["pixel_interpolations"])
+    operations = cost["leaf_backprojections"] + cost["multiply_adds"]
     if largest > MAX_GRID_PER_PIXEL * max(n_pix, 4096) or operations > cost["direct_backprojections"]:
         whole.children, whole.level, whole.direct = (), 0, True
         plan = FactorizedPlan([whole], x_m, y_m, float(z_m), o, k)
@@ -412,8 +442,9 @@ def run_factorized(plan: FactorizedPlan, profiles: RangeProfiles, tx_m: np.ndarr
     if _count(profiles) != tx.shape[0] or plan.roots[-1].stop != tx.shape[0] or plan.roots[0].start != 0:
         raise ValueError(f"{_count(profiles)} profiles and {tx.shape[0]} antenna positions; the plan is for {plan.roots[-1].stop}")
     load_kernel()  # once a process, whatever the plan (see imaging.ffbp_leaves.load_kernel)
-    tab_r = interpolation_table(o.taps, o.oversample_range)
-    tab_a = interpolation_table(o.taps, o.oversample_angle)
+    # (range, angle) tables for reading a leaf's grid (True) or a merged one.
+    tables = {leaf: (interpolation_table(o.sampling(leaf)[2], o.sampling(leaf)[0]),
+                     interpolation_table(o.sampling(leaf)[2], o.sampling(leaf)[1])) for leaf in (True, False)}
     k, z = plan.wavenumber, plan.z_m
     shape = (plan.y_m.size, plan.x_m.size)
     if out is None:
@@ -457,13 +488,13 @@ def run_factorized(plan: FactorizedPlan, profiles: RangeProfiles, tx_m: np.ndarr
     def merge(node: Subaperture, i0: int, i1: int) -> None:
         d, g = images[id(node)], node.geometry
         for child in node.children:
-            _merge_rows(d, i0, i1, g, images[id(child)], child.geometry, z, k, tab_r, tab_a)
+            _merge_rows(d, i0, i1, g, images[id(child)], child.geometry, z, k, *tables[not child.children])
 
     roots = [r for r in plan.roots if not r.direct]
 
     def to_pixels(i0: int, i1: int) -> None:
         for root in roots:
-            _to_plane_rows(out, i0, i1, plan.x_m, plan.y_m, z, images[id(root)], root.geometry, k, tab_r, tab_a)
+            _to_plane_rows(out, i0, i1, plan.x_m, plan.y_m, z, images[id(root)], root.geometry, k, *tables[not root.children])
 
     # Coarse work, level by level: every leaf is one task, every merge and the pixels are cut into row
     # ranges; the tasks of a level go to a pool of numba's thread count, each run on one thread. A core taken

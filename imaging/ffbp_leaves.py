@@ -22,6 +22,11 @@ float64 per profile, as the direct kernel's block centre. Before this, the leave
 float64 blocks (its float32 blocks, sized for a fine Cartesian grid, were slower still on a coarse polar one):
 two float64 square roots and a float64 phase per backprojection, 1.2-1.5x this kernel's time on one thread.
 
+A leaf's block of grid points spans several range rows, so each profile's gathers first touch 5-6 cache lines
+of its row, lines no earlier block read (the next block lies at other ranges): each was a wait on memory, as
+the rows of a leaf's 512 profiles do not stay in cache. The kernel prefetches them PREFETCH_AHEAD profiles
+ahead (``imaging.core.prefetch``); benchmarks/ffbp_leaves.py times the kernel's parts.
+
 Numba note: an inlined helper that is handed arrays inside a loop over points costs a reference count's
 increment and decrement per point (here it made the loop 15x slower); the helpers below take and return
 scalars there, and the array-taking ones run once a profile.
@@ -38,7 +43,12 @@ import numpy as np
 from imaging.backprojection import (_G, _TWO_PI, BLOCK, _gather_pairs_accumulate, guarded_rows,
                                     series_applies)
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
+from imaging.core.prefetch import prefetch
 from imaging.range_compression import RangeProfiles
+
+#: While a profile is gathered, the bins of the profile this many ahead are prefetched (1 to 8 measured alike:
+#: benchmarks/ffbp_leaves.py).
+PREFETCH_AHEAD = 2
 
 
 @numba.njit(fastmath=True, cache=True, nogil=True)
@@ -134,9 +144,27 @@ def _leaf_block(rows, r0, inv_dr, k, tx, rx, r_ref, linear, z, p0, p1, g, na, g0
                 r32 = np.float32(0.5) * two_r[i]
                 d = da[i] + num / (math.sqrt(r32 * r32 + num) + r32)
                 idx[i], frac[i], turns[i] = _place_polar(d, r_bins[i], frac_c, inv32, lo, top, ibase, turns_c, k_turns32, linear)
+        if p + PREFETCH_AHEAD < p1:
+            _prefetch_bins(rows, p + PREFETCH_AHEAD, idx)
         _gather_pairs_accumulate(rows[p], idx, frac, turns, pairs, acc_re, acc_im, linear)
     for i in range(nb):
         out[i] = np.complex64(complex(acc_re[i], acc_im[i]))
+
+
+@numba.njit(inline="always")
+def _prefetch_bins(rows, p, idx):
+    """Prefetch row p's cache lines over the bins idx.min() .. idx.max() + 1 (this profile's, which a later
+    profile's differ from by a fraction of a bin): a block's gathers first touch these lines, 5-6 of them a
+    profile on a leaf's polar grid, each a wait on memory otherwise."""
+    lo = idx[0]
+    hi = idx[0]
+    for i in range(idx.size):
+        lo = min(lo, idx[i])
+        hi = max(hi, idx[i])
+    last = min(np.int64(hi) + 1, rows.shape[1] - 1)
+    for j in range(np.int64(lo), last + 1, 8):  # 8 complex64 a 64-byte line
+        prefetch(rows, p, j)
+    prefetch(rows, p, last)
 
 
 @numba.njit(inline="always", fastmath=True)
