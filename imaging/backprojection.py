@@ -58,7 +58,7 @@ from imaging.numba_target import (  # noqa: F401 - compiled_target re-exported
 from imaging.range_compression import RangeProfiles
 from imaging.range_offsets import (  # noqa: F401 - _G, SERIES_TOLERANCE_M and series_applies re-exported
     _G, SERIES_TOLERANCE_M, _midpoint_scales, _range_offsets, _series_offset, _series_scales, midpoint_applies,
-    series_applies)
+    midpoint_form, series_applies)
 
 # Before any kernel compiles: 512-bit vectors where the CPU has AVX-512 (see imaging/numba_target.py).
 prefer_full_width_vectors()
@@ -252,35 +252,31 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
             ibase = np.int32(base)
             # A TX shared with the previous profile (the RX channels of one chirp) has the same offsets.
             new_tx = p == p0 or tx[p, 0] != tx[p - 1, 0] or tx[p, 1] != tx[p - 1, 1] or tx[p, 2] != tx[p - 1, 2]
-            rx_series = series_applies(ub, radius)
             b0, b1, b2 = np.float32(2.0 * ub0), np.float32(2.0 * ub1), np.float32(2.0 * ub2)
             place = (frac_c, inv32, lo, top, ibase, turns_c, k_turns32, linear)
             tx_alone = new_tx and (p + 1 == p1 or tx[p + 1, 0] != tx[p, 0] or tx[p + 1, 1] != tx[p, 1]
                                    or tx[p + 1, 2] != tx[p, 2])
-            # c - m (m the antennas' midpoint) and |c - m|, only for a TX of its own; defined on every path
-            # (numba gave NaN for variables defined in one branch and read in another).
-            um0 = um1 = um2 = um = 0.0
-            midpoint = False
-            if tx_alone:
-                um0, um1, um2 = 0.5 * (ua0 + ub0), 0.5 * (ua1 + ub1), 0.5 * (ua2 + ub2)
-                um = math.sqrt(um0 * um0 + um1 * um1 + um2 * um2)
-                half_baseline_sq = 0.25 * ((ua0 - ub0) ** 2 + (ua1 - ub1) ** 2 + (ua2 - ub2) ** 2)
-                midpoint = midpoint_applies(um, radius, half_baseline_sq, k)
-            if midpoint:
-                # No other profile shares this TX (a one-antenna pass): one series on the antennas' midpoint,
-                # doubled, plus delta's gradient at c (float64, then float32) times d; delta(c) is in dr_c
-                # (see imaging/range_offsets.py).
-                m0, m1, m2 = np.float32(2.0 * um0), np.float32(2.0 * um1), np.float32(2.0 * um2)
-                inv_a, inv_b, inv_m = 1.0 / ua, 1.0 / ub, 2.0 / um
-                e0 = np.float32(ua0 * inv_a + ub0 * inv_b - um0 * inv_m)
-                e1 = np.float32(ua1 * inv_a + ub1 * inv_b - um1 * inv_m)
-                e2 = np.float32(ua2 * inv_a + ub2 * inv_b - um2 * inv_m)
+            # Defined on every path: numba gave NaN for variables defined in one branch and read in another.
+            form, c0, c1, c2, e0, e1, e2, um = 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+            if tx_alone:  # no other profile shares this TX (a one-antenna pass): its midpoint form, if any
+                form, c0, c1, c2, e0, e1, e2, um = midpoint_form(ua0, ua1, ua2, ua, ub0, ub1, ub2, ub, radius, k)
+            if form == 1:
+                # One series per pixel on the TX-RX midpoint, doubled, delta's gradient folded into its
+                # numerator; delta(c) is in dr_c (see imaging/range_offsets.py).
+                m0, m1, m2 = np.float32(c0), np.float32(c1), np.float32(c2)
+                gm = _midpoint_scales(um)
+                for i in range(nb):
+                    _place(i, _series_offset(m0 * dx[i] + m1 * dy[i] + m2 * dz[i] + dd[i], gm), place, idx, frac,
+                           pixel_turns)
+            elif form == 2:  # the same with delta's gradient term per pixel, where folding it would cost accuracy
+                m0, m1, m2 = np.float32(c0), np.float32(c1), np.float32(c2)
+                f0, f1, f2 = np.float32(e0), np.float32(e1), np.float32(e2)
                 gm = _midpoint_scales(um)
                 for i in range(nb):
                     num_m = m0 * dx[i] + m1 * dy[i] + m2 * dz[i] + dd[i]
-                    _place(i, _series_offset(num_m, gm) + (e0 * dx[i] + e1 * dy[i] + e2 * dz[i]), place, idx, frac,
+                    _place(i, _series_offset(num_m, gm) + (f0 * dx[i] + f1 * dy[i] + f2 * dz[i]), place, idx, frac,
                            pixel_turns)
-            elif tx_alone and rx_series and series_applies(ua, radius):
+            elif tx_alone and series_applies(ub, radius) and series_applies(ua, radius):
                 # Both antennas in one pass where delta bends too much for the midpoint form, the TX's offsets
                 # not stored.
                 a0, a1, a2 = np.float32(2.0 * ua0), np.float32(2.0 * ua1), np.float32(2.0 * ua2)
@@ -292,7 +288,7 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
             else:
                 if new_tx:
                     _range_offsets(ua0, ua1, ua2, ua, radius, dx, dy, dz, dd, da)
-                if rx_series:
+                if series_applies(ub, radius):
                     gb = _series_scales(ub)
                     for i in range(nb):
                         num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]

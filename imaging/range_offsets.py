@@ -111,6 +111,46 @@ def midpoint_applies(m_n, radius, half_baseline_sq, k):
     return near > 0.0 and series_applies(m_n, radius) and k * bound <= MIDPOINT_PHASE_RAD
 
 
+@numba.njit(inline="always")
+def fold_bound_m(m_n, radius, e_n):
+    """Bound on the error of folding delta's linear term e.d into the series' numerator (``midpoint_form``):
+    |2 sqrt(A^2 + |c - m| e.d) - 2 A - e.d| for A = |g - m|, |g - c| <= radius, |e| <= e_n, and the
+    fraction x = |c - m| |e| r / (|c - m| - r)^2 that bound needs at most 1/2 (else 1.0, for no bound).
+
+    2 A (sqrt(1 + x) - 1) - e.d with x = |c - m| e.d / A^2: its first-order part is e.d (|c - m| / A - 1),
+    at most |e| r^2 / (|c - m| - r); the rest at most 2 A x^2 / 2^(3/2) for |x| <= 1/2."""
+    near = m_n - radius
+    x = m_n * e_n * radius / (near * near) if near > 0.0 else 1.0
+    return e_n * radius * radius / near * (1.0 + 0.71 * m_n * m_n * e_n / (near * near)) if x <= 0.5 else 0.0, x
+
+
+@numba.njit(inline="always")
+def midpoint_form(ua0, ua1, ua2, ua, ub0, ub1, ub2, ub, radius, k):
+    """How a profile whose TX no other profile shares is ranged over a block: (form, c0, c1, c2, e0, e1, e2,
+    |c - m|) from the float64 vectors u_a, u_b from its TX and RX to the block's centre c.
+
+    form 1: one series on num = c.d + d.d, doubled (``_midpoint_scales``), with c = 2 (c - m) + |c - m| e:
+    delta's gradient e at c folded into the numerator (``fold_bound_m``); form 2: the series on
+    c = 2 (c - m) plus e.d per pixel; form 0: neither within MIDPOINT_PHASE_RAD (the two series instead)."""
+    um0, um1, um2 = 0.5 * (ua0 + ub0), 0.5 * (ua1 + ub1), 0.5 * (ua2 + ub2)
+    um = math.sqrt(um0 * um0 + um1 * um1 + um2 * um2)
+    half_baseline_sq = 0.25 * ((ua0 - ub0) ** 2 + (ua1 - ub1) ** 2 + (ua2 - ub2) ** 2)
+    if not midpoint_applies(um, radius, half_baseline_sq, k):
+        return 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, um
+    inv_a, inv_b, inv_m = 1.0 / ua, 1.0 / ub, 2.0 / um
+    e0 = ua0 * inv_a + ub0 * inv_b - um0 * inv_m
+    e1 = ua1 * inv_a + ub1 * inv_b - um1 * inv_m
+    e2 = ua2 * inv_a + ub2 * inv_b - um2 * inv_m
+    e_n = abs(e0) + abs(e1) + abs(e2)  # >= |e|, without a square root
+    half_baseline = math.sqrt(half_baseline_sq) if half_baseline_sq > 0.0 else 0.0
+    fold, x = fold_bound_m(um, radius, e_n)
+    if (x <= 0.5 and k * (_midpoint_remainder_m(um, radius, half_baseline)[0] + fold) <= MIDPOINT_PHASE_RAD
+            # the folded numerator reaches |c - m| |e| r further: the series' radius grows by |e| r / 2
+            and series_applies(um, radius * (1.0 + 0.5 * e_n))):
+        return 1, 2.0 * um0 + um * e0, 2.0 * um1 + um * e1, 2.0 * um2 + um * e2, 0.0, 0.0, 0.0, um
+    return 2, 2.0 * um0, 2.0 * um1, 2.0 * um2, e0, e1, e2, um
+
+
 @numba.njit(inline="always", fastmath=True)
 def _range_offsets(u0, u1, u2, u_n, radius, dx, dy, dz, dd, out):
     """out[i] = |u + d_i| - |u| in float32, for the float64 vector u from an antenna to the block centre.

@@ -10,13 +10,13 @@ from imaging.backprojection import (
     _cos_sin_turns,
     backproject,
     max_block_extent_m,
-    midpoint_applies,
+    midpoint_form,
     patch_order,
     patch_shape,
     series_applies,
 )
 from imaging.range_compression import range_compress
-from imaging.range_offsets import MIDPOINT_PHASE_RAD, midpoint_remainder_bound_m
+from imaging.range_offsets import MIDPOINT_PHASE_RAD, fold_bound_m, midpoint_remainder_bound_m
 
 C = 299_792_458.0
 F0, FSTEP, NS = 76e9, 22.75e6, 175
@@ -327,12 +327,13 @@ def midpoint_delta_m(g, tx, rx):
     return np.linalg.norm(g - tx, axis=-1) + np.linalg.norm(g - rx, axis=-1) - 2 * np.linalg.norm(g - m, axis=-1)
 
 
-def test_midpoint_remainder_bound_holds_and_is_close():
-    """The bound on delta's departure from its linear part over a block (imaging/range_offsets.py), against
-    delta itself in float64 on the bounding sphere of random blocks: never exceeded, and not loose (within
-    2x for some), from half-baselines of 1 to 50 mm and blocks 0.1 to 5 m away."""
+def test_midpoint_remainder_and_fold_bounds_hold_and_are_close():
+    """The bounds on delta's departure from its linear part over a block and on folding that linear part
+    into the series' numerator (imaging/range_offsets.py), against both computed in float64 on the bounding
+    sphere of random blocks: never exceeded, and not loose (within 2x and 5x for some), from half-baselines
+    of 1 to 50 mm and blocks 0.1 to 5 m away."""
     rng = np.random.default_rng(12)
-    ratios = []
+    ratios, fold_ratios = [], []
     for _ in range(400):
         distance, half, radius = rng.uniform(0.1, 5.0), rng.uniform(0.001, 0.05), rng.uniform(0.005, 0.1)
         if distance <= 2 * (radius + half):
@@ -349,9 +350,16 @@ def test_midpoint_remainder_bound_holds_and_is_close():
         bound = midpoint_remainder_bound_m(distance, radius, half)
         if bound > 1e-11:  # far above float64's rounding of the ranges
             ratios.append(np.abs(remainder).max() / bound)
-    assert len(ratios) > 300
-    assert max(ratios) <= 1.0
-    assert max(ratios) > 0.5
+        # delta's gradient folded into the series' numerator: 2 sqrt(A^2 + |c - m| e.d) - 2 A against 2 A + e.d
+        a = np.linalg.norm(u_m + d, axis=1)
+        eps = d @ gradient
+        folded = 2 * np.sqrt(a * a + distance * eps) - 2 * a
+        fold, x = fold_bound_m(distance, radius, np.abs(gradient).sum())
+        if x <= 0.5 and fold > 1e-11:
+            fold_ratios.append(np.abs(folded - eps).max() / fold)
+    assert len(ratios) > 300 and len(fold_ratios) > 100
+    assert max(ratios) <= 1.0 and max(fold_ratios) <= 1.0
+    assert max(ratios) > 0.5 and max(fold_ratios) > 0.2
     assert midpoint_remainder_bound_m(0.05, 0.04, 0.02) == np.inf  # the block reaches the antennas
 
 
@@ -372,23 +380,27 @@ def one_antenna_pass(baseline_m, far=0.0, n_profiles=64, shape=(48, 48), spacing
 
 
 @pytest.mark.parametrize("far", [0.0, 5000.0])
-@pytest.mark.parametrize(("baseline_m", "takes_midpoint"), [((0.0, 0.0, 0.0), True), ((0.0, 0.006, 0.002), True),
-                                                            ((0.3, 0.0, 0.0), False)],
-                         ids=["monostatic", "narrow-midpoint", "wide-two-series"])
-def test_one_antenna_pass_midpoint_and_fallback_match_numpy_reference(baseline_m, takes_midpoint, far):
-    """A one-antenna pass (no TX shared): one series on the antennas' midpoint per pixel where the bound
-    allows it (monostatic, a few millimetres apart), the two series where it does not (0.3 m apart: the
-    midpoint form would be 0.01 rad off there), each the numpy reference's image, near and 5 km out."""
+@pytest.mark.parametrize(("baseline_m", "form"), [((0.0, 0.0, 0.0), 1), ((0.004, 0.0, 0.0), 1), ((0.007, 0.0, 0.0), 2),
+                                                  ((0.3, 0.0, 0.0), 0)],
+                         ids=["monostatic-folded", "4mm-folded", "7mm-gradient-per-pixel", "wide-two-series"])
+def test_one_antenna_pass_midpoint_forms_match_numpy_reference(baseline_m, form, far):
+    """A one-antenna pass (no TX shared), every (block, profile) in one form (``midpoint_form``): one series
+    on the antennas' midpoint per pixel with delta's gradient folded into it (monostatic, 4 mm apart), or
+    added per pixel (7 mm), or the two series where the bound allows neither (0.3 m apart: the midpoint
+    form would be 0.01 rad off there); each the numpy reference's image, near and 5 km out."""
     prof, tx, rx, grid = one_antenna_pass(baseline_m, far)
     k = 2 * np.pi * prof.carrier_hz / C
     # Every block is a 16 x 16 patch; its points lie within this radius of its centre.
     radius = np.hypot(7.5, 7.5) * 0.004
     patches = grid.reshape(3, PATCH, 3, PATCH, 3).transpose(0, 2, 1, 3, 4).reshape(9, -1, 3)
     centres = 0.5 * (patches.min(axis=1) + patches.max(axis=1))
-    half = 0.5 * np.linalg.norm(rx - tx, axis=1)
-    applies = [midpoint_applies(float(np.linalg.norm(c - 0.5 * (t + r))), radius, float(h * h), k)
-               for c in centres for t, r, h in zip(tx, rx, half)]
-    assert all(applies) == takes_midpoint and any(applies) == takes_midpoint
+    forms = {midpoint_form(*(c - t), np.linalg.norm(c - t), *(c - r), np.linalg.norm(c - r), radius, k)[0]
+             for c in centres for t, r in zip(tx, rx)}
+    assert forms == {form}
+    if form == 1 and baseline_m[0] > 0.0:  # delta's gradient is there to fold (not vacuous)
+        c, t, r = centres[0], tx[0], rx[0]
+        e = (c - t) / np.linalg.norm(c - t) + (c - r) / np.linalg.norm(c - r) - 2 * (c - 0.5 * (t + r)) / np.linalg.norm(c - 0.5 * (t + r))
+        assert np.linalg.norm(e) > 1e-6
     got = backproject(prof, tx, rx, grid)
     want = backproject_reference(prof, tx, rx, grid)
     scale = np.abs(want).max()
