@@ -57,8 +57,8 @@ from imaging.numba_target import (  # noqa: F401 - compiled_target re-exported
     compiled_target, prefer_full_width_vectors, skip_extension_search)
 from imaging.range_compression import RangeProfiles
 from imaging.range_offsets import (  # noqa: F401 - _G, SERIES_TOLERANCE_M and series_applies re-exported
-    _G, SERIES_TOLERANCE_M, _midpoint_scales, _range_offsets, _series_offset, _series_scales, midpoint_applies,
-    midpoint_form, series_applies)
+    _G, FOLD_GRADIENT_MAX, MIDPOINT_PHASE_RAD, SERIES_TOLERANCE_M, _midpoint_scales, _range_offsets, _series_offset,
+    _series_scales, midpoint_form, series_applies, series_min_distance)
 
 # Before any kernel compiles: 512-bit vectors where the CPU has AVX-512 (see imaging/numba_target.py).
 prefer_full_width_vectors()
@@ -205,6 +205,11 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
     n_blocks = (n_g + block - 1) // block
     inv32 = np.float32(inv_dr)
     k_turns32 = np.float32(k / _TWO_PI)
+    midpoint_tol_m = MIDPOINT_PHASE_RAD / k
+    half_baseline = np.empty(p1 - p0)  # of each profile's TX and RX, for the midpoint form
+    for p in range(p0, p1):
+        h2 = 0.25 * ((tx[p, 0] - rx[p, 0]) ** 2 + (tx[p, 1] - rx[p, 1]) ** 2 + (tx[p, 2] - rx[p, 2]) ** 2)
+        half_baseline[p - p0] = math.sqrt(h2) if h2 > 0.0 else 0.0  # fastmath's square root of 0 can be NaN
     for blk in numba.prange(n_blocks):
         g0 = blk * block
         nb = min(g0 + block, n_g) - g0
@@ -235,6 +240,7 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
             dz[i] = np.float32(gz[g0 + i] - cz)
             dd[i] = dx[i] * dx[i] + dy[i] * dy[i] + dz[i] * dz[i]
         radius = math.sqrt(np.float64(dd.max()))
+        u_series = series_min_distance(radius * (1.0 + 0.5 * FOLD_GRADIENT_MAX))  # the midpoint's series, from here
         for p in range(p0, p1):
             ua0, ua1, ua2 = cx - tx[p, 0], cy - tx[p, 1], cz - tx[p, 2]
             ub0, ub1, ub2 = cx - rx[p, 0], cy - rx[p, 1], cz - rx[p, 2]
@@ -257,21 +263,22 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
             tx_alone = new_tx and (p + 1 == p1 or tx[p + 1, 0] != tx[p, 0] or tx[p + 1, 1] != tx[p, 1]
                                    or tx[p + 1, 2] != tx[p, 2])
             # Defined on every path: numba gave NaN for variables defined in one branch and read in another.
-            form, c0, c1, c2, e0, e1, e2, um = 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+            form, c0, c1, c2, e0, e1, e2, inv_m = 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
             if tx_alone:  # no other profile shares this TX (a one-antenna pass): its midpoint form, if any
-                form, c0, c1, c2, e0, e1, e2, um = midpoint_form(ua0, ua1, ua2, ua, ub0, ub1, ub2, ub, radius, k)
+                form, c0, c1, c2, e0, e1, e2, inv_m = midpoint_form(ua0, ua1, ua2, ua, ub0, ub1, ub2, ub, radius,
+                                                                    half_baseline[p - p0], u_series, midpoint_tol_m)
             if form == 1:
                 # One series per pixel on the TX-RX midpoint, doubled, delta's gradient folded into its
                 # numerator; delta(c) is in dr_c (see imaging/range_offsets.py).
                 m0, m1, m2 = np.float32(c0), np.float32(c1), np.float32(c2)
-                gm = _midpoint_scales(um)
+                gm = _midpoint_scales(inv_m)
                 for i in range(nb):
                     _place(i, _series_offset(m0 * dx[i] + m1 * dy[i] + m2 * dz[i] + dd[i], gm), place, idx, frac,
                            pixel_turns)
             elif form == 2:  # the same with delta's gradient term per pixel, where folding it would cost accuracy
                 m0, m1, m2 = np.float32(c0), np.float32(c1), np.float32(c2)
                 f0, f1, f2 = np.float32(e0), np.float32(e1), np.float32(e2)
-                gm = _midpoint_scales(um)
+                gm = _midpoint_scales(inv_m)
                 for i in range(nb):
                     num_m = m0 * dx[i] + m1 * dy[i] + m2 * dz[i] + dd[i]
                     _place(i, _series_offset(num_m, gm) + (f0 * dx[i] + f1 * dy[i] + f2 * dz[i]), place, idx, frac,

@@ -20,10 +20,11 @@ value at the centre plus its gradient there (both float64, per block and profile
     |remainder| <= 3/2 r^2 b^2 / (|c - m| - r - b)^3        (``midpoint_remainder_bound_m``)
 
 for pixels within r of c (half r^2 times the Hessian of delta, the second difference along the half-baseline
-of the Hessian of |.|, whose fourth derivative is at most 3 / |w|^3). Where that is within
-MIDPOINT_PHASE_RAD of phase (``midpoint_applies``) one series per pixel on m does (``_midpoint_scales``),
-else the two series per antenna. For a monostatic pair (TX at RX, as TX 0 and RX 0 of the default array)
-delta is zero.
+of the Hessian of |.|, whose fourth derivative is at most 3 / |w|^3). The gradient e is then folded into the
+series' numerator (2 (c - m) + |c - m| e).d + d.d, within ``fold_bound_m``: one series per pixel and nothing
+else. ``midpoint_form`` decides per (block, profile): folded where both bounds together are within
+MIDPOINT_PHASE_RAD of phase, else e.d added per pixel where delta's bound alone is, else the two series, one
+per antenna. For a monostatic pair (TX at RX, as TX 0 and RX 0 of the default array) delta is zero.
 
 Numba caches a kernel by its own file's time stamp, not by these helpers' (inlined into it): after editing
 this module, delete the ``imaging/__pycache__`` entries of the kernels that use it.
@@ -69,10 +70,10 @@ def _series_scales(u_n):
 
 
 @numba.njit(inline="always")
-def _midpoint_scales(m_n):
-    """``_series_scales`` of the midpoint m_n metres away, the range doubled (2 |g - m| - 2 |c - m|) in the
-    first scale: ``_series_offset`` then gives both antennas' offset but for delta's."""
-    return (np.float32(2.0 / m_n), np.float32(1.0 / (m_n * m_n)), np.float32(_G[0]), np.float32(_G[1]),
+def _midpoint_scales(inv_m):
+    """``_series_scales`` of the midpoint 1 / inv_m metres away, the range doubled (2 |g - m| - 2 |c - m|) in
+    the first scale: ``_series_offset`` then gives both antennas' offset but for delta's."""
+    return (np.float32(2.0 * inv_m), np.float32(inv_m * inv_m), np.float32(_G[0]), np.float32(_G[1]),
             np.float32(_G[2]), np.float32(_G[3]), np.float32(_G[4]), np.float32(_G[5]))
 
 
@@ -83,72 +84,81 @@ def _series_offset(num, sc):
     return (num * sc[0]) * (sc[2] + t * (sc[3] + t * (sc[4] + t * (sc[5] + t * (sc[6] + t * sc[7])))))
 
 
-@numba.njit(inline="always")
-def _midpoint_remainder_m(m_n, radius, half_baseline_m):
-    """The bound of ``midpoint_remainder_bound_m`` and the distance it divides by (inf-free: the kernel runs
-    with fastmath, which assumes no infinities)."""
-    near = m_n - radius - half_baseline_m
-    return 1.5 * radius * radius * half_baseline_m * half_baseline_m / (near * near * near) if near > 0.0 else 0.0, near
-
-
 def midpoint_remainder_bound_m(m_n: float, radius: float, half_baseline_m: float) -> float:
     """Bound on |delta(c + d) - delta(c) - grad delta(c).d| for |d| <= radius, the block centre c m_n metres
     from the antennas' midpoint, half_baseline_m half their distance (see the module's docstring); inf where
     the ball around c comes within b of m."""
-    bound, near = _midpoint_remainder_m(m_n, radius, half_baseline_m)
-    return bound if near > 0.0 else math.inf
+    near = m_n - radius - half_baseline_m
+    return 1.5 * radius ** 2 * half_baseline_m ** 2 / near ** 3 if near > 0.0 else math.inf
 
 
-@numba.njit(inline="always")
-def midpoint_applies(m_n, radius, half_baseline_sq, k):
-    """Whether one series on the midpoint m_n metres from a block's centre plus delta's linear term is within
-    MIDPOINT_PHASE_RAD (at k radians per metre of range) for every point within ``radius``, and the series
-    within SERIES_TOLERANCE_M of |g - m| - |c - m| (twice that, as the two series', for the pair).
-    ``half_baseline_sq``: the squared half-distance of the antennas (its square root taken here, and only
-    where it is not zero: fastmath's square root of 0 can be NaN)."""
-    half_baseline = math.sqrt(half_baseline_sq) if half_baseline_sq > 0.0 else 0.0
-    bound, near = _midpoint_remainder_m(m_n, radius, half_baseline)
-    return near > 0.0 and series_applies(m_n, radius) and k * bound <= MIDPOINT_PHASE_RAD
-
-
-@numba.njit(inline="always")
-def fold_bound_m(m_n, radius, e_n):
+def fold_bound_m(m_n: float, radius: float, e_n: float) -> tuple[float, float]:
     """Bound on the error of folding delta's linear term e.d into the series' numerator (``midpoint_form``):
-    |2 sqrt(A^2 + |c - m| e.d) - 2 A - e.d| for A = |g - m|, |g - c| <= radius, |e| <= e_n, and the
-    fraction x = |c - m| |e| r / (|c - m| - r)^2 that bound needs at most 1/2 (else 1.0, for no bound).
+    |2 sqrt(A^2 + |c - m| e.d) - 2 A - e.d| for A = |g - m|, |g - c| <= radius, |e| <= e_n; and the fraction
+    x = |c - m| |e| r / (|c - m| - r)^2, which the bound needs at most 1/2.
 
     2 A (sqrt(1 + x) - 1) - e.d with x = |c - m| e.d / A^2: its first-order part is e.d (|c - m| / A - 1),
     at most |e| r^2 / (|c - m| - r); the rest at most 2 A x^2 / 2^(3/2) for |x| <= 1/2."""
     near = m_n - radius
-    x = m_n * e_n * radius / (near * near) if near > 0.0 else 1.0
-    return e_n * radius * radius / near * (1.0 + 0.71 * m_n * m_n * e_n / (near * near)) if x <= 0.5 else 0.0, x
+    x = m_n * e_n * radius / near ** 2 if near > 0.0 else math.inf
+    return e_n * radius ** 2 / near * (1.0 + 0.71 * m_n ** 2 * e_n / near ** 2) if x <= 0.5 else math.inf, x
+
+
+#: Largest |e| (1-norm) folded: the series then covers a radius 1 % larger (its numerator reaches
+#: |c - m| |e| r further), so one least distance per block serves every profile (``series_min_distance``).
+FOLD_GRADIENT_MAX = 0.02
 
 
 @numba.njit(inline="always")
-def midpoint_form(ua0, ua1, ua2, ua, ub0, ub1, ub2, ub, radius, k):
+def series_min_distance(radius):
+    """The least distance (to 1e-7 of it, from above) at which ``series_applies`` holds for this radius: it
+    holds for every distance beyond (t_max and the error both fall with it). Once per block, so that each
+    profile compares instead of evaluating the condition."""
+    if radius <= 0.0:
+        return 0.0
+    lo, hi = radius, 8.0 * radius
+    while not series_applies(hi, radius):
+        lo, hi = hi, 2.0 * hi
+    while hi - lo > 1e-7 * hi:
+        mid = 0.5 * (lo + hi)
+        if series_applies(mid, radius):
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
+@numba.njit(inline="always")
+def midpoint_form(ua0, ua1, ua2, ua, ub0, ub1, ub2, ub, radius, half_baseline, u_series, tol_m):
     """How a profile whose TX no other profile shares is ranged over a block: (form, c0, c1, c2, e0, e1, e2,
-    |c - m|) from the float64 vectors u_a, u_b from its TX and RX to the block's centre c.
+    1 / |c - m|) from the float64 vectors u_a, u_b from its TX and RX to the block's centre c, half the
+    antennas' distance, ``series_min_distance(radius (1 + FOLD_GRADIENT_MAX / 2))`` and the error allowed
+    (MIDPOINT_PHASE_RAD / k, metres).
 
     form 1: one series on num = c.d + d.d, doubled (``_midpoint_scales``), with c = 2 (c - m) + |c - m| e:
-    delta's gradient e at c folded into the numerator (``fold_bound_m``); form 2: the series on
-    c = 2 (c - m) plus e.d per pixel; form 0: neither within MIDPOINT_PHASE_RAD (the two series instead)."""
+    delta's gradient e at c folded into the numerator; form 2: the series on c = 2 (c - m) plus e.d per
+    pixel; form 0: neither within tol_m (the two series instead). The bounds (``midpoint_remainder_bound_m``,
+    ``fold_bound_m``) are multiplied out over near^3, near = |c - m| - r - b (below both of theirs), so that
+    no division decides; |e| is taken as its 1-norm (no square root)."""
     um0, um1, um2 = 0.5 * (ua0 + ub0), 0.5 * (ua1 + ub1), 0.5 * (ua2 + ub2)
     um = math.sqrt(um0 * um0 + um1 * um1 + um2 * um2)
-    half_baseline_sq = 0.25 * ((ua0 - ub0) ** 2 + (ua1 - ub1) ** 2 + (ua2 - ub2) ** 2)
-    if not midpoint_applies(um, radius, half_baseline_sq, k):
-        return 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, um
-    inv_a, inv_b, inv_m = 1.0 / ua, 1.0 / ub, 2.0 / um
-    e0 = ua0 * inv_a + ub0 * inv_b - um0 * inv_m
-    e1 = ua1 * inv_a + ub1 * inv_b - um1 * inv_m
-    e2 = ua2 * inv_a + ub2 * inv_b - um2 * inv_m
-    e_n = abs(e0) + abs(e1) + abs(e2)  # >= |e|, without a square root
-    half_baseline = math.sqrt(half_baseline_sq) if half_baseline_sq > 0.0 else 0.0
-    fold, x = fold_bound_m(um, radius, e_n)
-    if (x <= 0.5 and k * (_midpoint_remainder_m(um, radius, half_baseline)[0] + fold) <= MIDPOINT_PHASE_RAD
-            # the folded numerator reaches |c - m| |e| r further: the series' radius grows by |e| r / 2
-            and series_applies(um, radius * (1.0 + 0.5 * e_n))):
-        return 1, 2.0 * um0 + um * e0, 2.0 * um1 + um * e1, 2.0 * um2 + um * e2, 0.0, 0.0, 0.0, um
-    return 2, 2.0 * um0, 2.0 * um1, 2.0 * um2, e0, e1, e2, um
+    near = um - radius - half_baseline
+    if not (um >= u_series and near > 0.0):
+        return 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    inv_a, inv_b, inv_m = 1.0 / ua, 1.0 / ub, 1.0 / um
+    e0 = ua0 * inv_a + ub0 * inv_b - 2.0 * um0 * inv_m
+    e1 = ua1 * inv_a + ub1 * inv_b - 2.0 * um1 * inv_m
+    e2 = ua2 * inv_a + ub2 * inv_b - 2.0 * um2 * inv_m
+    e_n = abs(e0) + abs(e1) + abs(e2)
+    r2, near2 = radius * radius, near * near
+    allowed = tol_m * near2 * near
+    delta = 1.5 * r2 * half_baseline * half_baseline  # times 1 / near^3: midpoint_remainder_bound_m
+    if (e_n <= FOLD_GRADIENT_MAX and 2.0 * um * e_n * radius <= near2
+            and delta + r2 * e_n * (near2 + 0.71 * um * um * e_n) <= allowed):  # + fold_bound_m
+        return 1, 2.0 * um0 + um * e0, 2.0 * um1 + um * e1, 2.0 * um2 + um * e2, 0.0, 0.0, 0.0, inv_m
+    if delta <= allowed:
+        return 2, 2.0 * um0, 2.0 * um1, 2.0 * um2, e0, e1, e2, inv_m
+    return 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
 
 
 @numba.njit(inline="always", fastmath=True)

@@ -16,7 +16,8 @@ from imaging.backprojection import (
     series_applies,
 )
 from imaging.range_compression import range_compress
-from imaging.range_offsets import MIDPOINT_PHASE_RAD, fold_bound_m, midpoint_remainder_bound_m
+from imaging.range_offsets import (FOLD_GRADIENT_MAX, MIDPOINT_PHASE_RAD, fold_bound_m, midpoint_remainder_bound_m,
+                                   series_min_distance)
 
 C = 299_792_458.0
 F0, FSTEP, NS = 76e9, 22.75e6, 175
@@ -361,6 +362,11 @@ def test_midpoint_remainder_and_fold_bounds_hold_and_are_close():
     assert max(ratios) <= 1.0 and max(fold_ratios) <= 1.0
     assert max(ratios) > 0.5 and max(fold_ratios) > 0.2
     assert midpoint_remainder_bound_m(0.05, 0.04, 0.02) == np.inf  # the block reaches the antennas
+    # the least distance of the series, found once per block: the condition holds there, not just before it
+    for radius in (0.001, 0.0424, 0.3):
+        u = series_min_distance(radius)
+        assert series_applies(u, radius) and not series_applies(u * (1 - 1e-6), radius)
+        assert series_applies(3 * u, radius)
 
 
 def one_antenna_pass(baseline_m, far=0.0, n_profiles=64, shape=(48, 48), spacing_m=0.004):
@@ -394,7 +400,9 @@ def test_one_antenna_pass_midpoint_forms_match_numpy_reference(baseline_m, form,
     radius = np.hypot(7.5, 7.5) * 0.004
     patches = grid.reshape(3, PATCH, 3, PATCH, 3).transpose(0, 2, 1, 3, 4).reshape(9, -1, 3)
     centres = 0.5 * (patches.min(axis=1) + patches.max(axis=1))
-    forms = {midpoint_form(*(c - t), np.linalg.norm(c - t), *(c - r), np.linalg.norm(c - r), radius, k)[0]
+    u_series = series_min_distance(radius * (1 + 0.5 * FOLD_GRADIENT_MAX))
+    forms = {midpoint_form(*(c - t), np.linalg.norm(c - t), *(c - r), np.linalg.norm(c - r), radius,
+                           0.5 * np.linalg.norm(t - r), u_series, MIDPOINT_PHASE_RAD / k)[0]
              for c in centres for t, r in zip(tx, rx)}
     assert forms == {form}
     if form == 1 and baseline_m[0] > 0.0:  # delta's gradient is there to fold (not vacuous)
