@@ -55,6 +55,10 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
               "sarbot's kernel against the real torchbp (built from ../shared/bench/) in one process, alternating: its "
               "Cartesian and polar CPU kernels, two cases, each image's SER against the exact matched filter, 5 km out.",
               "python3 dev.py bench --peers"),
+    "peers_one_antenna": ("sarbot beside torchbp: the one-antenna pass alone",
+                          "The peers benchmark's one-antenna case on its own (no FFBP, not 5 km out): a quick look "
+                          "after a kernel change, on whatever load the JSON records; the issue's figure is peers.json.",
+                          "python3 dev.py bench --peers --cases one_antenna"),
     "image_command": ("`sarbot image` as a whole command",
                       "The command as a new process against its kernel alone, with the time of every stage.",
                       ".venv/bin/python benchmarks/image_command.py"),
