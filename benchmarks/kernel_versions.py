@@ -9,9 +9,11 @@ report its wall time and the CPU time its threads used; the ratio is taken per r
 rounds reported, for 1 and 2 threads. Cycles per backprojection are CPU seconds x the CPU's clock
 (/proc/cpuinfo) / backprojections: what the kernel costs a core, whatever else the machine runs.
 
-    python benchmarks/kernel_versions.py [--quick] [--baseline COMMIT] [--rounds N]
+    python benchmarks/kernel_versions.py [--quick] [--baseline COMMIT] [--rounds N] [--cases one_antenna] [--name NAME]
 
-Writes docs/results/kernel_versions.json.
+Writes docs/results/kernel_versions.json (NAME.json with ``--name``: a comparison with another baseline, or of
+one case, beside the issue's). A baseline kernel that already asks for full-width vectors gets the current
+kernel's target (its own would be overridden by the explicit host features given to older ones).
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "docs" / "results"
 #: The kernel before issue 34 (the last commit before its branch).
 BASELINE = "9dd63ca"
+CASES = ("benchmark", "one_antenna")
 
 WORKER = r"""
 import importlib.util, json, os, sys, time
@@ -42,10 +45,11 @@ import numpy as np
 from backprojection import make_case, ser_db
 from peers import one_antenna_case
 from imaging.range_compression import range_compress
-frames, px, one = {frames}, {px}, {one}
+frames, px, one, wanted = {frames}, {px}, {one}, {cases!r}
 cases, ser, work = {{}}, {{}}, {{}}
-for name, (samples, wf, tx, rx, grid) in (("benchmark", make_case(frames, px, px)),
-                                          ("one_antenna", one_antenna_case(one, px, px))):
+makers = {{"benchmark": lambda: make_case(frames, px, px), "one_antenna": lambda: one_antenna_case(one, px, px)}}
+for name in wanted:
+    samples, wf, tx, rx, grid = makers[name]()
     prof = range_compress(samples, wf.f0_hz, wf.frequency_step_hz, oversample=16, guarded=True)
     exact = bp.backproject(prof, tx, rx, grid[::8, ::8], mode="exact")
     ser[name] = ser_db(bp.backproject(prof, tx, rx, grid)[::8, ::8], exact)
@@ -89,9 +93,9 @@ def cpu_hz() -> float | None:
     return None
 
 
-def start_worker(module: Path, frames: int, px: int, one: int, env: dict) -> tuple[subprocess.Popen, dict]:
+def start_worker(module: Path, frames: int, px: int, one: int, env: dict, cases: tuple[str, ...]) -> tuple[subprocess.Popen, dict]:
     code = WORKER.format(root=str(ROOT), benchmarks=str(ROOT / "benchmarks"), module=str(module), frames=frames, px=px,
-                         one=one)
+                         one=one, cases=cases)
     proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
                             env=env, cwd=ROOT)
     return proc, json.loads(proc.stdout.readline())
@@ -108,14 +112,18 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--baseline", default=BASELINE, help=f"the earlier kernel's commit (default {BASELINE})")
     ap.add_argument("--rounds", type=int, default=None)
+    ap.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES))
+    ap.add_argument("--name", default=None, help="the JSON's name (default kernel_versions[_quick])")
     args = ap.parse_args()
+    cases = tuple(args.cases)
     frames, px, one = (4, 128, 1024) if args.quick else (16, 256, 4096)
     rounds = args.rounds or (2 if args.quick else 6)
     uptime_before = uptime()
     with tempfile.TemporaryDirectory() as tmp:
         old_module = Path(tmp) / "backprojection_baseline.py"
-        old_module.write_text(subprocess.run(["git", "show", f"{args.baseline}:imaging/backprojection.py"], cwd=ROOT,
-                                             capture_output=True, text=True, check=True).stdout)
+        old_source = subprocess.run(["git", "show", f"{args.baseline}:imaging/backprojection.py"], cwd=ROOT,
+                                    capture_output=True, text=True, check=True).stdout
+        old_module.write_text(old_source)
         base_env = {k: v for k, v in os.environ.items() if k != "NUMBA_CPU_FEATURES"}
         # The earlier kernel with numba's own target, the host's features as LLVM tunes them (set explicitly,
         # so that importing the current imaging.backprojection for the case leaves them alone); a cache of
@@ -123,13 +131,18 @@ def main() -> int:
         import llvmlite.binding as llvm
 
         host = llvm.get_host_cpu_features().flatten()
-        old, old_info = start_worker(old_module, frames, px, one, {**base_env, "NUMBA_CPU_FEATURES": host,
-                                                              "NUMBA_CACHE_DIR": str(Path(tmp) / "cache")})
-        new, new_info = start_worker(ROOT / "imaging" / "backprojection.py", frames, px, one, base_env)
+        old_target = {} if "prefer_full_width_vectors()" in old_source else {"NUMBA_CPU_FEATURES": host}
+        old, old_info = start_worker(old_module, frames, px, one, {**base_env, **old_target,
+                                                                   "NUMBA_CACHE_DIR": str(Path(tmp) / "cache")}, cases)
+        # The current kernel with a cache of its own too: loaded under another module name, its cache entries
+        # in the project's would be found by the next ordinary import and fail to load ("No module named
+        # '<dynamic>'").
+        new, new_info = start_worker(ROOT / "imaging" / "backprojection.py", frames, px, one,
+                                     {**base_env, "NUMBA_CACHE_DIR": str(Path(tmp) / "cache_current")}, cases)
         hz = cpu_hz()
         per_case = {}
         try:
-            for case in ("benchmark", "one_antenna"):
+            for case in cases:
                 work = new_info["work"][case]
                 per_threads = per_case[case] = {}
                 for threads in (1, 2):
@@ -160,22 +173,28 @@ def main() -> int:
     load = os.getloadavg()
     result = {
         "baseline_commit": args.baseline, "current_commit": current_commit(),
-        "case": {"frames": frames, "pixels": px * px, "backprojections": new_info["work"]["benchmark"], "quick": args.quick},
         "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(), "cpu_hz": hz,
                     "load_average": load, "uptime_before": uptime_before, "uptime_after": uptime()},
-        "ser_db": {"baseline": old_info["ser_db"]["benchmark"], "current": new_info["ser_db"]["benchmark"]},
         "full_width_vectors": {"baseline": old_info["prefer_256_bit_off"], "current": new_info["prefer_256_bit_off"]},
-        "rounds": rounds, "threads": per_case["benchmark"],
-        "one_antenna": {"profiles": one, "pixels": px * px, "backprojections": new_info["work"]["one_antenna"],
-                        "ser_db": {"baseline": old_info["ser_db"]["one_antenna"], "current": new_info["ser_db"]["one_antenna"]},
-                        "threads": per_case["one_antenna"]},
+        "rounds": rounds,
     }
-    for case in ("benchmark", "one_antenna"):
+    if "benchmark" in cases:
+        result.update({
+            "case": {"frames": frames, "pixels": px * px, "backprojections": new_info["work"]["benchmark"],
+                     "quick": args.quick},
+            "ser_db": {"baseline": old_info["ser_db"]["benchmark"], "current": new_info["ser_db"]["benchmark"]},
+            "threads": per_case["benchmark"]})
+    if "one_antenna" in cases:
+        result["one_antenna"] = {
+            "profiles": one, "pixels": px * px, "backprojections": new_info["work"]["one_antenna"], "quick": args.quick,
+            "ser_db": {"baseline": old_info["ser_db"]["one_antenna"], "current": new_info["ser_db"]["one_antenna"]},
+            "threads": per_case["one_antenna"]}
+    for case in cases:
         print(f"{case}: SER against the exact matched filter: baseline {old_info['ser_db'][case]:.2f} dB, current "
               f"{new_info['ser_db'][case]:.2f} dB")
     print(f"load average {load[0]:.2f}")
     RESULTS.mkdir(parents=True, exist_ok=True)
-    name = "kernel_versions_quick" if args.quick else "kernel_versions"
+    name = args.name or ("kernel_versions_quick" if args.quick else "kernel_versions")
     (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2))
     print(f"wrote {RESULTS / (name + '.json')}")
     return 0

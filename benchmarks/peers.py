@@ -19,9 +19,10 @@ the conjugate profiles, for its phase convention: see benchmarks/README.md), and
 midpoint and its float32 positions cost, torchbp's magnitude against the bistatic exact image; also both
 5 km from the world origin.
 
-    python benchmarks/peers.py [--quick] [--rounds N]
+    python benchmarks/peers.py [--quick] [--rounds N] [--cases one_antenna]
 
-Writes docs/results/peers.json (``peers_quick.json`` with --quick).
+Writes docs/results/peers.json (``peers_quick.json`` with --quick). ``--cases`` with one case runs only that
+case's kernels (no FFBP, not 5 km out) into ``peers_CASE.json``: a quick look, not the issue's figure.
 """
 
 from __future__ import annotations
@@ -269,7 +270,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="smaller cases (a smoke run)")
     ap.add_argument("--rounds", type=int, default=None, help="alternating rounds per case (default 7, 2 with --quick)")
+    ap.add_argument("--cases", nargs="+", choices=("benchmark", "one_antenna"), default=["benchmark", "one_antenna"])
     args = ap.parse_args()
+    everything = set(args.cases) == {"benchmark", "one_antenna"}
     try:
         import torchbp  # noqa: F401
     except ImportError:
@@ -280,10 +283,13 @@ def main() -> int:
     frames, one, px = (4, 1024, 128) if args.quick else (16, 4096, 256)
     load_before = load_average()
     one_antenna = one_antenna_case(one, px, px)
-    cases = {"benchmark": run_case("benchmark", *make_case(frames, px, px), rounds),
-             "one_antenna": run_case("one_antenna", *one_antenna, rounds)}
-    ffbp = ffbp_case(*one_antenna, max(2, rounds // 2))
-    far = far_from_origin(512 if args.quick else 1024)
+    cases = {}
+    if "benchmark" in args.cases:
+        cases["benchmark"] = run_case("benchmark", *make_case(frames, px, px), rounds)
+    if "one_antenna" in args.cases:
+        cases["one_antenna"] = run_case("one_antenna", *one_antenna, rounds)
+    ffbp = ffbp_case(*one_antenna, max(2, rounds // 2)) if everything else None
+    far = far_from_origin(512 if args.quick else 1024) if everything else None
     result = {
         "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(), "numba": numba.__version__,
                     "numpy": np.__version__, "numba_target": compiled_target(), "threads": THREADS},
@@ -293,11 +299,11 @@ def main() -> int:
                   "2 threads; ratios per round, median over rounds; SER against sarbot's exact matched filter on each "
                   "one's own geometry (torchbp: monostatic midpoints, plane at z = 0)",
         "cases": cases,
-        "ffbp_one_antenna": ffbp,
-        "far_from_origin_5km": far,
     }
+    if everything:
+        result.update({"ffbp_one_antenna": ffbp, "far_from_origin_5km": far})
     RESULTS.mkdir(parents=True, exist_ok=True)
-    name = "peers_quick" if args.quick else "peers"
+    name = ("peers_quick" if args.quick else "peers") if everything else "peers_" + "_".join(args.cases)
     (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2))
     print(f"wrote {RESULTS / (name + '.json')}")
     return 0

@@ -44,10 +44,21 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                         "The kernel against the one before issue 34 (each in a worker process of its own), timed "
                         "alternately in one run: speed-up on 1 and 2 threads, cycles per backprojection, SER of both.",
                         ".venv/bin/python benchmarks/kernel_versions.py"),
+    "kernel_midpoint": ("Backprojection kernel: the one-antenna midpoint form",
+                        "The kernel that ranges a one-antenna pass by one series on the TX-RX midpoint against the "
+                        "one before it (two series a pixel), each in a worker process of its own, alternating in one "
+                        "run: speed-up on 1 and 2 threads, cycles per backprojection, SER of both; on a loaded machine "
+                        "(the load is in the JSON).",
+                        ".venv/bin/python benchmarks/kernel_versions.py --baseline fe81155 --cases one_antenna "
+                        "benchmark --name kernel_midpoint"),
     "peers": ("sarbot beside torchbp",
               "sarbot's kernel against the real torchbp (built from ../shared/bench/) in one process, alternating: its "
               "Cartesian and polar CPU kernels, two cases, each image's SER against the exact matched filter, 5 km out.",
               "python3 dev.py bench --peers"),
+    "peers_one_antenna": ("sarbot beside torchbp: the one-antenna pass alone",
+                          "The peers benchmark's one-antenna case on its own (no FFBP, not 5 km out): a quick look "
+                          "after a kernel change, on whatever load the JSON records; the issue's figure is peers.json.",
+                          "python3 dev.py bench --peers --cases one_antenna"),
     "image_command": ("`sarbot image` as a whole command",
                       "The command as a new process against its kernel alone, with the time of every stage.",
                       ".venv/bin/python benchmarks/image_command.py"),

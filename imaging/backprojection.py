@@ -15,7 +15,10 @@ per pixel, with d its small offset from c, the range differences come in float32
 whose every term is either small or needed only to relative precision, at twice float64's SIMD width.
 Where the block is small against its distance from the antenna (almost always), that quotient is
 |u| t g(t) with t = (2 u.d + d.d) / |u|^2 and g(t) = (sqrt(1 + t) - 1) / t by its Taylor series:
-multiply-adds only, no square root or division per pixel (``_range_offsets``).
+multiply-adds only, no square root or division per pixel (``imaging.range_offsets``). A profile whose TX
+no other profile shares (a one-antenna pass) takes one such series per pixel, not two: on the midpoint of
+its TX and RX, doubled, plus the linear part of what that leaves out (exact to -100 dB where a bound says
+so, else the two series; see imaging/range_offsets.py).
 What float32 does lose is in the pixel's range offset itself: its rounding, 2^-24 of the block's extent,
 is a phase error of k times that. Blocks are therefore compact (a 2-D grid is walked in patches as long
 as wide in metres, 16 x 16 points for square pixels, fewer on a coarse grid: ``patch_shape``), and a block
@@ -53,6 +56,9 @@ from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.numba_target import (  # noqa: F401 - compiled_target re-exported
     compiled_target, prefer_full_width_vectors, skip_extension_search)
 from imaging.range_compression import RangeProfiles
+from imaging.range_offsets import (  # noqa: F401 - _G, SERIES_TOLERANCE_M and series_applies re-exported
+    _G, FOLD_GRADIENT_MAX, MIDPOINT_PHASE_RAD, SERIES_TOLERANCE_M, _midpoint_scales, _range_offsets, _series_offset,
+    _series_scales, midpoint_form, series_applies, series_min_distance)
 
 # Before any kernel compiles: 512-bit vectors where the CPU has AVX-512 (see imaging/numba_target.py).
 prefer_full_width_vectors()
@@ -112,36 +118,6 @@ def _cos_sin_turns(t):
     return np.float32(1.0) - s2 * s, s2 * c
 
 
-#: Taylor coefficients of g(t) = (sqrt(1 + t) - 1) / t, and the first one left out (|t|^6's in sqrt(1 + t)).
-_G = (0.5, -1.0 / 8, 1.0 / 16, -5.0 / 128, 7.0 / 256, -21.0 / 1024)
-_G_NEXT = 33.0 / 2048
-#: The series' truncation error allowed, metres of range (1.6e-6 rad at 77 GHz).
-SERIES_TOLERANCE_M = 1e-9
-
-
-@numba.njit(inline="always")
-def series_applies(u_n, radius):
-    """Whether g's series (see ``_range_offsets``) is within SERIES_TOLERANCE_M for every point within
-    ``radius`` of a block centre ``u_n`` metres from the antenna (|t| <= (2 |u| r + r^2) / |u|^2; the
-    error is about |u| 33/2048 |t|^7, alternating terms; |t| < 0.5 keeps the series converging fast)."""
-    t_max = (2.0 * u_n * radius + radius * radius) / (u_n * u_n)
-    return t_max < 0.5 and u_n * _G_NEXT * t_max ** 7 <= SERIES_TOLERANCE_M
-
-
-@numba.njit(inline="always")
-def _series_scales(u_n):
-    """Per (block, antenna): 1/|u|, 1/|u|^2 and g's coefficients, float32, for ``_series_offset``."""
-    return (np.float32(1.0 / u_n), np.float32(1.0 / (u_n * u_n)), np.float32(_G[0]), np.float32(_G[1]),
-            np.float32(_G[2]), np.float32(_G[3]), np.float32(_G[4]), np.float32(_G[5]))
-
-
-@numba.njit(inline="always", fastmath=True)
-def _series_offset(num, sc):
-    """|u + d| - |u| from num = 2 u.d + d.d by g's series (see ``_range_offsets``); ``sc`` from ``_series_scales``."""
-    t = num * sc[1]
-    return (num * sc[0]) * (sc[2] + t * (sc[3] + t * (sc[4] + t * (sc[5] + t * (sc[6] + t * sc[7])))))
-
-
 @numba.njit(inline="always", fastmath=True)
 def _place(i, ddr, place, idx, frac, pixel_turns):
     """Pixel i's bin (idx, frac) and phase in turns from its range offset ``ddr`` to the block centre, whose
@@ -158,27 +134,6 @@ def _place(i, ddr, place, idx, frac, pixel_turns):
     else:
         idx[i] = np.uint32(ibase + np.int32(np.floor(lp + np.float32(0.5))))
     pixel_turns[i] = turns_c + k_turns32 * ddr
-
-
-@numba.njit(inline="always", fastmath=True)
-def _range_offsets(u0, u1, u2, u_n, radius, dx, dy, dz, dd, out):
-    """out[i] = |u + d_i| - |u| in float32, for the float64 vector u from an antenna to the block centre.
-
-    With t = (2 u.d + d.d) / |u|^2, |u + d| - |u| = (2 u.d + d.d) / |u| g(t), g(t) = (sqrt(1 + t) - 1) / t:
-    by g's Taylor series (11 multiply-adds, no square root or division) where every |d| <= radius keeps
-    the series' error below SERIES_TOLERANCE_M, else as (2 u.d + d.d) / (|u + d| + |u|).
-    """
-    a0, a1, a2 = np.float32(2.0 * u0), np.float32(2.0 * u1), np.float32(2.0 * u2)
-    if series_applies(u_n, radius):
-        sc = _series_scales(u_n)
-        for i in range(dx.size):
-            out[i] = _series_offset(a0 * dx[i] + a1 * dy[i] + a2 * dz[i] + dd[i], sc)
-    else:
-        a_n, a_n2 = np.float32(u_n), np.float32(u_n * u_n)
-        for i in range(dx.size):
-            # |u + d|^2 = |u|^2 + (2 u.d + d.d): the sum's rounding only touches the denominator.
-            num = a0 * dx[i] + a1 * dy[i] + a2 * dz[i] + dd[i]
-            out[i] = num / (math.sqrt(a_n2 + num) + a_n)
 
 
 @numba.njit(inline="always", fastmath=True)
@@ -250,6 +205,11 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
     n_blocks = (n_g + block - 1) // block
     inv32 = np.float32(inv_dr)
     k_turns32 = np.float32(k / _TWO_PI)
+    midpoint_tol_m = MIDPOINT_PHASE_RAD / k
+    half_baseline = np.empty(p1 - p0)  # of each profile's TX and RX, for the midpoint form
+    for p in range(p0, p1):
+        h2 = 0.25 * ((tx[p, 0] - rx[p, 0]) ** 2 + (tx[p, 1] - rx[p, 1]) ** 2 + (tx[p, 2] - rx[p, 2]) ** 2)
+        half_baseline[p - p0] = math.sqrt(h2) if h2 > 0.0 else 0.0  # fastmath's square root of 0 can be NaN
     for blk in numba.prange(n_blocks):
         g0 = blk * block
         nb = min(g0 + block, n_g) - g0
@@ -280,6 +240,7 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
             dz[i] = np.float32(gz[g0 + i] - cz)
             dd[i] = dx[i] * dx[i] + dy[i] * dy[i] + dz[i] * dz[i]
         radius = math.sqrt(np.float64(dd.max()))
+        u_series = series_min_distance(radius * (1.0 + 0.5 * FOLD_GRADIENT_MAX))  # the midpoint's series, from here
         for p in range(p0, p1):
             ua0, ua1, ua2 = cx - tx[p, 0], cy - tx[p, 1], cz - tx[p, 2]
             ub0, ub1, ub2 = cx - rx[p, 0], cy - rx[p, 1], cz - rx[p, 2]
@@ -297,14 +258,34 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
             ibase = np.int32(base)
             # A TX shared with the previous profile (the RX channels of one chirp) has the same offsets.
             new_tx = p == p0 or tx[p, 0] != tx[p - 1, 0] or tx[p, 1] != tx[p - 1, 1] or tx[p, 2] != tx[p - 1, 2]
-            rx_series = series_applies(ub, radius)
             b0, b1, b2 = np.float32(2.0 * ub0), np.float32(2.0 * ub1), np.float32(2.0 * ub2)
             place = (frac_c, inv32, lo, top, ibase, turns_c, k_turns32, linear)
             tx_alone = new_tx and (p + 1 == p1 or tx[p + 1, 0] != tx[p, 0] or tx[p + 1, 1] != tx[p, 1]
                                    or tx[p + 1, 2] != tx[p, 2])
-            if tx_alone and rx_series and series_applies(ua, radius):
-                # One pass for both antennas where no other profile shares this TX (a one-antenna pass), its
-                # offsets not stored.
+            # Defined on every path: numba gave NaN for variables defined in one branch and read in another.
+            form, c0, c1, c2, e0, e1, e2, inv_m = 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+            if tx_alone:  # no other profile shares this TX (a one-antenna pass): its midpoint form, if any
+                form, c0, c1, c2, e0, e1, e2, inv_m = midpoint_form(ua0, ua1, ua2, ua, ub0, ub1, ub2, ub, radius,
+                                                                    half_baseline[p - p0], u_series, midpoint_tol_m)
+            if form == 1:
+                # One series per pixel on the TX-RX midpoint, doubled, delta's gradient folded into its
+                # numerator; delta(c) is in dr_c (see imaging/range_offsets.py).
+                m0, m1, m2 = np.float32(c0), np.float32(c1), np.float32(c2)
+                gm = _midpoint_scales(inv_m)
+                for i in range(nb):
+                    _place(i, _series_offset(m0 * dx[i] + m1 * dy[i] + m2 * dz[i] + dd[i], gm), place, idx, frac,
+                           pixel_turns)
+            elif form == 2:  # the same with delta's gradient term per pixel, where folding it would cost accuracy
+                m0, m1, m2 = np.float32(c0), np.float32(c1), np.float32(c2)
+                f0, f1, f2 = np.float32(e0), np.float32(e1), np.float32(e2)
+                gm = _midpoint_scales(inv_m)
+                for i in range(nb):
+                    num_m = m0 * dx[i] + m1 * dy[i] + m2 * dz[i] + dd[i]
+                    _place(i, _series_offset(num_m, gm) + (f0 * dx[i] + f1 * dy[i] + f2 * dz[i]), place, idx, frac,
+                           pixel_turns)
+            elif tx_alone and series_applies(ub, radius) and series_applies(ua, radius):
+                # Both antennas in one pass where delta bends too much for the midpoint form, the TX's offsets
+                # not stored.
                 a0, a1, a2 = np.float32(2.0 * ua0), np.float32(2.0 * ua1), np.float32(2.0 * ua2)
                 ga, gb = _series_scales(ua), _series_scales(ub)
                 for i in range(nb):
@@ -314,7 +295,7 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
             else:
                 if new_tx:
                     _range_offsets(ua0, ua1, ua2, ua, radius, dx, dy, dz, dd, da)
-                if rx_series:
+                if series_applies(ub, radius):
                     gb = _series_scales(ub)
                     for i in range(nb):
                         num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
