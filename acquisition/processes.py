@@ -55,7 +55,8 @@ def configure_logging(verbosity: int | None = None, role: str | None = None) -> 
 
 
 def ensure_jit_cache_dir() -> str | None:
-    """Make sure numba has somewhere to write its cache, and return where (None: beside the sources).
+    """Make sure numba has somewhere to write its cache, and return where (None: numba's own choice, or
+    ``imaging.jit_cache``'s folder keyed by the sources once imaging is imported).
 
     Numba caches compiled kernels beside their sources, else in the user's cache folder; under systemd's
     ``ProtectSystem=strict`` and ``ProtectHome=yes`` neither is writable and every ``cache=True`` kernel

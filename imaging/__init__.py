@@ -5,3 +5,7 @@ geometry, windows, constants, samples, track error), ``imaging.io`` (the HDF5 fi
 (simulators and scenes). Pure computation on arrays and dataclasses; the only I/O is reading and writing
 the shared file formats. Nothing here opens a socket or starts a process.
 """
+
+from imaging.jit_cache import key_jit_cache_to_sources as _key_jit_cache_to_sources
+
+_key_jit_cache_to_sources()

@@ -26,8 +26,8 @@ else. ``midpoint_form`` decides per (block, profile): folded where both bounds t
 MIDPOINT_PHASE_RAD of phase, else e.d added per pixel where delta's bound alone is, else the two series, one
 per antenna. For a monostatic pair (TX at RX, as TX 0 and RX 0 of the default array) delta is zero.
 
-Numba caches a kernel by its own file's time stamp, not by these helpers' (inlined into it): after editing
-this module, delete the ``imaging/__pycache__`` entries of the kernels that use it.
+Numba caches a kernel by its own file's time stamp, not by these helpers' (inlined into it); the cache folder
+is therefore keyed by all of imaging's sources (``imaging.jit_cache``), so editing this module recompiles them.
 """
 
 from __future__ import annotations
