@@ -201,7 +201,7 @@ def main() -> int:
     RESULTS.mkdir(parents=True, exist_ok=True)
     stem = "autofocus_quick" if args.quick else "autofocus"  # a smoke run keeps the real figures
     out = RESULTS / f"{stem}.json"
-    out.write_text(strict_json.dumps({"quick": args.quick, "repeats": repeats, "load_average_start": load_start,
+    out.write_text(strict_json.dumps({"mode": "quick" if args.quick else "full", "quick": args.quick, "repeats": repeats, "load_average_start": load_start,
                                        "load_average_end": os.getloadavg()[0], "rows": rows}, indent=2))
     chart(rows, RESULTS / f"{stem}.png")
     print(f"wrote {out} and {RESULTS / (stem + '.png')}")
