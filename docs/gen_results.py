@@ -110,6 +110,13 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                         "vibration over 1.2 m; all together over 0.6 m) under a Taylor taper: peak side lobe, width "
                         "and peak against the clean image, per method.",
                         ".venv/bin/python benchmarks/autofocus_taper.py"),
+    "autofocus_weak_point": ("Autofocus: the weak-point test's false alarms on clutter",
+                             "The weak-point detection (the only way a clutter-only pass reaches a track-error fit) "
+                             "seed by seed on synthesised 77 GHz clutter passes, error-free and with the decision "
+                             "benchmark's error, and its detections of a 14 dB point with that error: the false-alarm "
+                             "rate with its 95 % Clopper-Pearson upper bound and the clutter's effective number of "
+                             "independent cells. `seeds_done` and `stopped` say how far a partial run got.",
+                             ".venv/bin/python benchmarks/autofocus_weak_point.py"),
     "rio": ("Radar-inertial odometry",
             "Accuracy on long simulated drives (evaluated with evo), the filter's settings against speed, and a "
             "real ROS bag. Accuracy with the midpoint strapdown (issue 35); its speeds were taken on a machine loaded "

@@ -120,7 +120,9 @@ def synthesise_pass(scene: str, error: TrackErrorKind, snr_db: float, seed: int,
     # The noise scaled to the stated SNR in the image: both imaged once on the assumed track.
     from imaging.autofocus.estimate import backproject_blocks
 
-    signal_img = backproject_blocks(_blocks(_samples(assumed, scatterers, amps), assumed, time_s), points)
+    # Without an error the true track is the assumed one, and its samples need not be computed twice.
+    clean_assumed = clean_true if error == NO_ERROR else _samples(assumed, scatterers, amps)
+    signal_img = backproject_blocks(_blocks(clean_assumed, assumed, time_s), points)
     noise_img = backproject_blocks(_blocks(noise, assumed, time_s), points)
     level = np.abs(signal_img).max() ** 2 if scene == "point" else np.mean(np.abs(signal_img) ** 2)
     noise *= math.sqrt(level / np.mean(np.abs(noise_img) ** 2) / 10 ** (snr_db / 10))
