@@ -27,7 +27,7 @@ from scipy.spatial.transform import Rotation
 from imaging.core.rig import CalibrationPrior, Mount, RadarConfig, Rig
 
 from .ekf import CalibrationEstimate
-from .odometry import ImuData, RadarScan, RioOptions, RioResult, run_rio
+from .odometry import ImuData, RadarScan, RioOptions, RioResult, prior_sigma, run_rio
 
 #: The 7 calibration axes, in the filter's order.
 AXES = ("rotation about x (roll about the boresight)", "rotation about y (pitch, the boresight's tilt)",
@@ -248,19 +248,6 @@ def calibrate(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOpt
         radars[name] = RadarCalibrationResult(name, prior_mounts[name], prior_offsets[name], est, accepted, reasons,
                                               sigma=sigma)
     return CalibrationResult(radars, res, drive)
-
-
-def prior_sigma(options: RioOptions, name: str) -> np.ndarray:
-    """[7] The standard deviations radar ``name``'s calibration starts from (rad, m, s): the rig's
-    ``[radar.NAME.calibration]`` (``options.calibration_priors``) where it gives them, else the filter's defaults."""
-    c, p = options.ekf, options.calibration_priors.get(name)
-    rotation = (np.radians(p.rotation_sigma_deg) if p is not None and p.rotation_sigma_deg is not None
-                else np.full(3, c.calibration_rotation_sigma_rad))
-    translation = (np.asarray(p.translation_sigma_m, float) if p is not None and p.translation_sigma_m is not None
-                   else np.full(3, c.calibration_translation_sigma_m))
-    offset = (p.time_offset_sigma_s if p is not None and p.time_offset_sigma_s is not None
-              else c.calibration_time_offset_sigma_s)
-    return np.concatenate([rotation, translation, [offset]])
 
 
 def _excitation_text(axis: int, e: RadarExcitation) -> str:

@@ -204,16 +204,25 @@ def add_calibration_states(ekf: RadarInertialEkf, scans: list[RadarScan], option
         mounts.setdefault(scan.radar, scan.mount)
     for name, mount in mounts.items():
         prior = options.calibration_priors.get(name)
-        rot = trans = offset_sigma = None
-        offset = 0.0
-        if prior is not None:
-            rot = None if prior.rotation_sigma_deg is None else np.radians(prior.rotation_sigma_deg)
-            trans, offset_sigma, offset = prior.translation_sigma_m, prior.time_offset_sigma_s, prior.time_offset_s
-        ekf.add_radar_calibration(name, mount, offset,
-                                  rotation_sigma_rad=rot if options.calibrate_extrinsics else 0.0,
-                                  translation_sigma_m=trans if options.calibrate_extrinsics else 0.0,
-                                  time_offset_sigma_s=offset_sigma if options.calibrate_time_offset else 0.0)
+        sigma = prior_sigma(options, name)
+        ekf.add_radar_calibration(name, mount, 0.0 if prior is None else prior.time_offset_s,
+                                  rotation_sigma_rad=sigma[0:3] if options.calibrate_extrinsics else 0.0,
+                                  translation_sigma_m=sigma[3:6] if options.calibrate_extrinsics else 0.0,
+                                  time_offset_sigma_s=sigma[6] if options.calibrate_time_offset else 0.0)
     return mounts
+
+
+def prior_sigma(options: RioOptions, name: str) -> np.ndarray:
+    """[7] The standard deviations radar ``name``'s calibration starts from (rad, m, s): the rig's
+    ``[radar.NAME.calibration]`` (``options.calibration_priors``) where it gives them, else the filter's defaults."""
+    c, p = options.ekf, options.calibration_priors.get(name)
+    rotation = (np.radians(p.rotation_sigma_deg) if p is not None and p.rotation_sigma_deg is not None
+                else np.full(3, c.calibration_rotation_sigma_rad))
+    translation = (np.asarray(p.translation_sigma_m, float) if p is not None and p.translation_sigma_m is not None
+                   else np.full(3, c.calibration_translation_sigma_m))
+    offset = (p.time_offset_sigma_s if p is not None and p.time_offset_sigma_s is not None
+              else c.calibration_time_offset_sigma_s)
+    return np.concatenate([rotation, translation, [offset]])
 
 
 def calibration_entry(ekf: RadarInertialEkf, radar: str, start_mounts: dict) -> tuple:
