@@ -67,15 +67,16 @@ def held(axes: str) -> dict:
     return {name: prior for name in default_rig().radar_names}
 
 
-def fit_bias(traj, scans) -> dict[str, float]:
-    """Per radar, the slope of the Doppler fit's error along the sensor's z against the true velocity along its
-    x (boresight): a least-squares line through every scan the fit takes; 0.017 is what a 1 deg pitch gives."""
+def doppler_fit_errors(traj, scans) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per radar, over every scan the Doppler fit takes: the true sensor-frame velocity [N, 3] (m/s) and the
+    fit's error along the sensor's z [N] (m/s). ``fit_bias`` and calibration_states' ``doppler_fit_slopes``
+    regress the one on the other."""
     rng = np.random.default_rng(0)
     rig = default_rig()
     out = {}
     for name in rig.radar_names:
         mount = rig.radar(name).mount
-        err, vx = [], []
+        err, v = [], []
         for s in scans:
             if s.radar != name:
                 continue
@@ -87,8 +88,17 @@ def fit_bias(traj, scans) -> dict[str, float]:
                                                                                    mount.translation_m)
             v_sensor = mount.rotation_matrix.T @ v_body
             err.append(est.velocity_mps[2] - v_sensor[2])
-            vx.append(v_sensor[0])
-        vx, err = np.asarray(vx), np.asarray(err)
+            v.append(v_sensor)
+        out[name] = (np.asarray(v).reshape(-1, 3), np.asarray(err))
+    return out
+
+
+def fit_bias(traj, scans) -> dict[str, float]:
+    """Per radar, the slope of the Doppler fit's error along the sensor's z against the true velocity along its
+    x (boresight): a least-squares line through every scan the fit takes; 0.017 is what a 1 deg pitch gives."""
+    out = {}
+    for name, (v, err) in doppler_fit_errors(traj, scans).items():
+        vx = np.ascontiguousarray(v[:, 0])  # contiguous: the same sums, bit for bit, as the JSON's run
         out[name] = float(vx @ err / (vx @ vx))
     return out
 

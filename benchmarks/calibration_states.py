@@ -27,12 +27,11 @@ sys.path.insert(0, str(ROOT))
 from imaging.core.rig import CalibrationPrior, default_rig  # noqa: E402
 from rio.calibration import AXIS_KEYS, calibrate  # noqa: E402
 from rio.calibration_drive import SIM_EKF, calibration_drive, estimate_errors, simulate_drive  # noqa: E402
-from rio.ego_velocity import EgoStatus, sensor_velocity  # noqa: E402
 from rio.evaluation import drift_report  # noqa: E402
 from rio.odometry import RioOptions, run_rio  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from calibration import _units  # noqa: E402
+from calibration import _units, doppler_fit_errors  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 #: Calibration axes freed together (indices into rio.calibration.AXIS_KEYS).
@@ -51,25 +50,9 @@ def doppler_fit_slopes(traj, scans) -> dict[str, dict[str, float]]:
     """Per radar, the Doppler fit's error along the sensor's z per m/s of true velocity along its x (what a
     mount rotation about y, the pitch, describes: 0.017 for 1 deg) and along its y (a rotation about x, the
     roll): a least-squares fit of the error on both through every scan the fit takes."""
-    rng = np.random.default_rng(0)
-    rig = default_rig()
     out = {}
-    for name in rig.radar_names:
-        mount = rig.radar(name).mount
-        err, v = [], []
-        for s in scans:
-            if s.radar != name:
-                continue
-            est = sensor_velocity(s.xyz_m, s.doppler_mps, rng=rng)
-            if est.status is not EgoStatus.OK:
-                continue
-            truth = traj.sample(np.array([s.time_ns]))
-            v_body = truth.rotation_matrix[0].T @ truth.velocity_mps[0] + np.cross(truth.angular_velocity_body_radps[0],
-                                                                                   mount.translation_m)
-            v_sensor = mount.rotation_matrix.T @ v_body
-            err.append(est.velocity_mps[2] - v_sensor[2])
-            v.append(v_sensor[:2])
-        slope = np.linalg.lstsq(np.asarray(v), np.asarray(err), rcond=None)[0]
+    for name, (v, err) in doppler_fit_errors(traj, scans).items():
+        slope = np.linalg.lstsq(v[:, :2], err, rcond=None)[0]
         out[name] = {"z_per_x": float(slope[0]), "z_per_y": float(slope[1])}
     return out
 
