@@ -205,14 +205,14 @@ class MapUpdate:
 
 class MapFeedback:
     """Map estimates into one filter: turns tiles refocused together into measurements and applies them,
-    keeping what each applied one changed so later measurements of the same span are not counted twice."""
+    keeping what each changed (``updates``, ``unscaled``) so later measurements of the same span are not
+    counted twice."""
 
     def __init__(self, config: MapFeedbackConfig = MapFeedbackConfig()):
         self.config = config
-        #: applied corrections: (filter time ns, velocity change [3] m/s) of every accepted map update
-        self.applied: list[tuple[int, np.ndarray]] = []
-        #: those of them that learnt no Doppler scale (too slow, or not learning): only their velocity changes
-        #: are held by nothing else (see ``corrected_since``)
+        #: (filter time ns, velocity change [3] m/s) of the accepted map updates that learnt no Doppler scale
+        #: (too slow, or not learning): only their velocity changes are held by nothing else (see
+        #: ``corrected_since``; every update, with its change, is in ``updates``)
         self.unscaled: list[tuple[int, np.ndarray]] = []
         self.measurements: list[LookVelocityMeasurement] = []
         self.rejected = 0
@@ -278,7 +278,6 @@ class MapFeedback:
             res = update_look_velocity(ekf, m, done, self.config.gate_chi2)
             if res.accepted:
                 change = (ekf.state.time_ns, ekf.state.v - before)
-                self.applied.append(change)
                 accepted.append(m)
                 if self.config.learn_doppler_scale and abs(speed) >= self.config.scale_min_speed_mps:
                     self._learn_scale((m.velocity_error_mps - done) / speed, m.sigma_mps / abs(speed))
