@@ -297,7 +297,7 @@ def place_grids(centre, axis, normal, centres, served_x, served_y, served, b_ima
     # derivatives diverge and would size the grid in the trillions.
     use = np.concatenate([pick, np.ones(rq.shape[:1] + (25,), bool)], axis=1)
     use &= ~(rs ** 2 * (1 - as_ ** 2) - h ** 2 < (0.5 * b_image) ** 2)
-    f_r, f_a = _bandwidths(centre, axis, normal, centres, rs, as_, use, z_m)
+    f_r, f_a = _bandwidths(centre, axis, normal, centres, rs, as_, use, float(z_m))  # one compiled signature
     dr = 1.0 / (2 * (envelope + two_over_lambda * f_r) * BAND_MARGIN * oversample_range)
     da = np.minimum(1.0 / (2 * np.maximum(two_over_lambda * f_a, 1e-9) * BAND_MARGIN * oversample_angle), 0.1)
     # The merge and pixel kernels read taps/2 - 1 samples below the floor of a position and taps/2 above it.
