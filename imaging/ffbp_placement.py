@@ -51,7 +51,7 @@ def track_axis(m: tuple) -> np.ndarray:
     return u / np.linalg.norm(u)
 
 
-def node_frames(m: np.ndarray, starts: np.ndarray, length: int, overall: np.ndarray, centre_xy: np.ndarray):
+def node_frames(m: tuple, starts: np.ndarray, length: int, overall: np.ndarray, centre_xy: np.ndarray):
     """Centre, axis, normal and extreme phase centres of nodes of ``length`` profiles from ``starts``.
 
     Parameters
