@@ -16,9 +16,19 @@ longest aperture:
 * ``reach``: the default's error where the plan works harder: the scene further out (3.5 and 5 m, pixels
   scaled with range; the profiles reach 6.6 m) and a 4 m aperture, on a smaller image (150 x 100 pixels).
 
-    python benchmarks/ffbp.py [--quick]
+The plan (``plan_factorized``) is timed too: ``plan_s`` (best of the repeats), ``plan_s_first_call`` (on the
+first aperture the process's first plan, loading its numba passes from the cache, as ``sarbot image`` pays it), and in
+``threads`` per round beside the direct kernel, for ``speedup_with_plan_over_direct_2_threads_interleaved``
+(FFBP counting its plan, as a user imaging once pays it).
 
-Writes docs/results/ffbp.json and docs/results/ffbp.png (``ffbp_quick.*`` with --quick).
+With ``--plan`` only the longest aperture's plan and run: the plan against the node-at-a-time builder it
+replaced (tests/reference_ffbp_plan.py), alternated in one process, and FFBP with its plan against the direct
+kernel in each round, both on 2 threads (a run of a minute or two, for a loaded machine; the load is recorded).
+
+    python benchmarks/ffbp.py [--quick | --plan]
+
+Writes docs/results/ffbp.json and docs/results/ffbp.png (``ffbp_quick.*`` with --quick, ``ffbp_plan.json``
+with --plan).
 """
 
 from __future__ import annotations
@@ -36,7 +46,7 @@ import numba
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]
+sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks"), str(ROOT / "tests")]
 
 from backprojection import make_case  # noqa: E402
 
@@ -70,27 +80,37 @@ def load_text() -> str:
         return " ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
+def machine(uptime_before: str) -> dict:
+    return {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(), "numba": numba.__version__,
+            "python": platform.python_version(), "load_average": os.getloadavg(),
+            "uptime_before": uptime_before, "uptime_after": load_text()}
+
+
 def busy_core():
     """Another process keeping one core busy (as the robot's drivers, recorder and odometry do)."""
     return subprocess.Popen([sys.executable, "-c", "while True: pass"])
 
 
-def threads_study(plan, prof, tx, rx, t_direct_2: float, repeats: int, direct=None) -> dict:
+def threads_study(plan, prof, tx, rx, t_direct_2: float, repeats: int, direct=None, make_plan=None) -> dict:
     """FFBP's run on 1 and 2 threads, with the machine as it is and with another process keeping one core
     busy; runs alternate between the thread counts. The direct kernel's 2-thread time is the baseline of
     the speed-ups (measured with the machine as it is); with ``direct`` (the direct kernel's call) it is
     also run in every round as it is, before the FFBP runs, for a speed-up per round (a load that comes and
-    goes hits both alike): ``speedup_over_direct_2_threads_interleaved``, the median over rounds."""
+    goes hits both alike): ``speedup_over_direct_2_threads_interleaved``, the median over rounds. With
+    ``make_plan`` (the plan's call) the plan is made in every such round too, for
+    ``speedup_with_plan_over_direct_2_threads_interleaved``: FFBP counting its plan and its run on 2 threads."""
     out = {}
     for label, busy in (("as_is", False), ("one_core_busy", True)):
         spinner = busy_core() if busy else None
         try:
             times = {1: [], 2: []}
-            direct_times = []
+            direct_times, plan_times = [], []
             for _ in range(repeats):
                 if direct is not None and not busy:
                     numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
                     direct_times.append(timed(direct, 1)[0])
+                    if make_plan is not None:
+                        plan_times.append(timed(make_plan, 1)[0])
                 for threads in (1, 2):
                     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
                     times[threads].append(timed(lambda: run_factorized(plan, prof, tx, rx), 1)[0])
@@ -108,6 +128,12 @@ def threads_study(plan, prof, tx, rx, t_direct_2: float, repeats: int, direct=No
             out[label]["speedup_over_direct_2_threads_interleaved"] = float(np.median(per_round))
             print(f"  interleaved with the direct kernel: {np.median(per_round):.1f}x on 2 threads "
                   f"(rounds {', '.join(f'{r:.1f}' for r in per_round)})", flush=True)
+        if plan_times:
+            with_plan = sorted(d / (p + f) for d, p, f in zip(direct_times, plan_times, times[2]))
+            out[label]["plan_s_per_round"] = plan_times
+            out[label]["speedup_with_plan_over_direct_2_threads_interleaved"] = float(np.median(with_plan))
+            print(f"  with its plan ({', '.join(f'{p:.3f}' for p in plan_times)} s): {np.median(with_plan):.1f}x the "
+                  f"direct kernel on 2 threads (rounds {', '.join(f'{r:.1f}' for r in with_plan)})", flush=True)
         print(f"  {label.replace('_', ' ')}: FFBP run {best[1]:.2f} s on 1 thread, {best[2]:.2f} s on 2 "
               f"({best[1] / best[2]:.2f}x); {t_direct_2 / best[2]:.1f}x the direct kernel on 2 threads", flush=True)
     return out
@@ -208,10 +234,14 @@ def run_case(n_frames: int, x, y, configs, repeats: int, study_threads: bool = F
     print(f"{n_frames} frames ({case['aperture_m']:.2f} m), {case['pixels']} pixels: direct {t_direct:.2f} s "
           f"({case['direct_gbps']:.2f} G backprojections/s)", flush=True)
     for options in configs:
-        t_plan, plan = timed(lambda: plan_factorized(tx, rx, x, y, 0.3, prof.carrier_hz, prof.bandwidth_hz, options), 1)
+        def make_plan(options=options):
+            return plan_factorized(tx, rx, x, y, 0.3, prof.carrier_hz, prof.bandwidth_hz, options)
+
+        t_first = timed(make_plan, 1)[0]  # the first case's: the process's first plan
+        t_plan, plan = timed(make_plan, repeats)
         run_factorized(plan, prof, tx, rx)  # compile
         t_run, img = timed(lambda: run_factorized(plan, prof, tx, rx), repeats)
-        row = {**settings(options), "plan_s": t_plan, "run_s": t_run, "speedup": t_direct / (t_plan + t_run), "error_db": error_db(img, ref),
+        row = {**settings(options), "plan_s": t_plan, "plan_s_first_call": t_first, "run_s": t_run, "speedup": t_direct / (t_plan + t_run), "error_db": error_db(img, ref),
                "error_bound_db": plan.error_bound_db, "error_estimate_db": plan.error_estimate_db, "cost": plan.cost()}
         case["ffbp"].append(row)
         print(f"  taps {options.taps} oversample {options.oversample_range:g}/{options.oversample_angle:g}, leaves "
@@ -221,10 +251,64 @@ def run_case(n_frames: int, x, y, configs, repeats: int, study_threads: bool = F
               f"{plan.levels} levels, {len(plan.roots)} roots", flush=True)
         if study_threads and options == configs[0]:
             row["threads"] = threads_study(plan, prof, tx, rx, t_direct, max(2, repeats),
-                                           direct=lambda: backproject(prof, tx, rx, grid))
+                                           direct=lambda: backproject(prof, tx, rx, grid), make_plan=make_plan)
     if study_threads:
         case["frontier"] = frontier(prof, tx, rx, x, y, ref, t_direct, max(2, repeats))
     return case
+
+
+def plan_study(rounds: int) -> dict:
+    """The longest aperture's plan against the node-at-a-time builder it replaced, CPU and wall time
+    alternated in each round, and FFBP with its plan against the direct kernel in each round (2 threads)."""
+    from reference_ffbp_plan import plan_factorized_reference
+
+    n_frames = int(round(2.0 / (SPEED_MPS * 0.052)))
+    samples, wf, tx, rx, _ = make_case(n_frames, 2, 2)
+    prof = range_compress(samples, wf.f0_hz, wf.frequency_step_hz, oversample=8, guarded=True)
+    del samples
+    x, y = np.arange(-0.5, 0.5, 0.002), np.arange(1.7, 2.3, 0.002)
+    xx, yy = np.meshgrid(x, y)
+    grid = np.stack([xx, yy, np.full_like(xx, 0.3)], axis=-1)
+    args = (tx, rx, x, y, 0.3, prof.carrier_hz, prof.bandwidth_hz)
+    t_first = timed(lambda: plan_factorized(*args), 1)[0]  # the process's first plan: its passes loaded
+    plan_before = plan_factorized_reference(*args)
+    numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+    t_direct, ref = timed(lambda: backproject(prof, tx, rx, grid), 1)
+    plan = plan_factorized(*args)
+    errors = {name: error_db(run_factorized(p, prof, tx, rx), ref) for name, p in (("plan", plan), ("plan_before", plan_before))}
+    rows = {k: [] for k in ("direct_s", "plan_s", "plan_before_s", "plan_cpu_s", "plan_before_cpu_s", "run_s")}
+
+    def clocked(fn):
+        t, c = time.perf_counter(), time.thread_time()
+        fn()
+        return time.perf_counter() - t, time.thread_time() - c
+
+    for _ in range(rounds):
+        rows["direct_s"].append(timed(lambda: backproject(prof, tx, rx, grid), 1)[0])
+        for name, build in (("plan", plan_factorized), ("plan_before", plan_factorized_reference)):
+            wall, cpu = clocked(lambda: build(*args))
+            rows[f"{name}_s"].append(wall)
+            rows[f"{name}_cpu_s"].append(cpu)
+        rows["run_s"].append(timed(lambda: run_factorized(plan, prof, tx, rx), 1)[0])
+    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    r = {k: np.array(v) for k, v in rows.items()}
+    out = {"aperture_m": float(np.ptp(0.5 * (tx[:, 0] + rx[:, 0]))), "profiles": int(tx.shape[0]), "pixels": int(x.size * y.size),
+           "nodes": sum(1 for _ in plan.nodes()), "rounds": rows, "first_plan_in_process_s": t_first,
+           "plan_s": float(r["plan_s"].min()), "plan_before_s": float(r["plan_before_s"].min()),
+           "plan_over_before_wall": float(np.median(r["plan_before_s"] / r["plan_s"])),
+           "plan_over_before_cpu": float(np.median(r["plan_before_cpu_s"] / r["plan_cpu_s"])),
+           "plan_over_run": float(np.median(r["plan_s"] / r["run_s"])),
+           "speedup_over_direct_2_threads_interleaved": float(np.median(r["direct_s"] / r["run_s"])),
+           "speedup_with_plan_over_direct_2_threads_interleaved": float(np.median(r["direct_s"] / (r["plan_s"] + r["run_s"]))),
+           "speedup_with_plan_before_over_direct_2_threads_interleaved": float(np.median(r["direct_s"] / (r["plan_before_s"] + r["run_s"]))),
+           "error_db": errors["plan"], "error_db_plan_before": errors["plan_before"]}
+    print(f"2 m: plan {out['plan_s']:.3f} s (first in the process {t_first:.3f} s) against {out['plan_before_s']:.3f} s before "
+          f"({out['plan_over_before_wall']:.1f}x wall, {out['plan_over_before_cpu']:.1f}x CPU), {out['plan_over_run']:.2f} of the run; "
+          f"FFBP {out['speedup_over_direct_2_threads_interleaved']:.1f}x the direct kernel, with its plan "
+          f"{out['speedup_with_plan_over_direct_2_threads_interleaved']:.1f}x (with the plan before "
+          f"{out['speedup_with_plan_before_over_direct_2_threads_interleaved']:.1f}x); error {errors['plan']:.2f} dB "
+          f"({errors['plan_before']:.2f} dB with the plan before)", flush=True)
+    return out
 
 
 def label(row: dict) -> str:
@@ -276,8 +360,23 @@ def chart(result: dict, path: Path) -> None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="a smaller case (for a smoke run)")
+    mode = ap.add_mutually_exclusive_group()
+    mode.add_argument("--quick", action="store_true", help="a smaller case (for a smoke run)")
+    mode.add_argument("--plan", action="store_true", help="only the 2 m aperture's plan and run (docs/results/ffbp_plan.json)")
+    ap.add_argument("--rounds", type=int, default=3, help="rounds of --plan (default 3)")
     args = ap.parse_args()
+    if args.plan:
+        uptime_before = load_text()
+        backproject(*[range_compress(np.ones((4, 175), complex), 76e9, 22.75e6, oversample=8, guarded=True)],
+                    np.zeros((4, 3)), np.zeros((4, 3)), np.ones((2, 2, 3)))  # compile the direct kernel outside the timing
+        study = plan_study(args.rounds)
+        result = {"machine": machine(uptime_before), "case": {"speed_mps": SPEED_MPS, "range_m": 2.0, "pixel_m": 0.002,
+                                                              "profile_oversample": 8, "direct_mode": "linear"},
+                  "default": settings(FactorizedOptions()), "plan": study}
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        (RESULTS / "ffbp_plan.json").write_text(strict_json.dumps(result, indent=2))
+        print(f"wrote {RESULTS / 'ffbp_plan.json'}")
+        return 0
     frame_m = SPEED_MPS * 0.052
     if args.quick:
         apertures, x, y, repeats = [0.5], np.arange(-0.3, 0.3, 0.004), np.arange(1.8, 2.2, 0.004), 1
@@ -291,9 +390,7 @@ def main() -> int:
     for aperture in apertures:
         configs = [default]
         cases.append(run_case(int(round(aperture / frame_m)), x, y, configs, repeats, study_threads=aperture == apertures[-1]))
-    result = {"machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(), "numba": numba.__version__,
-                          "python": platform.python_version(), "load_average": os.getloadavg(),
-                          "uptime_before": uptime_before, "uptime_after": load_text()},
+    result = {"machine": machine(uptime_before),
               "case": {"speed_mps": SPEED_MPS, "range_m": 2.0, "pixel_m": float(x[1] - x[0]), "image_m": [float(np.ptp(x)), float(np.ptp(y))],
                        "profile_oversample": 8, "direct_mode": "linear", "quick": args.quick},
               "cases": cases, "default": settings(default), "reach": reach(args.quick)}

@@ -70,6 +70,11 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                     "The leaf kernel on one thread, nanoseconds a backprojection: as it runs, without prefetching, "
                     "its geometry and its gather alone, with the rows in cache, against the direct kernel.",
                     ".venv/bin/python benchmarks/ffbp_leaves.py"),
+    "ffbp_plan": ("FFBP's plan against the node-at-a-time plan",
+                  "The 2 m aperture's plan (plan_factorized) against the builder it replaced (tests/reference_ffbp_plan.py), "
+                  "alternated in one process, and FFBP with its plan against the direct kernel in each round, on 2 threads, "
+                  "on whatever load the JSON records.",
+                  ".venv/bin/python benchmarks/ffbp.py --plan"),
     "stripmap": ("Live strip map",
                  "The streaming strip map: frames per second against the sensor rate, and map error against an "
                  "offline full-resolution map, per setting.",

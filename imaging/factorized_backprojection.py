@@ -23,7 +23,9 @@ Geometry. Positions are float64 world coordinates. Each subaperture's axis is th
 direction of its antennas' phase centres (so a curved drive is followed piecewise); the image must lie on
 one side of every axis (a side-looking radar). A grid's range and alpha spacing come from the largest
 derivatives of |g - m| - |g - c| over its phase centres m and the region it covers, so range curvature,
-vibration or a bend widen the grid rather than alias it.
+vibration or a bend widen the grid rather than alias it. The plan computes these for many nodes a pass
+(``imaging.ffbp_placement``: the nodes of one length, then of one step down the tree), a fraction of the
+run's time; it can still be reused for images of the same geometry (``plan_factorized`` / ``run_factorized``).
 
 Interpolation. Separable, ``taps`` x ``taps`` per sample, with coefficients that minimise the squared error
 over the band the grid is oversampled for (the optimum for band-limited signals, Knab's kind of
@@ -50,6 +52,7 @@ from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.core.grid import Grid
 from imaging.ffbp_leaves import image_leaves, load_kernel
 from imaging.ffbp_merge import _merge_rows, _to_plane, _to_plane_rows  # noqa: F401 - _to_plane: tests use it
+from imaging.ffbp_placement import grid_edges, image_distance, node_frames, place_grids, track_axis
 from imaging.ffbp_tasks import Pool, leaf_runs, row_ranges
 from imaging.ffbp_interpolation import (  # noqa: F401 - part of this module's interface
     BAND_MARGIN,
@@ -232,49 +235,12 @@ class FactorizedPlan:
                 "direct_backprojections": int(self.roots[-1].stop - self.roots[0].start) * n_pix}
 
 
-def _horizontal_axis(m: np.ndarray, reference: np.ndarray | None) -> np.ndarray:
-    """Principal horizontal direction of points m [P, 3] (sign as ``reference``)."""
-    xy = m[:, :2] - m[:, :2].mean(axis=0)
-    cov = xy.T @ xy
-    if not np.any(cov):
-        u = np.array([1.0, 0.0]) if reference is None else reference.copy()
-    else:
-        u = np.linalg.eigh(cov)[1][:, -1]
-    if reference is not None and u @ reference < 0:
-        u = -u
-    return u / np.linalg.norm(u)
-
-
 def _outline(x_m, y_m, n: int = 64) -> np.ndarray:
     """Points on the border of the image rectangle, [4n, 2]."""
     x0, x1, y0, y1 = x_m[0], x_m[-1], y_m[0], y_m[-1]
     s = np.linspace(0, 1, n)
     return np.concatenate([np.stack([x0 + (x1 - x0) * s, np.full(n, y0)], 1), np.stack([x0 + (x1 - x0) * s, np.full(n, y1)], 1),
                            np.stack([np.full(n, x0), y0 + (y1 - y0) * s], 1), np.stack([np.full(n, x1), y0 + (y1 - y0) * s], 1)])
-
-
-def _extreme_points(m: np.ndarray, u: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """The phase centres furthest along and across the axis (both ways, and diagonally), and every
-    ``len/23``-th (a prime stride, so that TDM's repeating channel order does not pick one channel)."""
-    s, p = m[:, :2] @ u, m[:, :2] @ n
-    picks = [f(v) for v in (s, p, s + p, s - p, m[:, 2]) for f in (np.argmin, np.argmax)]
-    stride = max(1, m.shape[0] // 23)
-    return m[np.unique(np.concatenate([picks, np.arange(0, m.shape[0], stride)]))]
-
-
-def _polar_derivatives(node: Subaperture, m: np.ndarray, r: np.ndarray, alpha: np.ndarray, z_m: float):
-    """|d/dr| and |d/dalpha| of |g - m| - |g - c| over points g(r, alpha) of the plane and phase centres m,
-    largest of each: with 2 / lambda they are the demodulated image's bandwidths."""
-    u = np.array([*node.axis, 0.0])
-    n = np.array([*node.normal, 0.0])
-    g, b = node.plane_points(r, alpha, z_m, b_min_m=1e-6)
-    dg_dr = alpha[:, None] * u + (r * (1 - alpha ** 2) / b)[:, None] * n
-    dg_da = r[:, None] * u - (alpha * r * r / b)[:, None] * n
-    los = g[:, None, :] - m[None, :, :]
-    los /= np.linalg.norm(los, axis=-1, keepdims=True)  # [Q, M, 3] unit vectors from the phase centres
-    f_r = np.abs(np.einsum("qmk,qk->qm", los, dg_dr) - 1.0).max()
-    f_a = np.abs(np.einsum("qmk,qk->qm", los, dg_da)).max()
-    return float(f_r), float(f_a)
 
 
 def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, z_m: float,
@@ -312,7 +278,8 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
     m = 0.5 * (tx + rx)
     image_xy = _outline(x_m, y_m) if outline_xy is None else np.asarray(outline_xy, np.float64).reshape(-1, 2)
     centre_xy = image_xy.mean(axis=0)
-    overall = _horizontal_axis(m, None)
+    columns = tuple(np.ascontiguousarray(m[:, i]) for i in range(3))
+    overall = track_axis(columns)
     two_over_lambda = 2 * (carrier_hz + bandwidth_hz / 2) / SPEED_OF_LIGHT_MPS
     envelope = bandwidth_hz / SPEED_OF_LIGHT_MPS  # the range profile's band, cycles per metre of range
     n_pix = x_m.size * y_m.size
@@ -323,77 +290,72 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
         if n_leaf > 1:
             mid = start + (n_leaf // 2) * o.leaf_profiles
             children = (build(start, mid), build(mid, stop))
-        mm = m[start:stop]
-        c = mm.mean(axis=0)
-        u = _horizontal_axis(mm, overall)
-        n = np.array([-u[1], u[0]])
-        if n @ (centre_xy - c[:2]) < 0:
-            n = -n
-        return Subaperture(start, stop, 1 + max(ch.level for ch in children) if children else 0, c, u, n, children)
+        return Subaperture(start, stop, 1 + max(ch.level for ch in children) if children else 0, None, None, None, children)
 
-    def place(node: Subaperture, needed_xy: np.ndarray) -> None:
-        """Size ``node``'s grid to cover the plane points ``needed_xy`` [M, 2] (the image's outline, or
-        the outline of its parent's grid) with the taps to interpolate anywhere inside."""
-        c, u, n = node.centre_m, node.axis, node.normal
-        oversample_range, oversample_angle, taps = o.sampling(leaf=not node.children)
-        half_taps = taps // 2
-        h = z_m - c[2]
-        b_image = float(((image_xy - c[:2]) @ n).min())
-        if b_image <= 0:
-            raise ValueError("the image must lie to one side of the radar's track (FFBP images a side-looking pass); "
-                             f"the track of profiles {node.start}-{node.stop} passes {-b_image:.3f} m inside it")
-        rel = needed_xy - c[:2]
-        # A parent's grid reaches further out in angle than the image; near the track no pixel needs it.
-        rel = rel[rel @ n >= 0.5 * b_image]
-        along = rel @ u
-        r = np.sqrt(along ** 2 + (rel @ n) ** 2 + h ** 2)
-        alpha = along / r
-        # Bandwidths from the geometry itself (at the outline, and inside it on a coarse grid), so that a
-        # long subaperture's range curvature or a bent track widens the grid instead of aliasing it.
-        rq, aq = np.meshgrid(np.linspace(r.min(), r.max(), 5), np.linspace(alpha.min(), alpha.max(), 5))
-        edge = slice(None, None, max(1, r.size // 48))
-        rs, as_ = np.concatenate([r[edge], rq.ravel()]), np.concatenate([alpha[edge], aq.ravel()])
-        # Only where the grid is needed: a corner of the (r, alpha) box can lie on the axis (b -> 0), where
-        # the derivatives diverge and would size the grid in the trillions.
-        near = rs ** 2 * (1 - as_ ** 2) - h ** 2 < (0.5 * b_image) ** 2
-        rs, as_ = rs[~near], as_[~near]
-        centres = _extreme_points(m[node.start:node.stop], u, n)
-        f_r, f_a = _polar_derivatives(node, centres, rs, as_, z_m)
-        dr = 1.0 / (2 * (envelope + two_over_lambda * f_r) * BAND_MARGIN * oversample_range)
-        da = min(1.0 / (2 * max(two_over_lambda * f_a, 1e-9) * BAND_MARGIN * oversample_angle), 0.1)
-        node.dr_m, node.da = dr, da
-        # The merge and pixel kernels read taps/2 - 1 samples below the floor of a position and taps/2 above it.
-        node.r0_m = float(r.min() - half_taps * dr)
-        node.nr = int(math.floor((r.max() - node.r0_m) / dr)) + half_taps + 1
-        node.a0 = float(max(alpha.min() - half_taps * da, -1.0))
-        node.na = int(math.floor((min(alpha.max(), 1.0) - node.a0) / da)) + half_taps + 1
-
-    def grid_edge(node: Subaperture, per_side: int = 64) -> np.ndarray:
-        ir = np.unique(np.linspace(0, node.nr - 1, per_side).astype(int))
-        ia = np.unique(np.linspace(0, node.na - 1, per_side).astype(int))
-        ends_r, ends_a = np.array([0, node.nr - 1]), np.array([0, node.na - 1])
-        return np.concatenate([node.polar_points(z_m, ends_r, ia).reshape(-1, 3),
-                               node.polar_points(z_m, ir, ends_a).reshape(-1, 3)])[:, :2]
-
-    def place_subtree(node: Subaperture) -> None:
-        edge = grid_edge(node)
-        for child in node.children:
-            place(child, edge)
-            place_subtree(child)
-
-    def choose_roots(node: Subaperture) -> list:
-        """Merge up to ``node`` only while its grid costs less than interpolating its children at the pixels."""
-        place(node, image_xy)
-        if node.children and 2 * node.nr * node.na > n_pix:
-            return [r for child in node.children for r in choose_roots(child)]
-        if not node.children and (node.stop - node.start) * node.nr * node.na + n_pix * o.sampling(True)[2] ** 2 > (node.stop - node.start) * n_pix:
-            node.direct = True  # cheaper straight onto the pixels
-        return [node]
-
+    # Every node's frame, the nodes of one length in one pass (imaging.ffbp_placement).
     whole = build(0, tx.shape[0])
-    roots = choose_roots(whole)
-    for root in roots:
-        place_subtree(root)
+    by_length: dict = {}
+    stack = [whole]
+    while stack:
+        node = stack.pop()
+        by_length.setdefault(node.stop - node.start, []).append(node)
+        stack.extend(node.children)
+    extremes = {}  # id(node) -> the phase centres its grid's bandwidths are taken over
+    for length, group in by_length.items():
+        frames = node_frames(columns, np.array([nd.start for nd in group]), length, overall, centre_xy)
+        for i, node in enumerate(group):
+            node.centre_m, node.axis, node.normal = frames[0][i], frames[1][i], frames[2][i]
+            extremes[id(node)] = frames[3][i]
+
+    def place(batch: list, served_x: np.ndarray, served_y: np.ndarray, served: np.ndarray) -> None:
+        """Size the grids of the nodes ``batch`` to cover the plane points each serves ([N, K], where
+        ``served``: the image's outline, or the edge of its parent's grid), in one pass."""
+        centre = np.stack([nd.centre_m for nd in batch])
+        normal = np.stack([nd.normal for nd in batch])
+        b_image = image_distance(centre, normal, image_xy)
+        if np.any(b_image <= 0):
+            i = int(np.flatnonzero(b_image <= 0)[0])
+            raise ValueError("the image must lie to one side of the radar's track (FFBP images a side-looking pass); "
+                             f"the track of profiles {batch[i].start}-{batch[i].stop} passes {-b_image[i]:.3f} m inside it")
+        sampling = np.array([o.sampling(leaf=not nd.children) for nd in batch])
+        longest = max(extremes[id(nd)].shape[0] for nd in batch)
+        centres = np.stack([np.concatenate([e, np.repeat(e[:1], longest - e.shape[0], axis=0)])
+                            for e in (extremes[id(nd)] for nd in batch)])  # padded with a copy: same maxima
+        grids = place_grids(centre, np.stack([nd.axis for nd in batch]), normal, centres, served_x, served_y, served,
+                            b_image, z_m, envelope=envelope, two_over_lambda=two_over_lambda,
+                            oversample_range=sampling[:, 0], oversample_angle=sampling[:, 1],
+                            half_taps=sampling[:, 2].astype(int) // 2)
+        for i, node in enumerate(batch):
+            node.r0_m, node.dr_m, node.a0, node.da = (float(v[i]) for v in grids[:4])
+            node.nr, node.na = int(grids[4][i]), int(grids[5][i])
+
+    # The roots: merge up to a node only while its grid costs less than interpolating its children at the
+    # pixels; a step down the tree at a time, each step's nodes placed (on the image's outline) in one pass.
+    roots, candidates = [], [whole]
+    outline_x, outline_y = image_xy[:, 0], image_xy[:, 1]
+    while candidates:
+        shape = (len(candidates), image_xy.shape[0])
+        place(candidates, np.broadcast_to(outline_x, shape), np.broadcast_to(outline_y, shape), np.ones(shape, bool))
+        deeper = []
+        for node in candidates:
+            if node.children and 2 * node.nr * node.na > n_pix:
+                deeper.extend(node.children)
+                continue
+            leaf_cost = (node.stop - node.start) * node.nr * node.na + n_pix * o.sampling(True)[2] ** 2
+            if not node.children and leaf_cost > (node.stop - node.start) * n_pix:
+                node.direct = True  # cheaper straight onto the pixels
+            roots.append(node)
+        candidates = deeper
+    roots.sort(key=lambda nd: nd.start)
+    # Below the roots, each child's grid covers its parent's: a step down the trees at a time.
+    parents = [r for r in roots if r.children]
+    while parents:
+        edge = grid_edges(*(np.stack([getattr(p, f) for p in parents]) for f in ("centre_m", "axis", "normal")),
+                          *(np.array([getattr(p, f) for p in parents]) for f in ("r0_m", "dr_m", "a0", "da", "nr", "na")), z_m)
+        of_parent = np.repeat(np.arange(len(parents)), [len(p.children) for p in parents])
+        children = [c for p in parents for c in p.children]
+        place(children, *(e[of_parent] for e in edge))
+        parents = [c for c in children if c.children]
     k = 2 * math.pi * carrier_hz / SPEED_OF_LIGHT_MPS
     plan = FactorizedPlan(roots, x_m, y_m, float(z_m), o, k)
     # Phase centres all but on the image's edge, or a track bent towards it, can ask a subtree for polar grids

@@ -1,0 +1,139 @@
+"""FFBP's plan, built a step of the tree at a time (``imaging.ffbp_placement``), is the plan the node-at-a-time
+builder made (tests/reference_ffbp_plan.py): the same trees, roots and grid sizes, the same geometry to float
+rounding, so the same image. On the benchmark's 2 m aperture, straight, bent, vibrating and stopping tracks, a
+ragged profile count, a plane below the track, a strip map's rotated footprint and a plan that goes direct."""
+
+import numpy as np
+import pytest
+
+import imaging.factorized_backprojection as ffbp
+import reference_ffbp_plan
+from imaging.core.geometry import Vibration, antenna_track, chirp_times_ns
+from imaging.core.rig import default_rig
+from imaging.core.trajectory import PathWithTurns, StraightLine
+from imaging.factorized_backprojection import FactorizedOptions, plan_factorized, run_factorized
+from imaging.range_compression import range_compress
+from reference_ffbp_plan import plan_factorized_reference
+from test_factorized_backprojection import direct, error_db, pass_case
+
+RADAR = default_rig().radar("left_front")
+WF = RADAR.waveform
+_PROFILE = range_compress(np.ones((1, WF.samples_per_chirp), complex), WF.f0_hz, WF.frequency_step_hz, oversample=8, guarded=True)
+CARRIER_HZ, BANDWIDTH_HZ = _PROFILE.carrier_hz, _PROFILE.bandwidth_hz
+
+
+def track(n_frames: int, trajectory=None, vibration=None):
+    """TX and RX positions of the left-front radar's 16 channels on a 0.4 m/s pass (as pass_case, no echoes)."""
+    traj = trajectory or StraightLine(start_m=(-0.15 - 0.4 * n_frames * WF.frame_interval_s / 2, -0.2, 0.0), speed_mps=0.4)
+    ft = np.arange(n_frames, dtype=np.int64) * int(WF.frame_interval_s * 1e9)
+    times = chirp_times_ns(ft, WF.chirps_per_frame, WF.chirp_interval_s).ravel()
+    t = antenna_track(RADAR, traj, times, np.tile(WF.tdm_tx_order(), n_frames), vibration=vibration)
+    return np.repeat(t.tx_m, WF.n_rx, axis=0), t.rx_m.reshape(-1, 3)
+
+
+def assert_same_plan(new, old):
+    def nodes(plan):
+        return sorted(plan.nodes(), key=lambda n: (n.start, n.stop))
+
+    assert [(r.start, r.stop, r.direct) for r in new.roots] == [(r.start, r.stop, r.direct) for r in old.roots]
+    a_nodes, b_nodes = nodes(new), nodes(old)
+    assert len(a_nodes) == len(b_nodes)
+    for a, b in zip(a_nodes, b_nodes):
+        assert (a.start, a.stop, a.level, a.nr, a.na, a.direct, len(a.children)) == \
+               (b.start, b.stop, b.level, b.nr, b.na, b.direct, len(b.children)), (a.start, a.stop)
+        # centre, axis, normal, r0, dr, a0, da: rounding apart (sums in another order), nothing more.
+        np.testing.assert_allclose(a.geometry, b.geometry, rtol=1e-11, atol=1e-12)
+    assert new.cost() == old.cost()
+    assert new.error_bound_db == old.error_bound_db and new.levels == old.levels
+
+
+def both(*args, **kwargs):
+    return plan_factorized(*args, **kwargs), plan_factorized_reference(*args, **kwargs)
+
+
+def test_the_benchmarks_2_m_aperture_gets_the_same_plan():
+    """benchmarks/ffbp.py's case: 96 frames (2 m, 98304 profiles) onto 1 m x 0.6 m at 2 mm, default settings:
+    4 roots of 6 levels, 380 nodes, all alike."""
+    tx, rx = track(96)
+    x, y = np.arange(-0.5, 0.5, 0.002), np.arange(1.7, 2.3, 0.002)
+    new, old = both(tx, rx, x, y, 0.3, CARRIER_HZ, BANDWIDTH_HZ)
+    assert len(new.roots) == 4 and new.levels == 6 and sum(1 for _ in new.nodes()) == 380
+    assert_same_plan(new, old)
+
+
+def _stop_track():
+    """Standing still for two frames mid-pass (every phase centre of those leaves repeats per channel)."""
+    tx, rx = track(12)
+    tx, rx = tx.copy(), rx.copy()
+    tx[2048:4096], rx[2048:4096] = tx[2048], rx[2048]
+    return tx, rx
+
+
+@pytest.mark.parametrize("case", ["straight", "uniform leaves", "ragged", "bend", "vibration", "stop"])
+def test_tracks_get_the_same_plan(case):
+    options = FactorizedOptions(leaf_profiles=256)
+    if case == "bend":
+        tx, rx = track(24, PathWithTurns(segments=(("arc", 4.0, 7.0),), start_m=(-0.4, -0.25, 0.0), heading_deg=-3.5, speed_mps=0.4))
+    elif case == "vibration":
+        tx, rx = track(24, vibration=Vibration(3.83, 0.319e-3, 0.7))
+    elif case == "stop":
+        tx, rx = _stop_track()
+    else:
+        tx, rx = track(24)
+    if case == "uniform leaves":
+        options = FactorizedOptions(leaf_profiles=512, leaf_oversample=None, leaf_taps=None, taps=4, oversample_range=3)
+    if case == "ragged":  # leaves and nodes of many lengths, the last leaf short
+        tx, rx, options = tx[:10000], rx[:10000], FactorizedOptions(leaf_profiles=384)
+    x, y = np.arange(-0.4, 0.4, 0.005), np.arange(1.6, 2.4, 0.005)
+    new, old = both(tx, rx, x, y, 0.3, CARRIER_HZ, BANDWIDTH_HZ, options)
+    assert new.levels >= 3
+    assert_same_plan(new, old)
+
+
+def test_a_plane_below_the_track_and_a_rotated_footprint_get_the_same_plan():
+    """The plane 0.45 m below a short track reaching far along it (a grid corner on the axis), and a strip
+    map's footprint (a rotated rectangle inside the pixels' bounding box, ``outline_xy``)."""
+    n_p = 2048
+    centres = np.stack([np.linspace(-0.3, 0.3, n_p), np.zeros(n_p), np.full(n_p, 0.45)], 1)
+    x, y = np.arange(-1.5, 1.5, 0.01), np.arange(0.5, 1.3, 0.01)
+    assert_same_plan(*both(centres, centres, x, y, 0.0, CARRIER_HZ, BANDWIDTH_HZ, FactorizedOptions(leaf_profiles=128)))
+    tx, rx = track(24)
+    x, y = np.arange(-0.5, 0.5, 0.005), np.arange(1.5, 2.5, 0.005)
+    corners = np.array([[-0.3, -0.2], [0.3, -0.2], [0.3, 0.2], [-0.3, 0.2], [-0.3, -0.2]])
+    turn = np.radians(12)
+    corners = corners @ np.array([[np.cos(turn), np.sin(turn)], [-np.sin(turn), np.cos(turn)]]) + [0.0, 2.0]
+    outline = np.concatenate([a + (b - a) * np.linspace(0, 1, 32, endpoint=False)[:, None] for a, b in zip(corners[:-1], corners[1:])])
+    new, old = both(tx, rx, x, y, 0.3, CARRIER_HZ, BANDWIDTH_HZ, FactorizedOptions(leaf_profiles=256), outline_xy=outline)
+    assert new.levels >= 3
+    assert_same_plan(new, old)
+
+
+def test_a_plan_that_goes_direct_and_a_refused_image_are_as_before(monkeypatch):
+    tx, rx = track(2)
+    x, y = np.arange(-0.3, 0.3, 0.01), np.arange(1.7, 2.1, 0.01)
+    normal = plan_factorized(tx, rx, x, y, 0.3, CARRIER_HZ, BANDWIDTH_HZ, FactorizedOptions(leaf_profiles=256))
+    largest = max(n.nr * n.na for n in normal.nodes() if not n.direct)
+    for module in (ffbp, reference_ffbp_plan):
+        monkeypatch.setattr(module, "MAX_GRID_PER_PIXEL", 0.9 * largest / max(x.size * y.size, 4096))
+    new, old = both(tx, rx, x, y, 0.3, CARRIER_HZ, BANDWIDTH_HZ, FactorizedOptions(leaf_profiles=256))
+    assert new.direct_only
+    assert_same_plan(new, old)
+    messages = []
+    for build in (plan_factorized, plan_factorized_reference):
+        with pytest.raises(ValueError, match="one side of the radar's track") as refused:
+            build(tx, rx, x, np.linspace(-1.0, 1.0, 20), 0.3, CARRIER_HZ, BANDWIDTH_HZ)
+        messages.append(str(refused.value))
+    assert messages[0] == messages[1] and "the track of profiles 0-2048 passes" in messages[0]
+
+
+def test_the_image_is_the_same():
+    """A 0.5 m pass onto 0.8 m x 0.5 m at 4 mm: the image of either plan is the other's to float32 rounding,
+    and its error against the direct kernel the same to 0.01 dB."""
+    prof, tx, rx = pass_case(24)
+    x, y = np.arange(-0.4, 0.4, 0.004), np.arange(1.7, 2.2, 0.004)
+    new, old = both(tx, rx, x, y, 0.3, prof.carrier_hz, prof.bandwidth_hz, FactorizedOptions(leaf_profiles=256))
+    img_new, img_old = run_factorized(new, prof, tx, rx), run_factorized(old, prof, tx, rx)
+    np.testing.assert_allclose(img_new, img_old, rtol=0, atol=1e-5 * np.abs(img_old).max())
+    ref = direct(prof, tx, rx, x, y)
+    assert error_db(img_new, ref) < -40.0
+    assert abs(error_db(img_new, ref) - error_db(img_old, ref)) < 0.01
