@@ -257,10 +257,18 @@ def main(argv=None) -> int:
     ap.add_argument("--trials", type=int, default=300, help="noise draws per synthetic scene")
     ap.add_argument("--mechanism-only", action="store_true", help="only the synthetic detections")
     ap.add_argument("--odometry", action="store_true", help="also the odometry's quick drive and the real bag")
+    ap.add_argument("--odometry-only", action="store_true", help="only the odometry part (its own JSON, --out)")
     ap.add_argument("--out", type=Path, default=RESULTS / "calibration_elevation.json")
     args = ap.parse_args(argv)
     started = time.perf_counter()
     load = [os.getloadavg()[0]]
+    if args.odometry_only:
+        out = {"what": "calibration_elevation.py --odometry-only: " + __doc__.split("3. ")[1].split("\n\n")[0].replace("\n", " "),
+               "odometry": odometry_rows(), "load_average_1min": [load[0], os.getloadavg()[0]],
+               "wall_time_s": time.perf_counter() - started}
+        args.out.write_text(json.dumps(out, indent=2))
+        print(f"wrote {args.out}")
+        return 0
     mechanism = []
     for n in (600, 80):
         for el_mean, spread in SCENES:
