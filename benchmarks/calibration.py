@@ -8,11 +8,12 @@ calibrated online (``calibrated``) is compared with the true rig through the sam
 ``calibrate()`` with the true rig as its prior, calibration states on). The true rig without calibration states
 (``true_rig``) is its own column: with it, what the extra states do by themselves.
 
-Why the extra states change the filter: the Doppler fit's vertical velocity is biased in proportion to the
-velocity along the boresight (``fit_bias``: errors in the detections' elevation, 3 deg, over scatterers mostly
-below or above the radar), which a mount rotation about the sensor's y axis (pitch) describes. With the
+Why the extra states change the filter: the plain Doppler fit's vertical velocity is biased in proportion to
+the velocity along the boresight (``fit_bias``: errors in the detections' elevation, 3 deg, over scatterers
+mostly below or above the radar), which a mount rotation about the sensor's y axis (pitch) describes. With the
 calibration states on, each radar's pitch and the lever arm along z (which ``sarbot calibrate`` refuses: a floor
-robot cannot show them) move to absorb it, on the true rig as on the wrong one. ``true_rig_pinned`` is the true
+robot cannot show them) moved to absorb it, on the true rig as on the wrong one. rio.ego_velocity now takes
+that cross-talk out (``remove_crosstalk``; benchmarks/calibration_elevation.py measures it before and after). ``true_rig_pinned`` is the true
 rig with those two axes held (prior 0), ``true_rig_pitch_lever_z`` the true rig with only those two free.
 
 The drive starts and stops at ``--accel`` (2 m/s^2 by default: the time offset shows only while the velocity

@@ -174,6 +174,17 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                                  "rig's on the calibration drives, and point targets imaged where the robot sets off "
                                  "into a turn against the true rig's image.",
                                  ".venv/bin/python benchmarks/calibration_unobservable.py"),
+    "calibration_elevation": ("The Doppler fit's vertical bias from elevation noise",
+                              "The fit on measured directions against the fit with the vertical cross-talk removed "
+                              "(rio.ego_velocity, 3 deg elevation and 1 deg azimuth noise; the corrected score beside "
+                              "them on synthetic detections): the mean vertical error per m/s along the boresight "
+                              "against fit_gain's prediction; on calibration drives of 40-90 s (a quicker subset of "
+                              "benchmarks/calibration.py's, 2 seeds) roll's error, sigma and NEES (calibrate() from the "
+                              "wrong rig), the pitch and lever z that calibrate() from the true rig settles at, and "
+                              "calibrated / true-rig-calibrated ATE; benchmarks/odometry.py's one-lap hall drive (three "
+                              "seeds) and the real bag through all three fits.",
+                              ".venv/bin/python benchmarks/calibration_elevation.py --lengths 40 60 90 --seeds 1 2 "
+                              "--odometry"),
     "map_feedback": ("The map corrects the odometry",
                      "Simulated straight drives at 0.4 m/s with the radars' Doppler 2 % low: the odometry's error along "
                      "the track at the end, and every point target's peak in the live map as imaged (before refocus) "

@@ -4,6 +4,13 @@ For a static point seen in direction u (unit, sensor frame) the range rate is d 
 sensor's velocity. Moving targets and false alarms break this relation and are rejected as outliers.
 Several radars at once: each detection's equation is expressed in the body velocity through the radar's
 mount and the angular rate (lever arm), and all are solved together.
+
+The directions come from measured angles. Least squares on noisy regressors is biased (errors in variables):
+an elevation error d_e changes the horizontal cosine by -d_e sin e - d_e^2/2 cos e, which correlates with the
+measured vertical sine sin e + d_e cos e. Over scatterers mostly below (or above) the radar, the vertical
+velocity then comes out biased in proportion to the horizontal one (``fit_gain``: about 0.02 m/s per m/s for
+3 deg over a floor robot's room, a 1 deg pitch). One radar's fit takes that cross-talk out for a known angle
+noise (``EgoVelocityConfig.elevation_sigma_deg``, ``azimuth_sigma_deg``; ``remove_crosstalk``).
 """
 
 from __future__ import annotations
@@ -45,6 +52,11 @@ class EgoVelocityConfig:
     max_sigma_mps: float = 0.15
     max_condition: float = 1e4
     min_sigma_mps: float = 0.01  # floor on the per-detection Doppler noise used for the covariance
+    #: Standard deviations of the detections' measured angles (Gaussian), which the fit corrects its bias for;
+    #: 0 fits the measured directions as exact. The defaults are the simulated radar's
+    #: (imaging.sim.detection_simulator.DetectionModel). Only a radar that measures elevation is corrected.
+    elevation_sigma_deg: float = 3.0
+    azimuth_sigma_deg: float = 1.0
 
 
 @dataclasses.dataclass
@@ -246,6 +258,68 @@ def solve_ego_velocity(a: np.ndarray, b: np.ndarray, config: EgoVelocityConfig =
     return EgoVelocity(status, None, None, inliers, float(sigma))
 
 
+def direction_moments(u: np.ndarray, elevation_sigma_rad: float, azimuth_sigma_rad: float,
+                      sign: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sum of u u^T over unit directions u [D, 3] with Gaussian angle noise put in or taken out, and the factors
+    on the mean direction.
+
+    ``sign`` +1: from true directions, the expectation of the sum over measured ones and E[u'] = g * u.
+    ``sign`` -1: from measured directions, an unbiased estimate of the sum over the true ones, and 1 / g.
+    Why it is exact: u u^T is linear in cos 2e, sin 2e, cos 2a, sin 2a, cos a, sin a (and their products across
+    e and a), and E[cos k(e + d)] = exp(-k^2 s^2 / 2) cos ke for d ~ N(0, s^2).
+    """
+    el = np.arcsin(np.clip(u[:, 2], -1.0, 1.0))
+    az = np.arctan2(u[:, 1], u[:, 0])
+    k_e2, k_a2 = math.exp(-2 * sign * elevation_sigma_rad ** 2), math.exp(-2 * sign * azimuth_sigma_rad ** 2)
+    k_e1, k_a1 = math.exp(-0.5 * sign * elevation_sigma_rad ** 2), math.exp(-0.5 * sign * azimuth_sigma_rad ** 2)
+    c2e, s2e = k_e2 * np.cos(2 * el), k_e2 * np.sin(2 * el)
+    c2a, s2a = k_a2 * np.cos(2 * az), k_a2 * np.sin(2 * az)
+    ca, sa = k_a1 * np.cos(az), k_a1 * np.sin(az)
+    m = np.empty((3, 3))
+    m[0, 0] = np.sum((1 + c2e) * (1 + c2a)) / 4
+    m[1, 1] = np.sum((1 + c2e) * (1 - c2a)) / 4
+    m[2, 2] = np.sum(1 - c2e) / 2
+    m[0, 1] = m[1, 0] = np.sum((1 + c2e) * s2a) / 4
+    m[0, 2] = m[2, 0] = np.sum(s2e * ca) / 2
+    m[1, 2] = m[2, 1] = np.sum(s2e * sa) / 2
+    return m, np.array([k_e1 * k_a1, k_e1 * k_a1, k_e1])
+
+
+def fit_gain(u_true: np.ndarray, elevation_sigma_rad: float, azimuth_sigma_rad: float = 0.0) -> np.ndarray:
+    """What least squares on measured directions returns for a sensor velocity v, as G v [3, 3] (many detections).
+
+    The fit solves (sum u' u'^T) v' = sum u' (u . v); in expectation over the angle noise that is
+    G = E[sum u' u'^T]^-1 diag(g) sum u u^T. G - I is the bias: its (z, x) entry is the vertical velocity's error
+    per m/s along the boresight, even in the elevation error, so it is there on average in every radar that
+    measures elevation with error, not only in a simulator.
+    """
+    m_noisy, gain = direction_moments(u_true, elevation_sigma_rad, azimuth_sigma_rad, +1)
+    return np.linalg.solve(m_noisy, gain[:, None] * (u_true.T @ u_true))
+
+
+def remove_crosstalk(u: np.ndarray, est: EgoVelocity, config: EgoVelocityConfig) -> None:
+    """Take out of ``est`` (the fit on ``u``, unit measured directions [D, 3] of which ``est.inliers`` were
+    fitted) the vertical velocity's cross-talk from the horizontal one, for the config's angle noise.
+
+    The cross-talk is ``fit_gain``'s (z, x) and (z, y) entries, G[:, :2] = (sum u' u'^T)^-1 diag(g) M[:, :2],
+    with the measured sum as it is and the true directions' moments M estimated from the measured ones
+    (``direction_moments``, sign -1). Only M's horizontal columns enter: its (z, z) entry, the vertical
+    spread less the noise's, is what makes a fully noise-corrected fit (the corrected score) noisier where the
+    elevations spread little: its vertical error's spread is 1.1-1.3x the plain fit's on synthetic scans, and
+    the one-lap hall odometry's mean ATE over three seeds 22.3 mm against the plain fit's 20.2 mm; this fit
+    keeps both (1.0x, 20.3 mm; benchmarks/calibration_elevation.py). The horizontal velocity is kept as
+    fitted. The joint fit of several radars (``body_velocity``) is not corrected.
+    """
+    u_in = u[est.inliers]
+    moments, inv_gain = direction_moments(u_in, math.radians(config.elevation_sigma_deg),
+                                          math.radians(config.azimuth_sigma_deg), -1)
+    crosstalk = np.linalg.solve(u_in.T @ u_in, moments[:, :2] / inv_gain[:, None])[2]
+    j = np.eye(3)
+    j[2, :2] = -crosstalk
+    est.velocity_mps = j @ est.velocity_mps
+    est.covariance = j @ est.covariance @ j.T
+
+
 def sensor_velocity(xyz_m: np.ndarray, doppler_mps: np.ndarray, config: EgoVelocityConfig = EgoVelocityConfig(),
                     rng: np.random.Generator | None = None) -> EgoVelocity:
     """One radar's velocity in its own frame from detections xyz_m [D, 3] and range rates [D]."""
@@ -254,6 +328,8 @@ def sensor_velocity(xyz_m: np.ndarray, doppler_mps: np.ndarray, config: EgoVeloc
     u = xyz_m[keep] / r[keep, None]
     planar = u.shape[0] > 0 and np.ptp(u[:, 2]) < 1e-6 and np.abs(u[:, 2]).max() < 1e-6
     est = solve_ego_velocity(-u[:, :2] if planar else -u, doppler_mps[keep], config, rng)
+    if not planar and est.status is EgoStatus.OK and (config.elevation_sigma_deg > 0 or config.azimuth_sigma_deg > 0):
+        remove_crosstalk(u, est, config)
     if planar and est.velocity_mps is not None:
         # A radar without elevation: the vertical velocity is not measured (a wide prior, not a zero).
         est.velocity_mps = np.append(est.velocity_mps, 0.0)
