@@ -55,7 +55,8 @@ from numba.core.errors import NumbaPerformanceWarning
 from imaging.block_profiles import (A_N, A_N2, B0, B1, B2, B_N, B_N2, CODE, E0, E1, E2, FORM_FOLDED, FORM_GRADIENT,
                                     FORM_MASK, FORM_RX_SERIES, FORM_TWO_SERIES, FRAC_C, IBASE, INT_TABLE_SIZE, LO,
                                     NEW_TX_OFFSETS, SB0, SB1, SV0, SV1, TABLE_PROFILES, TABLE_SIZE, TOP, TURNS_C,
-                                    TX_SERIES, V0, V1, V2, block_profile_table, profile_rows)
+                                    TX_SERIES, V0, V1, V2, block_profile_table, block_series_distances,
+                                    profile_rows)
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.numba_target import (  # noqa: F401 - compiled_target re-exported
     compiled_target, prefer_full_width_vectors, skip_extension_search)
@@ -243,10 +244,12 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
         radius = math.sqrt(np.float64(dd.max()))
         table = np.empty(TABLE_SIZE, np.float32)
         ints = np.empty(INT_TABLE_SIZE, np.int32)
+        u_one, u_mid = block_series_distances(radius)
         for g in range(groups.shape[0]):
             q0 = p0 + g * TABLE_PROFILES
             n_q = min(TABLE_PROFILES, p1 - q0)
-            block_profile_table(cx, cy, cz, radius, groups[g], n_q, r0, inv_dr, hi, k, midpoint_tol_m, table, ints)
+            block_profile_table(cx, cy, cz, radius, u_one, u_mid, groups[g], n_q, r0, inv_dr, hi, k, midpoint_tol_m, table,
+                                ints)
             for j in range(n_q):
                 _place_block_profile(table, j, ints[IBASE + j], ints[CODE + j], inv32, k_turns32, linear, dx, dy, dz, dd,
                                      da, idx, frac, pixel_turns)

@@ -105,8 +105,8 @@ def profile_rows(tx, rx, r_ref, p0, p1):
 @numba.njit(nogil=True)
 def block_series_distances(radius):
     """(the least distance at which one antenna's series applies to a block of this radius, the same for the
-    midpoint's series, whose folded numerator reaches a radius (1 + FOLD_GRADIENT_MAX / 2) further): once per
-    block (``series_min_distance``)."""
+    midpoint's series, whose folded numerator reaches a radius (1 + FOLD_GRADIENT_MAX / 2) further), by
+    bisection (``series_min_distance``): once per block, not per group of profiles (about 2,000 cycles)."""
     return series_min_distance(radius), series_min_distance(radius * (1.0 + 0.5 * FOLD_GRADIENT_MAX))
 
 
@@ -114,15 +114,15 @@ def block_series_distances(radius):
 # square root form, instead of a raise that keeps LLVM from vectorising the loop; no fastmath, whose
 # "no infinities" would allow anything there (and whose reciprocals would round other than the scalar code).
 @numba.njit(nogil=True, error_model="numpy", fastmath={"contract"})
-def block_profile_table(cx, cy, cz, radius, prof, n, r0, inv_dr, hi, k, tol_m, table, ints):
+def block_profile_table(cx, cy, cz, radius, u_one, u_mid, prof, n, r0, inv_dr, hi, k, tol_m, table, ints):
     """Fill ``table`` [TABLE_SIZE] (float32; profile j's FRAC_C at FRAC_C + j, and so on) and ``ints``
     [INT_TABLE_SIZE] (int32: IBASE, CODE) for the block centred on (cx, cy, cz) with every pixel
-    within ``radius`` of it, for the first n profiles of a group ``prof`` of ``profile_rows``,
+    within ``radius`` of it (``block_series_distances``: u_one, u_mid), for the first n profiles of a group
+    ``prof`` of ``profile_rows``,
     the kernel's range axis (r0, inv_dr, hi: the last bin position), wavenumber k and midpoint tolerance
     tol_m (MIDPOINT_PHASE_RAD / k, metres).
 
     The midpoint form's decision is ``imaging.range_offsets.midpoint_form``'s, written without branches."""
-    u_one, u_mid = block_series_distances(radius)
     r2 = radius * radius
     for j in range(n):
         ua0, ua1, ua2 = cx - prof[TX_X + j], cy - prof[TX_Y + j], cz - prof[TX_Z + j]

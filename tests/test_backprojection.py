@@ -445,13 +445,15 @@ def test_block_profile_table_equals_the_per_profile_values():
         radius = rng.uniform(0.01, 0.05)
         centre = offset + [0.0, rng.choice([0.05, 0.3, 2.0, 3.0]), 0.3]
         groups = bpt.profile_rows(tx, rx, r_ref, 0, n)
-        u_one, u_mid = series_min_distance(radius), series_min_distance(radius * (1 + 0.5 * FOLD_GRADIENT_MAX))
+        u_one, u_mid = bpt.block_series_distances(radius)
+        assert u_one == series_min_distance(radius)
+        assert u_mid == series_min_distance(radius * (1 + 0.5 * FOLD_GRADIENT_MAX))
         for g in range(groups.shape[0]):
             q0 = g * bpt.TABLE_PROFILES
             n_q = min(bpt.TABLE_PROFILES, n - q0)
             table = np.full(bpt.TABLE_SIZE, np.nan, np.float32)
             ints = np.zeros(bpt.INT_TABLE_SIZE, np.int32)
-            bpt.block_profile_table(*centre, radius, groups[g], n_q, r0, inv_dr, hi, k, tol_m, table, ints)
+            bpt.block_profile_table(*centre, radius, u_one, u_mid, groups[g], n_q, r0, inv_dr, hi, k, tol_m, table, ints)
             for j in range(n_q):
                 p, t = q0 + j, table
                 new_tx = j == 0 or np.any(tx[p] != tx[p - 1])
