@@ -110,8 +110,8 @@ def block_series_distances(radius):
     return series_min_distance(radius), series_min_distance(radius * (1.0 + 0.5 * FOLD_GRADIENT_MAX))
 
 
-# error_model="numpy": a division by zero (a block centred on an antenna) gives inf and that profile a
-# square root form, instead of a raise that keeps LLVM from vectorising the loop; no fastmath, whose
+# error_model="numpy": a division by zero (a block centred on an antenna) gives inf, not a raise: the check
+# for one per division keeps LLVM from vectorising the loop. No fastmath, whose
 # "no infinities" would allow anything there (and whose reciprocals would round other than the scalar code).
 @numba.njit(nogil=True, error_model="numpy", fastmath={"contract"})
 def block_profile_table(cx, cy, cz, radius, u_one, u_mid, prof, n, r0, inv_dr, hi, k, tol_m, table, ints):
