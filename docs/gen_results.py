@@ -51,6 +51,18 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                         "(the load is in the JSON).",
                         ".venv/bin/python benchmarks/kernel_versions.py --baseline fe81155 --cases one_antenna "
                         "benchmark --name kernel_midpoint"),
+    "kernel_hoist": ("Backprojection kernel: the per-(block, profile) table",
+                     "The kernel that computes each block's per-profile scalars for 64 profiles at once, vectorised "
+                     "over them (imaging/block_profiles.py), against the one that computed them in its profile loop, "
+                     "each in a worker process of its own, alternating in one run: speed-up on 1 and 2 threads, "
+                     "cycles per backprojection, SER of both; on a loaded machine (the load is in the JSON).",
+                     ".venv/bin/python benchmarks/kernel_versions.py --baseline f671da8 --rounds 4 --name kernel_hoist"),
+    "kernel_parts": ("Backprojection kernel: cycles per part",
+                     "The kernel beside copies of itself that each leave one part out (the per-(block, profile) "
+                     "table, each pixel's offset, bin and phase, the gather, the sine and cosine, the whole "
+                     "interpolation and accumulation), alternating in one process on one thread: each part's cycles "
+                     "per backprojection by difference; on a loaded machine (the load is in the JSON).",
+                     ".venv/bin/python benchmarks/kernel_parts.py"),
     "peers": ("sarbot beside torchbp",
               "sarbot's kernel against the real torchbp (built from ../shared/bench/) in one process, alternating: its "
               "Cartesian and polar CPU kernels, two cases, each image's SER against the exact matched filter, 5 km out.",

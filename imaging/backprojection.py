@@ -7,8 +7,8 @@ For every grid point g and profile p (one chirp at one RX):
 
 Positions are float64 (an image kilometres from the world origin, or a radar kilometres from its scene,
 focuses as well as one near). The kernel works per block of grid points: the block's centre c and each
-profile's antenna-to-centre vectors u and distances |u| are float64, computed once per (block, profile);
-per pixel, with d its small offset from c, the range differences come in float32 in the form
+profile's antenna-to-centre vectors u and distances |u| are float64, computed once per (block, profile),
+for a group of profiles at once, vectorised over them (``imaging.block_profiles``); per pixel, with d its small offset from c, the range differences come in float32 in the form
 
     |u + d| - |u| = (2 u.d + d.d) / (|u + d| + |u|)
 
@@ -52,13 +52,17 @@ import numba
 import numpy as np
 from numba.core.errors import NumbaPerformanceWarning
 
+from imaging.block_profiles import (A_N, A_N2, B0, B1, B2, B_N, B_N2, CODE, E0, E1, E2, FORM_FOLDED, FORM_GRADIENT,
+                                    FORM_MASK, FORM_RX_SERIES, FORM_TWO_SERIES, FRAC_C, IBASE, INT_TABLE_SIZE, LO,
+                                    NEW_TX_OFFSETS, SB0, SB1, SV0, SV1, TABLE_PROFILES, TABLE_SIZE, TOP, TURNS_C,
+                                    TX_SERIES, V0, V1, V2, block_profile_table, block_series_distances,
+                                    profile_rows)
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.numba_target import (  # noqa: F401 - compiled_target re-exported
     compiled_target, prefer_full_width_vectors, skip_extension_search)
 from imaging.range_compression import RangeProfiles
-from imaging.range_offsets import (  # noqa: F401 - _G, SERIES_TOLERANCE_M and series_applies re-exported
-    _G, FOLD_GRADIENT_MAX, MIDPOINT_PHASE_RAD, SERIES_TOLERANCE_M, _midpoint_scales, _range_offsets, _series_offset,
-    _series_scales, midpoint_form, series_applies, series_min_distance)
+from imaging.range_offsets import (  # noqa: F401 - _G, SERIES_TOLERANCE_M, midpoint_form and series_applies re-exported
+    _G, MIDPOINT_PHASE_RAD, SERIES_TOLERANCE_M, _series_offset, midpoint_form, series_applies)
 
 # Before any kernel compiles: 512-bit vectors where the CPU has AVX-512 (see imaging/numba_target.py).
 prefer_full_width_vectors()
@@ -199,17 +203,15 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
     """Profiles p0..p1-1 of rows [P, n_bins + 3] (complex64, one zero guard bin before, two after) onto the
     points (gx, gy, gz), added to out, in parallel over blocks of ``block`` consecutive points: with the
     block-relative float32 geometry of the module's docstring where the block is no wider than
-    ``max_extent_m`` (PHASE_ROUNDING_RAD / (k 2^-24)), else in float64 (``_float64_block``)."""
+    ``max_extent_m`` (PHASE_ROUNDING_RAD / (k 2^-24)), else in float64 (``_float64_block``). Each block's
+    per-profile scalars come from one vectorised pass over the profiles (imaging/block_profiles.py)."""
     n_g = gx.size
     hi = np.float64(rows.shape[1] - 2)
     n_blocks = (n_g + block - 1) // block
     inv32 = np.float32(inv_dr)
     k_turns32 = np.float32(k / _TWO_PI)
     midpoint_tol_m = MIDPOINT_PHASE_RAD / k
-    half_baseline = np.empty(p1 - p0)  # of each profile's TX and RX, for the midpoint form
-    for p in range(p0, p1):
-        h2 = 0.25 * ((tx[p, 0] - rx[p, 0]) ** 2 + (tx[p, 1] - rx[p, 1]) ** 2 + (tx[p, 2] - rx[p, 2]) ** 2)
-        half_baseline[p - p0] = math.sqrt(h2) if h2 > 0.0 else 0.0  # fastmath's square root of 0 can be NaN
+    groups = profile_rows(tx, rx, r_ref, p0, p1)  # of TABLE_PROFILES profiles
     for blk in numba.prange(n_blocks):
         g0 = blk * block
         nb = min(g0 + block, n_g) - g0
@@ -240,74 +242,75 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
             dz[i] = np.float32(gz[g0 + i] - cz)
             dd[i] = dx[i] * dx[i] + dy[i] * dy[i] + dz[i] * dz[i]
         radius = math.sqrt(np.float64(dd.max()))
-        u_series = series_min_distance(radius * (1.0 + 0.5 * FOLD_GRADIENT_MAX))  # the midpoint's series, from here
-        for p in range(p0, p1):
-            ua0, ua1, ua2 = cx - tx[p, 0], cy - tx[p, 1], cz - tx[p, 2]
-            ub0, ub1, ub2 = cx - rx[p, 0], cy - rx[p, 1], cz - rx[p, 2]
-            ua = math.sqrt(ua0 * ua0 + ua1 * ua1 + ua2 * ua2)
-            ub = math.sqrt(ub0 * ub0 + ub1 * ub1 + ub2 * ub2)
-            dr_c = ua + ub - r_ref[p]
-            # The block centre's bin and phase in float64; per pixel only what the offset adds, in float32.
-            pos_c = (dr_c - r0) * inv_dr + 1.0
-            base = np.floor(pos_c)
-            frac_c = np.float32(pos_c - base)
-            lo = np.float32(-base)
-            top = np.float32(hi - base)
-            turns = k * dr_c * (1.0 / _TWO_PI)
-            turns_c = np.float32(turns - np.floor(turns + 0.5))
-            ibase = np.int32(base)
-            # A TX shared with the previous profile (the RX channels of one chirp) has the same offsets.
-            new_tx = p == p0 or tx[p, 0] != tx[p - 1, 0] or tx[p, 1] != tx[p - 1, 1] or tx[p, 2] != tx[p - 1, 2]
-            b0, b1, b2 = np.float32(2.0 * ub0), np.float32(2.0 * ub1), np.float32(2.0 * ub2)
-            place = (frac_c, inv32, lo, top, ibase, turns_c, k_turns32, linear)
-            tx_alone = new_tx and (p + 1 == p1 or tx[p + 1, 0] != tx[p, 0] or tx[p + 1, 1] != tx[p, 1]
-                                   or tx[p + 1, 2] != tx[p, 2])
-            # Defined on every path: numba gave NaN for variables defined in one branch and read in another.
-            form, c0, c1, c2, e0, e1, e2, inv_m = 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-            if tx_alone:  # no other profile shares this TX (a one-antenna pass): its midpoint form, if any
-                form, c0, c1, c2, e0, e1, e2, inv_m = midpoint_form(ua0, ua1, ua2, ua, ub0, ub1, ub2, ub, radius,
-                                                                    half_baseline[p - p0], u_series, midpoint_tol_m)
-            if form == 1:
-                # One series per pixel on the TX-RX midpoint, doubled, delta's gradient folded into its
-                # numerator; delta(c) is in dr_c (see imaging/range_offsets.py).
-                m0, m1, m2 = np.float32(c0), np.float32(c1), np.float32(c2)
-                gm = _midpoint_scales(inv_m)
-                for i in range(nb):
-                    _place(i, _series_offset(m0 * dx[i] + m1 * dy[i] + m2 * dz[i] + dd[i], gm), place, idx, frac,
-                           pixel_turns)
-            elif form == 2:  # the same with delta's gradient term per pixel, where folding it would cost accuracy
-                m0, m1, m2 = np.float32(c0), np.float32(c1), np.float32(c2)
-                f0, f1, f2 = np.float32(e0), np.float32(e1), np.float32(e2)
-                gm = _midpoint_scales(inv_m)
-                for i in range(nb):
-                    num_m = m0 * dx[i] + m1 * dy[i] + m2 * dz[i] + dd[i]
-                    _place(i, _series_offset(num_m, gm) + (f0 * dx[i] + f1 * dy[i] + f2 * dz[i]), place, idx, frac,
-                           pixel_turns)
-            elif tx_alone and series_applies(ub, radius) and series_applies(ua, radius):
-                # Both antennas in one pass where delta bends too much for the midpoint form, the TX's offsets
-                # not stored.
-                a0, a1, a2 = np.float32(2.0 * ua0), np.float32(2.0 * ua1), np.float32(2.0 * ua2)
-                ga, gb = _series_scales(ua), _series_scales(ub)
-                for i in range(nb):
-                    num_a = a0 * dx[i] + a1 * dy[i] + a2 * dz[i] + dd[i]
-                    num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
-                    _place(i, _series_offset(num_a, ga) + _series_offset(num_b, gb), place, idx, frac, pixel_turns)
-            else:
-                if new_tx:
-                    _range_offsets(ua0, ua1, ua2, ua, radius, dx, dy, dz, dd, da)
-                if series_applies(ub, radius):
-                    gb = _series_scales(ub)
-                    for i in range(nb):
-                        num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
-                        _place(i, da[i] + _series_offset(num_b, gb), place, idx, frac, pixel_turns)
-                else:
-                    b_n, b_n2 = np.float32(ub), np.float32(ub * ub)
-                    for i in range(nb):
-                        num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
-                        _place(i, da[i] + num_b / (math.sqrt(b_n2 + num_b) + b_n), place, idx, frac, pixel_turns)
-            _gather_pairs_accumulate(rows[p], idx, frac, pixel_turns, pairs, acc_re, acc_im, linear)
+        table = np.empty(TABLE_SIZE, np.float32)
+        ints = np.empty(INT_TABLE_SIZE, np.int32)
+        u_one, u_mid = block_series_distances(radius)
+        for g in range(groups.shape[0]):
+            q0 = p0 + g * TABLE_PROFILES
+            n_q = min(TABLE_PROFILES, p1 - q0)
+            block_profile_table(cx, cy, cz, radius, u_one, u_mid, groups[g], n_q, r0, inv_dr, hi, k, midpoint_tol_m, table,
+                                ints)
+            for j in range(n_q):
+                _place_block_profile(table, j, ints[IBASE + j], ints[CODE + j], inv32, k_turns32, linear, dx, dy, dz, dd,
+                                     da, idx, frac, pixel_turns)
+                _gather_pairs_accumulate(rows[q0 + j], idx, frac, pixel_turns, pairs, acc_re, acc_im, linear)
         for i in range(nb):
             out[g0 + i] += complex(acc_re[i], acc_im[i])
+
+
+@numba.njit(inline="always", fastmath=True)
+def _place_block_profile(t, j, ibase, code, inv32, k_turns32, linear, dx, dy, dz, dd, da, idx, frac, pixel_turns):
+    """The first pass of a (block, profile): each pixel's range offset from the block centre in the form
+    ``code`` says, with profile j's coefficients in ``t`` (block_profile_table's table), then its bin
+    and phase (``_place``). ``da`` holds the TX's offsets, computed where NEW_TX_OFFSETS says and kept for
+    the profiles that share the TX."""
+    place = (t[FRAC_C + j], inv32, t[LO + j], t[TOP + j], ibase, t[TURNS_C + j], k_turns32, linear)
+    form = code & FORM_MASK
+    nb = dx.size
+    v0, v1, v2 = t[V0 + j], t[V1 + j], t[V2 + j]
+    b0, b1, b2 = t[B0 + j], t[B1 + j], t[B2 + j]
+    sv = (t[SV0 + j], t[SV1 + j], np.float32(_G[0]), np.float32(_G[1]), np.float32(_G[2]), np.float32(_G[3]),
+          np.float32(_G[4]), np.float32(_G[5]))
+    sb = (t[SB0 + j], t[SB1 + j], np.float32(_G[0]), np.float32(_G[1]), np.float32(_G[2]), np.float32(_G[3]),
+          np.float32(_G[4]), np.float32(_G[5]))
+    if form == FORM_FOLDED:
+        # One series per pixel on the TX-RX midpoint, doubled, delta's gradient folded into its
+        # numerator; delta(c) is in the centre's range (see imaging/range_offsets.py).
+        for i in range(nb):
+            _place(i, _series_offset(v0 * dx[i] + v1 * dy[i] + v2 * dz[i] + dd[i], sv), place, idx, frac, pixel_turns)
+    elif form == FORM_GRADIENT:  # the same with delta's gradient term per pixel, where folding it would cost accuracy
+        f0, f1, f2 = t[E0 + j], t[E1 + j], t[E2 + j]
+        for i in range(nb):
+            num_m = v0 * dx[i] + v1 * dy[i] + v2 * dz[i] + dd[i]
+            _place(i, _series_offset(num_m, sv) + (f0 * dx[i] + f1 * dy[i] + f2 * dz[i]), place, idx, frac,
+                   pixel_turns)
+    elif form == FORM_TWO_SERIES:
+        # Both antennas in one pass where delta bends too much for the midpoint form, the TX's offsets not stored.
+        for i in range(nb):
+            num_a = v0 * dx[i] + v1 * dy[i] + v2 * dz[i] + dd[i]
+            num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
+            _place(i, _series_offset(num_a, sv) + _series_offset(num_b, sb), place, idx, frac, pixel_turns)
+    else:
+        # A TX shared with the previous profile (the RX channels of one chirp) has the same offsets.
+        if code & NEW_TX_OFFSETS:
+            if code & TX_SERIES:
+                for i in range(nb):
+                    da[i] = _series_offset(v0 * dx[i] + v1 * dy[i] + v2 * dz[i] + dd[i], sv)
+            else:
+                a_n, a_n2 = t[A_N + j], t[A_N2 + j]
+                for i in range(nb):
+                    # |u + d|^2 = |u|^2 + (2 u.d + d.d): the sum's rounding only touches the denominator.
+                    num = v0 * dx[i] + v1 * dy[i] + v2 * dz[i] + dd[i]
+                    da[i] = num / (math.sqrt(a_n2 + num) + a_n)
+        if form == FORM_RX_SERIES:
+            for i in range(nb):
+                num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
+                _place(i, da[i] + _series_offset(num_b, sb), place, idx, frac, pixel_turns)
+        else:
+            b_n, b_n2 = t[B_N + j], t[B_N2 + j]
+            for i in range(nb):
+                num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
+                _place(i, da[i] + num_b / (math.sqrt(b_n2 + num_b) + b_n), place, idx, frac, pixel_turns)
 
 
 @numba.njit(inline="always", fastmath=True)

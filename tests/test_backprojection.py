@@ -415,3 +415,83 @@ def test_one_antenna_pass_midpoint_forms_match_numpy_reference(baseline_m, form,
     assert np.abs(got - want).max() < 2e-5 * scale
     assert abs(want[24, 24]) > 0.5 * prof.data.shape[0]  # the scatterer focuses (not vacuous)
     assert MIDPOINT_PHASE_RAD <= 0.1 * PHASE_ROUNDING_RAD
+
+
+def test_block_profile_table_equals_the_per_profile_values():
+    """The per-(block, profile) table the kernel reads (imaging/block_profiles.py), computed for all profiles
+    at once, against the values the kernel computed per profile inside its loop: the centre's bin and phase,
+    the form (``midpoint_form`` for a TX alone, else the RX's series or square root; the TX's offsets where
+    its TX is new) and each form's coefficients. Random blocks 0.05-3 m from the antennas (square roots and
+    series), chirps of one or three RX on one TX, baselines of 0 to 300 mm, near and 5 km out."""
+    import math
+
+    from imaging import block_profiles as bpt
+    rng = np.random.default_rng(34)
+    n = 150  # more than one group of TABLE_PROFILES
+    k = 2 * np.pi * 77e9 / C
+    r0, inv_dr, hi = -0.3, 1.0 / 0.0047, 2800.0
+    tol_m = MIDPOINT_PHASE_RAD / k
+    forms_seen = set()
+    for trial in range(40):
+        far = 5000.0 if trial % 2 else 0.0
+        offset = np.array([far, -0.6 * far, 0.0])
+        # Chirps: each TX position held by 1 or 3 consecutive profiles (RX channels)
+        per_tx = rng.choice([1, 3], size=n)
+        tx_pos = rng.uniform(-0.5, 0.5, (n, 3)) * [1, 0.1, 0.1] + offset
+        tx = np.repeat(tx_pos, per_tx, axis=0)[:n]
+        baseline = rng.choice([0.0, 0.004, 0.007, 0.3]) * rng.uniform(0.5, 1.0)
+        rx = tx + rng.normal(size=(n, 3)) * baseline / math.sqrt(3)
+        r_ref = rng.uniform(0, 3, n) * (trial % 3 == 0)
+        radius = rng.uniform(0.01, 0.05)
+        centre = offset + [0.0, rng.choice([0.05, 0.3, 2.0, 3.0]), 0.3]
+        groups = bpt.profile_rows(tx, rx, r_ref, 0, n)
+        u_one, u_mid = bpt.block_series_distances(radius)
+        assert u_one == series_min_distance(radius)
+        assert u_mid == series_min_distance(radius * (1 + 0.5 * FOLD_GRADIENT_MAX))
+        for g in range(groups.shape[0]):
+            q0 = g * bpt.TABLE_PROFILES
+            n_q = min(bpt.TABLE_PROFILES, n - q0)
+            table = np.full(bpt.TABLE_SIZE, np.nan, np.float32)
+            ints = np.zeros(bpt.INT_TABLE_SIZE, np.int32)
+            bpt.block_profile_table(*centre, radius, u_one, u_mid, groups[g], n_q, r0, inv_dr, hi, k, tol_m, table, ints)
+            for j in range(n_q):
+                p, t = q0 + j, table
+                new_tx = j == 0 or np.any(tx[p] != tx[p - 1])
+                alone = new_tx and not (j + 1 < n_q and np.all(tx[p + 1] == tx[p]))
+                ua_v, ub_v = centre - tx[p], centre - rx[p]
+                ua, ub = np.linalg.norm(ua_v), np.linalg.norm(ub_v)
+                dr_c = ua + ub - r_ref[p]
+                pos_c = (dr_c - r0) * inv_dr + 1.0
+                base = math.floor(pos_c)
+                assert ints[bpt.IBASE + j] == base
+                assert abs(t[bpt.FRAC_C + j] - (pos_c - base)) < 1e-6
+                assert t[bpt.LO + j] == np.float32(-base) and t[bpt.TOP + j] == np.float32(hi - base)
+                turns = k * dr_c / (2 * np.pi)
+                assert abs(t[bpt.TURNS_C + j] - (turns - math.floor(turns + 0.5))) < 1e-6 + 1e-16 * abs(turns)
+                half = 0.5 * np.linalg.norm(tx[p] - rx[p])
+                form, c0, c1, c2, e0, e1, e2, inv_m = (midpoint_form(*ua_v, ua, *ub_v, ub, radius, half, u_mid, tol_m)
+                                                       if alone else (0,) * 8)
+                code = ints[bpt.CODE + j]
+                got = code & bpt.FORM_MASK
+                forms_seen.add(int(got))
+                if form:
+                    assert got == form
+                    assert np.allclose([t[bpt.V0 + j], t[bpt.V1 + j], t[bpt.V2 + j]], [c0, c1, c2], rtol=1e-6, atol=1e-6)
+                    assert np.allclose([t[bpt.E0 + j], t[bpt.E1 + j], t[bpt.E2 + j]], [e0, e1, e2], rtol=1e-6, atol=1e-9)
+                    assert np.allclose([t[bpt.SV0 + j], t[bpt.SV1 + j]], [2 * inv_m, inv_m * inv_m], rtol=1e-6)
+                    continue
+                a_series, b_series = ua >= u_one, ub >= u_one
+                assert series_applies(ua, radius) == a_series and series_applies(ub, radius) == b_series
+                if alone and a_series and b_series:
+                    assert got == bpt.FORM_TWO_SERIES
+                else:
+                    assert got == (bpt.FORM_RX_SERIES if b_series else bpt.FORM_RX_ROOT)
+                    assert bool(code & bpt.NEW_TX_OFFSETS) == new_tx and bool(code & bpt.TX_SERIES) == a_series
+                assert np.allclose([t[bpt.V0 + j], t[bpt.V1 + j], t[bpt.V2 + j]], 2 * ua_v, rtol=1e-6)
+                assert np.allclose([t[bpt.B0 + j], t[bpt.B1 + j], t[bpt.B2 + j]], 2 * ub_v, rtol=1e-6)
+                assert np.allclose([t[bpt.SV0 + j], t[bpt.SV1 + j], t[bpt.SB0 + j], t[bpt.SB1 + j]],
+                                   [1 / ua, 1 / ua ** 2, 1 / ub, 1 / ub ** 2], rtol=1e-6)
+                assert np.allclose([t[bpt.A_N + j], t[bpt.A_N2 + j], t[bpt.B_N + j], t[bpt.B_N2 + j]],
+                                   [ua, ua ** 2, ub, ub ** 2], rtol=1e-6)
+    # every form occurs (not vacuous)
+    assert forms_seen == {bpt.FORM_FOLDED, bpt.FORM_GRADIENT, bpt.FORM_TWO_SERIES, bpt.FORM_RX_SERIES, bpt.FORM_RX_ROOT}
