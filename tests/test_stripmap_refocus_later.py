@@ -1,5 +1,5 @@
 """The live map refocuses finished tiles after its imaging, not within it: a map that refocuses later makes the
-same map; the worker's imaging calls never run a refocus, each step runs one refocus job at least and more only
+same map; the worker's imaging calls never run a refocus, each step refocuses one tile at least and more only
 within its budget; its BLAS runs on its own threads; and its stop is bounded, the map written with what it
 left undone counted."""
 
@@ -21,7 +21,7 @@ CONFIG = StripMapConfig(presum=4, refocus="entropy")
 
 @pytest.fixture(autouse=True)
 def blas_on_one_thread():
-    """BLAS on one thread, as in the map worker: OpenBLAS's own threads make the refocus 15-40x dearer on a
+    """BLAS on one thread, as in the map worker: OpenBLAS's own threads make the refocus 27x dearer in CPU on a
     loaded machine (benchmarks/refocus_threads.py)."""
     from threadpoolctl import threadpool_limits
 
@@ -113,7 +113,7 @@ def feed(worker, vibrating, frames):
 
 def test_the_worker_refocuses_after_its_imaging_one_job_a_step_within_its_budget(vibrating, monkeypatch):
     """The worker's imaging calls never run a tile's refocus (the map names the tiles; the worker refocuses them
-    after the step's imaging), and with no time left in the budget a step runs exactly one refocus job. The
+    after the step's imaging), and with no time left in the budget a step refocuses exactly one tile. The
     tiles passed are refocused while the run goes on, the time counted (map/status, health counters)."""
     from acquisition.workers import stripmap as worker_module
     from imaging.stripmap import refocus as refocus_module
@@ -137,25 +137,25 @@ def test_the_worker_refocuses_after_its_imaging_one_job_a_step_within_its_budget
     monkeypatch.setattr(worker.map, "add_frames", imaging)
     monkeypatch.setattr(refocus_module.TileRefocus, "refocus_tile", refocusing)
     rec = vibrating[0]
-    jobs_run = []
+    tiles_run = []
     for k in range(rec.adc(RADAR).shape[0]):
         feed(worker, vibrating, [k])
         worker._image_ready(budget_s=None)
-        queued = len(worker.refocus_jobs)
+        awaiting = worker.status.tiles_awaiting_refocus
         worker._refocus_ready(budget_s=worker_module.REFOCUS_STEP_BUDGET_S)
-        jobs_run.append(queued - len(worker.refocus_jobs))
+        tiles_run.append(awaiting - worker.status.tiles_awaiting_refocus)
     status = worker.status
     assert refocused_inside and not any(refocused_inside)  # every refocus ran after an imaging call, none within
-    assert max(jobs_run) == 1  # one job a step with no budget left
+    assert max(tiles_run) == 1  # one tile a step with no budget left
     assert status.tiles_refocused >= 1 and status.refocus_s > 0 and status.refocus_max_s > 0
-    assert status.tiles_awaiting_refocus == sum(len(keys) for _, keys in worker.refocus_jobs)
+    assert status.tiles_awaiting_refocus == sum(len(job.keys) for job in worker.refocus_jobs)
     counters = worker.counters()
     assert counters["tiles_refocused"] == status.tiles_refocused and counters["refocus_ms"] == round(status.refocus_s * 1e3)
 
 
 def test_the_worker_s_blas_runs_on_its_own_threads(vibrating):
     """After warming up, numpy's and scipy's BLAS run on the worker's ``threads`` (one), not a thread per core:
-    on a loaded machine OpenBLAS's threads made a tile's refocus 15-40x dearer (benchmarks/refocus_threads.py)."""
+    on a loaded machine OpenBLAS's threads made the refocus 27x dearer in CPU (benchmarks/refocus_threads.py)."""
     from threadpoolctl import threadpool_info, threadpool_limits
 
     worker = make_worker(vibrating)

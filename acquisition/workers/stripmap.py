@@ -34,15 +34,29 @@ class QueuedFrame(typing.NamedTuple):
     frame_time_ns: int
     receive_ns: int  # when the frame arrived: the map's lag is measured from it
 
+@dataclasses.dataclass
+class RefocusJob:
+    """The tiles one imaging call finished (``FrameFootprint.finished``), refocused a tile at a time and read
+    together: ``keys`` those left, ``changed`` those whose image changed so far, ``named_s`` when they were
+    finished (monotonic)."""
+
+    named_s: float
+    keys: list
+    changed: list = dataclasses.field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.tiles = len(self.keys)
+
+
 #: How far back from the newest pose the worker keeps poses at least; further back as long as a queued frame
 #: needs them (a frame imaged on poses no longer held would be placed at the first pose held: smeared).
 POSE_WINDOW_NS = 5_000_000_000
 #: Longest a live imaging pass runs before the worker takes its messages again.
 STEP_BUDGET_S = 0.25
 #: Refocusing (``refocus``): the finished tiles a frame names are one job, refocused after the step's imaging,
-#: one job a step at least and more while within this time. Refocused inside the imaging call, as the map
+#: a tile at a time, one tile a step at least and more while within this time. Refocused inside the imaging call, as the map
 #: did, a tile's autofocus held the frames behind it: with OpenBLAS's own threads (below) a target's tile took
-#: 3-17 s of CPU at load 7-10 and the two-radar map ended 10-21 s behind (benchmarks/refocus_threads.py).
+#: 5-12 s of CPU at load 9-15 and the two-radar map ended 10-21 s behind (benchmarks/refocus_threads.py).
 REFOCUS_STEP_BUDGET_S = 0.1
 #: The most the last imaging and refocus passes after the drivers stop may take: the daemon kills a worker
 #: 60 s after the stop (``worker_stop_timeout_s``), with up to 10 s of draining before this, and the worker
@@ -142,8 +156,8 @@ class StripMapWorker(Worker):
         self.orders = {name: np.asarray(r.waveform.tdm_tx_order()) for name, r in self.radars.items()}
         self.frame_ns = {name: r.waveform.frame_duration_ns for name, r in self.radars.items()}
         self.map = StripMap(config.map, refocus_later=True)
-        #: finished tiles to refocus, a job per imaging call that finished any: (when named, monotonic s, keys)
-        self.refocus_jobs: collections.deque[tuple[float, list]] = collections.deque()
+        #: finished tiles to refocus, a job per imaging call that finished any
+        self.refocus_jobs: collections.deque[RefocusJob] = collections.deque()
         # A block ("ffbp") is already a batch, and refocusing keeps every frame's own group images.
         direct = config.map.algorithm != "ffbp" and not config.map.refocuses
         self.batch_frames = config.max_batch_frames if direct else 1
@@ -176,9 +190,9 @@ class StripMapWorker(Worker):
             import scipy.ndimage  # noqa: F401
         # numpy's and scipy's OpenBLAS run a thread per core of their own. The refocus's entropy gradient is
         # a product of small matrices per 256 pixels, and on a loaded machine (other processes on both cores)
-        # those threads wait for each other at every call: 0.2 s of CPU for a target's tile on one thread,
-        # 3-17 s on two at load 7-10 (benchmarks/refocus_threads.py). The map uses ``threads`` cores for BLAS
-        # as for its kernels.
+        # those threads wait for each other at every call: 0.22-0.36 s of CPU for a target's tile on one
+        # thread, 5.1-12.5 s on two at load 9-15, the same estimates (benchmarks/refocus_threads.py). The map
+        # uses ``threads`` cores for BLAS as for its kernels.
         threadpool_limits(self.config.threads, user_api="blas")
         rng = np.random.default_rng(0)
         t0 = 1_000_000_000
@@ -307,7 +321,7 @@ class StripMapWorker(Worker):
                 batch = self._thin(name, batch, thinning)
                 if not batch:
                     continue
-            t0 = time.monotonic()
+            t0, cpu = time.monotonic(), time.process_time()
             footprint = self.map.add_frames(self.radars[name], self.orders[name], [f.iq for f in batch],
                                             [f.frame_time_ns for f in batch], traj, presum=self.config.map.presum * factor,
                                             weight=float(thinning), sum_rx=sum_rx)
@@ -321,9 +335,9 @@ class StripMapWorker(Worker):
             self._account(name, footprint, final)
             took = time.monotonic() - t0
             status.busy_s += took
-            log.debug("strip map: %s %d frame(s) imaged in %.1f ms (presum x%d, thinning %d), %d tile(s) finished, "
-                      "lag %.2f s", name, footprint.frames_imaged, took * 1e3, factor, thinning, len(footprint.finished),
-                      status.lag_s)
+            log.debug("strip map: %s %d frame(s) imaged in %.1f ms (%.1f ms CPU; presum x%d, thinning %d), %d tile(s) "
+                      "finished, lag %.2f s", name, footprint.frames_imaged, took * 1e3, (time.process_time() - cpu) * 1e3,
+                      factor, thinning, len(footprint.finished), status.lag_s)
 
     def _covered(self, name: str, t_frame: int, newest_pose: int) -> bool:
         """Whether the poses reach to the end of radar ``name``'s frame starting at ``t_frame``."""
@@ -370,7 +384,7 @@ class StripMapWorker(Worker):
         if footprint.refocused:
             self._publish_velocity_error(footprint.refocused)
         if footprint.finished:
-            self.refocus_jobs.append((time.monotonic(), list(footprint.finished)))
+            self.refocus_jobs.append(RefocusJob(time.monotonic(), list(footprint.finished)))
             status.tiles_awaiting_refocus += len(footprint.finished)
         status.frames_standing_still += footprint.frames_standing
         if self.map.frames_off_map > status.frames_off_map:
@@ -389,32 +403,35 @@ class StripMapWorker(Worker):
                 status.max_lag_s = max(status.max_lag_s, status.lag_s)
 
     def _refocus_ready(self, budget_s: float | None) -> None:
-        """Refocus the finished tiles, oldest job first: one job at least, more while within ``budget_s``
-        (None: all). Each job's tiles refocused together read one velocity error (``map/velocity_error``)."""
+        """Refocus the finished tiles, oldest job first, a tile at a time: one tile at least, more while within
+        ``budget_s`` (None: all). A job's tiles, once all refocused, read one velocity error together
+        (``map/velocity_error``)."""
         status, jobs = self.status, self.refocus_jobs
         until = None if budget_s is None else time.monotonic() + budget_s
         while jobs:
-            named, keys = jobs.popleft()
-            t0 = time.monotonic()
-            changed = []
-            for key in keys:
-                t_tile = time.monotonic()
-                if self.map.refocus_tiles([key]):
-                    changed.append(key)
-                result = self.map.refocus_results.get(key)
-                log.debug("strip map: tile %s refocused in %.3f s, %s groups, %s iterations, applied %s, named %.2f s "
-                          "before", key, time.monotonic() - t_tile, getattr(result, "groups", "-"),
-                          getattr(result, "iterations", "-"), getattr(result, "applied", "-"), t_tile - named)
+            job = jobs[0]
+            t0, cpu = time.monotonic(), time.process_time()
+            if len(job.keys) == job.tiles:  # its first tile
+                status.refocus_wait_s = t0 - job.named_s
+                status.max_refocus_wait_s = max(status.max_refocus_wait_s, status.refocus_wait_s)
+            key = job.keys.pop(0)
+            if self.map.refocus_tiles([key]):
+                job.changed.append(key)
             took = time.monotonic() - t0
             status.refocus_s += took
             status.refocus_max_s = max(status.refocus_max_s, took)
-            status.refocus_wait_s = t0 - named
-            status.max_refocus_wait_s = max(status.max_refocus_wait_s, status.refocus_wait_s)
-            status.tiles_awaiting_refocus -= len(keys)
-            status.tiles_refocused += len(changed)
-            self.changed.update(changed)
-            if changed:
-                self._publish_velocity_error(changed)
+            status.tiles_awaiting_refocus -= 1
+            result = self.map.refocus_results.get(key)
+            # CPU beside wall time: on a loaded machine the two part, and only CPU says what a tile costs
+            log.debug("strip map: tile %s refocused in %.3f s (%.3f s CPU), %s groups, %s iterations, applied %s, "
+                      "finished %.2f s before", key, took, time.process_time() - cpu, getattr(result, "groups", "-"),
+                      getattr(result, "iterations", "-"), getattr(result, "applied", "-"), t0 - job.named_s)
+            if not job.keys:
+                jobs.popleft()
+                status.tiles_refocused += len(job.changed)
+                self.changed.update(job.changed)
+                if job.changed:
+                    self._publish_velocity_error(job.changed)
             if until is not None and time.monotonic() >= until:
                 return
 
