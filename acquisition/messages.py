@@ -324,6 +324,11 @@ class MapStatus(HeaderMessage):
     busy_s: float = 0.0  # time spent imaging
     tiles: int = 0
     tiles_refocused: int = 0  # finished tiles refocused on their strongest scatterers (--map-refocus)
+    tiles_awaiting_refocus: int = 0  # finished tiles not yet refocused (at the end: every tile left as imaged)
+    refocus_s: float = 0.0  # time spent refocusing finished tiles
+    refocus_max_s: float = 0.0  # the longest refocus of one tile
+    refocus_wait_s: float = 0.0  # finished to refocus begun, the latest tiles
+    max_refocus_wait_s: float = 0.0
     tiles_without_radar_imu: int = 0  # --map-imu-aided: finished tiles whose frames no radar's own IMU covered
     time_ns: int = 0
 

@@ -388,6 +388,7 @@ def run_worker(drive, config, tmp_path, lost=()):
         PoseEnd,
         RadarFrameMessage,
         RadarImuBatch,
+        WorkerState,
     )
     from acquisition.processes import free_tcp_endpoint
     from acquisition.workers import WorkerSpec, worker_process
@@ -407,8 +408,14 @@ def run_worker(drive, config, tmp_path, lost=()):
                       StripMapWorkerConfig(Rig((radar,)), None, config, pose_ep, str(map_path)), out_ep)
     worker = ctx.Process(target=worker_process, args=(spec, [driver_ep], stop))
     worker.start()
-    sub = BusSubscriber(out_ep, topics=["map/"])
-    time.sleep(3.0)  # the worker imports and connects
+    sub = BusSubscriber(out_ep, topics=["map/", WorkerState.TOPIC])
+    # The worker subscribes, then warms up, then says it is warm: sent before that, frames could go before
+    # its subscription reached the publisher (a fixed 3 s wait lost them all at load averages of 10-14).
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline:
+        m = sub.receive(timeout_ms=300)
+        if m is not None and m.topic == WorkerState.TOPIC and WorkerState.from_message(m).warm:
+            break
     times = rec.frame_time_ns(RADAR)
     iq = rec.file[f"radar/{RADAR}/adc"]
     imu, imu_sent = rec.radar_imu(RADAR), 0

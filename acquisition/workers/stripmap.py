@@ -34,11 +34,35 @@ class QueuedFrame(typing.NamedTuple):
     frame_time_ns: int
     receive_ns: int  # when the frame arrived: the map's lag is measured from it
 
+@dataclasses.dataclass
+class RefocusJob:
+    """The tiles one imaging call finished (``FrameFootprint.finished``), refocused a tile at a time and read
+    together: ``keys`` those left, ``changed`` those whose image changed so far, ``named_s`` when they were
+    finished (monotonic)."""
+
+    named_s: float
+    keys: list
+    changed: list = dataclasses.field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.tiles = len(self.keys)
+
+
 #: How far back from the newest pose the worker keeps poses at least; further back as long as a queued frame
 #: needs them (a frame imaged on poses no longer held would be placed at the first pose held: smeared).
 POSE_WINDOW_NS = 5_000_000_000
 #: Longest a live imaging pass runs before the worker takes its messages again.
 STEP_BUDGET_S = 0.25
+#: Refocusing (``refocus``): the finished tiles a frame names are one job, refocused after the step's imaging,
+#: a tile at a time, one tile a step at least and more while within this time. Refocused inside the imaging call, as the map
+#: did, a tile's autofocus held the frames behind it: with OpenBLAS's own threads (below) a target's tile took
+#: 5-12 s of CPU at load 9-15 and the two-radar map ended 10-21 s behind (benchmarks/refocus_threads.py).
+REFOCUS_STEP_BUDGET_S = 0.1
+#: The most the last imaging and refocus passes after the drivers stop may take: the daemon kills a worker
+#: 60 s after the stop (``worker_stop_timeout_s``), with up to 10 s of draining before this, and the worker
+#: must still write its map. Frames still queued then are dropped (``frames_dropped_behind``), tiles still
+#: awaiting their refocus stay as imaged (``tiles_awaiting_refocus``), both said in a warning.
+FINISH_BUDGET_S = 30.0
 #: Behind by more than CATCH_UP_START_S of sensor time, the worker sums twice the chirps per profile, four
 #: times CATCH_UP_STEP_S later, and so on (up to all of a TX's chirps in a frame): fewer profiles, a coarser
 #: map, before it drops a frame (at ``max_queue_s``). The backlog counts the frames waiting for the
@@ -83,7 +107,7 @@ class StripMapWorkerConfig:
     ``max_thinning``; 1: never), counted too.
     Frames of one radar already queued and covered by poses are imaged together, up to ``max_batch_frames``
     (with "polar" or "direct" and no refocusing; the map is the same).
-    ``threads``: the backprojection kernel's threads. One by default: beside the drivers, the recorder and
+    ``threads``: the backprojection kernel's threads, and BLAS's (numpy's and scipy's: the refocus). One by default: beside the drivers, the recorder and
     the odometry a second thread mostly waits for a core, and the same frames cost more CPU with two (14.8
     against 9.4 ms per frame on this two-core machine, benchmarks/stripmap.py); more only where the map has
     cores to itself."""
@@ -131,7 +155,9 @@ class StripMapWorker(Worker):
             self.topics += [RadarImuBatch.topic_of(n) for n, r in sorted(self.radars.items()) if r.imu is not None]
         self.orders = {name: np.asarray(r.waveform.tdm_tx_order()) for name, r in self.radars.items()}
         self.frame_ns = {name: r.waveform.frame_duration_ns for name, r in self.radars.items()}
-        self.map = StripMap(config.map)
+        self.map = StripMap(config.map, refocus_later=True)
+        #: finished tiles to refocus, a job per imaging call that finished any
+        self.refocus_jobs: collections.deque[RefocusJob] = collections.deque()
         # A block ("ffbp") is already a batch, and refocusing keeps every frame's own group images.
         direct = config.map.algorithm != "ffbp" and not config.map.refocuses
         self.batch_frames = config.max_batch_frames if direct else 1
@@ -152,11 +178,22 @@ class StripMapWorker(Worker):
         range compression and backprojection kernels compile for the live shapes and dtypes. First, the
         worker's process takes the kernel threads it is configured for."""
         import numba
+        from threadpoolctl import threadpool_limits
 
         from imaging.core.trajectory import SampledTrajectory, StraightLine
         from imaging.stripmap import StripMap
 
         numba.set_num_threads(min(self.config.threads, numba.config.NUMBA_NUM_THREADS))
+        if self.config.map.refocuses:
+            import imaging.autofocus  # noqa: F401 - scipy's optimizers and its OpenBLAS loaded before the limit below
+            import rio.map_feedback  # noqa: F401
+            import scipy.ndimage  # noqa: F401
+        # numpy's and scipy's OpenBLAS run a thread per core of their own. The refocus's entropy gradient is
+        # a product of small matrices per 256 pixels, and on a loaded machine (other processes on both cores)
+        # those threads wait for each other at every call: 0.22-0.36 s of CPU for a target's tile on one
+        # thread, 5.1-12.5 s on two at load 9-15, the same estimates (benchmarks/refocus_threads.py). The map
+        # uses ``threads`` cores for BLAS as for its kernels.
+        threadpool_limits(self.config.threads, user_api="blas")
         rng = np.random.default_rng(0)
         t0 = 1_000_000_000
         drive = StraightLine(speed_mps=0.4, t0_ns=t0)
@@ -284,7 +321,7 @@ class StripMapWorker(Worker):
                 batch = self._thin(name, batch, thinning)
                 if not batch:
                     continue
-            t0 = time.monotonic()
+            t0, cpu = time.monotonic(), time.process_time()
             footprint = self.map.add_frames(self.radars[name], self.orders[name], [f.iq for f in batch],
                                             [f.frame_time_ns for f in batch], traj, presum=self.config.map.presum * factor,
                                             weight=float(thinning), sum_rx=sum_rx)
@@ -296,7 +333,11 @@ class StripMapWorker(Worker):
                 status.frames_batched += moving if len(batch) > 1 else 0
                 self.in_block[name].extend(f.receive_ns for f in batch)
             self._account(name, footprint, final)
-            status.busy_s += time.monotonic() - t0
+            took = time.monotonic() - t0
+            status.busy_s += took
+            log.debug("strip map: %s %d frame(s) imaged in %.1f ms (%.1f ms CPU; presum x%d, thinning %d), %d tile(s) "
+                      "finished, lag %.2f s", name, footprint.frames_imaged, took * 1e3, (time.process_time() - cpu) * 1e3,
+                      factor, thinning, len(footprint.finished), status.lag_s)
 
     def _covered(self, name: str, t_frame: int, newest_pose: int) -> bool:
         """Whether the poses reach to the end of radar ``name``'s frame starting at ``t_frame``."""
@@ -342,6 +383,9 @@ class StripMapWorker(Worker):
         status.tiles_refocused += len(footprint.refocused)
         if footprint.refocused:
             self._publish_velocity_error(footprint.refocused)
+        if footprint.finished:
+            self.refocus_jobs.append(RefocusJob(time.monotonic(), list(footprint.finished)))
+            status.tiles_awaiting_refocus += len(footprint.finished)
         status.frames_standing_still += footprint.frames_standing
         if self.map.frames_off_map > status.frames_off_map:
             if status.frames_off_map == 0:
@@ -357,6 +401,50 @@ class StripMapWorker(Worker):
             if oldest is not None and footprint.frames_imaged and not final:
                 status.lag_s = (time.time_ns() - oldest) * 1e-9
                 status.max_lag_s = max(status.max_lag_s, status.lag_s)
+
+    def _refocus_ready(self, budget_s: float | None) -> None:
+        """Refocus the finished tiles, oldest job first, a tile at a time: one tile at least, more while within
+        ``budget_s`` (None: all). A job's tiles, once all refocused, read one velocity error together
+        (``map/velocity_error``)."""
+        status, jobs = self.status, self.refocus_jobs
+        until = None if budget_s is None else time.monotonic() + budget_s
+        while jobs:
+            job = jobs[0]
+            t0, cpu = time.monotonic(), time.process_time()
+            if len(job.keys) == job.tiles:  # its first tile
+                status.refocus_wait_s = t0 - job.named_s
+                status.max_refocus_wait_s = max(status.max_refocus_wait_s, status.refocus_wait_s)
+            key = job.keys.pop(0)
+            if self.map.refocus_tiles([key]):
+                job.changed.append(key)
+            took = time.monotonic() - t0
+            status.refocus_s += took
+            status.refocus_max_s = max(status.refocus_max_s, took)
+            status.tiles_awaiting_refocus -= 1
+            result = self.map.refocus_results.get(key)
+            # CPU beside wall time: on a loaded machine the two part, and only CPU says what a tile costs
+            log.debug("strip map: tile %s refocused in %.3f s (%.3f s CPU), %s groups, %s iterations, applied %s, "
+                      "finished %.2f s before", key, took, time.process_time() - cpu, getattr(result, "groups", "-"),
+                      getattr(result, "iterations", "-"), getattr(result, "applied", "-"), t0 - job.named_s)
+            if not job.keys:
+                jobs.popleft()
+                status.tiles_refocused += len(job.changed)
+                self.changed.update(job.changed)
+                if job.changed:
+                    self._publish_velocity_error(job.changed)
+            if until is not None and time.monotonic() >= until:
+                return
+
+    def counters(self) -> dict[str, int]:
+        """The map's state for health, each second (``map/status`` says the same with the tiles): its lag
+        and busy time in ms, the refocus's time, its longest job and how long the latest waited, in ms."""
+        s = self.status
+        ms = {k: round(getattr(s, k) * 1e3) for k in ("lag_s", "max_lag_s", "busy_s", "refocus_s", "refocus_max_s",
+                                                      "refocus_wait_s", "max_refocus_wait_s")}
+        return {"frames_imaged": s.frames_imaged, "frames_queued": len(self.frames),
+                "frames_dropped_behind": s.frames_dropped_behind, "frames_thinned": s.frames_thinned,
+                "tiles_refocused": s.tiles_refocused, "tiles_awaiting_refocus": s.tiles_awaiting_refocus,
+                **{k[:-2] + "_ms": v for k, v in ms.items()}}
 
     def _publish_velocity_error(self, keys) -> None:
         """The trajectory's velocity error read off tiles refocused together (rio.map_feedback), on
@@ -400,22 +488,37 @@ class StripMapWorker(Worker):
 
     def step(self) -> None:
         self._image_ready(budget_s=STEP_BUDGET_S)
+        self._refocus_ready(budget_s=REFOCUS_STEP_BUDGET_S)
         if time.monotonic() - self.last_publish > 0.5:
             self._publish_tiles()
 
     def finish(self) -> None:
-        self._image_ready(final=True)
+        status = self.status
+        until = time.monotonic() + FINISH_BUDGET_S
+        self._image_ready(final=True, budget_s=FINISH_BUDGET_S)
+        if time.monotonic() >= until and self.frames:
+            log.warning("strip map: %d frame(s) still queued %.0f s after the stop; dropped", len(self.frames),
+                        FINISH_BUDGET_S)
+            status.frames_dropped_behind += len(self.frames)
+            self.frames.clear()
         # Whatever is left had no poses at all (an odometry that never started): counted, so every frame
         # received is accounted for in map/status.
-        self.status.frames_beyond_odometry += len(self.frames)
+        status.frames_beyond_odometry += len(self.frames)
         self.frames.clear()
         ended = self.map.flush()
         self.changed.update(ended.tiles)
-        self.status.frames_imaged += ended.frames_imaged
+        status.frames_imaged += ended.frames_imaged
         if self.config.map.refocuses:
-            refocused = self.map.refocus_pending()
-            self.changed.update(refocused)
-            self.status.tiles_refocused += len(refocused)
+            while self.refocus_jobs and time.monotonic() < until:
+                self._refocus_ready(budget_s=0.0)
+            if time.monotonic() < until:
+                refocused = self.map.refocus_pending()
+                self.changed.update(refocused)
+                status.tiles_refocused += len(refocused)
+            else:
+                status.tiles_awaiting_refocus = self.map.tiles_to_refocus
+                log.warning("strip map: %d tile(s) not refocused %.0f s after the stop; left as imaged",
+                            status.tiles_awaiting_refocus, FINISH_BUDGET_S)
         self._publish_tiles()
 
     def write_products(self) -> None:

@@ -22,6 +22,8 @@ class FrameFootprint:
     pixel_profile_pairs: int
     skipped: str = ""  # why the frame was left out, if it was
     refocused: list[tuple[int, int]] = dataclasses.field(default_factory=list)  # tiles finished and refocused
+    #: tiles finished and not yet refocused: a map that refocuses later (``StripMap(refocus_later=True)``)
+    finished: list[tuple[int, int]] = dataclasses.field(default_factory=list)
     #: Frames whose data went into the map by this call: 1 for an imaged frame, with "ffbp" 0 while its block
     #: fills and the block's frames when it is imaged (also when a frame standing still closes a block).
     frames_imaged: int = 0
@@ -45,13 +47,14 @@ class TilesTaken(typing.NamedTuple):
 def merged_footprints(footprints: list[FrameFootprint]) -> FrameFootprint:
     """One footprint for several calls: the tiles any changed, the sums of the counts; skipped only if every
     call was, for the last one's reason."""
-    tiles, refocused = [], []
+    tiles, refocused, finished = [], [], []
     for f in footprints:
         tiles += [k for k in f.tiles if k not in tiles]
         refocused += [k for k in f.refocused if k not in refocused]
+        finished += [k for k in f.finished if k not in finished]
     skipped = footprints[-1].skipped if all(f.skipped for f in footprints) else ""
     return FrameFootprint(tiles, sum(f.pixel_profile_pairs for f in footprints), skipped, refocused,
-                          sum(f.frames_imaged for f in footprints), sum(f.frames_standing for f in footprints))
+                          sum(f.frames_imaged for f in footprints), sum(f.frames_standing for f in footprints), finished)
 
 
 

@@ -50,10 +50,15 @@ def _add_at_pixels(tile, pixels, values, start):
 
 class StripMap:
     """The growing map: tiles of complex pixels keyed by (ix, iy), tile (ix, iy) covering
-    x in [ix, ix + 1) * tile_m and y likewise."""
+    x in [ix, ix + 1) * tile_m and y likewise.
 
-    def __init__(self, config: StripMapConfig = StripMapConfig()):
+    ``refocus_later``: a refocusing map does not refocus the tiles a frame finishes within ``add_frames``
+    but names them (``FrameFootprint.finished``) for the caller to refocus when it has the time
+    (``refocus_tiles``): a live map's imaging must not wait behind a tile's autofocus."""
+
+    def __init__(self, config: StripMapConfig = StripMapConfig(), refocus_later: bool = False):
         self.config = config
+        self.refocus_later = refocus_later
         self.tiles: dict[tuple[int, int], np.ndarray] = {}
         self.frames = 0
         self.frames_standing = 0
@@ -250,9 +255,12 @@ class StripMap:
             return FrameFootprint([], 0, skipped="map full", frames_standing=standing)
         self.frames += n_frames
         self.profiles += rows
-        refocused = self._refocus.finish(set(touched), self.tiles, self.tile_points, radar.name) if cfg.refocuses else []
+        finished = self._refocus.finished(set(touched), radar.name) if cfg.refocuses else []
+        refocused = [] if self.refocus_later else self.refocus_tiles(finished)
+        finished = finished if self.refocus_later else []
         if not touched:
-            return FrameFootprint([], 0, refocused=refocused, frames_imaged=n_frames, frames_standing=standing)
+            return FrameFootprint([], 0, refocused=refocused, frames_imaged=n_frames, frames_standing=standing,
+                                  finished=finished)
         if polar and n_frames == 1:  # a live map keeping up: its beams read at the masked pixels, no list of them
             where = list(zip(masks[:, 0], np.count_nonzero(masks[:, 0], axis=(1, 2)).tolist()))
             values, groups = [self._polar_masked(radar, profiles, tx_m, rx_m, looks[0], taken)], []
@@ -266,7 +274,8 @@ class StripMap:
                 self._refocus.keep(key, groups, values, pixels, start, m, radar.name)
                 start += m
         pairs = int(np.count_nonzero(masks)) * per  # each frame's pixels times its profiles
-        return FrameFootprint(touched, pairs, refocused=refocused, frames_imaged=n_frames, frames_standing=standing)
+        return FrameFootprint(touched, pairs, refocused=refocused, frames_imaged=n_frames, frames_standing=standing,
+                              finished=finished)
 
     def _add_to_tiles(self, touched: list, where: list, values: list) -> None:
         """Add each of ``values`` (the frames' values at their pixels, tile by tile, row by row) to the tiles:
@@ -448,6 +457,15 @@ class StripMap:
     def refocus_tile(self, key: tuple[int, int]) -> bool:
         """Refocus one tile from its group images (and drop them); True if the tile's image changed."""
         return self._refocus.refocus_tile(key, self.tiles, self.tile_points)
+
+    @property
+    def tiles_to_refocus(self) -> int:
+        """Tiles holding group images: being imaged, or finished and not yet refocused."""
+        return len(self._refocus.groups)
+
+    def refocus_tiles(self, keys) -> list[tuple[int, int]]:
+        """Refocus finished tiles (``FrameFootprint.finished``); returns those whose image changed."""
+        return self._refocus.refocus(keys, self.tiles, self.tile_points)
 
     def refocus_pending(self) -> list[tuple[int, int]]:
         """Refocus every tile still being imaged (at the end of a run); returns those whose image changed."""

@@ -40,6 +40,8 @@ class TileRefocus:
         #: tile -> its group images while it is being imaged: lists of time (s from the first frame), antenna
         #: phase centre [3], look direction [3], group image [tile_px^2] complex64, radar name
         self.groups: dict[tuple[int, int], list] = {}
+        #: tiles ``finished`` named and not yet refocused: a frame that misses them again does not name them again
+        self.awaiting: set[tuple[int, int]] = set()
         #: radar -> chunks of (time_ns [N], boresight specific force [N]) of the IMU on its mount (IMU-aided)
         self.radar_imu: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
         self.tiles_without_radar_imu = 0  # IMU-aided refocus: tiles whose groups no radar IMU covered
@@ -86,15 +88,27 @@ class TileRefocus:
             groups.append(((times[idx].mean() - self.t0_ns) * 1e-9, centre.mean(axis=0), direction))
         return values, groups
 
+    def finished(self, still_imaged: set, radar: str | None = None) -> list[tuple[int, int]]:
+        """The tiles no longer reached by the frames (of ``radar``: a tile another radar is imaging is not
+        passed because this one's frame missed it), each named once until it is refocused (``refocus``)."""
+        done = [key for key in self.groups if key not in still_imaged and key not in self.awaiting
+                and (radar is None or self.groups[key][-1][4] == radar)]
+        self.awaiting.update(done)
+        return done
+
+    def refocus(self, keys, tiles: dict, tile_points) -> list[tuple[int, int]]:
+        """Refocus the tiles ``keys`` (from ``finished``); returns those whose image changed."""
+        return [key for key in keys if self.refocus_tile(key, tiles, tile_points)]
+
     def finish(self, still_imaged: set, tiles: dict, tile_points, radar: str | None = None) -> list[tuple[int, int]]:
-        """Refocus the tiles no longer reached by the frames (of ``radar``: a tile another radar is imaging
-        is not passed because this one's frame missed it); returns those whose image changed."""
-        done = [key for key in self.groups if key not in still_imaged and (radar is None or self.groups[key][-1][4] == radar)]
-        return [key for key in done if self.refocus_tile(key, tiles, tile_points)]
+        """Refocus the tiles no longer reached by the frames (``finished``) at once; returns those whose image
+        changed."""
+        return self.refocus(self.finished(still_imaged, radar), tiles, tile_points)
 
     def pending(self, tiles: dict, tile_points) -> list[tuple[int, int]]:
-        """Refocus every tile still being imaged (at the end of a run); returns those whose image changed."""
-        return self.finish(set(), tiles, tile_points)
+        """Refocus every tile still being imaged or waiting for its refocus (at the end of a run); returns
+        those whose image changed."""
+        return self.refocus(list(self.groups), tiles, tile_points)
 
     def add_radar_imu(self, radar: str, time_ns: np.ndarray, accel_mps2: np.ndarray) -> None:
         """Samples of the IMU on ``radar``'s own mount: times [N] int64 ns, specific force [N, 3] in the radar's
@@ -144,6 +158,7 @@ class TileRefocus:
 
         cfg = self.config
         groups = self.groups.pop(key, [])
+        self.awaiting.discard(key)
         options = AutofocusOptions(method=cfg.refocus)
         tile = tiles.get(key)
         if len(groups) < 8 or tile is None:
