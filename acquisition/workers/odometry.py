@@ -228,6 +228,7 @@ class OdometryWorker(Worker):
             counted["map_velocity_refused"] = self.map_feedback.rejected
             # The radars' Doppler scale learnt from the map, in parts per million off 1 (counters are integers).
             counted["map_doppler_scale_ppm"] = round((self.map_feedback.doppler_scale - 1.0) * 1e6)
+            counted["map_doppler_scale_sigma_ppm"] = round(self.map_feedback.scale_sigma * 1e6)
         return {**counted, "lag_ms": self.lag_ms}
 
     def calibration(self) -> dict[str, dict]:
