@@ -21,6 +21,18 @@ one or several radars) are fitted jointly, as one velocity error over their span
 not applied (no scatterer, contrast too low, entropy not lowered) gives nothing; nor does a tile whose
 track error the velocity error does not explain (``min_explained``: a vibration, a random walk).
 
+How sure a measurement is: not only the fit's residual scatter. A velocity error is seen as a bend of the
+track error, and two other things bend it the same way, which no residual shows: the trajectory's position
+error curving over the span (the odometry's velocity across the track wanders; an acceleration a of the
+error across the track reads, in one tile, as an along-track velocity error of a R0 / (2 v)), and the
+refocus's own error in the bend (noise, the entropy model's error; a phase error at the aperture's ends, so
+a tile refocused over half its aperture reads its bend, and the velocity error, four times worse). Both are
+nuisances of the fit with priors (``track_accel_sigma_mps2``, ``refocus_bend_m``), marginalised by
+generalised least squares: tiles on both sides of the track see the curving with opposite signs and tell it
+from a velocity error; one tile cannot, and its sigma says so. The sigma of the residual alone claimed
+0.5-5 mm/s for single tiles that erred by up to 20 (the live CI run: chi2 of 28, 21, 12 from 7 updates), and
+the Doppler scale followed the last of them.
+
 The measurement is of the trajectory's velocity at the tiles' time, which lies in the past when it arrives
 (a tile is refocused once the radar has passed it). It is applied to the filter's current velocity on the
 assumption that the velocity error persists (what a tile can see is a systematic one: a Doppler scale, a
@@ -32,7 +44,8 @@ slope off), and ``correct_scan`` applies it to the scans before the filter takes
 estimated by a scalar Kalman filter: each measurement's relative speed error (what earlier ones have not
 corrected) moves it by the filter's gain, weighted by the measurement's sigma against the scale's own. A fixed
 gain (0.7 of each error, as before) let the last measurement decide: over the live CI drive five measurements
-left the scale at 4.6 % for a 2.0 % error; with the filter's gain they average.
+left the scale at 4.6 % for a 2.0 % error; with the filter's gain they average -- as long as their sigmas
+are honest (see above), and the scale's own sigma (``MapFeedback.scale_sigma``) says how far to trust it.
 
 Pure computation: used by the offline loop (``rio.feedback_drive``) and the live odometry worker.
 """
@@ -82,8 +95,10 @@ class MapFeedbackConfig:
     values_per_tile: int = 3
     #: The trajectory's position error curves over a tile's span (m/s^2, its RMS acceleration along a world
     #: axis): the odometry's velocity across the track wanders, and a track error bent by an acceleration a
-    #: across the track is what an along-track velocity error of a R0 / (2 v) gives one tile.
-    track_accel_sigma_mps2: float = 0.002
+    #: across the track is what an along-track velocity error of a R0 / (2 v) gives one tile. With the bend
+    #: below, single tiles of a live run re-imaged from its recording erred as their sigmas say (NEES 0.7,
+    #: docs/results/map_feedback_sigma.json); at 2 mm/s^2 their sigmas were twice their errors.
+    track_accel_sigma_mps2: float = 0.001
     #: A tile's refocus bends its track error on its own (m, from the span's centre to its ends, of a parabola):
     #: its noise, the entropy model's own error. A phase error at the aperture's ends, so a tile refocused
     #: over part of its aperture (a loaded machine thins frames) reads its curvature, and the velocity error,

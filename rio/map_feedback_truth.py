@@ -29,6 +29,10 @@ from .map_feedback import LookVelocityMeasurement, MapFeedbackConfig, velocity_e
 EXACT_FIT = MapFeedbackConfig(max_sigma_mps=np.inf, min_explained=-np.inf)
 
 
+#: The sigma before the nuisances were counted (the fit's residual scatter only), to compare on the same tiles.
+RESIDUAL_ONLY = MapFeedbackConfig(track_accel_sigma_mps2=0.0, refocus_bend_m=0.0, max_sigma_mps=0.01)
+
+
 @dataclasses.dataclass(frozen=True)
 class MeasurementTruth:
     """One map measurement and its truth (m/s along its direction): ``measured`` +- ``sigma``, ``true`` (the
@@ -120,3 +124,17 @@ def position_error_accel_rms_mps2(truth, trajectory, start_ns: int, end_ns: int,
         t_s = (t_ns - t_ns.mean()) * 1e-9
         accels.append([2.0 * np.polyfit(t_s, error[:, i], 2)[0] for i in range(3)])
     return np.sqrt(np.mean(np.square(accels), axis=0)) if accels else np.full(3, np.nan)
+
+
+def sigma_honesty(tile_sets, truth, trajectory) -> dict:
+    """NEES and counts of the measurements ``tile_sets`` give, with the sigma now and with the residual's
+    alone (``RESIDUAL_ONLY``), the tiles of a set jointly and each tile alone: {model: {fit: {...}}}."""
+    out = {}
+    for name, config in (("now", MapFeedbackConfig()), ("residual_only", RESIDUAL_ONLY)):
+        for each_tile in (False, True):
+            truths = measurement_truths(tile_sets, truth, trajectory, config, each_tile)
+            out.setdefault(name, {})["each_tile" if each_tile else "joint"] = {
+                "measurements": len(truths), "nees": nees(truths),
+                "normalised_errors": [t.normalised_error for t in truths],
+                "error_mps": [t.measured_mps - t.true_mps for t in truths], "sigma_mps": [t.sigma_mps for t in truths]}
+    return out
