@@ -96,14 +96,16 @@ class MapFeedbackConfig:
     #: The trajectory's position error curves over a tile's span (m/s^2, its RMS acceleration along a world
     #: axis): the odometry's velocity across the track wanders, and a track error bent by an acceleration a
     #: across the track is what an along-track velocity error of a R0 / (2 v) gives one tile. With the bend
-    #: below, single tiles of a live run re-imaged from its recording erred as their sigmas say (NEES 0.7,
-    #: docs/results/map_feedback_sigma.json); at 2 mm/s^2 their sigmas were twice their errors.
+    #: below: a live run re-imaged from its recording, NEES 0.31-0.73 on every frame, 1.27-1.48 on every third
+    #: (docs/results/map_feedback_sigma.json; at 2 mm/s^2, 0.13-0.39 on every frame).
     track_accel_sigma_mps2: float = 0.001
     #: A tile's refocus bends its track error on its own (m, from the span's centre to its ends, of a parabola):
     #: its noise, the entropy model's own error. A phase error at the aperture's ends, so a tile refocused
     #: over part of its aperture (a loaded machine thins frames) reads its curvature, and the velocity error,
     #: the worse by the square of the part missing.
     refocus_bend_m: float = 2e-4
+    #: Fewer groups than this in a tile's track error: no estimate (a tile the radar saw a few frames of).
+    min_groups: int = 10
     #: A wide gate: the error the map sees is one the filter does not model (a Doppler scale), so the filter
     #: is sure of its wrong velocity and a 99.9 % gate on its covariance refuses the map every time; the
     #: map's own checks (``min_explained``, ``max_sigma_mps``) are what keep a wrong estimate out.
@@ -163,7 +165,7 @@ def velocity_error_from_tiles(tiles, config: MapFeedbackConfig = MapFeedbackConf
     rows, values, times, geos, radars = [], [], [], [], set()
     origin = None
     for te, geo in tiles:
-        if te.time_s.size < 4 or te.time_s.size != geo.time_s.size:
+        if te.time_s.size < config.min_groups or te.time_s.size != geo.time_s.size:
             continue
         rows.append(displacement_per_velocity(geo))
         values.append(remove_line(te.time_s, te.displacement_m))
@@ -219,11 +221,24 @@ def velocity_error_from_tiles(tiles, config: MapFeedbackConfig = MapFeedbackConf
     return out
 
 
+def group_coverage(time_s: np.ndarray) -> float:
+    """The part of its span a tile's groups cover (1 where no frame is missing): their count times their
+    usual spacing over the span. A loaded machine thins the map's frames; the refocus then ties the groups'
+    phases across the gaps poorly: a live run's tiles re-imaged on every third frame (coverage 0.36) erred by
+    20 mm/s where those of every frame erred by 2 (docs/results/map_feedback_sigma.json), so a tile's bend
+    prior grows as 1 / coverage^2."""
+    t = np.sort(np.asarray(time_s, float))
+    if t.size < 2 or np.ptp(t) <= 0:
+        return 1.0
+    return float(min(1.0, t.size * np.median(np.diff(t)) / np.ptp(t)))
+
+
 def _nuisances(geos, times, centre_s, config) -> tuple[np.ndarray, np.ndarray]:
     """What bends the tiles' track errors besides a velocity error, as columns [values, K] over the tiles'
     values and their prior variances [K]: the trajectory's error accelerating from ``centre_s`` (prior sigma
     ``track_accel_sigma_mps2`` along world x and y, the same for all tiles) and every tile's own bend (a
-    parabola over its span, prior sigma ``refocus_bend_m`` at the span's ends)."""
+    parabola over its span, prior sigma ``refocus_bend_m`` at the span's ends, divided by the square of the part
+    of its span its groups cover: ``group_coverage``)."""
     n = sum(g.time_s.size for g in geos)
     columns, priors = [], []
     if config.track_accel_sigma_mps2 > 0:
@@ -238,8 +253,8 @@ def _nuisances(geos, times, centre_s, config) -> tuple[np.ndarray, np.ndarray]:
             half_span = max(0.5 * float(np.ptp(t)), 1e-9)
             bends[offset:offset + t.size, k] = remove_line(t, ((t - 0.5 * (t.min() + t.max())) / half_span) ** 2)
             offset += t.size
+            priors.append((config.refocus_bend_m / group_coverage(t) ** 2) ** 2)
         columns.append(bends)
-        priors += [config.refocus_bend_m ** 2] * len(geos)
     if not columns:
         return np.zeros((n, 0)), np.zeros(0)
     return np.concatenate(columns, axis=1), np.asarray(priors)

@@ -14,6 +14,7 @@ from rio.map_feedback import (
     MapFeedback,
     MapFeedbackConfig,
     displacement_per_velocity,
+    group_coverage,
     update_look_velocity,
     velocity_error_from_tiles,
 )
@@ -86,6 +87,16 @@ def test_one_tile_cannot_tell_a_velocity_error_from_the_track_curving_across_it(
     assert half == pytest.approx(math.hypot(1.875e-3, 4 * 1.333e-3), rel=0.05)
     pair = tile_sigma_mps([passing_tile((0.008, 0.0), 1.44, +1.0), passing_tile((0.008, 0.0), 1.76, -1.0)])
     assert pair < 0.6 * one
+    # Every third frame only (two groups a frame kept, four dropped): a third of the span covered, the bend
+    # prior eight times as large, on a span 85/89 as long (a live run re-imaged on every third frame: 20 mm/s)
+    te, geo = passing_tile((0.008, 0.0), groups=90)
+    keep = np.arange(90) % 6 < 2
+    thinned = (TrackError(te.time_s[keep], remove_line(te.time_s[keep], te.displacement_m[keep]), "pga", None,
+                          te.time_origin_ns),
+               ScattererGeometry(geo.scatterer_m, geo.time_s[keep], geo.antenna_m[keep], geo.direction[keep],
+                                 tuple(np.array(geo.radars)[keep]), geo.time_origin_ns))
+    assert group_coverage(geo.time_s) == 1.0 and group_coverage(thinned[1].time_s) == pytest.approx(30 / 85, rel=0.01)
+    assert tile_sigma_mps([thinned]) == pytest.approx(math.hypot(1.875e-3, (85 / 30) ** 2 * 1.333e-3 * (89 / 85) ** 2), rel=0.05)
     # the curving alone, read as a velocity error by one tile: what its sigma allows for
     (curved,) = velocity_error_from_tiles([passing_tile((0.0, 0.0), accel_mps2=(0.0, 0.001))])
     assert abs(curved.velocity_error_mps) == pytest.approx(1.875e-3, rel=0.05)
