@@ -167,6 +167,7 @@ def run_feedback_loop(drive: FeedbackDrive, feedback: bool, step_s: float = 0.25
             used.update(fresh)
             tiles = [(refocusing.refocus_results[key].track_error, refocusing.refocus_geometry[key]) for key in fresh]
             if tiles:
+                loop.note_poses(traj.time_ns, traj.velocity_mps)
                 measurements = velocity_error_from_tiles(tiles, loop.config)
                 tile_sets.append((tiles, measurements))
                 loop.apply_measurements(rio.ekf, measurements)

@@ -326,6 +326,31 @@ class MapFeedback:
         self.scale_log: list[tuple[int, float]] = []  # (filter time ns, scale from then on)
         #: every measurement met, accepted or refused, with what the filter made of it
         self.updates: list[MapUpdate] = []
+        #: the trajectory's recent velocities (time ns [N], velocity [N, 3]; ``note_poses``), for the speed a
+        #: measurement's span was driven at
+        self._velocity_times = np.zeros(0, np.int64)
+        self._velocities = np.zeros((0, 3))
+
+    def note_poses(self, time_ns: np.ndarray, velocity_mps: np.ndarray, keep_s: float = 60.0) -> None:
+        """Keep the trajectory's velocities of the last ``keep_s``: a scale error makes a velocity error in
+        proportion to the speed at the measurement's span, which lies in the past when it arrives (the map
+        lags by seconds; a late measurement met the robot slowing at the end of a drive at a quarter of its
+        speed, and taken at that speed read as a scale four times too large)."""
+        time_ns = np.asarray(time_ns, np.int64)
+        velocity_mps = np.asarray(velocity_mps, float).reshape(-1, 3)
+        new = time_ns > self._velocity_times[-1] if self._velocity_times.size else np.ones(time_ns.size, bool)
+        t = np.concatenate([self._velocity_times, time_ns[new]])
+        v = np.concatenate([self._velocities, velocity_mps[new]])
+        keep = t >= t[-1] - int(keep_s * 1e9) if t.size else np.zeros(0, bool)
+        self._velocity_times, self._velocities = t[keep], v[keep]
+
+    def speed_at(self, time_ns: int, direction: np.ndarray) -> float | None:
+        """The noted trajectory's speed along ``direction`` at ``time_ns`` (None where no pose covers it)."""
+        t = self._velocity_times
+        if t.size < 2 or not t[0] <= time_ns <= t[-1]:
+            return None
+        v = np.array([np.interp(time_ns, t, self._velocities[:, i]) for i in range(3)])
+        return float(v @ np.asarray(direction, float))
 
     @property
     def scale_sigma(self) -> float:
@@ -387,8 +412,11 @@ class MapFeedback:
             if res.accepted:
                 change = (ekf.state.time_ns, ekf.state.v - before)
                 accepted.append(m)
-                if self.config.learn_doppler_scale and abs(speed) >= self.config.scale_min_speed_mps:
-                    self._learn_scale((m.velocity_error_mps - done) / speed, m.sigma_mps / abs(speed))
+                # the speed the span was driven at (where poses were noted), not the speed now
+                noted = self.speed_at(m.time_ns, m.direction)
+                span_speed = speed if noted is None else noted
+                if self.config.learn_doppler_scale and abs(span_speed) >= self.config.scale_min_speed_mps:
+                    self._learn_scale((m.velocity_error_mps - done) / span_speed, m.sigma_mps / abs(span_speed))
                     self.scale_log.append((ekf.state.time_ns, self.doppler_scale))
                 else:
                     self.unscaled.append(change)

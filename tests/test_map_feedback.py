@@ -213,6 +213,26 @@ def test_the_other_radar_s_tile_of_the_same_span_reads_as_no_error_left():
     assert "residual +8.00 +- 20.02 mm/s" in first.line() and "accepted" in first.line()
 
 
+def test_a_late_measurement_learns_the_scale_at_the_speed_its_span_was_driven_at():
+    """The live map lags: a live run's measurement arrived 6.7 s after its span, the robot slowing at the end
+    at 0.10 m/s; its -11.7 mm/s read as a scale error of 11 % (+62881 ppm learnt). The scale error makes a
+    velocity error in proportion to the speed the span was driven at (0.4 m/s): 2.9 %."""
+    for noted in (False, True):
+        ekf = moving_filter((0.1, 0.0, 0.0))
+        feedback = MapFeedback()
+        span_ns = ekf.state.time_ns - 6_700_000_000
+        if noted:
+            t = span_ns + np.arange(-20, 21) * 100_000_000
+            feedback.note_poses(t, np.tile([0.4, 0.0, 0.0], (t.size, 1)))
+            feedback.note_poses(t[-5:], np.zeros((5, 3)))  # times already held are not taken twice
+            assert feedback.speed_at(span_ns, np.array([1.0, 0.0, 0.0])) == pytest.approx(0.4)
+        m = LookVelocityMeasurement(span_ns, 1.5, np.array([1.0, 0.0, 0.0]), 0.0117, 0.00462, ("right_front",), 1)
+        feedback.apply_measurements(ekf, [m])
+        gain = 0.05 ** 2 / (0.05 ** 2 + (0.00462 / (0.4 if noted else 0.1)) ** 2)
+        assert feedback.doppler_scale - 1 == pytest.approx(gain * 0.0117 / (0.4 if noted else 0.1), rel=1e-6)
+    assert feedback.doppler_scale - 1 < 0.03
+
+
 def test_a_measurement_far_outside_the_filter_s_uncertainty_is_refused():
     ekf = moving_filter()
     m = LookVelocityMeasurement(10**18, 1.5, np.array([1.0, 0.0, 0.0]), 0.3, 0.0005, ("left_front",), 1)

@@ -135,6 +135,8 @@ class OdometryWorker(Worker):
             if self.trajectory is None:
                 self.trajectory = TrajectoryWriter(self.config.trajectory_path, "rio")
             self.trajectory.append(poses.time_ns, poses.position_m, poses.orientation_xyzw, poses.velocity_mps)
+            if self.map_feedback is not None:
+                self.map_feedback.note_poses(poses.time_ns, poses.velocity_mps)
             self.poses_written += len(poses)
             if time.monotonic() - self.last_flush > 5.0:
                 self.trajectory.flush()
