@@ -9,7 +9,9 @@ error along and across the track at the end and per metre driven, with and witho
 target's peak in the map as imaged (before any refocus: how a tile starts) relative to the same map imaged on
 the true trajectory; the map's measurements (velocity error read, its sigma); and the filter's side alone
 (``odometry_with_ideal_map``: the truth's velocity error as the measurement, every 1.6 s, 1 mm/s), as filter
-updates only and with the Doppler scale learnt from them.
+updates only and with the Doppler scale learnt from them; and whether the map's sigmas are honest
+(rio.map_feedback_truth: each measurement against the truth, NEES, jointly and each tile alone, with the
+sigma now and with the fit's residual alone).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from rio.map_feedback_truth import sigma_honesty  # noqa: E402
 from rio.feedback_drive import (  # noqa: E402
     SPEED_MPS,
     odometry_with_truth_measurements,
@@ -81,6 +84,10 @@ def run_seed(seed: int, length_m: float) -> dict:
             row[name]["rejected_by_gate"] = result.feedback.rejected
             row[name]["tiles_refocused"] = len(result.refocus_map.refocus_geometry)
             row[name]["truth_speed_at_measurements_mps"] = [float(np.linalg.norm(v)) for v in truth_v]
+            # each measurement against the truth: are the sigmas honest (NEES 1)? now and as they were
+            row[name]["sigma_honesty"] = sigma_honesty(result.tile_sets, drive.truth, result.trajectory)
+            row[name]["doppler_scale"] = result.feedback.doppler_scale
+            row[name]["doppler_scale_sigma"] = result.feedback.scale_sigma
         print(f"seed {seed} {name:7s}: end along {row[name]['drift']['end_along_m'] * 1e3:+.1f} mm "
               f"({row[name]['drift']['along_per_m'] * 100:.2f} %), late peaks {row[name]['late_peak_db_mean']:+.2f} dB "
               f"vs the true trajectory, {row[name]['seconds']:.0f} s", flush=True)
@@ -99,6 +106,12 @@ def main(argv=None) -> int:
                          "measurements_mean": float(np.mean([len(r["with"]["measurements"]) for r in rows])) if name == "with" else 0.0,
                          "end_along_m_mean": float(np.mean([r[name]["drift"]["end_along_m"] for r in rows])),
                          "late_peak_db_mean": float(np.mean([r[name]["late_peak_db_mean"] for r in rows]))}
+    honesty = {}
+    for model in ("now", "residual_only"):
+        for fit in ("joint", "each_tile"):
+            e = [x for r in rows for x in r["with"]["sigma_honesty"][model][fit]["normalised_errors"]]
+            honesty[f"{model} {fit}"] = {"measurements": len(e), "nees": float(np.mean(np.square(e))) if e else None}
+    summary["sigma_honesty"] = honesty
     out = {"scenario": f"rio.feedback_drive: {length_m} m straight at {SPEED_MPS} m/s, Doppler 2 % low, targets on "
                        "both sides every 0.64 m at 1.2/1.6 m; map 0.6 m aperture, entropy refocus",
            "units": {"drift": "m, truth minus odometry is the negative of end_along_m", "peak_db": "dB against the map on the true trajectory"},

@@ -203,6 +203,14 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                      "against the map on the true trajectory, without and with the map's velocity errors fed back "
                      "(rio.map_feedback: filter updates plus the Doppler scale learnt from them).",
                      ".venv/bin/python benchmarks/map_feedback.py"),
+    "map_feedback_sigma": ("Are the map's velocity sigmas honest?",
+                           "Each velocity measurement the live map's refocused tiles give (rio.map_feedback) against "
+                           "the truth (rio.map_feedback_truth), on runs of the live daemon test "
+                           "(tests/test_map_feedback_live.py) re-imaged from their recordings on their odometry's "
+                           "trajectory, all frames and every third (a loaded machine thins them): the NEES (mean "
+                           "squared normalised error, 1 where the sigmas are honest) with the sigma now and with the "
+                           "fit's residual alone, the tiles of a call jointly and each alone.",
+                           ".venv/bin/python benchmarks/map_feedback_sigma.py --seeds --live RUN_DIR --thin 1 3"),
     "pointcloud": ("Point clouds from raw frames",
                    "What each live odometry scan costs before the filter sees it, stage by stage.",
                    ".venv/bin/python benchmarks/pointcloud.py"),

@@ -157,25 +157,29 @@ class CalibrationEstimate:
 
 @dataclasses.dataclass
 class UpdateResult:
+    """Whether the gate let the measurement in, its chi2, and its innovation covariance S = H P H^T + R (the
+    residual's covariance the gate judged it by; [rows, rows])."""
+
     accepted: bool
     chi2: float
+    innovation_covariance: np.ndarray | None = None
 
 
 @numba.njit(cache=True)
 def _joseph_update(P, H, R_meas, residual, gate):
-    """Kalman update in Joseph form with a chi-square gate: (accepted, chi2, dx, P_new)."""
+    """Kalman update in Joseph form with a chi-square gate: (accepted, chi2, dx, P_new, S)."""
     S = H @ P @ H.T + R_meas
     if abs(np.linalg.det(S)) < 1e-300:
-        return False, np.inf, np.zeros(P.shape[0]), P
+        return False, np.inf, np.zeros(P.shape[0]), P, S
     S_inv = np.linalg.inv(S)
     chi2 = residual @ S_inv @ residual
     if not np.isfinite(chi2) or chi2 > gate:
-        return False, chi2, np.zeros(P.shape[0]), P
+        return False, chi2, np.zeros(P.shape[0]), P, S
     K = P @ H.T @ S_inv
     dx = K @ residual
     I_KH = np.eye(P.shape[0]) - K @ H
     P_new = I_KH @ P @ I_KH.T + K @ R_meas @ K.T  # Joseph form: stays symmetric positive definite
-    return True, chi2, dx, 0.5 * (P_new + P_new.T)
+    return True, chi2, dx, 0.5 * (P_new + P_new.T), S
 
 
 class RadarInertialEkf:
@@ -337,11 +341,11 @@ class RadarInertialEkf:
                kind: str = "") -> UpdateResult:
         """A measurement update (H from ``jacobian_rows``; gate: chi2, None for none; "velocity": it moved)."""
         s = self.state
-        ok, chi2, dx, P = _joseph_update(s.P, np.ascontiguousarray(H, dtype=np.float64),
+        ok, chi2, dx, P, S = _joseph_update(s.P, np.ascontiguousarray(H, dtype=np.float64),
                                          np.ascontiguousarray(R_meas, dtype=np.float64),
                                          np.ascontiguousarray(residual, dtype=np.float64), np.inf if gate is None else gate)
         if not ok:
-            return UpdateResult(False, chi2)
+            return UpdateResult(False, chi2, S)
         s.P = P
         s.p = s.p + dx[0:3]
         if kind == "velocity":
@@ -360,7 +364,7 @@ class RadarInertialEkf:
             self.bias_log.append(entry)
         else:
             self.bias_log[-1:] = [entry]
-        return UpdateResult(True, chi2)
+        return UpdateResult(True, chi2, S)
 
     def jacobian_rows(self, rows: int) -> np.ndarray:  # a measurement Jacobian's rows, as wide as the error state
         return np.zeros((rows, self.state.P.shape[0]))

@@ -27,7 +27,7 @@ from imaging.sim.targets import PointTarget
 from imaging.stripmap import StripMap, StripMapConfig
 
 from .calibration_drive import SIM_EKF
-from .map_feedback import LookVelocityMeasurement, MapFeedback, MapFeedbackConfig
+from .map_feedback import LookVelocityMeasurement, MapFeedback, MapFeedbackConfig, velocity_error_from_tiles
 from .odometry import RadarScan, RioOptions
 from .streaming import StreamingRio
 
@@ -103,12 +103,14 @@ def simulate_feedback_drive(length_m: float = 6.0, seed: int = 0, doppler_scale_
 @dataclasses.dataclass
 class LoopResult:
     """The odometry's trajectory, the map as it was imaged (no refocus: how each tile started), the refocusing
-    map, and the feedback's log (None without feedback)."""
+    map, the feedback's log (None without feedback), and each set of tiles refocused together with the
+    measurements read off it (``tile_sets``: pairs (tiles, measurements), as the filter was given them)."""
 
     trajectory: SampledTrajectory
     plain_map: StripMap
     refocus_map: StripMap | None
     feedback: MapFeedback | None
+    tile_sets: list = dataclasses.field(default_factory=list)
 
 
 def run_feedback_loop(drive: FeedbackDrive, feedback: bool, step_s: float = 0.25,
@@ -128,6 +130,7 @@ def run_feedback_loop(drive: FeedbackDrive, feedback: bool, step_s: float = 0.25
     poses: list = []
     next_frame = {name: 0 for name in drive.frames}
     used: set = set()
+    tile_sets: list = []
     end_ns = T0 + int(drive.duration_s * 1e9)
     i_imu = j_scan = 0
     t = T0
@@ -164,14 +167,17 @@ def run_feedback_loop(drive: FeedbackDrive, feedback: bool, step_s: float = 0.25
             used.update(fresh)
             tiles = [(refocusing.refocus_results[key].track_error, refocusing.refocus_geometry[key]) for key in fresh]
             if tiles:
-                loop.apply(rio.ekf, tiles)
+                loop.note_poses(traj.time_ns, traj.velocity_mps)
+                measurements = velocity_error_from_tiles(tiles, loop.config)
+                tile_sets.append((tiles, measurements))
+                loop.apply_measurements(rio.ekf, measurements)
     if trajectory is None:
         poses.append(rio.finish())
         done = [p for p in poses if len(p)]
         traj = SampledTrajectory(np.concatenate([p.time_ns for p in done]), np.concatenate([p.position_m for p in done]),
                                  np.concatenate([p.orientation_xyzw for p in done]),
                                  np.concatenate([p.velocity_mps for p in done]), source="rio")
-    return LoopResult(traj, plain, refocusing, loop)
+    return LoopResult(traj, plain, refocusing, loop, tile_sets)
 
 
 def target_peaks_db(strip_map: StripMap, targets_m: np.ndarray, radius_m: float = 0.15) -> np.ndarray:

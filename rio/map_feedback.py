@@ -21,6 +21,18 @@ one or several radars) are fitted jointly, as one velocity error over their span
 not applied (no scatterer, contrast too low, entropy not lowered) gives nothing; nor does a tile whose
 track error the velocity error does not explain (``min_explained``: a vibration, a random walk).
 
+How sure a measurement is: not only the fit's residual scatter. A velocity error is seen as a bend of the
+track error, and two other things bend it the same way, which no residual shows: the trajectory's position
+error curving over the span (the odometry's velocity across the track wanders; an acceleration a of the
+error across the track reads, in one tile, as an along-track velocity error of a R0 / (2 v)), and the
+refocus's own error in the bend (noise, the entropy model's error; a phase error at the aperture's ends, so
+a tile refocused over half its aperture reads its bend, and the velocity error, four times worse). Both are
+nuisances of the fit with priors (``track_accel_sigma_mps2``, ``refocus_bend_m``), marginalised by
+generalised least squares: tiles on both sides of the track see the curving with opposite signs and tell it
+from a velocity error; one tile cannot, and its sigma says so. The sigma of the residual alone claimed
+0.5-5 mm/s for single tiles that erred by up to 20 (the live CI run: chi2 of 28, 21, 12 from 7 updates), and
+the Doppler scale followed the last of them.
+
 The measurement is of the trajectory's velocity at the tiles' time, which lies in the past when it arrives
 (a tile is refocused once the radar has passed it). It is applied to the filter's current velocity on the
 assumption that the velocity error persists (what a tile can see is a systematic one: a Doppler scale, a
@@ -32,7 +44,8 @@ slope off), and ``correct_scan`` applies it to the scans before the filter takes
 estimated by a scalar Kalman filter: each measurement's relative speed error (what earlier ones have not
 corrected) moves it by the filter's gain, weighted by the measurement's sigma against the scale's own. A fixed
 gain (0.7 of each error, as before) let the last measurement decide: over the live CI drive five measurements
-left the scale at 4.6 % for a 2.0 % error; with the filter's gain they average.
+left the scale at 4.6 % for a 2.0 % error; with the filter's gain they average -- as long as their sigmas
+are honest (see above), and the scale's own sigma (``MapFeedback.scale_sigma``) says how far to trust it.
 
 Pure computation: used by the offline loop (``rio.feedback_drive``) and the live odometry worker.
 """
@@ -71,7 +84,7 @@ class MapFeedbackConfig:
     """When a map estimate becomes an odometry measurement."""
 
     #: A direction the tiles constrain worse than this is not measured (across the track, typically).
-    max_sigma_mps: float = 0.01
+    max_sigma_mps: float = 0.05
     #: Never trusted better than this: the tiles' groups are not independent (the estimate is a smooth model).
     min_sigma_mps: float = 0.0005
     #: The fitted velocity error must explain this part of the tiles' track errors (their power).
@@ -80,6 +93,19 @@ class MapFeedbackConfig:
     residual_floor_m: float = 2e-5
     #: Independent values per tile in its track error (the entropy model's orders 2 to 4).
     values_per_tile: int = 3
+    #: The trajectory's position error curves over a tile's span (m/s^2, its RMS acceleration along a world
+    #: axis): the odometry's velocity across the track wanders, and a track error bent by an acceleration a
+    #: across the track is what an along-track velocity error of a R0 / (2 v) gives one tile. With the bend
+    #: below: a live run re-imaged from its recording, NEES 0.31-0.73 on every frame, 1.27-1.48 on every third
+    #: (docs/results/map_feedback_sigma.json; at 2 mm/s^2, 0.13-0.39 on every frame).
+    track_accel_sigma_mps2: float = 0.001
+    #: A tile's refocus bends its track error on its own (m, from the span's centre to its ends, of a parabola):
+    #: its noise, the entropy model's own error. A phase error at the aperture's ends, so a tile refocused
+    #: over part of its aperture (a loaded machine thins frames) reads its curvature, and the velocity error,
+    #: the worse by the square of the part missing.
+    refocus_bend_m: float = 2e-4
+    #: Fewer groups than this in a tile's track error: no estimate (a tile the radar saw a few frames of).
+    min_groups: int = 10
     #: A wide gate: the error the map sees is one the filter does not model (a Doppler scale), so the filter
     #: is sure of its wrong velocity and a 99.9 % gate on its covariance refuses the map every time; the
     #: map's own checks (``min_explained``, ``max_sigma_mps``) are what keep a wrong estimate out.
@@ -110,6 +136,18 @@ def displacement_per_velocity(geometry) -> np.ndarray:
     return np.column_stack([remove_line(t, col) for col in cols])
 
 
+def displacement_per_acceleration(geometry, centre_s: float) -> np.ndarray:
+    """The track error [Q, 2] a trajectory position error accelerating by 1 m/s^2 along world x and y from
+    ``centre_s`` (a (t - centre)^2 / 2 curve) would give a tile's groups, less its line."""
+    t = np.asarray(geometry.time_s, float)
+    to_scatterer = geometry.scatterer_m[None, :] - geometry.antenna_m
+    s = to_scatterer / np.linalg.norm(to_scatterer, axis=1, keepdims=True)
+    c = np.sum(geometry.direction * s, axis=1)
+    c = np.where(np.abs(c) < 1e-3, 1e-3, c)
+    half_dt2 = 0.5 * (t - centre_s) ** 2
+    return np.column_stack([remove_line(t, half_dt2 * s[:, i] / c) for i in (0, 1)])
+
+
 def velocity_error_from_tiles(tiles, config: MapFeedbackConfig = MapFeedbackConfig()) -> list[LookVelocityMeasurement]:
     """Fit one velocity error to tiles refocused over the same span, jointly; the directions it constrains
     as measurements (none when the fit explains too little of the track errors).
@@ -117,26 +155,32 @@ def velocity_error_from_tiles(tiles, config: MapFeedbackConfig = MapFeedbackConf
     ``tiles``: pairs (track error, geometry) of each tile: its refocus's ``TrackError`` (at the groups that saw
     its scatterer, line removed) and ``ScattererGeometry``, both from ``StripMap.refocus_results`` /
     ``refocus_geometry``.
+
+    The sigma counts three sources of error (see the module's docstring): the fit's residual scatter over
+    ``values_per_tile`` independent values a tile, a bend of each tile's own refocus (``refocus_bend_m``)
+    and the trajectory's position error curving over the span (``track_accel_sigma_mps2``, common to the
+    tiles: tiles on both sides tell it from a velocity error, one tile cannot). The last two are nuisances
+    of the fit with those priors, marginalised.
     """
-    rows, values, times, radars = [], [], [], set()
+    rows, values, times, geos, radars = [], [], [], [], set()
     origin = None
     for te, geo in tiles:
-        if te.time_s.size < 4 or te.time_s.size != geo.time_s.size:
+        if te.time_s.size < config.min_groups or te.time_s.size != geo.time_s.size:
             continue
         rows.append(displacement_per_velocity(geo))
         values.append(remove_line(te.time_s, te.displacement_m))
         origin = geo.time_origin_ns if origin is None else origin
         times.append(np.asarray(geo.time_s) + (geo.time_origin_ns - origin) * 1e-9)
+        geos.append(geo)
         radars.update(geo.radars)
     if not rows:
         return []
     a, y = np.concatenate(rows), np.concatenate(values)
-    # In the normal matrix's eigenbasis: each direction's information on its own, so a direction the tiles
-    # hardly see (across the track) neither spoils the solve nor gets a measurement.
+    # The velocity error alone, for how much of the track errors it explains and which directions the tiles
+    # see: in the normal matrix's eigenbasis, each direction's information on its own, so a direction the
+    # tiles hardly see (across the track) neither spoils the solve nor is measured.
     info, basis = np.linalg.eigh(a.T @ a)
     projected = basis.T @ (a.T @ y)
-    # The groups' values are not independent: count values_per_tile per tile, not every group.
-    inflation = y.size / max(config.values_per_tile * len(rows), 1)
     seen = [i for i in range(info.size) if info[i] > 0]
     dv = np.zeros(2)
     for i in seen:
@@ -145,18 +189,75 @@ def velocity_error_from_tiles(tiles, config: MapFeedbackConfig = MapFeedbackConf
     power = float(y @ y)
     if power <= 0 or 1.0 - float(residual @ residual) / power < config.min_explained:
         return []
-    scatter_m = max(float(np.sqrt(np.mean(residual ** 2))), config.residual_floor_m)
     t_all = np.concatenate(times)
-    centre_ns = int(origin + round(0.5 * (t_all.min() + t_all.max()) * 1e9))
+    centre_s = 0.5 * (t_all.min() + t_all.max())
+    nuisance, prior_variance = _nuisances(geos, times, centre_s, config)
+    # The values' own scatter: what neither the velocity error nor the nuisances explain (the nuisances' part
+    # is counted by their priors, not twice).
+    full = np.column_stack([a, nuisance])
+    scale = np.maximum(np.linalg.norm(full, axis=0), 1e-300)
+    coef, *_ = np.linalg.lstsq(full / scale, y, rcond=1e-9)
+    scatter_m = max(float(np.sqrt(np.mean((y - (full / scale) @ coef) ** 2))), config.residual_floor_m)
+    # The groups' values are not independent: count values_per_tile per tile, not every group.
+    value_variance = scatter_m ** 2 * y.size / max(config.values_per_tile * len(rows), 1)
+    # Generalised least squares, the nuisances marginalised: the values' covariance is their noise plus each
+    # nuisance's column times its prior variance. Tiles on both sides tell the track's curving from a velocity
+    # error, and the estimate does; one tile cannot, and its sigma says so.
+    values_cov = np.eye(y.size) * value_variance + (nuisance * prior_variance) @ nuisance.T
+    weighted = np.linalg.solve(values_cov, a)
+    info_gls = a.T @ weighted
+    # a direction with (next to) no information gets a huge variance, and no measurement
+    covariance = np.linalg.inv(info_gls + np.eye(2) * 1e-12 * max(float(np.trace(info_gls)), 1e-300))
+    dv = covariance @ (weighted.T @ y)
+    centre_ns = int(origin + round(centre_s * 1e9))
     out = []
     for i in seen:
-        sigma = max(scatter_m * float(np.sqrt(inflation / info[i])), config.min_sigma_mps)
+        vec = basis[:, i]
+        sigma = max(float(np.sqrt(vec @ covariance @ vec)), config.min_sigma_mps)
         if sigma > config.max_sigma_mps:
             continue
-        vec = basis[:, i]
         out.append(LookVelocityMeasurement(centre_ns, float(np.ptp(t_all)), np.array([vec[0], vec[1], 0.0]),
                                            float(vec @ dv), sigma, tuple(sorted(radars)), len(rows)))
     return out
+
+
+def group_coverage(time_s: np.ndarray) -> float:
+    """The part of its span a tile's groups cover (1 where no frame is missing): their count times their
+    usual spacing over the span. A loaded machine thins the map's frames; the refocus then ties the groups'
+    phases across the gaps poorly: a live run's tiles re-imaged on every third frame (coverage 0.36) erred by
+    20 mm/s where those of every frame erred by 2 (docs/results/map_feedback_sigma.json), so a tile's bend
+    prior grows as 1 / coverage^2."""
+    t = np.sort(np.asarray(time_s, float))
+    if t.size < 2 or np.ptp(t) <= 0:
+        return 1.0
+    return float(min(1.0, t.size * np.median(np.diff(t)) / np.ptp(t)))
+
+
+def _nuisances(geos, times, centre_s, config) -> tuple[np.ndarray, np.ndarray]:
+    """What bends the tiles' track errors besides a velocity error, as columns [values, K] over the tiles'
+    values and their prior variances [K]: the trajectory's error accelerating from ``centre_s`` (prior sigma
+    ``track_accel_sigma_mps2`` along world x and y, the same for all tiles) and every tile's own bend (a
+    parabola over its span, prior sigma ``refocus_bend_m`` at the span's ends, divided by the square of the part
+    of its span its groups cover: ``group_coverage``)."""
+    n = sum(g.time_s.size for g in geos)
+    columns, priors = [], []
+    if config.track_accel_sigma_mps2 > 0:
+        columns.append(np.concatenate([displacement_per_acceleration(g, centre_s - (t[0] - g.time_s[0]))
+                                       for g, t in zip(geos, times)]))
+        priors += [config.track_accel_sigma_mps2 ** 2] * 2
+    if config.refocus_bend_m > 0:
+        offset = 0
+        bends = np.zeros((n, len(geos)))
+        for k, g in enumerate(geos):
+            t = np.asarray(g.time_s, float)
+            half_span = max(0.5 * float(np.ptp(t)), 1e-9)
+            bends[offset:offset + t.size, k] = remove_line(t, ((t - 0.5 * (t.min() + t.max())) / half_span) ** 2)
+            offset += t.size
+            priors.append((config.refocus_bend_m / group_coverage(t) ** 2) ** 2)
+        columns.append(bends)
+    if not columns:
+        return np.zeros((n, 0)), np.zeros(0)
+    return np.concatenate(columns, axis=1), np.asarray(priors)
 
 
 def update_look_velocity(ekf: RadarInertialEkf, measurement: LookVelocityMeasurement,
@@ -190,6 +291,7 @@ class MapUpdate:
     accepted: bool
     scale_before: float
     scale_after: float
+    scale_sigma_after: float = float("nan")  # the scale's standard deviation after (relative)
 
     def line(self) -> str:
         """One line for a log or an event (mm/s, ppm)."""
@@ -200,7 +302,8 @@ class MapUpdate:
                 f"old, speed {self.speed_mps:.3f} m/s): corrected since {self.corrected_by_updates_mps * 1e3:+.2f} "
                 f"(updates) {self.corrected_by_scale_mps * 1e3:+.2f} (scale) mm/s, residual "
                 f"{self.residual_mps * 1e3:+.2f} +- {self.innovation_sigma_mps * 1e3:.2f} mm/s, chi2 {self.chi2:.1f}: "
-                f"{verdict}; Doppler scale {(self.scale_before - 1) * 1e6:+.0f} -> {(self.scale_after - 1) * 1e6:+.0f} ppm")
+                f"{verdict}; Doppler scale {(self.scale_before - 1) * 1e6:+.0f} -> {(self.scale_after - 1) * 1e6:+.0f} "
+                f"+- {self.scale_sigma_after * 1e6:.0f} ppm")
 
 
 class MapFeedback:
@@ -223,6 +326,36 @@ class MapFeedback:
         self.scale_log: list[tuple[int, float]] = []  # (filter time ns, scale from then on)
         #: every measurement met, accepted or refused, with what the filter made of it
         self.updates: list[MapUpdate] = []
+        #: the trajectory's recent velocities (time ns [N], velocity [N, 3]; ``note_poses``), for the speed a
+        #: measurement's span was driven at
+        self._velocity_times = np.zeros(0, np.int64)
+        self._velocities = np.zeros((0, 3))
+
+    def note_poses(self, time_ns: np.ndarray, velocity_mps: np.ndarray, keep_s: float = 60.0) -> None:
+        """Keep the trajectory's velocities of the last ``keep_s``: a scale error makes a velocity error in
+        proportion to the speed at the measurement's span, which lies in the past when it arrives (the map
+        lags by seconds; a late measurement met the robot slowing at the end of a drive at a quarter of its
+        speed, and taken at that speed read as a scale four times too large)."""
+        time_ns = np.asarray(time_ns, np.int64)
+        velocity_mps = np.asarray(velocity_mps, float).reshape(-1, 3)
+        new = time_ns > self._velocity_times[-1] if self._velocity_times.size else np.ones(time_ns.size, bool)
+        t = np.concatenate([self._velocity_times, time_ns[new]])
+        v = np.concatenate([self._velocities, velocity_mps[new]])
+        keep = t >= t[-1] - int(keep_s * 1e9) if t.size else np.zeros(0, bool)
+        self._velocity_times, self._velocities = t[keep], v[keep]
+
+    def speed_at(self, time_ns: int, direction: np.ndarray) -> float | None:
+        """The noted trajectory's speed along ``direction`` at ``time_ns`` (None where no pose covers it)."""
+        t = self._velocity_times
+        if t.size < 2 or not t[0] <= time_ns <= t[-1]:
+            return None
+        v = np.array([np.interp(time_ns, t, self._velocities[:, i]) for i in range(3)])
+        return float(v @ np.asarray(direction, float))
+
+    @property
+    def scale_sigma(self) -> float:
+        """The standard deviation of ``doppler_scale`` (relative)."""
+        return float(np.sqrt(self.scale_variance))
 
     def scale_at(self, time_ns: int) -> float:
         """The Doppler scale the scans of ``time_ns`` were corrected by."""
@@ -272,15 +405,18 @@ class MapFeedback:
             speed = float(before @ m.direction)
             by_updates, by_scale = self._corrected_parts(m.time_ns, m.direction, speed)
             done = by_updates + by_scale
-            d = np.asarray(m.direction, float)
-            innovation_sigma = float(np.sqrt(d @ ekf.state.P[3:6, 3:6] @ d + m.sigma_mps ** 2))
             scale_before = self.doppler_scale
             res = update_look_velocity(ekf, m, done, self.config.gate_chi2)
+            # the residual's sigma as the filter judged it (its velocity's and the measurement's, combined)
+            innovation_sigma = float(np.sqrt(res.innovation_covariance[0, 0]))
             if res.accepted:
                 change = (ekf.state.time_ns, ekf.state.v - before)
                 accepted.append(m)
-                if self.config.learn_doppler_scale and abs(speed) >= self.config.scale_min_speed_mps:
-                    self._learn_scale((m.velocity_error_mps - done) / speed, m.sigma_mps / abs(speed))
+                # the speed the span was driven at (where poses were noted), not the speed now
+                noted = self.speed_at(m.time_ns, m.direction)
+                span_speed = speed if noted is None else noted
+                if self.config.learn_doppler_scale and abs(span_speed) >= self.config.scale_min_speed_mps:
+                    self._learn_scale((m.velocity_error_mps - done) / span_speed, m.sigma_mps / abs(span_speed))
                     self.scale_log.append((ekf.state.time_ns, self.doppler_scale))
                 else:
                     self.unscaled.append(change)
@@ -288,7 +424,7 @@ class MapFeedback:
                 self.rejected += 1
             self.updates.append(MapUpdate(m, int(ekf.state.time_ns), speed, by_updates, by_scale,
                                           m.velocity_error_mps - done, innovation_sigma, float(res.chi2), res.accepted,
-                                          scale_before, self.doppler_scale))
+                                          scale_before, self.doppler_scale, self.scale_sigma))
         self.measurements.extend(accepted)
         return accepted
 

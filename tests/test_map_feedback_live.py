@@ -18,6 +18,7 @@ from imaging.stripmap import StripMapConfig
 
 RADARS = ("left_front", "right_front")
 DOPPLER_LOW = 0.02
+TRUE_SCALE_PPM = round((1 / (1 - DOPPLER_LOW) - 1) * 1e6)  # the Doppler scale that corrects it: +20408
 LENGTH_M = 3.0
 #: The feedback drive's map (rio.feedback_drive.MAP_CONFIG) at the daemon's map height.
 MAP = StripMapConfig(pixel_m=0.01, tile_px=32, aperture_m=0.6, beam_half_angle_deg=45.0, range_min_m=0.6,
@@ -137,9 +138,15 @@ def test_the_live_map_s_velocity_errors_reach_the_odometry_s_filter(drive, tmp_p
     assert counters.get("map_velocity_updates", 0) >= 1, f"{counters}\n{updates}"
     assert counters["map_velocity_refused"] == 0, f"{counters}\n{updates}"
     assert len(run["map_updates"]) == counters["map_velocity_updates"], updates
-    # The Doppler scale learnt from it moves the way the radars are off (they read 2 % low: up), by no more than
-    # the error (0.7 of each measured relative speed error is taken; 2.1 % was seen after one measurement).
-    assert 0 < counters["map_doppler_scale_ppm"] < 40_000, f"{counters}\n{updates}"
+    # The Doppler scale learnt from it is the truth (the radars read 2 % low: 1 / 0.98 - 1 = +20408 ppm) within
+    # 3 of its own sigmas: the map's sigmas are honest (rio.map_feedback: one tile cannot tell an along-track
+    # velocity error from the odometry's position error curving across the track, and a tile of thinned frames
+    # reads its bend poorly), so the scale averages the measurements instead of following the last. The CI run
+    # that chased them ended at +40332 ppm, its measurements claiming 2-5 mm/s where they scattered by 18.
+    scale_ppm, sigma_ppm = counters["map_doppler_scale_ppm"], counters["map_doppler_scale_sigma_ppm"]
+    print(f"Doppler scale learnt {scale_ppm:+d} +- {sigma_ppm} ppm, truth {TRUE_SCALE_PPM:+d}")
+    assert abs(scale_ppm - TRUE_SCALE_PPM) < 3 * sigma_ppm, f"{counters}\n{updates}"
+    assert sigma_ppm < 50_000, f"{counters}\n{updates}"  # it learnt from the map: its prior is 5 %
     traj = run["trajectory"]
     truth = scene.trajectory.sample(traj.time_ns[-1:]).position_m[0]
     assert traj.position_m[-1, 0] - traj.position_m[0, 0] > 0.5 * (truth[0] - scene.trajectory.sample(traj.time_ns[:1]).position_m[0][0])

@@ -19,7 +19,7 @@ def test_joseph_update_matches_numpy():
     H = rng.normal(size=(3, 15))
     R = np.diag([0.01, 0.02, 0.03])
     y = rng.normal(size=3) * 0.1
-    ok, chi2, dx, P_new = _joseph_update(P, H, R, y, np.inf)
+    ok, chi2, dx, P_new, S_kernel = _joseph_update(P, H, R, y, np.inf)
     S = H @ P @ H.T + R
     K = P @ H.T @ np.linalg.inv(S)
     I_KH = np.eye(15) - K @ H
@@ -27,7 +27,8 @@ def test_joseph_update_matches_numpy():
     np.testing.assert_allclose(chi2, y @ np.linalg.solve(S, y))
     np.testing.assert_allclose(dx, K @ y, atol=1e-12)
     np.testing.assert_allclose(P_new, I_KH @ P @ I_KH.T + K @ R @ K.T, atol=1e-9)
-    ok, chi2_gated, _, P_same = _joseph_update(P, H, R, y * 1e4, 16.27)
+    np.testing.assert_allclose(S_kernel, S)  # the innovation covariance the update result carries
+    ok, chi2_gated, _, P_same, _ = _joseph_update(P, H, R, y * 1e4, 16.27)
     assert not ok and chi2_gated > 16.27 and P_same is P
 
 

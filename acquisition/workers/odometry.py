@@ -135,6 +135,8 @@ class OdometryWorker(Worker):
             if self.trajectory is None:
                 self.trajectory = TrajectoryWriter(self.config.trajectory_path, "rio")
             self.trajectory.append(poses.time_ns, poses.position_m, poses.orientation_xyzw, poses.velocity_mps)
+            if self.map_feedback is not None:
+                self.map_feedback.note_poses(poses.time_ns, poses.velocity_mps)
             self.poses_written += len(poses)
             if time.monotonic() - self.last_flush > 5.0:
                 self.trajectory.flush()
@@ -228,6 +230,7 @@ class OdometryWorker(Worker):
             counted["map_velocity_refused"] = self.map_feedback.rejected
             # The radars' Doppler scale learnt from the map, in parts per million off 1 (counters are integers).
             counted["map_doppler_scale_ppm"] = round((self.map_feedback.doppler_scale - 1.0) * 1e6)
+            counted["map_doppler_scale_sigma_ppm"] = round(self.map_feedback.scale_sigma * 1e6)
         return {**counted, "lag_ms": self.lag_ms}
 
     def calibration(self) -> dict[str, dict]:
