@@ -56,13 +56,13 @@ from command_versions import BASELINE, CASES, QUICK_CASES, compare, uptime  # no
 COMMAND_ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
 
 #: What the start of ``sarbot image`` costs, step by step, in a new process, in the command's order: each
-#: import on top of the ones before it; numba's target set-up (its typing and lowering registries, and with
-#: them scipy.linalg, which numba imports for BLAS whether or not a kernel uses it); scipy.fft after that
-#: (scipy.special, for its FFTLog); sarbot's own modules; then a first image of one frame on four pixels (the
-#: kernel's load from numba's cache, its threads' start), then the same image again (what it costs once all
-#: that is done). With argv[2] "paused" the start-up runs as the command runs it (the cyclic garbage
-#: collector paused, then frozen: acquisition/cli/start_up.py); with "running" the collector runs as
-#: usual. The last line also gives the collections' count and time (gc.callbacks).
+#: import on top of the ones before it; scipy.fft (with scipy.special, for its FFTLog); sarbot's own modules
+#: (numba's cache loads set to start numba's runtime alone, without its typing and lowering registries and
+#: scipy.linalg: imaging.numba_target.load_cached_kernels_lightly); then a first image of one frame on four
+#: pixels (the runtime's start, the kernel's load from numba's cache, its threads' start), then the same image
+#: again (what it costs once all that is done). With argv[2] "paused" the start-up runs as the command runs
+#: it (the cyclic garbage collector paused, then frozen: acquisition/cli/start_up.py); with "running" the
+#: collector runs as usual. The last line also gives the collections' count and time (gc.callbacks).
 FIXED_COSTS = r"""
 import gc, json, sys, time
 t = [time.perf_counter()]
@@ -83,18 +83,18 @@ with collector_paused() if sys.argv[2] == "paused" else contextlib.nullcontext()
     import numpy; step("numpy")
     import h5py; step("h5py")
     import numba; step("numba")
-    from numba.core.registry import cpu_target
-    cpu_target.target_context.refresh(); step("numba's target set-up (with scipy.linalg)")
-    import scipy.fft; step("scipy.fft (after scipy.linalg: scipy.special)")
+    import scipy.fft; step("scipy.fft (with scipy.special)")
     import acquisition.cli.imaging
     from imaging.image_formation import ImagingOptions, image_recording
     from imaging.io.recording import Recording
     from imaging.plot import save_image_pixels_png
-    from imaging.io.image_file import write_image; step("sarbot's modules")
+    from imaging.io.image_file import write_image
+    from imaging.numba_target import load_cached_kernels_lightly
+    load_cached_kernels_lightly(); step("sarbot's modules")
 def one():
     with Recording(sys.argv[1]) as rec:
         return image_recording(rec, "left_front", "0:0.002:0.002,2:2.002:0.002", "truth", slice(0, 1), ImagingOptions())
-one(); step("first image of one frame (the kernel from numba's cache, its threads)")
+one(); step("first image of one frame (numba's runtime, the kernel from its cache, its threads)")
 one(); step("the same image again")
 gc.collect(); step("a full collection at the end (as at exit)")
 print(json.dumps({"steps": steps, "collections": collections}))

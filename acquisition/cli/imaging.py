@@ -122,15 +122,15 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_image(args) -> int:
-    with collector_paused():  # the modules and numba's registries live as long as the process
+    with collector_paused():  # the modules live as long as the process
         from imaging.image_formation import ImagingOptions, image_recording
         from imaging.io.image_file import write_image
         from imaging.io.recording import Recording
-        from imaging.numba_target import set_up_target
+        from imaging.numba_target import load_cached_kernels_lightly
 
         from ..progress import Progress
 
-        set_up_target()
+        load_cached_kernels_lightly()
 
     out = Path(args.output)
     png = Path(args.png) if args.png else out.with_suffix(".png")
