@@ -56,11 +56,11 @@ from command_versions import BASELINE, CASES, QUICK_CASES, compare, uptime  # no
 COMMAND_ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
 
 #: What the start of ``sarbot image`` costs, step by step, in a new process, in the command's order: each
-#: import on top of the ones before it; scipy.fft (with scipy.special, for its FFTLog); sarbot's own modules
-#: (numba's cache loads set to start numba's runtime alone, without its typing and lowering registries and
-#: scipy.linalg: imaging.numba_target.load_cached_kernels_lightly); then a first image of one frame on four
-#: pixels (the runtime's start, the kernel's load from numba's cache, its threads' start), then the same image
-#: again (what it costs once all that is done). With argv[2] "paused" the start-up runs as the command runs
+#: import on top of the ones before it; sarbot's own modules (scipy's FFT without scipy.fft's import:
+#: imaging/pocketfft.py; numba's cache loads set to start numba's runtime alone, without its typing and
+#: lowering registries and scipy.linalg: imaging.numba_target.load_cached_kernels_lightly); then a first
+#: image of one frame on four pixels (the runtime's start, the kernel's load from numba's cache, its
+#: threads' start), then the same image again (what it costs once all that is done). With argv[2] "paused" the start-up runs as the command runs
 #: it (the cyclic garbage collector paused, then frozen: acquisition/cli/start_up.py); with "running" the
 #: collector runs as usual. The last line also gives the collections' count and time (gc.callbacks).
 FIXED_COSTS = r"""
@@ -83,7 +83,6 @@ with collector_paused() if sys.argv[2] == "paused" else contextlib.nullcontext()
     import numpy; step("numpy")
     import h5py; step("h5py")
     import numba; step("numba")
-    import scipy.fft; step("scipy.fft (with scipy.special)")
     import acquisition.cli.imaging
     from imaging.image_formation import ImagingOptions, image_recording
     from imaging.io.recording import Recording

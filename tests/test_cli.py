@@ -83,15 +83,16 @@ def test_image_start_up_is_not_gone_through_by_the_garbage_collector(recording, 
     assert sizes and max(sizes) < 20_000  # the last: the test's own gc.collect()
 
 
-def test_image_loads_its_cached_kernels_without_numbas_compiler_registries(recording, tmp_path):
+def test_image_loads_its_cached_kernels_without_numbas_registries_nor_scipy_fft(recording, tmp_path):
     """``sarbot image`` with its kernels in numba's cache loads them without numba's typing and lowering
-    registries (its implementations of Python and numpy, and scipy.linalg for BLAS: 0.2 s of CPU); the
+    registries (its implementations of Python and numpy, and scipy.linalg for BLAS: 0.2 s of CPU), and
+    range-compresses with scipy's FFT without importing scipy.fft (0.2 s more, imaging/pocketfft.py); the
     image is the same bit for bit as the library's, formed in this process the usual way."""
     from imaging.image_formation import ImagingOptions, image_recording
     from imaging.io.recording import Recording
 
     code = ("import sys; from acquisition.cli import main; code = main(sys.argv[1:]); "
-            "print(sorted(m for m in ('numba.np.arraymath', 'scipy.linalg') if m in sys.modules)); sys.exit(code)")
+            "print(sorted(m for m in ('numba.np.arraymath', 'scipy.linalg', 'scipy.fft') if m in sys.modules)); sys.exit(code)")
     grid = "-0.05:0.05:0.005,1.9:2.1:0.005"
     for name in ("first.h5", "cached.h5"):  # the first run fills numba's cache if it is empty (and compiles)
         args = [recording, "-o", tmp_path / name, "--frames", "10:20", "--grid", grid]
