@@ -48,3 +48,18 @@ def test_a_cached_kernel_loads_without_the_registries_and_a_new_one_still_compil
     import numpy as np
 
     np.testing.assert_array_equal(np.load(outputs[0]), np.load(outputs[1]))
+
+
+def test_image_formation_and_its_options_import_no_numba():
+    """``imaging.image_formation`` and its options' checks import no numba (form_image imports the kernels
+    after its first block is read: ``sarbot image`` imports them meanwhile on a thread of its own); its
+    list of modes is the kernels'."""
+    code = ("import sys; from imaging.image_formation import MODES, ImagingOptions; "
+            "from imaging.core.config import ConfigError; ImagingOptions(mode='exact'); "
+            "exec('try:\\n ImagingOptions(mode=\"cubic\")\\nexcept ConfigError as e:\\n print(e)'); "
+            "print('numba' in sys.modules); import imaging.backprojection as bp; print(bp.MODES == MODES)")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.splitlines()
+    assert "must be nearest, linear or exact" in lines[0] and "cubic" in lines[0]
+    assert lines[1:] == ["False", "True"]
