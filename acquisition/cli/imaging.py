@@ -177,11 +177,21 @@ def cmd_image(args) -> int:
 def _import_kernels() -> None:
     """Import the backprojection kernels' module (numba), its cached kernels set to load without numba's
     compiler registries first (imaging.numba_target.load_cached_kernels_lightly), so that the first
-    kernel call, after this import, finds it done."""
+    kernel call, after this import, finds it done; and what that first call imports and starts besides:
+    numpy.ma (numba's typeof asks of every array argument whether it is masked), numba.np.arrayobj (where
+    the cached kernels' environments are rebuilt; numba.core.environment) and numba's runtime (NRT)."""
     from imaging.numba_target import load_cached_kernels_lightly
 
     load_cached_kernels_lightly()
-    import imaging.backprojection  # noqa: F401
+    import imaging.backprojection  # noqa: F401 - first: it sets the CPU features numba's target is built with
+    import numpy.ma  # noqa: F401
+    from numba.core.compiler_lock import global_compiler_lock
+    from numba.core.registry import cpu_target
+    from numba.core.runtime import rtsys
+    from numba.np import arrayobj  # noqa: F401
+
+    with global_compiler_lock:  # numba's runtime, which every cache load starts (idempotent), started now
+        rtsys.initialize(cpu_target.target_context)
 
 
 def write_picture(path: Path, img, figure: bool) -> Path:
