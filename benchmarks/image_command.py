@@ -7,8 +7,9 @@ load and all), as a user runs it: with sarbot's modules byte-compiled, as they a
 environment's PYTHONDONTWRITEBYTECODE is left out of the command's, else every run compiles sarbot's
 sources again); the kernel in this process, on the same profiles, alternating with it.
 
-The command reads the recording, range-compresses (the next block while the kernel backprojects this
-one), places the antennas, backprojects, writes the image and its PNG (the pixels; ``--png-figure``'s
+The command imports numba and its kernels on a thread of its own while it opens the recording and reads
+and range-compresses the first blocks, range-compresses the next block while the kernel backprojects this
+one, places the antennas, backprojects, writes the image and its PNG (the pixels; ``--png-figure``'s
 matplotlib figure is timed apart). ``form_image`` is the same without the files. Its throughput (grid
 points x profiles per second of wall time) is printed as a fraction of the kernel's on the same profiles
 in the same process, with the time of each stage, and what the process start costs, step by step, in a
@@ -27,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -227,15 +229,21 @@ def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int) -
         return time.perf_counter() - t
 
     command()  # warm: the kernels compiled into numba's cache, sarbot's byte code written, files in the page cache
-    # Alternating: the whole command as a new process, then the kernel alone here; ratio per round.
-    rounds = []
+    # Alternating: the whole command as a new process, then the kernel alone here; ratio per round, in wall
+    # time and in CPU time (the command's process and its threads; the kernel's threads), which others' load
+    # moves less.
+    rounds, cpu_rounds = [], []
     for _ in range(repeats):
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
         t_cmd = command()
-        t = time.perf_counter()
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t, c = time.perf_counter(), time.process_time()
         backproject(profiles, tx_m, rx_m, points)
         rounds.append((t_cmd, time.perf_counter() - t))
+        cpu_rounds.append((after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, time.process_time() - c))
     t_command = min(r[0] for r in rounds)
     fractions = [k / c for c, k in rounds]
+    cpu_fractions = [k / c for c, k in cpu_rounds]
     work = n_p * points.reshape(-1, 3).shape[0]
     result = {
         "case": {"frames": n, "profiles": n_p, "grid_points": int(points.size // 3), "grid": grid_text},
@@ -244,6 +252,9 @@ def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int) -
         "command_fraction_of_kernel": t_kernel / t_command,
         "command_fraction_of_kernel_per_round": {"median": statistics.median(fractions), "min": min(fractions),
                                                  "max": max(fractions)},
+        "command_fraction_of_kernel_cpu_time_per_round": {"median": statistics.median(cpu_fractions),
+                                                          "min": min(cpu_fractions), "max": max(cpu_fractions)},
+        "command_and_kernel_cpu_s_per_round": cpu_rounds,
         "form_image_fraction_of_kernel": t_kernel / t_form,
         "seconds": {"command": t_command, "form_image": t_form, "kernel": t_kernel, "read_and_range_compress": t_compress,
                     "write_image": t_write, "png": t_png,
@@ -252,7 +263,8 @@ def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int) -
     }
     sec = result["seconds"]
     print(f"{name}: kernel {work / t_kernel / 1e9:.3f} G/s, form_image {100 * t_kernel / t_form:.0f} %, sarbot image "
-          f"{100 * t_kernel / t_command:.0f} % of the kernel (rounds {100 * min(fractions):.0f}-{100 * max(fractions):.0f} %);"
+          f"{100 * t_kernel / t_command:.0f} % of the kernel (rounds {100 * min(fractions):.0f}-{100 * max(fractions):.0f} %; "
+          f"CPU time {100 * statistics.median(cpu_fractions):.0f} %);"
           " seconds: " + ", ".join(f"{k} {v:.3f}" for k, v in sec.items()), flush=True)
     return result
 
