@@ -7,8 +7,9 @@ load and all), as a user runs it: with sarbot's modules byte-compiled, as they a
 environment's PYTHONDONTWRITEBYTECODE is left out of the command's, else every run compiles sarbot's
 sources again); the kernel in this process, on the same profiles, alternating with it.
 
-The command reads the recording, range-compresses (the next block while the kernel backprojects this
-one), places the antennas, backprojects, writes the image and its PNG (the pixels; ``--png-figure``'s
+The command imports numba and its kernels on a thread of its own while it opens the recording and reads
+and range-compresses the first blocks, range-compresses the next block while the kernel backprojects this
+one, places the antennas, backprojects, writes the image and its PNG (the pixels; ``--png-figure``'s
 matplotlib figure is timed apart). ``form_image`` is the same without the files. Its throughput (grid
 points x profiles per second of wall time) is printed as a fraction of the kernel's on the same profiles
 in the same process, with the time of each stage, and what the process start costs, step by step, in a
@@ -27,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -56,13 +58,13 @@ from command_versions import BASELINE, CASES, QUICK_CASES, compare, uptime  # no
 COMMAND_ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
 
 #: What the start of ``sarbot image`` costs, step by step, in a new process, in the command's order: each
-#: import on top of the ones before it; numba's target set-up (its typing and lowering registries, and with
-#: them scipy.linalg, which numba imports for BLAS whether or not a kernel uses it); scipy.fft after that
-#: (scipy.special, for its FFTLog); sarbot's own modules; then a first image of one frame on four pixels (the
-#: kernel's load from numba's cache, its threads' start), then the same image again (what it costs once all
-#: that is done). With argv[2] "paused" the start-up runs as the command runs it (the cyclic garbage
-#: collector paused, then frozen: acquisition/cli/start_up.py); with "running" the collector runs as
-#: usual. The last line also gives the collections' count and time (gc.callbacks).
+#: import on top of the ones before it; sarbot's own modules (scipy's FFT without scipy.fft's import:
+#: imaging/pocketfft.py; numba's cache loads set to start numba's runtime alone, without its typing and
+#: lowering registries and scipy.linalg: imaging.numba_target.load_cached_kernels_lightly); then a first
+#: image of one frame on four pixels (the runtime's start, the kernel's load from numba's cache, its
+#: threads' start), then the same image again (what it costs once all that is done). With argv[2] "paused" the start-up runs as the command runs
+#: it (the cyclic garbage collector paused, then frozen: acquisition/cli/start_up.py); with "running" the
+#: collector runs as usual. The last line also gives the collections' count and time (gc.callbacks).
 FIXED_COSTS = r"""
 import gc, json, sys, time
 t = [time.perf_counter()]
@@ -83,18 +85,17 @@ with collector_paused() if sys.argv[2] == "paused" else contextlib.nullcontext()
     import numpy; step("numpy")
     import h5py; step("h5py")
     import numba; step("numba")
-    from numba.core.registry import cpu_target
-    cpu_target.target_context.refresh(); step("numba's target set-up (with scipy.linalg)")
-    import scipy.fft; step("scipy.fft (after scipy.linalg: scipy.special)")
     import acquisition.cli.imaging
     from imaging.image_formation import ImagingOptions, image_recording
     from imaging.io.recording import Recording
     from imaging.plot import save_image_pixels_png
-    from imaging.io.image_file import write_image; step("sarbot's modules")
+    from imaging.io.image_file import write_image
+    from imaging.numba_target import load_cached_kernels_lightly
+    load_cached_kernels_lightly(); step("sarbot's modules")
 def one():
     with Recording(sys.argv[1]) as rec:
         return image_recording(rec, "left_front", "0:0.002:0.002,2:2.002:0.002", "truth", slice(0, 1), ImagingOptions())
-one(); step("first image of one frame (the kernel from numba's cache, its threads)")
+one(); step("first image of one frame (numba's runtime, the kernel from its cache, its threads)")
 one(); step("the same image again")
 gc.collect(); step("a full collection at the end (as at exit)")
 print(json.dumps({"steps": steps, "collections": collections}))
@@ -228,15 +229,21 @@ def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int) -
         return time.perf_counter() - t
 
     command()  # warm: the kernels compiled into numba's cache, sarbot's byte code written, files in the page cache
-    # Alternating: the whole command as a new process, then the kernel alone here; ratio per round.
-    rounds = []
+    # Alternating: the whole command as a new process, then the kernel alone here; ratio per round, in wall
+    # time and in CPU time (the command's process and its threads; the kernel's threads), which others' load
+    # moves less.
+    rounds, cpu_rounds = [], []
     for _ in range(repeats):
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
         t_cmd = command()
-        t = time.perf_counter()
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t, c = time.perf_counter(), time.process_time()
         backproject(profiles, tx_m, rx_m, points)
         rounds.append((t_cmd, time.perf_counter() - t))
+        cpu_rounds.append((after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, time.process_time() - c))
     t_command = min(r[0] for r in rounds)
     fractions = [k / c for c, k in rounds]
+    cpu_fractions = [k / c for c, k in cpu_rounds]
     work = n_p * points.reshape(-1, 3).shape[0]
     result = {
         "case": {"frames": n, "profiles": n_p, "grid_points": int(points.size // 3), "grid": grid_text},
@@ -245,6 +252,9 @@ def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int) -
         "command_fraction_of_kernel": t_kernel / t_command,
         "command_fraction_of_kernel_per_round": {"median": statistics.median(fractions), "min": min(fractions),
                                                  "max": max(fractions)},
+        "command_fraction_of_kernel_cpu_time_per_round": {"median": statistics.median(cpu_fractions),
+                                                          "min": min(cpu_fractions), "max": max(cpu_fractions)},
+        "command_and_kernel_cpu_s_per_round": cpu_rounds,
         "form_image_fraction_of_kernel": t_kernel / t_form,
         "seconds": {"command": t_command, "form_image": t_form, "kernel": t_kernel, "read_and_range_compress": t_compress,
                     "write_image": t_write, "png": t_png,
@@ -253,7 +263,8 @@ def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int) -
     }
     sec = result["seconds"]
     print(f"{name}: kernel {work / t_kernel / 1e9:.3f} G/s, form_image {100 * t_kernel / t_form:.0f} %, sarbot image "
-          f"{100 * t_kernel / t_command:.0f} % of the kernel (rounds {100 * min(fractions):.0f}-{100 * max(fractions):.0f} %);"
+          f"{100 * t_kernel / t_command:.0f} % of the kernel (rounds {100 * min(fractions):.0f}-{100 * max(fractions):.0f} %; "
+          f"CPU time {100 * statistics.median(cpu_fractions):.0f} %);"
           " seconds: " + ", ".join(f"{k} {v:.3f}" for k, v in sec.items()), flush=True)
     return result
 

@@ -8,7 +8,6 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from imaging.backprojection import MODES, backproject
 from imaging.core.errors import SarbotError
 from imaging.core.geometry import antenna_track, chirp_times_ns, principal_axis
 from imaging.core.grid import Grid
@@ -23,6 +22,9 @@ log = logging.getLogger(f"sarbot.{__name__}")
 #: How an image is formed: "direct" (every profile onto every pixel) or "ffbp" (fast factorized
 #: backprojection, a horizontal plane only; holds all the profiles in memory; imaging.factorized_backprojection).
 ALGORITHMS = ("direct", "ffbp")
+#: How profiles are sampled: ``imaging.backprojection.MODES``, named here so that options are checked without
+#: importing the kernels (numba): a command imports those while its first blocks are read (``form_image``).
+MODES = ("nearest", "linear", "exact")
 
 
 @dataclasses.dataclass
@@ -261,6 +263,10 @@ def form_image(
         for n in range(len(starts)):
             profiles, tx_m, rx_m, times, track = pending.result()
             pending = pool.submit(prepare, n + 1) if n + 1 < len(starts) else None
+            if n == 0 and not ffbp:
+                # The kernel's module (numba's import, in a new process) once the next block is being
+                # read: its import takes one core, the reading the other.
+                from imaging.backprojection import backproject
             if profiles.data.shape[0] and profiles.data.size:
                 if ffbp:
                     held.append((profiles, tx_m, rx_m))

@@ -1,5 +1,6 @@
-"""How numba is set up for sarbot's kernels: full-width AVX-512 vectors where the CPU has them, and no
-search for numba extensions, which the kernels do not use.
+"""How numba is set up for sarbot's kernels: full-width AVX-512 vectors where the CPU has them, no
+search for numba extensions, which the kernels do not use, and (for a command that only runs cached
+kernels) cache loads without the compiler's registries.
 
 ``imaging.backprojection`` calls :func:`prefer_full_width_vectors` and :func:`skip_extension_search` on
 import, before any of its kernels compiles; benchmarks report :func:`compiled_target`.
@@ -62,14 +63,40 @@ def skip_extension_search() -> None:
     entrypoints._already_initialized = True  # noqa: SLF001 - numba's flag that the search was done
 
 
-def set_up_target() -> None:
-    """Build numba's typing and lowering registries now, as its first compiled call or cache load would.
+def load_cached_kernels_lightly() -> bool:
+    """Let numba load a cached kernel without first building the registries its compiler needs.
 
-    numba builds them once a process (importing its implementations of Python and numpy, and scipy.linalg
-    for BLAS): about 0.3 s, the largest single step of a new process that images. ``sarbot image`` calls
-    this in its start-up, which it runs with the garbage collector paused, rather than inside the first
-    kernel call; calling it again costs nothing.
+    Before each cache load numba refreshes its target (``numba.core.caching.Cache.load_overload``): it
+    imports its implementations of Python and numpy, and with them scipy.linalg for BLAS, and builds its
+    typing and lowering registries (about 0.2 s of CPU; benchmarks/image_command.py, ``process_start``).
+    Loading machine code from the cache needs none of that, only numba's runtime (NRT), which that refresh
+    would also have started; a kernel that is not in the cache still compiles, and compiling refreshes the
+    target itself (``numba.core.compiler.compile_extra``). So this makes every cache load of the process
+    start the runtime alone. ``sarbot image`` calls it in its start-up; the image is the same bit for bit.
+
+    Returns False, changing nothing, where numba's cache has not the shape this relies on (another numba
+    version): loads then refresh as before.
     """
-    from numba.core.registry import cpu_target
+    from numba.core import caching
 
-    cpu_target.target_context.refresh()
+    cache = caching.Cache
+    if getattr(cache.load_overload, "runtime_only", False):
+        return True
+    if not all(callable(getattr(cache, name, None))
+               for name in ("load_overload", "_load_overload", "_guard_against_spurious_io_errors")):
+        return False
+    from numba.core.runtime import rtsys
+
+    refreshing_load = cache.load_overload
+
+    def load_overload(self, sig, target_context):
+        rtsys.initialize(target_context)  # what the loaded code calls into (idempotent)
+        try:
+            with self._guard_against_spurious_io_errors():
+                return self._load_overload(sig, target_context)
+        except Exception:  # noqa: BLE001 - e.g. a symbol only a registry defines: load as numba does
+            return refreshing_load(self, sig, target_context)
+
+    load_overload.runtime_only = True
+    cache.load_overload = load_overload
+    return True

@@ -5,10 +5,10 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-import scipy.fft
 
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.core.windows import get_window
+from imaging.pocketfft import fft_in_place
 
 
 @dataclasses.dataclass
@@ -113,10 +113,11 @@ def range_compress(
         windowed[..., m:] = buf[..., :n - m]
         windowed[..., :m] = buf[..., n_fft - m:]
     # In place where scipy can (it can for a complex64 view): the profiles are written once, where the
-    # kernel reads them. numpy's FFT would work in double precision.
-    spectrum = scipy.fft.fft(buf, axis=-1, overwrite_x=True, workers=workers)
+    # kernel reads them. numpy's FFT would work in double precision. scipy's FFT, without scipy.fft's
+    # import (imaging/pocketfft.py).
+    spectrum = fft_in_place(buf, workers)
     if signed:
-        spectrum = scipy.fft.fftshift(spectrum, axes=-1)
+        spectrum = np.fft.fftshift(spectrum, axes=-1)  # a roll, as scipy.fft.fftshift
     if not np.shares_memory(spectrum, rows):
         buf[...] = spectrum
     step = SPEED_OF_LIGHT_MPS / (n_fft * frequency_step_hz)

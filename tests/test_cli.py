@@ -83,6 +83,30 @@ def test_image_start_up_is_not_gone_through_by_the_garbage_collector(recording, 
     assert sizes and max(sizes) < 20_000  # the last: the test's own gc.collect()
 
 
+def test_image_loads_its_cached_kernels_without_numbas_registries_nor_scipy_fft(recording, tmp_path):
+    """``sarbot image`` with its kernels in numba's cache loads them without numba's typing and lowering
+    registries (its implementations of Python and numpy, and scipy.linalg for BLAS: 0.2 s of CPU), and
+    range-compresses with scipy's FFT without importing scipy.fft (0.2 s more, imaging/pocketfft.py); the
+    image is the same bit for bit as the library's, formed in this process the usual way."""
+    from imaging.image_formation import ImagingOptions, image_recording
+    from imaging.io.recording import Recording
+
+    code = ("import sys; from acquisition.cli import main; code = main(sys.argv[1:]); "
+            "print(sorted(m for m in ('numba.np.arraymath', 'scipy.linalg', 'scipy.fft') if m in sys.modules)); sys.exit(code)")
+    grid = "-0.05:0.05:0.005,1.9:2.1:0.005"
+    for name in ("first.h5", "cached.h5"):  # the first run fills numba's cache if it is empty (and compiles)
+        args = [recording, "-o", tmp_path / name, "--frames", "10:20", "--grid", grid]
+        res = subprocess.run([sys.executable, "-c", code, "image", *map(str, args)], capture_output=True, text=True,
+                             timeout=300)
+        assert res.returncode == 0, res.stderr
+    assert res.stdout.strip().endswith("[]")
+    with Recording(recording) as rec:
+        expected = image_recording(rec, None, grid, frames=slice(10, 20), options=ImagingOptions()).image
+    for name in ("first.h5", "cached.h5"):
+        with h5py.File(tmp_path / name) as f:
+            np.testing.assert_array_equal(f["image"][()], expected.astype(np.complex64))  # as the file stores it
+
+
 def test_image_imports_neither_matplotlib_nor_scipy_rotations(recording, tmp_path):
     """``sarbot image`` writes its PNG (the image's pixels) without matplotlib, places its antennas without
     scipy's Rotation (half a second of a whole process between them) and does not let numba search every

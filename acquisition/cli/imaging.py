@@ -3,9 +3,11 @@ and what they measure (see docs/formats/image.md)."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -122,38 +124,46 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_image(args) -> int:
-    with collector_paused():  # the modules and numba's registries live as long as the process
+    # numba and the kernels are most of a new process's start; they are imported on a thread of their own
+    # from here on, while this one opens the recording and the first blocks are read and range-compressed
+    # (imaging.image_formation.form_image imports the kernels after its first block, waiting for this import).
+    # All of that with the cyclic collector paused (see start_up), a plain image's formation too: it makes
+    # next to no reference cycles. Autofocus's long Python work runs with the collector as usual.
+    plain = args.autofocus == "none" and not args.imu_aided
+    with contextlib.ExitStack() as start_up:
+        start_up.enter_context(collector_paused())  # the modules live as long as the process
+        kernels = threading.Thread(target=_import_kernels, name="import-kernels")
+        kernels.start()
+        start_up.callback(kernels.join)  # a user's mistake found meanwhile ends the command after it
         from imaging.image_formation import ImagingOptions, image_recording
         from imaging.io.image_file import write_image
         from imaging.io.recording import Recording
-        from imaging.numba_target import set_up_target
 
         from ..progress import Progress
 
-        set_up_target()
-
-    out = Path(args.output)
-    png = Path(args.png) if args.png else out.with_suffix(".png")
-    inputs = [args.recording] + ([args.trajectory] if args.trajectory != "truth" else [])
-    for path in (out, png):
-        if path.exists() and path.resolve() == Path(args.recording).resolve():
-            raise SarbotError(f"{path}: that is the recording being imaged; choose another output")
-        opt.new_output(path, args.overwrite, inputs=inputs)
-    options = ImagingOptions(mode=args.mode, window=args.window, oversample=args.oversample,
-                             tx=opt.parse_channels(args.tx, "tx"), rx=opt.parse_channels(args.rx, "rx"),
-                             algorithm=args.algorithm, aperture_window=args.aperture_window)
-    autofocus = None
-    if args.autofocus != "none":  # imaging.autofocus (scipy.optimize) costs 0.6 s to import: only when asked
-        with collector_paused():
+        out = Path(args.output)
+        png = Path(args.png) if args.png else out.with_suffix(".png")
+        inputs = [args.recording] + ([args.trajectory] if args.trajectory != "truth" else [])
+        for path in (out, png):
+            if path.exists() and path.resolve() == Path(args.recording).resolve():
+                raise SarbotError(f"{path}: that is the recording being imaged; choose another output")
+            opt.new_output(path, args.overwrite, inputs=inputs)
+        options = ImagingOptions(mode=args.mode, window=args.window, oversample=args.oversample,
+                                 tx=opt.parse_channels(args.tx, "tx"), rx=opt.parse_channels(args.rx, "rx"),
+                                 algorithm=args.algorithm, aperture_window=args.aperture_window)
+        autofocus = None
+        if args.autofocus != "none":  # imaging.autofocus (scipy.optimize) costs 0.6 s to import: only when asked
             from imaging.autofocus import AutofocusOptions
 
-        autofocus = AutofocusOptions(method=args.autofocus, sinusoids=args.autofocus_sinusoids,
-                                     decision=args.autofocus_decision)
-    with Recording(args.recording) as rec:
-        opt.use_rig_file(rec, args.rig)
-        img = image_recording(rec, args.radar, args.grid, args.trajectory, opt.parse_frames(args.frames), options,
-                              progress=Progress("backproject"), autofocus=autofocus, imu_aided=args.imu_aided,
-                              aperture_m=args.aperture)
+            autofocus = AutofocusOptions(method=args.autofocus, sinusoids=args.autofocus_sinusoids,
+                                         decision=args.autofocus_decision)
+        if not plain:
+            start_up.close()
+        with Recording(args.recording) as rec:
+            opt.use_rig_file(rec, args.rig)
+            img = image_recording(rec, args.radar, args.grid, args.trajectory, opt.parse_frames(args.frames),
+                                  options, progress=Progress("backproject"), autofocus=autofocus,
+                                  imu_aided=args.imu_aided, aperture_m=args.aperture)
     if args.rig:  # the image says whose mounts placed its antennas
         img.attrs["rig"] = str(args.rig)
     path = opt.write_output(out, lambda p: write_image(p, img), "-o ")
@@ -162,6 +172,26 @@ def cmd_image(args) -> int:
     if img.track_error is not None:
         print(autofocus_summary(img))
     return EXIT_OK
+
+
+def _import_kernels() -> None:
+    """Import the backprojection kernels' module (numba), its cached kernels set to load without numba's
+    compiler registries first (imaging.numba_target.load_cached_kernels_lightly), so that the first
+    kernel call, after this import, finds it done; and what that first call imports and starts besides:
+    numpy.ma (numba's typeof asks of every array argument whether it is masked), numba.np.arrayobj (where
+    the cached kernels' environments are rebuilt; numba.core.environment) and numba's runtime (NRT)."""
+    from imaging.numba_target import load_cached_kernels_lightly
+
+    load_cached_kernels_lightly()
+    import imaging.backprojection  # noqa: F401 - first: it sets the CPU features numba's target is built with
+    import numpy.ma  # noqa: F401
+    from numba.core.compiler_lock import global_compiler_lock
+    from numba.core.registry import cpu_target
+    from numba.core.runtime import rtsys
+    from numba.np import arrayobj  # noqa: F401
+
+    with global_compiler_lock:  # numba's runtime, which every cache load starts (idempotent), started now
+        rtsys.initialize(cpu_target.target_context)
 
 
 def write_picture(path: Path, img, figure: bool) -> Path:
