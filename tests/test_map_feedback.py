@@ -233,6 +233,30 @@ def test_a_late_measurement_learns_the_scale_at_the_speed_its_span_was_driven_at
     assert feedback.doppler_scale - 1 < 0.03
 
 
+def test_a_measurement_whose_span_holds_an_earlier_update_is_not_taken():
+    """The live map images a span on the poses as they came: an update part-way through changed their velocity,
+    so the span's tiles saw a kink, not one velocity error. A live run's left tile of such a span read +41 mm/s
+    where the odometry erred by about -5, at a claimed 3.3 mm/s; the scale then went from +2.9 % to -6.1 %, and
+    the odometry's velocity followed it 70 mm/s off. Spans wholly before or after the update are taken."""
+    ekf = moving_filter()
+    feedback = MapFeedback()
+    first = LookVelocityMeasurement(ekf.state.time_ns - 10**9, 1.5, np.array([1.0, 0.0, 0.0]), 0.008, 0.003,
+                                    ("right_front",), 1)
+    feedback.apply_measurements(ekf, [first])
+    updated_ns = ekf.state.time_ns
+    ekf.state.time_ns += 10**9
+    across = LookVelocityMeasurement(updated_ns - 5 * 10**8, 1.5, np.array([1.0, 0.0, 0.0]), -0.041, 0.0033,
+                                     ("left_front",), 1)
+    v_before, scale_before = ekf.state.v.copy(), feedback.doppler_scale
+    assert feedback.apply_measurements(ekf, [across]) == []
+    assert np.array_equal(ekf.state.v, v_before) and feedback.doppler_scale == scale_before
+    assert feedback.spanning_update == 1 and feedback.rejected == 0
+    assert "not taken: an earlier update fell inside its span" in feedback.updates[-1].line()
+    after = LookVelocityMeasurement(updated_ns + 8 * 10**8, 1.5, np.array([1.0, 0.0, 0.0]), 0.0, 0.003,
+                                    ("left_front",), 1)
+    assert feedback.apply_measurements(ekf, [after]) == [after]
+
+
 def test_a_measurement_far_outside_the_filter_s_uncertainty_is_refused():
     ekf = moving_filter()
     m = LookVelocityMeasurement(10**18, 1.5, np.array([1.0, 0.0, 0.0]), 0.3, 0.0005, ("left_front",), 1)
