@@ -329,8 +329,6 @@ class MapFeedback:
         self.rejected = 0
         #: measurements not offered to the filter because an earlier update fell inside their span
         self.spanning_update = 0
-        #: filter times (ns) of the accepted updates
-        self.update_times_ns: list[int] = []
         #: the radars' Doppler is multiplied by this (``correct_scan``), learnt from the map's measurements
         self.doppler_scale = 1.0
         #: variance of ``doppler_scale`` (relative, squared)
@@ -434,7 +432,6 @@ class MapFeedback:
             if res.accepted:
                 change = (ekf.state.time_ns, ekf.state.v - before)
                 accepted.append(m)
-                self.update_times_ns.append(int(ekf.state.time_ns))
                 # the speed the span was driven at (where poses were noted), not the speed now
                 noted = self.speed_at(m.time_ns, m.direction)
                 span_speed = speed if noted is None else noted
@@ -454,7 +451,9 @@ class MapFeedback:
     def _spans_update(self, m: LookVelocityMeasurement) -> bool:
         """Whether an accepted update's time falls strictly inside ``m``'s span."""
         half_ns = 0.5 * m.span_s * 1e9
-        return any(m.time_ns - half_ns < t < m.time_ns + half_ns for t in self.update_times_ns)
+        # every accepted update is in scale_log (it learnt a scale) or in unscaled (it did not)
+        times = [t for t, _ in self.scale_log] + [t for t, _ in self.unscaled]
+        return any(m.time_ns - half_ns < t < m.time_ns + half_ns for t in times)
 
     def _learn_scale(self, relative_error: float, relative_sigma: float) -> bool:
         """One scalar Kalman update of ``doppler_scale`` by a speed ``relative_error`` (truth faster than the
