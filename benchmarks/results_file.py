@@ -139,7 +139,8 @@ def write_results(name: str, result: dict, *, started_load: list[float], folder:
         The file's stem (``"stripmap"`` writes ``stripmap.json``).
     result
         The benchmark's figures; numpy values and dataclasses are written as plain JSON
-        (:mod:`imaging.core.strict_json`). A key ``"provenance"`` is replaced by the record of this run.
+        (:mod:`imaging.core.strict_json`). A result read back from an earlier file and written again (a soak
+        summarised anew) keeps the run that measured it as ``provenance.measured_by``.
     started_load
         :func:`load_average` taken when the measurement started.
     folder
@@ -174,7 +175,11 @@ def write_results(name: str, result: dict, *, started_load: list[float], folder:
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{name}.json"
-    whole = {**result, PROVENANCE_KEY: provenance(started_load)}
+    record = provenance(started_load)
+    earlier = result.get(PROVENANCE_KEY)
+    if isinstance(earlier, dict):
+        record["measured_by"] = earlier.get("measured_by", earlier)
+    whole = {**result, PROVENANCE_KEY: record}
     if part is not None:
         whole = {**(json.loads(path.read_text()) if path.exists() else {}), part: whole}
     text = strict_json.dumps(whole, indent=indent) + "\n"

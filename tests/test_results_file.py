@@ -66,6 +66,18 @@ def test_the_file_is_strict_json_with_the_runs_provenance_and_the_benchmarks_key
     assert path.read_text().endswith("}\n") and '\n "rows"' in path.read_text()  # indent 1
 
 
+def test_a_result_written_again_keeps_the_run_that_measured_it(tmp_path):
+    """A soak's JSON summarised anew (soak.py --summary-of): the provenance is of this writing, and the run
+    that measured the figures stays as measured_by, however often it is written again."""
+    path = results_file.write_results("soak", {"lag_s": 0.2}, started_load=[1.0, 1.0, 1.0], folder=tmp_path)
+    measured = strict_loads(path.read_text())["provenance"]
+    for load in (2.0, 3.0):
+        again = strict_loads(path.read_text())
+        results_file.write_results("soak", again, started_load=[load] * 3, folder=tmp_path)
+    run = strict_loads(path.read_text())["provenance"]
+    assert run["load_average_start"] == [3.0, 3.0, 3.0] and run["measured_by"] == measured
+
+
 def test_a_part_replaces_one_key_and_keeps_the_rest_and_its_provenance(tmp_path):
     first = results_file.write_results("whole", {"speed": 2.0, "baseline_comparison": {"old": 1}},
                                        started_load=[1.0, 1.0, 1.0], folder=tmp_path)
@@ -76,4 +88,5 @@ def test_a_part_replaces_one_key_and_keeps_the_rest_and_its_provenance(tmp_path)
     assert after["speed"] == 2.0 and after["provenance"] == before["provenance"]
     assert after["baseline_comparison"]["ratio"] == 0.8 and "old" not in after["baseline_comparison"]
     assert after["baseline_comparison"]["provenance"]["load_average_start"] == [2.0, 2.0, 2.0]
+
 
