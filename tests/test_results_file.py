@@ -90,3 +90,15 @@ def test_a_part_replaces_one_key_and_keeps_the_rest_and_its_provenance(tmp_path)
     assert after["baseline_comparison"]["provenance"]["load_average_start"] == [2.0, 2.0, 2.0]
 
 
+
+
+def test_every_benchmark_writes_its_json_through_write_results():
+    """No benchmark writes a JSON file its own way (plain ``json.dumps`` writes NaN; most recorded neither
+    commit nor load)."""
+    own_way = re.compile(r"write_text\(\s*(strict_)?json\.dumps|json\.dump\(")
+    scripts = sorted(p for p in BENCHMARKS.glob("*.py") if p.name != "results_file.py")
+    assert len(scripts) > 30
+    offenders = [p.name for p in scripts if own_way.search(p.read_text())]
+    assert not offenders, f"write these through results_file.write_results: {offenders}"
+    writers = [p.name for p in scripts if "write_results(" in p.read_text()]
+    assert len(writers) >= 30, writers
