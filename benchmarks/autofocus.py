@@ -41,7 +41,7 @@ from imaging.image_formation import ImagingOptions, focus_image, form_image  # n
 from imaging.io.recording import Recording  # noqa: E402
 from imaging.sim.scene import load_scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
-from imaging.core import strict_json  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 VIBRATION = Vibration(3.83, 0.319e-3, 0.7)
@@ -194,15 +194,16 @@ def main() -> int:
                                                 "(default 3, 1 with --quick)")
     args = ap.parse_args()
     repeats = args.repeats or (1 if args.quick else 3)
-    load_start = os.getloadavg()[0]
+    started_load = load_average()
+    load_start = started_load[0]
     with tempfile.TemporaryDirectory() as tmp:
         rows = vibration_case(Path(tmp), args.quick, repeats)
     rows += gotcha_case(repeats)
     RESULTS.mkdir(parents=True, exist_ok=True)
     stem = "autofocus_quick" if args.quick else "autofocus"  # a smoke run keeps the real figures
-    out = RESULTS / f"{stem}.json"
-    out.write_text(strict_json.dumps({"mode": "quick" if args.quick else "full", "quick": args.quick, "repeats": repeats, "load_average_start": load_start,
-                                       "load_average_end": os.getloadavg()[0], "rows": rows}, indent=2))
+    out = write_results(stem, {"mode": "quick" if args.quick else "full", "quick": args.quick, "repeats": repeats,
+                               "load_average_start": load_start, "load_average_end": os.getloadavg()[0], "rows": rows},
+                        started_load=started_load)
     chart(rows, RESULTS / f"{stem}.png")
     print(f"wrote {out} and {RESULTS / (stem + '.png')}")
     return 0

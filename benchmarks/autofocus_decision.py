@@ -21,6 +21,7 @@ tens of minutes on a loaded machine (a clutter pass costs seconds to synthesise 
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import multiprocessing
@@ -39,6 +40,7 @@ from imaging.autofocus import AutofocusOptions, backproject_blocks, estimate_tra
 from imaging.autofocus.consistency import FALSE_ALARM, consistency_of  # noqa: E402
 from imaging.autofocus.weak_point import detect_point  # noqa: E402
 from imaging.sim.autofocus_scenes import INDEPENDENT_ERROR, NO_ERROR, RANGE_M, synthesise_pass  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 POINT_SNRS_DB = (14.0, 20.0, 26.0, 32.0)
@@ -178,7 +180,11 @@ def chart(rows: list[dict], path: Path) -> None:
 
 
 def main() -> None:
-    start, load_start = time.time(), os.getloadavg()[0]
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="accepted from `dev.py bench --quick`: this benchmark has one mode")
+    ap.parse_args()
+    started_load = load_average()
+    start, load_start = time.time(), started_load[0]
     specs = [("point", INDEPENDENT_ERROR, snr, 1) for snr in POINT_SNRS_DB]
     specs.append(("point", NO_ERROR, POINT_SNRS_DB[0], 1))
     specs += [("clutter", err, CLUTTER_SNR_DB, seed) for err in (NO_ERROR, INDEPENDENT_ERROR) for seed in (1, 2)]
@@ -208,7 +214,7 @@ def main() -> None:
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     chart(rows, RESULTS / "autofocus_decision.png")
-    (RESULTS / "autofocus_decision.json").write_text(json.dumps(out, indent=1) + "\n")
+    write_results("autofocus_decision", out, started_load=started_load, indent=1)
 
 
 if __name__ == "__main__":

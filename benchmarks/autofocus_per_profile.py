@@ -15,7 +15,7 @@ estimate per method and one of the clean pass).
 
 from __future__ import annotations
 
-import json
+import argparse
 import sys
 import time
 from pathlib import Path
@@ -30,6 +30,7 @@ from imaging.core.constants import SPEED_OF_LIGHT_MPS  # noqa: E402
 from imaging.core.track_error import remove_line  # noqa: E402
 from imaging.io.phase_history import read_afrl_gotcha  # noqa: E402
 from imaging.range_compression import range_compress  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 GOTCHA = ROOT.parent / "shared" / "data" / "afrl_gotcha_pass1_hh"
@@ -54,7 +55,11 @@ def main() -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    folder = Path(sys.argv[1]) if len(sys.argv) > 1 else GOTCHA
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("folder", type=Path, nargs="?", default=GOTCHA, help="the Gotcha pass (default: the shared data's)")
+    ap.add_argument("--quick", action="store_true", help="accepted from `dev.py bench --quick`: this benchmark has one mode")
+    folder = ap.parse_args().folder
+    started_load = load_average()
     ph = read_afrl_gotcha(folder)
     n = ph.samples.shape[0]
     rng = np.random.default_rng(33)
@@ -109,7 +114,7 @@ def main() -> None:
     fig.tight_layout()
     RESULTS.mkdir(parents=True, exist_ok=True)
     fig.savefig(RESULTS / "autofocus_per_profile.png", dpi=110)
-    (RESULTS / "autofocus_per_profile.json").write_text(json.dumps(out, indent=1) + "\n")
+    write_results("autofocus_per_profile", out, started_load=started_load, indent=1)
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ Writes docs/results/autofocus_taper.json and autofocus_taper.png.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import math
 import os
@@ -32,9 +33,9 @@ sys.path[:0] = [str(ROOT)]
 
 from imaging import metrics  # noqa: E402
 from imaging.autofocus import AutofocusOptions, backproject_blocks, estimate_track_error  # noqa: E402
-from imaging.core import strict_json  # noqa: E402
 from imaging.core.windows import window_at  # noqa: E402
 from imaging.sim.autofocus_scenes import INDEPENDENT_ERROR, RANGE_M, TrackErrorKind, synthesise_pass  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 METHODS = ("pga", "entropy")
@@ -80,6 +81,10 @@ def cross_range(img: np.ndarray, p) -> tuple[float, float, float]:
 
 
 def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="accepted from `dev.py bench --quick`: this benchmark has one mode")
+    ap.parse_args()
+    started_load = load_average()
     rows = []
     for name, aperture_m, error in CASES:
         p = synthesise_pass("point", error, SNR_DB, 1, aperture_m=aperture_m, pixel_m=0.001)
@@ -104,10 +109,10 @@ def main() -> int:
             seconds = time.perf_counter() - t
             row(method, backproject_blocks(blocks, p.points_m, result.track_error), seconds, result.iterations)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    out = RESULTS / "autofocus_taper.json"
-    out.write_text(strict_json.dumps({"mode": "full (the only mode: every case and method)", "snr_db": SNR_DB,
-                                      "window": "taylor (nbar 4, -35 dB)",
-                                      "load_average": list(os.getloadavg()), "rows": rows}, indent=2))
+    out = write_results("autofocus_taper", {"mode": "full (the only mode: every case and method)", "snr_db": SNR_DB,
+                                            "window": "taylor (nbar 4, -35 dB)",
+                                            "load_average": list(os.getloadavg()), "rows": rows},
+                        started_load=started_load)
     chart(rows, RESULTS / "autofocus_taper.png")
     print(f"wrote {out}")
     return 0

@@ -47,8 +47,8 @@ from imaging.autofocus.consistency import FALSE_ALARM, half_band_blocks  # noqa:
 from imaging.autofocus.estimate import select_pixels  # noqa: E402
 from imaging.autofocus.subapertures import group_images  # noqa: E402
 from imaging.autofocus.weak_point import detect_point, point_check  # noqa: E402
-from imaging.core import strict_json  # noqa: E402
 from imaging.sim.autofocus_scenes import INDEPENDENT_ERROR, NO_ERROR, synthesise_pass  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 CLUTTER_SNR_DB = 15.0
@@ -95,7 +95,7 @@ def summary(clutter: list[dict], points: list[dict]) -> dict:
     passed = sum(r.get("point_check_passed", False) for r in clutter)
     margins = np.array([r["margin_db"] for r in clutter])
     contrasts = 10 ** (np.array([r["contrast_db"] for r in clutter]) / 10)
-    n_eff = effective_cells(contrasts) if n else math.nan
+    n_eff = effective_cells(contrasts) if n else None
     pixels = clutter[0]["pixels"] if n else 0
     checked = [r for r in points if "point_check_passed" in r]
     out = {
@@ -103,21 +103,21 @@ def summary(clutter: list[dict], points: list[dict]) -> dict:
         "clutter_passes": n,
         "clutter_error_free": sum(not r["error"] for r in clutter),
         "clutter_detections": int(detected),
-        "clutter_detection_rate": detected / n if n else math.nan,
-        "clutter_detection_rate_upper95": upper_bound(detected, n) if n else math.nan,
+        "clutter_detection_rate": detected / n if n else None,
+        "clutter_detection_rate_upper95": upper_bound(detected, n) if n else None,
         "clutter_point_check_passed": int(passed),
-        "clutter_margin_max_db": float(margins.max()) if n else math.nan,
-        "clutter_margin_median_db": float(np.median(margins)) if n else math.nan,
-        "clutter_margin_p90_db": float(np.percentile(margins, 90)) if n else math.nan,
+        "clutter_margin_max_db": float(margins.max()) if n else None,
+        "clutter_margin_median_db": float(np.median(margins)) if n else None,
+        "clutter_margin_p90_db": float(np.percentile(margins, 90)) if n else None,
         "pixels": pixels,
         "effective_cells": n_eff,
-        "effective_cells_share": n_eff / pixels if pixels else math.nan,
-        "predicted_false_alarm": 1.0 - (1.0 - FALSE_ALARM / pixels) ** n_eff if pixels else math.nan,
+        "effective_cells_share": n_eff / pixels if pixels else None,
+        "predicted_false_alarm": 1.0 - (1.0 - FALSE_ALARM / pixels) ** n_eff if pixels else None,
         "point_passes": len(points),
         "point_detections": int(sum(r["detected"] for r in points)),
-        "point_detection_rate": sum(r["detected"] for r in points) / len(points) if points else math.nan,
-        "point_margin_min_db": min(r["margin_db"] for r in points) if points else math.nan,
-        "point_margin_median_db": float(np.median([r["margin_db"] for r in points])) if points else math.nan,
+        "point_detection_rate": sum(r["detected"] for r in points) / len(points) if points else None,
+        "point_margin_min_db": min(r["margin_db"] for r in points) if points else None,
+        "point_margin_median_db": float(np.median([r["margin_db"] for r in points])) if points else None,
         "point_checked": len(checked),
         "point_check_passed": int(sum(r["point_check_passed"] for r in checked)),
     }
@@ -152,7 +152,8 @@ def main() -> int:
                          "seconds a pass on a loaded machine)")
     ap.add_argument("--minutes", type=float, help="stop after the seed that passes this wall time (a partial run)")
     args = ap.parse_args()
-    start, load_start = time.monotonic(), os.getloadavg()[0]
+    started_load = load_average()
+    start, load_start = time.monotonic(), started_load[0]
     clutter: list[dict] = []
     points: list[dict] = []
     stopped = None
@@ -166,8 +167,7 @@ def main() -> int:
                "load_average_start": load_start, "load_average_now": os.getloadavg()[0],
                "seconds": time.monotonic() - start,
                "clutter_rows": clutter, "point_rows": points}
-        RESULTS.mkdir(parents=True, exist_ok=True)
-        (RESULTS / "autofocus_weak_point.json").write_text(strict_json.dumps(out, indent=1) + "\n")
+        write_results("autofocus_weak_point", out, started_load=started_load, indent=1)
 
     for seed in range(1, args.seeds + 1):
         error = INDEPENDENT_ERROR if seed % 2 == 0 else NO_ERROR

@@ -30,7 +30,7 @@ from image_command import make_recording  # noqa: E402
 
 from acquisition.batch import plan_jobs, run_batch, run_job  # noqa: E402
 from imaging.io.image_file import read_image  # noqa: E402
-from imaging.core import strict_json  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 
@@ -39,6 +39,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
+    started_load = load_average()
     n_frames, n_px = (4, 64) if args.quick else (8, 192)
     grid = f"-0.5:0.5:{1.0 / n_px},1.5:2.5:{1.0 / n_px},0.3"
     with tempfile.TemporaryDirectory() as tmp:
@@ -81,9 +82,8 @@ def main() -> int:
     }
     print(f"{len(jobs)} images: one process {t_single:.2f} s, LocalCluster of 2 workers {t_batch:.2f} s "
           f"({t_single / t_batch:.2f}x; {t_batch_cold:.2f} s with a cold cluster), identical: {identical}")
-    RESULTS.mkdir(parents=True, exist_ok=True)
     name = "batch_quick" if args.quick else "batch"
-    (RESULTS / f"{name}.json").write_text(strict_json.dumps(result, indent=2))
+    write_results(name, result, started_load=started_load)
     print(f"wrote {RESULTS / (name + '.json')}")
     return 0 if identical and not errors else 1
 

@@ -27,7 +27,6 @@ Writes docs/results/calibration.json and docs/results/calibration.png.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -45,6 +44,7 @@ from rio.calibration_drive import SIM_EKF, calibration_drive, estimate_errors, s
 from rio.ego_velocity import EgoStatus, sensor_velocity  # noqa: E402
 from rio.evaluation import drift_report  # noqa: E402
 from rio.odometry import RioOptions, run_rio  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 RUNS = {
@@ -110,6 +110,7 @@ def main(argv=None) -> int:
     ap.add_argument("--accel", type=float, default=2.0, help="the drive's acceleration and braking, m/s^2")
     ap.add_argument("--out", type=Path, default=RESULTS, help="folder for calibration.json and .png")
     args = ap.parse_args(argv)
+    started_load = load_average()
     lengths_s = (20.0,) if args.quick else (20.0, 40.0, 60.0, 90.0, 120.0)
     seeds = (1,) if args.quick else (1, 2)
     options = RioOptions(ekf=SIM_EKF)
@@ -177,8 +178,7 @@ def main(argv=None) -> int:
                "true_rig_calibrated_pitch_deg_range_90s_up": _range(long, "pitch"),
                "true_rig_calibrated_lever_z_mm_range_90s_up": _range(long, "lever_z")},
            "rows": rows}
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "calibration.json").write_text(json.dumps(out, indent=2))
+    write_results("calibration", out, started_load=started_load, folder=args.out)
     plot(rows, args.out / "calibration.png")
     print(f"wrote {args.out / 'calibration.json'} and calibration.png in {out['wall_time_s']:.0f} s")
     return 0

@@ -44,6 +44,7 @@ from rio.calibration_drive import SIM_EKF, calibration_drive, estimate_errors, s
 from rio.ego_velocity import EgoStatus, EgoVelocity, EgoVelocityConfig, direction_moments, fit_gain, sensor_velocity  # noqa: E402
 from rio.evaluation import drift_report  # noqa: E402
 from rio.odometry import RioOptions  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 FITS = {"measured_directions": dataclasses.replace(EgoVelocityConfig(), elevation_sigma_deg=0.0, azimuth_sigma_deg=0.0),
@@ -260,13 +261,14 @@ def main(argv=None) -> int:
     ap.add_argument("--odometry-only", action="store_true", help="only the odometry part (its own JSON, --out)")
     ap.add_argument("--out", type=Path, default=RESULTS / "calibration_elevation.json")
     args = ap.parse_args(argv)
+    started_load = load_average()
     started = time.perf_counter()
-    load = [os.getloadavg()[0]]
+    load = [started_load[0]]
     if args.odometry_only:
         out = {"what": "calibration_elevation.py --odometry-only: " + __doc__.split("3. ")[1].split("\n\n")[0].replace("\n", " "),
                "odometry": odometry_rows(), "load_average_1min": [load[0], os.getloadavg()[0]],
                "wall_time_s": time.perf_counter() - started}
-        args.out.write_text(json.dumps(out, indent=2))
+        write_results(args.out.stem, out, started_load=started_load, folder=args.out.parent)
         print(f"wrote {args.out}")
         return 0
     mechanism = []
@@ -299,8 +301,7 @@ def main(argv=None) -> int:
            "drives": {k: {"rows": v, "summary": summary(v)} for k, v in drives.items() if v},
            **({"odometry": odometry} if odometry else {}),
            "load_average_1min": load, "wall_time_s": time.perf_counter() - started}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(out, indent=2))
+    write_results(args.out.stem, out, started_load=started_load, folder=args.out.parent)
     for key, d in out["drives"].items():
         print(key, json.dumps(d["summary"]))
     print(f"wrote {args.out} in {out['wall_time_s']:.0f} s")

@@ -12,7 +12,6 @@ Writes docs/results/calibration_states.json.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -32,6 +31,7 @@ from rio.odometry import RioOptions, run_rio  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from calibration import _units, doppler_fit_errors  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 #: Calibration axes freed together (indices into rio.calibration.AXIS_KEYS).
@@ -63,6 +63,7 @@ def main(argv=None) -> int:
     ap.add_argument("--accel", type=float, default=2.0, help="the drive's acceleration and braking, m/s^2")
     ap.add_argument("--out", type=Path, default=RESULTS, help="folder for calibration_states.json")
     args = ap.parse_args(argv)
+    started_load = load_average()
     lengths_s, seeds = ((20.0,), (1,)) if args.quick else ((120.0,), (1, 2))
     started = time.perf_counter()
     rows = []
@@ -98,8 +99,7 @@ def main(argv=None) -> int:
            "summary": {f"longest_ratio_{g}": [min(r[f"ratio_{g}"] for r in long), max(r[f"ratio_{g}"] for r in long)]
                        for g in ("all", *GROUPS)},
            "rows": rows}
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "calibration_states.json").write_text(json.dumps(out, indent=2))
+    write_results("calibration_states", out, started_load=started_load, folder=args.out)
     print(f"wrote {args.out / 'calibration_states.json'} in {out['wall_time_s']:.0f} s")
     return 0
 

@@ -32,6 +32,7 @@ from rio.calibration_drive import SIM_EKF, calibration_drive, simulate_drive  # 
 from rio.calibration_imaging import (Aperture, compare_runs, place_targets, runs_of,  # noqa: E402
                                      turning_aperture_starts_ns)
 from rio.odometry import RioOptions, run_rio  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 RUNS = ("truth", "true_rig", "wrong_rig", "calibrated", "calibrated_clock_ignored", "wrong_mount_true_odometry")
@@ -42,6 +43,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="two apertures of one radar")
     args = ap.parse_args(argv)
+    started_load = load_average()
     duration_s, seed = 90.0, 1
     traj = calibration_drive()
     imu, wrong, right = simulate_drive(traj, duration_s, seed)
@@ -82,8 +84,7 @@ def main(argv=None) -> int:
                       "diameter of a disc of the main lobe's area above -3 dB, as a ratio to the true rig's; PSLR: "
                       "cross-range cut; offset: the peak from where the run expects the target relative to the robot",
            "summary": _summary(rows), "load_average_1min": os.getloadavg()[0], "rows": rows}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "calibration_stripmap.json").write_text(json.dumps(out, indent=2))
+    write_results("calibration_stripmap", out, started_load=started_load)
     plot(example, rows, RESULTS / "calibration_stripmap.png")
     print(json.dumps(out["summary"], indent=2))
     print(f"wrote {RESULTS / 'calibration_stripmap.json'} and calibration_stripmap.png")

@@ -27,6 +27,7 @@ from rio.calibration import AXIS_KEYS, calibrate  # noqa: E402
 from rio.calibration_drive import LATE_RADAR, SIM_EKF, calibration_drive, estimate_errors, simulate_drive  # noqa: E402
 from rio.ego_velocity import sensor_velocity  # noqa: E402
 from rio.odometry import RioOptions  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 OBSERVABLE = [AXIS_KEYS.index(k) for k in ("yaw", "lever_x", "lever_y", "time_offset")]
@@ -60,6 +61,7 @@ def main(argv=None) -> int:
     ap.add_argument("--configs", default="1.0:0.008,1.0:0.0045,2.0:0.008,2.0:0.0045",
                     help="ACCEL_MPS2:FLOOR_MPS,... the drive's acceleration and the filter's velocity floor")
     args = ap.parse_args(argv)
+    started_load = load_average()
     duration_s, seeds = (60.0, (1,)) if args.quick else (120.0, (1, 2))
     configs = [tuple(float(x) for x in c.split(":")) for c in args.configs.split(",")]
     out = {"fit": fit_error(), "duration_s": duration_s, "rows": []}
@@ -87,8 +89,7 @@ def main(argv=None) -> int:
                       f"{np.mean([r['lever_x_error_mm'] for r in radars.values()]):+.2f} mm", flush=True)
     out["late_radar"] = LATE_RADAR
     out["load_average_1min"] = os.getloadavg()[0]
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "calibration_time_offset.json").write_text(json.dumps(out, indent=2))
+    write_results("calibration_time_offset", out, started_load=started_load)
     return 0
 
 

@@ -31,6 +31,7 @@ from rio.calibration_unobservable import (LEVER_Z_ERROR_M, TILT_ERROR_DEG, lever
                                           lever_z_velocity_mps, tilt_effects, tilted_mount, tilted_scans)
 from rio.evaluation import drift_report  # noqa: E402
 from rio.odometry import RioOptions, run_rio  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 FRAMES = 12  # 0.62 s from a stop into a turn, as benchmarks/calibration_stripmap.py
@@ -40,6 +41,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one 60 s drive, two apertures of one radar")
     args = ap.parse_args(argv)
+    started_load = load_average()
     rig = default_rig()
     geometry = {r.name: vars(tilt_effects(r)) for r in rig.radars}
     drives = ((60.0, 1),) if args.quick else ((60.0, 1), (90.0, 1), (90.0, 2), (120.0, 1))
@@ -99,8 +101,7 @@ def main(argv=None) -> int:
                       "over the true rig's",
            "summary": summary, "geometry": geometry, "drift": drift_rows, "images": image_rows,
            "load_average_1min": os.getloadavg()[0]}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "calibration_unobservable.json").write_text(json.dumps(out, indent=2))
+    write_results("calibration_unobservable", out, started_load=started_load)
     plot(out, RESULTS / "calibration_unobservable.png")
     print(json.dumps(summary, indent=2))
     return 0

@@ -39,6 +39,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from results_file import load_average, write_results
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "docs" / "results"
 #: The last commit before issue 34's work: the state the issue measured.
@@ -210,6 +212,7 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
+    started_load = load_average()
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         result = compare(args.baseline, QUICK_CASES if args.quick else CASES, args.rounds, Path(tmp))
@@ -217,10 +220,7 @@ def main() -> int:
     if args.quick:
         print(json.dumps(result, indent=2))
         return 0
-    path = RESULTS / "image_command.json"
-    data = json.loads(path.read_text()) if path.exists() else {}
-    data["baseline_comparison"] = result
-    path.write_text(json.dumps(data, indent=2))
+    path = write_results("image_command", result, started_load=started_load, part="baseline_comparison")
     print(f"wrote baseline_comparison into {path}")
     return 0
 

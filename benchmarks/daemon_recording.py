@@ -36,8 +36,8 @@ from acquisition.processes import free_ports, free_tcp_endpoint  # noqa: E402
 from drivers.radar.srf1 import encode_frame, restamp  # noqa: E402
 from imaging.core.rig import default_rig  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
-from imaging.core import strict_json  # noqa: E402
 from process_stats import child_pids, cpu_s  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 
@@ -88,6 +88,7 @@ def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer, shorter phases")
     args = ap.parse_args(argv)
+    started_load = load_average()
     multiples = [1.0, 2.0, 3.0] if args.quick else [1.0, 1.5, 2.0, 2.5, 3.0, 4.0]
     phase_s = 3.0 if args.quick else 5.0
     rig = default_rig()
@@ -193,9 +194,8 @@ def main(argv: list[str]) -> int:
         "baseline": "the 1x phase of the same run; ratios are achieved multiples against it",
         "ratio_to_baseline": {f"{p['multiple']}x": p["achieved_multiple"] / base["achieved_multiple"] for p in phases},
     }
-    RESULTS.mkdir(parents=True, exist_ok=True)
     stem = "acquisition_quick" if args.quick else "acquisition"  # a smoke run keeps the real figures
-    (RESULTS / f"{stem}.json").write_text(strict_json.dumps(summary, indent=2))
+    write_results(stem, summary, started_load=started_load)
     plot(phases, RESULTS / f"{stem}.png")
     path.unlink()
     print(f"four radars sustained {best:.2f}x real time with zero loss ({summary['max_lossless_mbytes_per_s']:.0f} MB/s); "

@@ -53,7 +53,7 @@ from backprojection import make_case  # noqa: E402
 from imaging.backprojection import backproject  # noqa: E402
 from imaging.factorized_backprojection import FactorizedOptions, plan_factorized, run_factorized  # noqa: E402
 from imaging.range_compression import range_compress  # noqa: E402
-from imaging.core import strict_json  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 SPEED_MPS = 0.4
@@ -365,6 +365,7 @@ def main() -> int:
     mode.add_argument("--plan", action="store_true", help="only the 2 m aperture's plan and run (docs/results/ffbp_plan.json)")
     ap.add_argument("--rounds", type=int, default=3, help="rounds of --plan (default 3)")
     args = ap.parse_args()
+    started_load = load_average()
     if args.plan:
         uptime_before = load_text()
         backproject(*[range_compress(np.ones((4, 175), complex), 76e9, 22.75e6, oversample=8, guarded=True)],
@@ -373,9 +374,7 @@ def main() -> int:
         result = {"machine": machine(uptime_before), "case": {"speed_mps": SPEED_MPS, "range_m": 2.0, "pixel_m": 0.002,
                                                               "profile_oversample": 8, "direct_mode": "linear"},
                   "default": settings(FactorizedOptions()), "plan": study}
-        RESULTS.mkdir(parents=True, exist_ok=True)
-        (RESULTS / "ffbp_plan.json").write_text(strict_json.dumps(result, indent=2))
-        print(f"wrote {RESULTS / 'ffbp_plan.json'}")
+        print(f"wrote {write_results('ffbp_plan', result, started_load=started_load)}")
         return 0
     frame_m = SPEED_MPS * 0.052
     if args.quick:
@@ -394,9 +393,8 @@ def main() -> int:
               "case": {"speed_mps": SPEED_MPS, "range_m": 2.0, "pixel_m": float(x[1] - x[0]), "image_m": [float(np.ptp(x)), float(np.ptp(y))],
                        "profile_oversample": 8, "direct_mode": "linear", "quick": args.quick},
               "cases": cases, "default": settings(default), "reach": reach(args.quick)}
-    RESULTS.mkdir(parents=True, exist_ok=True)
     name = "ffbp_quick" if args.quick else "ffbp"
-    (RESULTS / f"{name}.json").write_text(strict_json.dumps(result, indent=2))
+    write_results(name, result, started_load=started_load)
     chart(result, RESULTS / f"{name}.png")
     print(f"wrote {RESULTS / (name + '.json')} and {name}.png")
     return 0

@@ -46,7 +46,7 @@ from backprojection import make_case  # noqa: E402
 from ffbp import load_text  # noqa: E402
 
 from imaging.backprojection import _G, _TWO_PI, BLOCK, _gather_pairs_accumulate, backproject, guarded_rows  # noqa: E402
-from imaging.core import strict_json  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 from imaging.core.constants import SPEED_OF_LIGHT_MPS  # noqa: E402
 from imaging.core.prefetch import prefetch  # noqa: E402
 from imaging.factorized_backprojection import FactorizedOptions, _slice, plan_factorized  # noqa: E402
@@ -160,6 +160,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="a smaller case (for a smoke run)")
     args = ap.parse_args()
+    started_load = load_average()
     numba.set_num_threads(1)
     frames, n_leaves, rounds = (24, 4, 2) if args.quick else (96, 16, 6)
     uptime_before = load_text()
@@ -235,9 +236,8 @@ def main() -> int:
               "copy_over_kernel": ns["copy_full"] / ns["full"],
               "memory_wait_share": 1 - ns["hot_rows"] / ns["full"],
               "over_direct_cartesian": ns["full"] / ns["direct_cartesian"]}
-    RESULTS.mkdir(parents=True, exist_ok=True)
     name = "ffbp_leaves_quick" if args.quick else "ffbp_leaves"
-    (RESULTS / f"{name}.json").write_text(strict_json.dumps(result, indent=2))
+    write_results(name, result, started_load=started_load)
     print(f"prefetching: {result['prefetch_speedup']:.2f}x; waiting on memory: {100 * result['memory_wait_share']:.0f} % "
           f"of the kernel; {result['over_direct_cartesian']:.2f}x the direct kernel's time a backprojection")
     print(f"wrote {RESULTS / (name + '.json')}")

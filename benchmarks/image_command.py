@@ -51,7 +51,7 @@ from imaging.io.recording import Recording  # noqa: E402
 from imaging.sim.scene import DEFAULT_START_TIME_NS, Scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.sim.targets import PointTarget  # noqa: E402
-from imaging.core import strict_json  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 from command_versions import BASELINE, CASES, QUICK_CASES, compare, uptime  # noqa: E402
 
 #: The command's environment: this one without PYTHONDONTWRITEBYTECODE (see the module's docstring).
@@ -279,6 +279,7 @@ def main() -> int:
     args = ap.parse_args()
     cases = {"benchmark_case": (4, 128, 1), "larger_case": (8, 256, 1)} if args.quick else \
         {"benchmark_case": (16, 256, 5), "larger_case": (32, 512, 2)}
+    started_load = load_average()
     load_before, uptime_before = os.getloadavg(), uptime()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -305,12 +306,11 @@ def main() -> int:
         "range_fft": fft,
         "baseline_comparison": baseline,
     }
-    RESULTS.mkdir(parents=True, exist_ok=True)
     name = "image_command_quick" if args.quick else "image_command"
     if baseline is None:  # kept as command_versions.py last measured it
         previous = json.loads((RESULTS / f"{name}.json").read_text()) if (RESULTS / f"{name}.json").exists() else {}
         result["baseline_comparison"] = previous.get("baseline_comparison")
-    (RESULTS / f"{name}.json").write_text(strict_json.dumps(result, indent=2))
+    write_results(name, result, started_load=started_load)
     print(f"wrote {RESULTS / (name + '.json')}")
     return 0
 

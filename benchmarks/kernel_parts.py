@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
-import json
 import os
 import sys
 import tempfile
@@ -92,9 +91,11 @@ def main() -> int:
     from backprojection import make_case
     from kernel_versions import cpu_hz, current_commit, uptime
     from peers import one_antenna_case
+    from results_file import load_average, write_results
 
     from imaging.range_compression import range_compress
 
+    started_load = load_average()
     uptime_before = uptime()
     source = (ROOT / "imaging" / "backprojection.py").read_text()
     kernels = {}
@@ -134,8 +135,7 @@ def main() -> int:
     result["machine"] = {"cores": os.cpu_count(), "load_average": os.getloadavg(), "uptime_before": uptime_before,
                          "uptime_after": uptime()}
     name = "kernel_parts_quick" if args.quick else "kernel_parts"
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2))
+    write_results(name, result, started_load=started_load)
     print(f"load average {result['machine']['load_average'][0]:.2f}; wrote {RESULTS / (name + '.json')}")
     tmp.cleanup()
     return 0

@@ -28,6 +28,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from results_file import load_average, write_results
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "docs" / "results"
 #: The kernel before issue 34 (the last commit before its branch).
@@ -115,6 +117,7 @@ def main() -> int:
     ap.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES))
     ap.add_argument("--name", default=None, help="the JSON's name (default kernel_versions[_quick])")
     args = ap.parse_args()
+    started_load = load_average()
     cases = tuple(args.cases)
     frames, px, one = (4, 128, 1024) if args.quick else (16, 256, 4096)
     rounds = args.rounds or (2 if args.quick else 6)
@@ -193,10 +196,8 @@ def main() -> int:
         print(f"{case}: SER against the exact matched filter: baseline {old_info['ser_db'][case]:.2f} dB, current "
               f"{new_info['ser_db'][case]:.2f} dB")
     print(f"load average {load[0]:.2f}")
-    RESULTS.mkdir(parents=True, exist_ok=True)
     name = args.name or ("kernel_versions_quick" if args.quick else "kernel_versions")
-    (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2))
-    print(f"wrote {RESULTS / (name + '.json')}")
+    print(f"wrote {write_results(name, result, started_load=started_load)}")
     return 0
 
 

@@ -17,7 +17,6 @@ sigma now and with the fit's residual alone).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -36,6 +35,7 @@ from rio.feedback_drive import (  # noqa: E402
     simulate_feedback_drive,
     target_peaks_db,
 )
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 
@@ -98,6 +98,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one short drive")
     args = ap.parse_args(argv)
+    started_load = load_average()
     seeds, length_m = ((0,), 3.0) if args.quick else ((0, 1), 4.5)
     rows = [run_seed(s, length_m) for s in seeds]
     summary = {}
@@ -116,8 +117,7 @@ def main(argv=None) -> int:
                        "both sides every 0.64 m at 1.2/1.6 m; map 0.6 m aperture, entropy refocus",
            "units": {"drift": "m, truth minus odometry is the negative of end_along_m", "peak_db": "dB against the map on the true trajectory"},
            "load_average": list(os.getloadavg()), "summary": summary, "rows": rows}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "map_feedback.json").write_text(json.dumps(out, indent=2))
+    write_results("map_feedback", out, started_load=started_load)
     plot(rows, RESULTS / "map_feedback.png")
     print(f"wrote {RESULTS / 'map_feedback.json'} and map_feedback.png")
     return 0

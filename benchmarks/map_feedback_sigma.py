@@ -28,6 +28,7 @@ sys.path.insert(0, str(ROOT))
 from rio.feedback_drive import run_feedback_loop, simulate_feedback_drive  # noqa: E402
 from rio.map_feedback import MapFeedbackConfig, velocity_error_from_tiles  # noqa: E402
 from rio.map_feedback_truth import RESIDUAL_ONLY, measurement_truths, nees, position_error_accel_rms_mps2  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 
@@ -92,8 +93,7 @@ def live_tile_sets(run_dir: Path, config: MapFeedbackConfig, thin: int = 1):
     from imaging.io.trajectory_file import read_trajectory
     from imaging.stripmap import StripMap
 
-    sys.path.insert(0, str(ROOT / "tests"))
-    from test_map_feedback_live import MAP, feedback_scene
+    from acquisition.studies.map_feedback_live import MAP, feedback_scene
 
     traj = read_trajectory(run_dir / "trajectory.h5") if (run_dir / "trajectory.h5").exists() else \
         read_trajectory(next(run_dir.glob("*traj*.h5")))
@@ -167,6 +167,7 @@ def main(argv=None) -> int:
     ap.add_argument("--thin", type=int, nargs="*", default=[1], help="live runs re-imaged with every k-th frame")
     ap.add_argument("--tag", default="", help="suffix of the JSON's name")
     args = ap.parse_args(argv)
+    started_load = load_average()
     config = MapFeedbackConfig()
     rows = simulated(args.seeds, args.length_m, config)
     for thin in args.thin:
@@ -175,9 +176,8 @@ def main(argv=None) -> int:
                        f"live runs re-imaged: {len(args.live)}",
            "config": {k: v for k, v in dataclasses.asdict(config).items()},
            "load_average": list(os.getloadavg()), "summary": summary(rows), "rows": rows}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    path = RESULTS / (f"map_feedback_sigma_{args.tag}.json" if args.tag else "map_feedback_sigma.json")
-    path.write_text(json.dumps(out, indent=2))
+    path = write_results(f"map_feedback_sigma_{args.tag}" if args.tag else "map_feedback_sigma", out,
+                         started_load=started_load)
     print(json.dumps(out["summary"], indent=2))
     print(f"wrote {path}")
     return 0

@@ -2,7 +2,7 @@
 
     python benchmarks/map_lag.py [--runs 1] [--speed 0.5] [-v]
 
-The run is tests/test_map_feedback_live.py's (its scene, rig and map, imported from it): the daemon as
+The run is tests/test_map_feedback_live.py's (acquisition.studies.map_feedback_live, which both use): the daemon as
 `sarbot run --map-refocus entropy --rio-map-feedback` makes it (drivers, recorder, odometry and strip-map
 workers, each a process, ZeroMQ between them) on the replayed two-radar drive (about 10.5 s of data) at
 ``--speed`` (half, as the test). The hardware starts once every worker is warm; the run stops once it has
@@ -22,91 +22,41 @@ Writes docs/results/map_lag.json.
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import multiprocessing as mp
 import os
 import sys
 import tempfile
-import threading
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
 
-from imaging.core import strict_json  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
-RESULTS = ROOT / "docs" / "results"
 MAP_KEYS = ("frames_imaged", "frames_queued", "frames_thinned", "frames_dropped_behind", "lag_ms", "busy_ms",
             "refocus_ms", "refocus_max_ms", "refocus_wait_ms", "tiles_refocused", "tiles_awaiting_refocus")
 
 
-def _emulate(sim_path, targets, imu_link, held, speed):
-    from acquisition.replay import replay
-
-    replay(sim_path, targets, imu_link, speed, start_delay_s=1.0, held=held)
-
-
 def run_once(work: Path, sim_path: Path, speed: float) -> dict:
     """One daemon run on the replayed drive; its timeline and summary."""
-    from test_map_feedback_live import MAP, RADARS
-
-    from acquisition.daemon import Setup, record
-    from acquisition.replay import DevicesHeld
-    from acquisition.workers.pipeline import add_pipeline_workers
-    from drivers.radar.link import RadarLink
-    from imaging.core.rig import default_rig
+    from acquisition.studies.map_feedback_live import run_daemon
     from imaging.io.image_file import read_image
 
-    work.mkdir(parents=True)
-    ctx = mp.get_context("spawn")
-    bound = {name: ctx.Value("i", 0) for name in RADARS}
-    imu_link = work / "imu_tty"
-    setup = Setup(default_rig(), [RadarLink(n, 0) for n in RADARS], str(imu_link), None, health_interval_s=0.5,
-                  bound_ports=bound)
-    _, map_path, _ = add_pipeline_workers(setup, work, "t", MAP, presum=MAP.presum, rio_map_feedback=True)
-    held = DevicesHeld(ctx.Event(), ctx.Event(), ctx.Event())
-    emulator = ctx.Process(target=_emulate, args=(str(sim_path), {n: ("127.0.0.1", p) for n, p in bound.items()},
-                                                   str(imu_link), held, speed))
-    emulator.start()
-    deadline = time.monotonic() + 60
-    while not imu_link.is_symlink() and time.monotonic() < deadline:
-        time.sleep(0.05)
-    done = threading.Event()
-    marks = {}
+    run = run_daemon(work, sim_path, feedback=True, speed=speed)
     timeline = []
-
-    def on_health(report):
-        now = time.monotonic()
-        if all(w.warm for w in report.workers.values()) and report.workers and not held.go.is_set():
-            held.go.set()
-            marks["go"] = now
-        if held.sent.is_set() and "sent" not in marks:
-            marks["sent"] = now
+    for now, report in run.reports:
         m, rio = report.workers.get("stripmap"), report.workers.get("rio")
-        if "go" in marks and m is not None:
-            row = {"t_s": round(now - marks["go"], 2), **{k: m.counters.get(k, 0) for k in MAP_KEYS},
-                   "map_velocity_updates": rio.counters.get("map_velocity_updates", 0) if rio else 0,
-                   "rio_lag_ms": rio.counters.get("lag_ms", 0) if rio else 0}
-            timeline.append(row)
-        if held.sent.is_set() and not any(report.frames_per_s.values()) and report.imu_hz == 0:
-            marks.setdefault("done", now)
-            done.set()
-
-    try:
-        record(setup, work, 300.0, until=done, on_health=on_health, path=work / "recording.h5")
-    finally:
-        held.release.set()
-        emulator.join(30)
-    returned = time.monotonic()
-    attrs = read_image(map_path).attrs if map_path.exists() else {}
-    at_end = [r for r in timeline if "sent" in marks and r["t_s"] <= marks["sent"] - marks["go"]]
+        if run.go_s is not None and now >= run.go_s and m is not None:
+            timeline.append({"t_s": round(now - run.go_s, 2), **{k: m.counters.get(k, 0) for k in MAP_KEYS},
+                             "map_velocity_updates": rio.counters.get("map_velocity_updates", 0) if rio else 0,
+                             "rio_lag_ms": rio.counters.get("lag_ms", 0) if rio else 0})
+    attrs = read_image(run.map_path).attrs if run.map_path.exists() else {}
+    replayed = run.sent_s is not None and run.go_s is not None
+    at_end = [r for r in timeline if replayed and r["t_s"] <= run.sent_s - run.go_s]
     return {
-        "replay_s": round(marks["sent"] - marks["go"], 2) if "sent" in marks and "go" in marks else None,
+        "replay_s": round(run.sent_s - run.go_s, 2) if replayed else None,
         "lag_s_at_replay_end": at_end[-1]["lag_ms"] / 1e3 if at_end else None,
         "queued_frames_at_replay_end": at_end[-1]["frames_queued"] if at_end else None,
-        "stop_s": round(returned - marks["done"], 2) if "done" in marks else None,
+        "stop_s": round(run.returned_s - run.done_s, 2) if run.done_s is not None else None,
         "map_file_written": bool(attrs),
         "map_summary": {k: attrs[k].item() if hasattr(attrs[k], "item") else attrs[k] for k in ("frames_imaged", "frames_thinned", "frames_dropped_behind", "max_lag_s",
                                               "busy_s", "refocus_s", "refocus_max_s", "max_refocus_wait_s",
@@ -125,17 +75,16 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     if args.quick:
         args.runs, args.no_write = 1, True
-    from test_map_feedback_live import feedback_scene, simulated_rig
-
     from acquisition.processes import configure_logging
-    from imaging.sim.simulator import simulate_recording
+    from acquisition.studies.map_feedback_live import simulate_drive
 
     configure_logging(1 if args.verbose else 0)
+    started_load = load_average()
     load_before = os.getloadavg()
     runs = []
     with tempfile.TemporaryDirectory(prefix="sarbot-map-lag-") as tmp:
         sim = Path(tmp) / "drive.h5"
-        simulate_recording(dataclasses.replace(feedback_scene(), rig=simulated_rig()), sim, overwrite=True)
+        simulate_drive(sim)
         for i in range(args.runs):
             run = run_once(Path(tmp) / f"run{i}", sim, args.speed)
             run["load_average_after"] = list(os.getloadavg())
@@ -150,9 +99,7 @@ def main(argv: list[str]) -> int:
            "speed": args.speed, "runs": runs, "load_average_before": list(load_before),
            "load_average_after": list(os.getloadavg())}
     if not args.no_write:
-        RESULTS.mkdir(parents=True, exist_ok=True)
-        (RESULTS / "map_lag.json").write_text(strict_json.dumps(out, indent=1) + "\n")
-        print(f"wrote {RESULTS / 'map_lag.json'}")
+        print(f"wrote {write_results('map_lag', out, started_load=started_load, indent=1)}")
     return 0
 
 

@@ -32,7 +32,7 @@ from imaging.sim.simulator import simulate_recording  # noqa: E402
 from rio.ego_velocity import EgoVelocityConfig  # noqa: E402
 from rio.evaluation import drift_report  # noqa: E402
 from rio.odometry import RioOptions, imu_from_recording, run_rio, scans_from_recording  # noqa: E402
-from imaging.core import strict_json  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 
@@ -105,6 +105,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
+    started_load = load_average()
     logging.basicConfig(level=logging.ERROR)
     laps_list = [1] if args.quick else [7, 10]
     out: dict = {"drives": [], "knobs": []}
@@ -146,9 +147,8 @@ def main() -> int:
                   f"ATE {row['ate_rmse_percent']:.3f} %")
         out["real_bag"] = real_bag(Path(tmp))
     out["load_average_1min"] = os.getloadavg()[0]  # the speeds mean little on a loaded machine
-    RESULTS.mkdir(parents=True, exist_ok=True)
     name = "rio_quick" if args.quick else "rio"
-    (RESULTS / f"{name}.json").write_text(strict_json.dumps(out, indent=2))
+    write_results(name, out, started_load=started_load)
     chart(plots, out["knobs"], RESULTS / f"{name}.png")
     print(f"wrote {RESULTS / (name + '.json')} and {name}.png")
     return 0

@@ -34,6 +34,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from results_file import load_average, write_results
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "docs" / "results"
 BAG = ROOT.parent / "shared" / "data" / "ti_mmwave_rospkg_demo"
@@ -138,6 +140,7 @@ def main() -> int:
     ap.add_argument("--versions", default=",".join(VERSIONS))
     ap.add_argument("--quick", action="store_true", help="the real bag only, 044b123 and this checkout")
     args = ap.parse_args()
+    started_load = load_average()
     versions = ["044b123", "HEAD"] if args.quick else args.versions.split(",")
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
@@ -162,10 +165,8 @@ def main() -> int:
                 print(commit, case, cases_out[case], flush=True)
             out["versions"].append(summary(commit, cases_out))
     out["load_average_1min"] = os.getloadavg()[0]
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    name = "odometry_versions_quick.json" if args.quick else "odometry_versions.json"
-    (RESULTS / name).write_text(json.dumps(out, indent=2))
-    print(f"wrote {RESULTS / name}")
+    path = write_results("odometry_versions_quick" if args.quick else "odometry_versions", out, started_load=started_load)
+    print(f"wrote {path}")
     return 0
 
 

@@ -44,6 +44,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]
 
+import results_file  # noqa: E402
 from backprojection import make_case, ser_db  # noqa: E402
 
 from imaging.backprojection import backproject, compiled_target  # noqa: E402
@@ -279,6 +280,7 @@ def main() -> int:
         print("peers.py: torchbp is not importable here; run it through `python3 dev.py bench --peers`, which builds "
               "it into a benchmark-only environment", file=sys.stderr)
         return 2
+    started_load = results_file.load_average()
     rounds = args.rounds or (2 if args.quick else 7)
     frames, one, px = (4, 1024, 128) if args.quick else (16, 4096, 256)
     load_before = load_average()
@@ -302,9 +304,8 @@ def main() -> int:
     }
     if everything:
         result.update({"ffbp_one_antenna": ffbp, "far_from_origin_5km": far})
-    RESULTS.mkdir(parents=True, exist_ok=True)
     name = ("peers_quick" if args.quick else "peers") if everything else "peers_" + "_".join(args.cases)
-    (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2))
+    results_file.write_results(name, result, started_load=started_load)
     print(f"wrote {RESULTS / (name + '.json')}")
     return 0
 

@@ -29,7 +29,7 @@ from imaging.sim.simulator import simulate_frames  # noqa: E402
 from imaging.sim.targets import PointTarget  # noqa: E402
 from reference_pointcloud import reference_cube  # noqa: E402
 from rio.pointcloud import PointCloudConfig, cfar_2d, detect, range_doppler_cube  # noqa: E402
-from imaging.core import strict_json  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 SCANS_PER_S_PER_RADAR = 10.0  # the odometry worker's default scan rate
@@ -51,6 +51,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
+    started_load = load_average()
     repeats = 5 if args.quick else 50
     radar = default_rig().radar("left_front")
     wf = radar.waveform
@@ -95,9 +96,7 @@ def main() -> int:
           f"{out['core_fraction_at_default_rate']:.2f} of a core")
     print(f"cube: {out['cube_speedup_vs_reference']:.1f}x the plain reference ({reference_ms:.1f} ms), "
           f"max error {cube_error:.1e} of the peak")
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    name = "pointcloud_quick.json" if args.quick else "pointcloud.json"
-    (RESULTS / name).write_text(strict_json.dumps(out, indent=2) + "\n")
+    write_results("pointcloud_quick" if args.quick else "pointcloud", out, started_load=started_load)
     return 0
 
 

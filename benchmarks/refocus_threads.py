@@ -43,6 +43,7 @@ from imaging.core.rig import default_rig  # noqa: E402
 from imaging.core.trajectory import SampledTrajectory  # noqa: E402
 from imaging.stripmap import StripMap  # noqa: E402
 from rio.feedback_drive import IMAGING_RADARS, MAP_CONFIG, simulate_feedback_drive  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 LENGTH_M = 3.0  # the live test's drive
@@ -83,6 +84,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--quick", action="store_true", help="one repeat, the target tiles only")
     args = parser.parse_args(argv)
+    started_load = load_average()
     load_before = os.getloadavg()
     strip, frame_cpu = image_drive(LENGTH_M)
     keys = [k for k, g in strip._refocus.groups.items() if len(g) >= 8]
@@ -129,8 +131,7 @@ def main(argv: list[str]) -> int:
     for t in tiles_out:
         print(t)
     if not args.quick:
-        RESULTS.mkdir(parents=True, exist_ok=True)
-        (RESULTS / "refocus_threads.json").write_text(strict_json.dumps(out, indent=1) + "\n")
+        write_results("refocus_threads", out, started_load=started_load, indent=1)
         print(f"wrote {RESULTS / 'refocus_threads.json'}")
     return 0
 

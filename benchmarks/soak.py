@@ -58,6 +58,7 @@ from acquisition.messages import Health, MapStatus, decode  # noqa: E402
 from acquisition.processes import free_ports, free_tcp_endpoint  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
 from imaging.core import strict_json  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 from process_stats import child_pids, cpu_s, machine_cpu_s, named_process_tree, rss_mb, run_queue_wait_s  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
@@ -464,6 +465,7 @@ def main() -> int:
                     help="run the emulated hardware (the replay's senders and IMU) niced this far (19: it takes what "
                          "the daemon leaves; whether it still kept 1x is in replay_behind_1x_s)")
     args = ap.parse_args()
+    started_load = load_average()
     if (args.map_args or args.emulator_nice) and not args.name:
         ap.error("--map-args and --emulator-nice need --name (the results must not overwrite the default soak's)")
     if args.summary_of:
@@ -472,7 +474,7 @@ def main() -> int:
         result["rss"] = rss_summary(result["samples"], result["samples"][-1]["t_s"])
         result["rss_flat"] = all(g["drift_mb"] <= RSS_GOAL_MB for g in result["rss"].values())
         result["cpu_accounting"] = cpu_accounting(result["samples"], result.get("radars") or list(result["frames_recorded"]))
-        path.write_text(strict_json.dumps(result, indent=1) + "\n")
+        write_results(path.stem, result, started_load=started_load, folder=path.parent, indent=1)
         chart(result, path.with_suffix(".png"))
         print(strict_json.dumps({"rss": result["rss"], "cpu_accounting": result["cpu_accounting"]}, indent=1))
         return 0 if result["no_loss"] and result["rss_flat"] else 1
@@ -488,8 +490,7 @@ def main() -> int:
     stem = "soak" if radars == ["left_front", "left_rear"] else f"soak_{len(radars)}radars"
     stem = f"soak_{args.name}" if args.name else stem
     stem += "_quick" if args.quick else ""
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / f"{stem}.json").write_text(strict_json.dumps(result, indent=1) + "\n")
+    write_results(stem, result, started_load=started_load, indent=1)
     chart(result, RESULTS / f"{stem}.png")
     print(strict_json.dumps({k: v for k, v in result.items() if k not in ("samples", "daemon_log_tail")}, indent=1))
     print(f"wrote {RESULTS / (stem + '.json')} and {stem}.png")

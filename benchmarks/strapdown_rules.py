@@ -36,9 +36,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from imaging.core import strict_json  # noqa: E402
 from imaging.core.constants import GRAVITY_MPS2  # noqa: E402
 from odometry import long_drive  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 from rio.strapdown import _exp_so3_nb  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
@@ -89,6 +89,7 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="the first 60 s only")
     ap.add_argument("--window-s", type=float, default=10.0)
     args = ap.parse_args()
+    started_load = load_average()
     scene = long_drive(7, seed=10)
     duration_s = 63.0 if args.quick else scene.duration_s
     n = int(duration_s * RATE_HZ)
@@ -118,9 +119,8 @@ def main() -> int:
             print(f"{kind:8s} {rule:6s} position {row['position_rms_mm']:7.3f} mm  velocity {row['velocity_rms_mmps']:6.3f} mm/s"
                   f"  yaw {row['yaw_rms_mdeg']:7.3f} mdeg  (RMS over {len(starts)} windows of {args.window_s:.0f} s)")
     out["load_average_1min"] = os.getloadavg()[0]
-    RESULTS.mkdir(parents=True, exist_ok=True)
     name = "strapdown_rules_quick" if args.quick else "strapdown_rules"
-    (RESULTS / f"{name}.json").write_text(strict_json.dumps(out, indent=2))
+    write_results(name, out, started_load=started_load)
     print(f"wrote {RESULTS / (name + '.json')}")
     return 0
 

@@ -37,7 +37,7 @@ from imaging.io.recording import Recording  # noqa: E402
 from imaging.sim.scene import load_scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.stripmap import StripMap, StripMapConfig, max_presum  # noqa: E402
-from imaging.core import strict_json  # noqa: E402
+from results_file import finite_or_none, load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 DEFAULT = StripMapConfig(aperture_m=0.3, range_min_m=1.0, range_max_m=4.0, z_m=0.3)
@@ -104,7 +104,7 @@ def batching(config: StripMapConfig, rec: Recording, frames, truth, presums, bat
             one = one or (sm, min(cpu))
             rows.append({"presum": presum, "batch_frames": batch, "cpu_ms_per_frame": 1e3 * min(cpu) / len(frames),
                          "ratio_to_one_at_a_time": one[1] / min(cpu),
-                         "difference_from_one_at_a_time_db": None if sm is one[0] else map_error_db(sm, one[0])})
+                         "difference_from_one_at_a_time_db": None if sm is one[0] else finite_or_none(map_error_db(sm, one[0]))})
             print(f"presum {presum:3d}, {batch} frame(s) at a time: {rows[-1]['cpu_ms_per_frame']:.2f} ms of CPU a frame "
                   f"({rows[-1]['ratio_to_one_at_a_time']:.2f}x)", flush=True)
     return rows
@@ -121,6 +121,7 @@ def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer frames and settings")
     args = ap.parse_args(argv)
+    started_load = load_average()
     scene = load_scene("demo_room")
     work = Path(tempfile.mkdtemp(prefix="sarbot-bench-stripmap-"))
     path = work / "demo_room.h5"
@@ -171,7 +172,7 @@ def main(argv: list[str]) -> int:
 
         row = {"setting": label, "mode": cfg.mode, "oversample": cfg.oversample, "presum": cfg.presum,
                "frames_per_s": fps, "real_time_multiple": fps / sensor_fps, "ratio_to_baseline": fps / base_fps,
-               "error_db": err, "presum_phase_spread_rad_at_0.5_mps": presum_phase_spread_rad(cfg, radar, 0.5),
+               "error_db": finite_or_none(err), "presum_phase_spread_rad_at_0.5_mps": presum_phase_spread_rad(cfg, radar, 0.5),
                "tiles": len(sm.tiles)}
         rows.append(row)
         print(f"{label:34s} {fps:7.1f} frames/s = {fps / sensor_fps:5.2f}x the four radars "
@@ -185,9 +186,8 @@ def main(argv: list[str]) -> int:
                                               "batch_frames at a time (StripMap.add_frames), every radar's in turn",
         "baseline": "the default setting in the same process",
     }
-    RESULTS.mkdir(parents=True, exist_ok=True)
     stem = "stripmap_quick" if args.quick else "stripmap"  # a smoke run keeps the real figures
-    (RESULTS / f"{stem}.json").write_text(strict_json.dumps(summary, indent=2))
+    write_results(stem, summary, started_load=started_load)
     plot(rows, sensor_fps, RESULTS / f"{stem}.png")
     rec.close()
     path.unlink()

@@ -63,7 +63,6 @@ from acquisition.processes import bus_endpoint  # noqa: E402
 from acquisition.workers import pipeline  # noqa: E402
 from acquisition.workers.stripmap import StripMapWorker, StripMapWorkerConfig  # noqa: E402
 from drivers.radar.stream import RadarFrame  # noqa: E402
-from imaging.core import strict_json  # noqa: E402
 from imaging.core.rig import load_rig  # noqa: E402
 from imaging.core.trajectory import SampledTrajectory  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
@@ -74,6 +73,7 @@ import imaging.profiles  # noqa: E402
 import imaging.stripmap.footprint as stripmap_footprint  # noqa: E402
 import imaging.stripmap.map as stripmap_map  # noqa: E402
 import imaging.stripmap.polar as stripmap_polar  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 RIG = ROOT / "imaging" / "rigs" / "default.toml"
@@ -499,6 +499,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--refocus-frames", type=int, default=30,
                     help="frames of each radar imaged with --map-refocus pga, for its cost apart (0: not measured)")
     args = ap.parse_args(argv)
+    started_load = load_average()
     numba.set_num_threads(1)  # the worker's kernel threads (--map-threads 1)
     rig = load_rig(RIG)
     map_config = pipeline.resolve_map_config(types.SimpleNamespace(rig=rig), MAP, RADARS, MAX_SPEED_MPS, None)
@@ -562,8 +563,7 @@ def main(argv: list[str]) -> int:
                                    text=True).stdout.strip()
     out.update(load_average_before=list(load_before), load_average_after=list(os.getloadavg()),
                cpu_count=os.cpu_count(), numba_threads=1)
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "stripmap_capacity.json").write_text(strict_json.dumps(out, indent=1) + "\n")
+    write_results("stripmap_capacity", out, started_load=started_load, indent=1)
     print(f"wrote {RESULTS / 'stripmap_capacity.json'}")
     return 0
 

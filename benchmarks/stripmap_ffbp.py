@@ -42,7 +42,7 @@ from imaging.sim.scene import load_scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.stripmap import StripMap, StripMapConfig  # noqa: E402
 from reference_stripmap import block_reference  # noqa: E402
-from imaging.core import strict_json  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 RADAR = "left_front"
@@ -103,6 +103,7 @@ def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer frames and settings")
     args = ap.parse_args(argv)
+    started_load = load_average()
     work = Path(tempfile.mkdtemp(prefix="sarbot-bench-stripmap-ffbp-"))
     path = work / "demo_room.h5"
     print("simulating the demo scene ...", flush=True)
@@ -159,9 +160,8 @@ def main(argv: list[str]) -> int:
         "four_radars_frames_per_s": 4 * radar_fps, "settings": dataclasses.asdict(BASE), "kernel_threads": 1,
         "baseline": "the direct kernel at the same aperture, in the same process", "rows": rows,
     }
-    RESULTS.mkdir(parents=True, exist_ok=True)
     stem = "stripmap_ffbp_quick" if args.quick else "stripmap_ffbp"  # a smoke run keeps the real figures
-    (RESULTS / f"{stem}.json").write_text(strict_json.dumps(summary, indent=2))
+    write_results(stem, summary, started_load=started_load)
     plot(rows, radar_fps, RESULTS / f"{stem}.png")
     rec.close()
     path.unlink()

@@ -40,7 +40,6 @@ sys.path.insert(0, str(ROOT))
 
 from imaging import metrics  # noqa: E402
 from imaging.backprojection import backproject  # noqa: E402
-from imaging.core import strict_json  # noqa: E402
 from imaging.core.geometry import antenna_track  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
 from imaging.profiles import chirp_profiles  # noqa: E402
@@ -49,6 +48,7 @@ from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.sim.targets import CornerReflector  # noqa: E402
 from imaging.stripmap import StripMap, StripMapConfig, max_presum, presum_chirps  # noqa: E402
 from imaging.stripmap.polar import beams_at_points, frame_beams  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 RADAR = "left_front"
@@ -216,6 +216,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args(argv)
+    started_load = load_average()
     numba.set_num_threads(1)  # as the live worker runs its kernel
     scene = dataclasses.replace(load_scene("soak_loop"), radars=[RADAR], duration_s=9.0, imu=False)
     work = Path(tempfile.mkdtemp(prefix="sarbot-bench-polar-"))
@@ -244,8 +245,7 @@ def main(argv: list[str]) -> int:
            "range_m": [CONFIG.range_min_m, CONFIG.range_max_m], "stages": stages, "add_frames": ratios, "quality": q,
            "load_average_before": list(load_before), "load_average_after": list(os.getloadavg()),
            "cpu_count": os.cpu_count()}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "stripmap_polar.json").write_text(strict_json.dumps(out, indent=1))
+    write_results("stripmap_polar", out, started_load=started_load, indent=1)
     print(f"wrote {RESULTS / 'stripmap_polar.json'}")
     rec.close()
     return 0

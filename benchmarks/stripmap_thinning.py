@@ -18,6 +18,7 @@ measures speed), with the reference's as the baseline ratio. Writes docs/results
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import sys
 import tempfile
@@ -36,7 +37,7 @@ from imaging.sim.scene import load_scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.sim.targets import CornerReflector, Rod  # noqa: E402
 from imaging.stripmap import StripMap, StripMapConfig, max_presum  # noqa: E402
-from imaging.core import strict_json  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 RADAR = "left_front"
@@ -73,8 +74,12 @@ def on_grid(sm: StripMap, ref: StripMap) -> np.ndarray:
 
 
 def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="accepted from `dev.py bench --quick`: this benchmark has one mode")
+    ap.parse_args()
     import numba
 
+    started_load = load_average()
     numba.set_num_threads(1)  # as the live worker runs its kernel
     scene = load_scene("demo_room")
     work = Path(tempfile.mkdtemp(prefix="sarbot-bench-thinning-"))
@@ -132,8 +137,7 @@ def main() -> int:
                           for n, v in t.items()), flush=True)
     result = {"radar": RADAR, "frames": len(frames), "aperture_m": CONFIG.aperture_m, "pixel_m": CONFIG.pixel_m,
               "speed_mps": 0.4, "frame_spacing_m": 0.4 * wf.frame_interval_s, "rows": rows}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "stripmap_thinning.json").write_text(strict_json.dumps(result, indent=1) + "\n")
+    write_results("stripmap_thinning", result, started_load=started_load, indent=1)
     chart(panels, xr, yr, targets, RESULTS / "stripmap_thinning.png")
     print(f"wrote {RESULTS / 'stripmap_thinning.json'} and stripmap_thinning.png")
     rec.close()
