@@ -33,7 +33,7 @@ import numpy as np
 
 from imaging.core.waveform import Waveform
 
-from .registry import WireFormat
+from .registry import PackedDatagrams, WireFormat
 from .stream import RadarFrame
 
 MAGIC = b"SRF1"
@@ -42,6 +42,7 @@ VERSIONS = (1, 2)
 HEADER = struct.Struct("<4sBBHIQII")  # the fields of both versions
 CRC = struct.Struct("<I")  # version 2: after the fields
 FLAG_PTP_LOCKED = 0x01
+_OFFSET_AT = struct.calcsize("<4sBBHIQI")  # where the header's ``offset`` field starts
 #: Payload bytes per datagram so that IP (20) + UDP (8) + SRF1 header (v2) fit a 1500-byte MTU, multiple of 4.
 MAX_PAYLOAD = (1500 - 20 - 8 - HEADER.size - CRC.size) // 4 * 4
 
@@ -82,16 +83,39 @@ class Srf1Header(typing.NamedTuple):
 def encode_frame(radar_id: int, frame_counter: int, frame_time_ns: int, iq: np.ndarray, ptp_locked: bool = True,
                  payload_bytes: int = MAX_PAYLOAD, version: int = VERSION) -> list[bytes]:
     """Datagrams of one frame; ``iq`` int16 [chirps, rx, samples, 2] (or any int16 array in wire order)."""
-    data = np.ascontiguousarray(iq, dtype="<i2").tobytes()
-    flags = FLAG_PTP_LOCKED if ptp_locked else 0
-    out = []
-    for off in range(0, len(data), payload_bytes):
-        head = HEADER.pack(MAGIC, version, flags, radar_id, frame_counter & 0xFFFFFFFF, frame_time_ns, len(data), off)
-        chunk = data[off:off + payload_bytes]
-        if version >= 2:
-            head += CRC.pack(_crc(head, chunk))
-        out.append(head + chunk)
-    return out
+    return encode_frame_packed(radar_id, frame_counter, frame_time_ns, iq, ptp_locked, payload_bytes, version).split()
+
+
+def encode_frame_packed(radar_id: int, frame_counter: int, frame_time_ns: int, iq: np.ndarray, ptp_locked: bool = True,
+                        payload_bytes: int = MAX_PAYLOAD, version: int = VERSION) -> PackedDatagrams:
+    """``encode_frame``'s datagrams back to back in one buffer (``PackedDatagrams``), built with whole-array
+    copies: one header packed and copied to every datagram with its offset patched in, the payload copied
+    in one strided step. What is left per datagram is its CRC32C (version 2). Replay sends a frame of the
+    reference waveform (498 datagrams) with this at a fraction of the CPU of datagrams made one by one."""
+    data = np.ascontiguousarray(iq, dtype="<i2").reshape(-1).view(np.uint8)
+    head_size = header_size(version)
+    stride = head_size + payload_bytes
+    n_full, rest = divmod(data.size, payload_bytes)
+    out = np.empty(n_full * stride + (head_size + rest if rest else 0), np.uint8)
+    head = np.frombuffer(HEADER.pack(MAGIC, version, FLAG_PTP_LOCKED if ptp_locked else 0, radar_id,
+                                     frame_counter & 0xFFFFFFFF, frame_time_ns, data.size, 0), np.uint8)
+    full = out[:n_full * stride].reshape(n_full, stride)
+    full[:, :HEADER.size] = head
+    full[:, _OFFSET_AT:HEADER.size] = (np.arange(n_full, dtype="<u4") * payload_bytes).view(np.uint8).reshape(n_full, 4)
+    full[:, head_size:] = data[:n_full * payload_bytes].reshape(n_full, payload_bytes)
+    last = out[n_full * stride:]
+    if rest:
+        last[:HEADER.size] = head
+        last[_OFFSET_AT:HEADER.size] = np.array([n_full * payload_bytes], "<u4").view(np.uint8)
+        last[head_size:] = data[n_full * payload_bytes:]
+    if version >= 2:
+        view = memoryview(out)
+        crc = crc32c.crc32c
+        crcs = np.array([crc(view[o + head_size:o + stride], crc(view[o:o + HEADER.size]))
+                         for o in range(0, out.size, stride)], "<u4").view(np.uint8)
+        full[:, HEADER.size:head_size] = crcs[:4 * n_full].reshape(n_full, 4)
+        last[HEADER.size:head_size] = crcs[4 * n_full:]
+    return PackedDatagrams(out, stride)
 
 
 def restamp(datagram: bytearray, frame_counter: int, frame_time_ns: int) -> None:
@@ -435,4 +459,9 @@ def _open_encoder(radar_id: int):
     return functools.partial(encode_frame, radar_id)
 
 
-WIRE_FORMAT = WireFormat("SRF1", "PTP-stamped frame chunks (the reference radar)", _open_stream, _open_encoder)
+def _open_packed_encoder(radar_id: int):
+    return functools.partial(encode_frame_packed, radar_id)
+
+
+WIRE_FORMAT = WireFormat("SRF1", "PTP-stamped frame chunks (the reference radar)", _open_stream, _open_encoder,
+                         open_packed_encoder=_open_packed_encoder)
