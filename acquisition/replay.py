@@ -80,7 +80,7 @@ def replay_radar(recording: Recording, radar: str, address, speed: float | None 
                 counter = (int(counters[k]) + lap * counters_per_lap) & 0xFFFFFFFF
                 iq = frames.read(lap, k)
                 if encode_packed is not None:
-                    sent += sender.send(encode_packed(counter, t, iq), address)
+                    sent += sender.send(encode_packed(counter, t, iq, frame_key=k), address)
                 else:
                     for d in encode(counter, t, iq):
                         sender.sendto(d, address)

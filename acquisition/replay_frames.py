@@ -23,7 +23,8 @@ FLETCHER32 = 3
 
 class LapFrames:
     """``read(lap, k)``: frame ``k`` of ``radar`` as int16 [chirps, rx, samples, 2] (the wire's I/Q), for
-    lap ``lap`` of a looped replay; frames are asked for in order within a lap, and lap 0 comes first."""
+    lap ``lap`` of a looped replay, lap 0 first. A frame of a later lap lies in a buffer kept from read to
+    read: it holds until the next read."""
 
     def __init__(self, recording: Recording, radar: str, laps: int = 1):
         self.recording = recording
@@ -33,6 +34,7 @@ class LapFrames:
         self._frame_bytes = int(np.prod(self._frame_shape)) * self._ds.dtype.itemsize
         self.raw_reads = self._ds.dtype == np.dtype("<i2") and laps > 1 and self._chunk_is_one_plain_frame()
         self._crcs: dict[int, int] = {}  # frame -> CRC32C of its bytes as the checked read gave them
+        self._chunk = np.empty(self._frame_bytes + 4 if self.raw_reads else 0, np.uint8)  # + Fletcher-32's 4 bytes
 
     def _chunk_is_one_plain_frame(self) -> bool:
         ds = self._ds
@@ -46,8 +48,8 @@ class LapFrames:
             if self.raw_reads:
                 self._crcs[k] = crc32c.crc32c(iq)
             return iq
-        mask, raw = self._ds.id.read_direct_chunk((k,) + (0,) * len(self._frame_shape))
-        data = memoryview(raw)[:self._frame_bytes]
+        mask, raw = self._ds.id.read_direct_chunk((k,) + (0,) * len(self._frame_shape), out=self._chunk)
+        data = raw[:self._frame_bytes]
         if mask != 0 or len(data) != self._frame_bytes or crc32c.crc32c(data) != self._crcs[k]:
             raise SarbotError(f"{self.recording.path}: /radar/{self.radar}/adc frame {k} changed on disk since the "
                               f"replay's first lap read it")

@@ -12,7 +12,7 @@ import pytest
 from acquisition.replay import replay_radar
 from acquisition.replay_frames import LapFrames
 from drivers.radar.registry import PackedDatagrams
-from drivers.radar.srf1 import encode_frame, encode_frame_packed
+from drivers.radar.srf1 import PackedEncoder, encode_frame, encode_frame_packed
 from drivers.radar.udp import UdpSender
 from imaging.core.errors import SarbotError
 from imaging.core.rig import rig_from_dict
@@ -51,6 +51,24 @@ def test_the_packed_encoder_makes_the_datagrams_of_before_byte_for_byte(shape, v
         assert packed.data.tobytes() == b"".join(before)
         assert packed.split() == before
         assert encode_frame(9, 2**32 + 11, 1_234_567_890_123, iq, locked, payload_bytes, version) == before
+
+
+@pytest.mark.parametrize("version", [1, 2])
+@pytest.mark.parametrize("payload_bytes", [1440, 1000])
+def test_frames_sent_again_get_their_crcs_updated_to_the_datagrams_of_before(version, payload_bytes):
+    """The encoder that keeps a frame's CRCs updates them for each new counter and time (wrapping, and the
+    whole u64 time), and encodes afresh a frame whose bytes changed under the same key."""
+    rng = np.random.default_rng(11)
+    frames = [rng.integers(-2048, 2048, (32, 4, 175, 2), dtype=np.int16) for _ in range(3)]
+    encoder = PackedEncoder(5, True, payload_bytes, version)
+    for lap in range(4):
+        for k, iq in enumerate(frames):
+            if lap == 2 and k == 1:
+                iq = iq.copy()
+                iq[7, 2, 100, 0] += 1  # one sample other: the kept CRCs would be wrong for it
+            counter, t_ns = 2**32 - 4 + 3 * lap + k, [0, 2**64 - 3, T0_NS, 123][lap] + k
+            got = encoder(counter, t_ns, iq, frame_key=k)
+            assert got.data.tobytes() == b"".join(encode_frame_before(5, counter, t_ns, iq, True, payload_bytes, version))
 
 
 def received_datagrams(run_sender) -> list[bytes]:

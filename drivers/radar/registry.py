@@ -55,9 +55,11 @@ class PackedDatagrams(typing.NamedTuple):
 
 
 class PackedFrameEncoder(Protocol):
-    """A ``FrameEncoder`` that returns the frame's datagrams packed (byte for byte the same datagrams)."""
+    """A ``FrameEncoder`` that returns the frame's datagrams packed (byte for byte the same datagrams), valid
+    until its next call. ``frame_key`` names a frame that may come again (a looped replay's frame index):
+    an encoder may keep what it needs to encode that frame again for less."""
 
-    def __call__(self, frame_counter: int, frame_time_ns: int, iq: np.ndarray) -> PackedDatagrams: ...
+    def __call__(self, frame_counter: int, frame_time_ns: int, iq: np.ndarray, frame_key=None) -> PackedDatagrams: ...
 
 
 def no_settings(options: dict[str, str], where: str) -> None:
