@@ -336,6 +336,13 @@ def cpu_accounting(samples: list[dict], radars: list[str]) -> dict:
            "emulator_pct": emulator, "soak_script_pct": own, "other_pct": other, "idle_pct": idle,
            "machine_busy_pct": busy, "map_pct": map_got, "map_waiting_for_core_pct": map_waited,
            "map_needs_pct": None if needs is None else round(100 * needs["core_fraction"], 1), "map_needs_from": needs}
+    # Per frame the daemon received (all radars; fewer than 1x when the emulator sent late): what each process
+    # and the emulated hardware cost a frame, comparable between loaded and quiet runs.
+    received = mean([sum((s.get("frames_per_s") or {}).values()) for s in rows])
+    out["frames_per_s_received"] = received
+    if received > 0:
+        out["cpu_ms_per_frame"] = {"daemon": round(10 * daemon / received, 3), "emulator": round(10 * emulator / received, 3),
+                                   "daemon_per_process": {n: round(10 * v / received, 3) for n, v in per_process.items()}}
     if needs is None:
         out["verdict"] = "unknown: no docs/results/stripmap_capacity.json to say what the map needs"
         return out
