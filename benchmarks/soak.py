@@ -11,9 +11,11 @@ checked (frames per radar, invalid frames, counter gaps, IMU samples, events) an
 hour fits on the disk.
 
 By default the left pair of radars is replayed. All four (``--radars``) fill this two-core machine, whose
-emulated hardware (a sender process per radar, which the robot does not run) costs about 0.5 of a core:
-since 4671886 every frame is recorded and mapped, the map pre-summing more to keep up
-(``docs/results/soak_4radars.json``).
+emulated hardware (a sender process per radar and the IMU, which the robot does not run) took about half a
+core in the soak's accounting; replay's senders now read, encode and send a frame for about half the CPU
+(0.13 of a core for four radars and the IMU at 1x against 0.30 before, measured interleaved on a loaded
+machine: ``docs/results/emulator_cost.json``). Since 4671886 every frame is recorded and mapped, the map
+pre-summing more to keep up (``docs/results/soak_4radars.json``).
 
 Every 10 s it samples each process's resident memory (VmRSS) and CPU, the health report (bus loss,
 invalid frames, restarts) and the workers' lag: the odometry's (last radar scan to its point cloud) and
