@@ -144,6 +144,10 @@ def test_datagrams_of_one_size_and_a_short_last_one_split_and_count():
     packed = PackedDatagrams(np.arange(10, dtype=np.uint8), 4)
     assert packed.count == 3
     assert packed.split() == [bytes([0, 1, 2, 3]), bytes([4, 5, 6, 7]), bytes([8, 9])]
+    sender = UdpSender()
+    empty = encode_frame_packed(1, 0, 0, np.zeros(0, np.int16))
+    assert received_datagrams(lambda address: sender.send(empty, address)) == []  # an empty frame: no datagram
+    sender.close()
 
 
 def test_later_laps_read_the_chunks_raw_and_stop_on_a_frame_changed_since_the_first(recording, tmp_path):

@@ -152,7 +152,9 @@ class UdpSender:
     def send(self, datagrams, address) -> int:
         """Send ``datagrams`` (``PackedDatagrams``) to ``address``; returns how many datagrams went."""
         data, size = memoryview(datagrams.data), datagrams.size
-        per_send = max(1, min(MAX_SEGMENTS, MAX_SEGMENTED_BYTES // size)) * size if size else 0
+        if not len(data):
+            return 0
+        per_send = max(1, min(MAX_SEGMENTS, MAX_SEGMENTED_BYTES // size)) * size
         start = 0
         if self.segmented:
             option = [(SOL_UDP, UDP_SEGMENT, struct.pack("=H", size))]
@@ -165,7 +167,7 @@ class UdpSender:
                     raise
                 log.info("UDP segmentation refused (%s): sending datagram by datagram", exc)
                 self.segmented = False
-        for offset in range(start, len(data), size or 1):
+        for offset in range(start, len(data), size):
             self.sock.sendto(data[offset:offset + size], address)
         return datagrams.count
 
