@@ -23,9 +23,12 @@ from drivers.can_driver import CanConfig, message_from_row
 from drivers.emulators import XbusPty
 from drivers.radar import registry
 from drivers.radar.pcap import read_udp
+from drivers.radar.udp import UdpSender
 from imaging.core.constants import TAI_MINUS_UTC_NS
 from imaging.core.errors import SarbotError
 from imaging.io.recording import Recording
+
+from .replay_frames import LapFrames
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
@@ -60,23 +63,32 @@ def replay_radar(recording: Recording, radar: str, address, speed: float | None 
     datagrams sent."""
     times = recording.frame_time_ns(radar)
     counters = recording.frame_counter(radar)
-    encode = registry.for_replay(recording.wire_format(radar), f"{recording.path}: /radar/{radar}").open_encoder(radar_id)
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 8 << 20)
+    wire_format = registry.for_replay(recording.wire_format(radar), f"{recording.path}: /radar/{radar}")
+    # Packed where the format can: a frame in a few system calls, not one per datagram (drivers.radar.udp).
+    encode_packed = wire_format.open_packed_encoder(radar_id) if wire_format.open_packed_encoder else None
+    encode = None if encode_packed else wire_format.open_encoder(radar_id)
+    frames = LapFrames(recording, radar, laps)
+    sender = UdpSender()
     t0 = time.monotonic() if start_monotonic is None else start_monotonic
     sent = 0
     counters_per_lap = int(counters[-1] - counters[0]) + 1 if counters.size else 0
-    for lap in range(laps):
-        for k in range(times.size):
-            t = int(times[k]) + lap * lap_ns
-            _wait_until(t0, t - times[0], speed)
-            counter = (int(counters[k]) + lap * counters_per_lap) & 0xFFFFFFFF
-            for d in encode(counter, t, recording.adc_iq(radar, slice(k, k + 1))[0]):
-                sock.sendto(d, address)
-                sent += 1
-            if not speed:
-                time.sleep(0.0005)  # as fast as the receiver keeps up on loopback
-    sock.close()
+    try:
+        for lap in range(laps):
+            for k in range(times.size):
+                t = int(times[k]) + lap * lap_ns
+                _wait_until(t0, t - times[0], speed)
+                counter = (int(counters[k]) + lap * counters_per_lap) & 0xFFFFFFFF
+                iq = frames.read(lap, k)
+                if encode_packed is not None:
+                    sent += sender.send(encode_packed(counter, t, iq, frame_key=k), address)
+                else:
+                    for d in encode(counter, t, iq):
+                        sender.sendto(d, address)
+                        sent += 1
+                if not speed:
+                    time.sleep(0.0005)  # as fast as the receiver keeps up on loopback
+    finally:
+        sender.close()
     return sent
 
 

@@ -11,9 +11,11 @@ checked (frames per radar, invalid frames, counter gaps, IMU samples, events) an
 hour fits on the disk.
 
 By default the left pair of radars is replayed. All four (``--radars``) fill this two-core machine, whose
-emulated hardware (a sender process per radar, which the robot does not run) costs about 0.5 of a core:
-since 4671886 every frame is recorded and mapped, the map pre-summing more to keep up
-(``docs/results/soak_4radars.json``).
+emulated hardware (a sender process per radar and the IMU, which the robot does not run) took about half a
+core in the soak's accounting; replay's senders now read, encode and send a frame for about half the CPU
+(0.13 of a core for four radars and the IMU at 1x against 0.30 before, measured interleaved on a loaded
+machine: ``docs/results/emulator_cost.json``). Since 4671886 every frame is recorded and mapped, the map
+pre-summing more to keep up (``docs/results/soak_4radars.json``).
 
 Every 10 s it samples each process's resident memory (VmRSS) and CPU, the health report (bus loss,
 invalid frames, restarts) and the workers' lag: the odometry's (last radar scan to its point cloud) and
@@ -337,6 +339,13 @@ def cpu_accounting(samples: list[dict], radars: list[str]) -> dict:
            "emulator_pct": emulator, "soak_script_pct": own, "other_pct": other, "idle_pct": idle,
            "machine_busy_pct": busy, "map_pct": map_got, "map_waiting_for_core_pct": map_waited,
            "map_needs_pct": None if needs is None else round(100 * needs["core_fraction"], 1), "map_needs_from": needs}
+    # Per frame the daemon received (all radars; fewer than 1x when the emulator sent late): what each process
+    # and the emulated hardware cost a frame, comparable between loaded and quiet runs.
+    received = mean([sum((s.get("frames_per_s") or {}).values()) for s in rows])
+    out["frames_per_s_received"] = received
+    if received > 0:
+        out["cpu_ms_per_frame"] = {"daemon": round(10 * daemon / received, 3), "emulator": round(10 * emulator / received, 3),
+                                   "daemon_per_process": {n: round(10 * v / received, 3) for n, v in per_process.items()}}
     if needs is None:
         out["verdict"] = "unknown: no docs/results/stripmap_capacity.json to say what the map needs"
         return out

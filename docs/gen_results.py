@@ -248,6 +248,30 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                                      "the map needs (stripmap_capacity), and says which kept the map short.",
                                      ".venv/bin/python benchmarks/soak.py --minutes 1 --radars left_front,left_rear,"
                                      "right_front,right_rear --emulator-nice 19 --name 4radars_emulator_nice19"),
+    "soak_4radars_1min_loaded": ("Soak: four radars, 1 minute, loaded machine, the cheaper emulator",
+                                 "The four radars at 1x for a minute, the emulated hardware at nice 19, after replay's "
+                                 "senders were made cheaper (emulator_cost), on the machine as shared with other "
+                                 "engineers' work (loaded: see `load_average_end` and `cpu_accounting`'s `other_pct`): "
+                                 "not the fair 1x soak, which needs the machine quiet. `cpu_accounting` gives each "
+                                 "process's CPU per frame received and what the map got against what it needs.",
+                                 ".venv/bin/python benchmarks/soak.py --minutes 1 --radars left_front,left_rear,"
+                                 "right_front,right_rear --emulator-nice 19 --name 4radars_1min_loaded"),
+    "soak_4radars_5min_emulator_nice19": ("Soak: four radars, 5 minutes, the emulator niced (issue 34 item 5)",
+                                          "The four radars at 1x for 5 minutes with the cheaper emulated hardware at "
+                                          "nice 19, to be run on the otherwise quiet machine: frames pre-summed beyond "
+                                          "the configured factor (`map_frames_presummed_more` against all "
+                                          "frames, `frames_sent_per_radar` x 4; goal at most 5 %), nothing dropped, the map's lag "
+                                          "below 2 s; `cpu_accounting` says whether the machine was quiet.",
+                                          ".venv/bin/python benchmarks/soak.py --minutes 5 --radars left_front,"
+                                          "left_rear,right_front,right_rear --emulator-nice 19 --name "
+                                          "4radars_5min_emulator_nice19"),
+    "emulator_cost": ("The emulated radars' CPU per frame",
+                      "Replay's sender as it was (HDF5 read every lap, a datagram at a time, a sendto each) against "
+                      "now (raw chunk reads after the first lap, packed datagrams with CRCs kept across laps, UDP "
+                      "segmentation), interleaved in one process on the soak's scene, part by part (read, encode, "
+                      "send); the same datagrams arrive. With the IMU emulator's CPU, the four-radar emulator's share "
+                      "of a core at 1x.",
+                      ".venv/bin/python benchmarks/emulator_cost.py"),
     "soak_direct_2m": ("Soak: 2 m aperture, direct kernel",
                        "The live map at a 2 m aperture with the direct kernel.",
                        ".venv/bin/python benchmarks/soak.py --minutes 3 --map-args \"--map-aperture 2\" --name direct_2m"),

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import typing
 from typing import Any, Callable, Protocol
 
 import numpy as np
@@ -34,6 +35,31 @@ class FrameEncoder(Protocol):
     """One frame to the datagrams that carry it (replay's side); may keep state across frames."""
 
     def __call__(self, frame_counter: int, frame_time_ns: int, iq: np.ndarray) -> list[bytes]: ...
+
+
+class PackedDatagrams(typing.NamedTuple):
+    """A frame's datagrams back to back in one buffer: each ``size`` bytes, the last one possibly shorter.
+    That is what one send with UDP segmentation offload takes (``drivers.radar.udp.UdpSender``), so a
+    frame of hundreds of datagrams costs a few system calls and no Python object per datagram."""
+
+    data: np.ndarray  # uint8, the datagrams back to back
+    size: int  # bytes of every datagram but the last
+
+    @property
+    def count(self) -> int:
+        return -(-self.data.size // self.size) if self.size else 0
+
+    def split(self) -> list[bytes]:
+        """The datagrams one by one (what a ``FrameEncoder`` returns)."""
+        return [self.data[o:o + self.size].tobytes() for o in range(0, self.data.size, self.size)]
+
+
+class PackedFrameEncoder(Protocol):
+    """A ``FrameEncoder`` that returns the frame's datagrams packed (byte for byte the same datagrams), valid
+    until its next call. ``frame_key`` names a frame that may come again (a looped replay's frame index):
+    an encoder may keep what it needs to encode that frame again for less."""
+
+    def __call__(self, frame_counter: int, frame_time_ns: int, iq: np.ndarray, frame_key=None) -> PackedDatagrams: ...
 
 
 def no_settings(options: dict[str, str], where: str) -> None:
@@ -66,6 +92,9 @@ class WireFormat:
         The receiving side, run in the radar's driver process.
     open_encoder : callable(radar_id) -> FrameEncoder
         The sending side, for replay and emulated hardware.
+    open_packed_encoder : callable(radar_id) -> PackedFrameEncoder, optional
+        The same datagrams packed in one buffer, for formats whose datagrams are all of one size but the
+        last: replay sends them with few system calls. None: replay sends ``open_encoder``'s one by one.
     configure : callable(options, where) -> settings
         Checks a link's options (``{"cfg": "radar.cfg"}``) and turns them into settings (picklable) for
         ``open_stream`` and ``waveform``; raises ConfigError naming ``where`` and the option.
@@ -93,6 +122,7 @@ class WireFormat:
     options: tuple[str, ...] = ()
     control_options: dict[str, Callable[[str], dict]] = dataclasses.field(default_factory=dict, hash=False)
     controls: Callable[[Any, dict], list] = no_controls
+    open_packed_encoder: "Callable[[int], PackedFrameEncoder] | None" = None
 
 
 _registered: dict[str, WireFormat] = {}

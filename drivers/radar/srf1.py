@@ -33,7 +33,7 @@ import numpy as np
 
 from imaging.core.waveform import Waveform
 
-from .registry import WireFormat
+from .registry import PackedDatagrams, WireFormat
 from .stream import RadarFrame
 
 MAGIC = b"SRF1"
@@ -42,6 +42,7 @@ VERSIONS = (1, 2)
 HEADER = struct.Struct("<4sBBHIQII")  # the fields of both versions
 CRC = struct.Struct("<I")  # version 2: after the fields
 FLAG_PTP_LOCKED = 0x01
+_OFFSET_AT = struct.calcsize("<4sBBHIQI")  # where the header's ``offset`` field starts
 #: Payload bytes per datagram so that IP (20) + UDP (8) + SRF1 header (v2) fit a 1500-byte MTU, multiple of 4.
 MAX_PAYLOAD = (1500 - 20 - 8 - HEADER.size - CRC.size) // 4 * 4
 
@@ -82,16 +83,129 @@ class Srf1Header(typing.NamedTuple):
 def encode_frame(radar_id: int, frame_counter: int, frame_time_ns: int, iq: np.ndarray, ptp_locked: bool = True,
                  payload_bytes: int = MAX_PAYLOAD, version: int = VERSION) -> list[bytes]:
     """Datagrams of one frame; ``iq`` int16 [chirps, rx, samples, 2] (or any int16 array in wire order)."""
-    data = np.ascontiguousarray(iq, dtype="<i2").tobytes()
-    flags = FLAG_PTP_LOCKED if ptp_locked else 0
-    out = []
-    for off in range(0, len(data), payload_bytes):
-        head = HEADER.pack(MAGIC, version, flags, radar_id, frame_counter & 0xFFFFFFFF, frame_time_ns, len(data), off)
-        chunk = data[off:off + payload_bytes]
-        if version >= 2:
-            head += CRC.pack(_crc(head, chunk))
-        out.append(head + chunk)
-    return out
+    return encode_frame_packed(radar_id, frame_counter, frame_time_ns, iq, ptp_locked, payload_bytes, version).split()
+
+
+def encode_frame_packed(radar_id: int, frame_counter: int, frame_time_ns: int, iq: np.ndarray, ptp_locked: bool = True,
+                        payload_bytes: int = MAX_PAYLOAD, version: int = VERSION) -> PackedDatagrams:
+    """``encode_frame``'s datagrams back to back in one buffer (``PackedDatagrams``), built with whole-array
+    copies: one header packed and copied to every datagram with its offset patched in, the payload copied
+    in one strided step. What is left per datagram is its CRC32C (version 2)."""
+    data = _wire_bytes(iq)
+    out = np.empty(_packed_size(data.size, payload_bytes, header_size(version)), np.uint8)
+    head = _lay_out(out, data, _header(radar_id, frame_counter, frame_time_ns, data.size, ptp_locked, version),
+                    payload_bytes, version)
+    if version >= 2:
+        _crc_column(out, payload_bytes, version)[:] = _datagram_crcs(out, head, payload_bytes)
+    return PackedDatagrams(out, header_size(version) + payload_bytes)
+
+
+class PackedEncoder:
+    """Replay's SRF1 encoder: ``encode_frame_packed``'s datagrams, into one buffer kept from call to call (a
+    frame's datagrams hold until the next call), and for a frame sent before without a CRC32C computed per
+    datagram.
+
+    A looped replay sends the same frames lap after lap with another counter and time. CRC32C is linear: the
+    CRC of (header', payload) is that of (header, payload) xor one term that depends only on header xor
+    header' and the payload's length. So the first time a frame is sent (``frame_key``: which frame it is)
+    its datagrams' CRCs are kept (4 bytes a datagram); when it comes again, with the same bytes (its CRC32C
+    over the whole frame, one pass, says so), they are updated by that term, one per frame, instead of
+    computed again over every datagram's header and payload: the per-datagram Python work that cost more
+    than the copies and the sending. A frame with other bytes under a known key is encoded afresh."""
+
+    def __init__(self, radar_id: int, ptp_locked: bool = True, payload_bytes: int = MAX_PAYLOAD, version: int = VERSION):
+        self.radar_id, self.ptp_locked, self.payload_bytes, self.version = radar_id, ptp_locked, payload_bytes, version
+        self._buffer = np.empty(0, np.uint8)
+        self._known: dict = {}  # frame_key -> (the frame's CRC32C, its header at offset 0, its datagrams' CRCs)
+        self._zeros_crc: dict[int, int] = {}  # CRC32C of as many zero bytes as a header and a payload of a length
+
+    def __call__(self, frame_counter: int, frame_time_ns: int, iq: np.ndarray, frame_key=None) -> PackedDatagrams:
+        data = _wire_bytes(iq)
+        size = _packed_size(data.size, self.payload_bytes, header_size(self.version))
+        if self._buffer.size != size:
+            self._buffer = np.empty(size, np.uint8)
+        out = self._buffer
+        head = _lay_out(out, data, _header(self.radar_id, frame_counter, frame_time_ns, data.size, self.ptp_locked,
+                                           self.version), self.payload_bytes, self.version)
+        if self.version >= 2:
+            column = _crc_column(out, self.payload_bytes, self.version)
+            frame_crc = crc32c.crc32c(data) if frame_key is not None else None
+            known = self._known.get(frame_key)
+            if known is not None and known[0] == frame_crc:
+                column[:] = known[2] ^ self._crc_change(known[1], head, data.size)
+            else:
+                column[:] = _datagram_crcs(out, head, self.payload_bytes)
+                if frame_key is not None:
+                    self._known[frame_key] = (frame_crc, head, column.copy())
+        return PackedDatagrams(out, header_size(self.version) + self.payload_bytes)
+
+    def _crc_change(self, head_before: bytes, head: bytes, frame_bytes: int) -> np.ndarray:
+        """What turns each datagram's CRC under ``head_before`` into its CRC under ``head`` (headers at offset
+        0; the offsets are the same in both): crc(d xor 0..0) for d = the headers' difference followed by as
+        many zeros as the datagram's payload, that is crc(d) xor crc(zeros), per payload length."""
+        delta = bytes(a ^ b for a, b in zip(head_before, head))
+        n_full, rest = divmod(frame_bytes, self.payload_bytes)
+        change = np.empty(n_full + (rest > 0), "<u4")
+        for rows, length in ((slice(0, n_full), self.payload_bytes), (slice(n_full, None), rest)):
+            if length:
+                zeros = self._zeros_crc.get(length)
+                if zeros is None:
+                    zeros = self._zeros_crc[length] = crc32c.crc32c(bytes(HEADER.size + length))
+                change[rows] = crc32c.crc32c(bytes(length), crc32c.crc32c(delta)) ^ zeros
+        return change
+
+
+def _wire_bytes(iq: np.ndarray) -> np.ndarray:
+    """The frame's bytes as they go on the wire (int16 little-endian), uint8, without a copy where it can."""
+    return np.ascontiguousarray(iq, dtype="<i2").reshape(-1).view(np.uint8)
+
+
+def _header(radar_id: int, frame_counter: int, frame_time_ns: int, frame_bytes: int, ptp_locked: bool,
+            version: int) -> bytes:
+    """The 28 header bytes before the CRC, at offset 0."""
+    return HEADER.pack(MAGIC, version, FLAG_PTP_LOCKED if ptp_locked else 0, radar_id, frame_counter & 0xFFFFFFFF,
+                       frame_time_ns, frame_bytes, 0)
+
+
+def _packed_size(frame_bytes: int, payload_bytes: int, head_size: int) -> int:
+    n_full, rest = divmod(frame_bytes, payload_bytes)
+    return n_full * (head_size + payload_bytes) + (head_size + rest if rest else 0)
+
+
+def _lay_out(out: np.ndarray, data: np.ndarray, head: bytes, payload_bytes: int, version: int) -> bytes:
+    """Headers (``head`` with each datagram's offset) and payloads into ``out``, by whole-array copies; the
+    CRC field is left as it was. Returns ``head``."""
+    head_size = header_size(version)
+    stride = head_size + payload_bytes
+    n_full, rest = divmod(data.size, payload_bytes)
+    full = out[:n_full * stride].reshape(n_full, stride)
+    head_bytes = np.frombuffer(head, np.uint8)
+    full[:, :HEADER.size] = head_bytes
+    full[:, _OFFSET_AT:HEADER.size] = (np.arange(n_full, dtype="<u4") * payload_bytes).view(np.uint8).reshape(n_full, 4)
+    full[:, head_size:] = data[:n_full * payload_bytes].reshape(n_full, payload_bytes)
+    if rest:
+        last = out[n_full * stride:]
+        last[:HEADER.size] = head_bytes
+        last[_OFFSET_AT:HEADER.size] = np.array([n_full * payload_bytes], "<u4").view(np.uint8)
+        last[head_size:] = data[n_full * payload_bytes:]
+    return head
+
+
+def _crc_column(out: np.ndarray, payload_bytes: int, version: int) -> np.ndarray:
+    """The CRC fields of the datagrams packed in ``out`` (version 2), as a little-endian u32 array view."""
+    stride = header_size(version) + payload_bytes
+    count = -(-out.size // stride)
+    return np.lib.stride_tricks.as_strided(out[HEADER.size:], (count, CRC.size), (stride, 1)).view("<u4")[:, 0]
+
+
+def _datagram_crcs(out: np.ndarray, head: bytes, payload_bytes: int) -> np.ndarray:
+    """Every datagram's CRC32C (over its header's fields, then its payload), one at a time."""
+    head_size = header_size(2)
+    stride = head_size + payload_bytes
+    view = memoryview(out)
+    crc = crc32c.crc32c
+    return np.array([crc(view[o + head_size:o + stride], crc(view[o:o + HEADER.size])) for o in range(0, out.size, stride)],
+                    np.uint32)
 
 
 def restamp(datagram: bytearray, frame_counter: int, frame_time_ns: int) -> None:
@@ -435,4 +549,9 @@ def _open_encoder(radar_id: int):
     return functools.partial(encode_frame, radar_id)
 
 
-WIRE_FORMAT = WireFormat("SRF1", "PTP-stamped frame chunks (the reference radar)", _open_stream, _open_encoder)
+def _open_packed_encoder(radar_id: int) -> PackedEncoder:
+    return PackedEncoder(radar_id)
+
+
+WIRE_FORMAT = WireFormat("SRF1", "PTP-stamped frame chunks (the reference radar)", _open_stream, _open_encoder,
+                         open_packed_encoder=_open_packed_encoder)
