@@ -46,18 +46,18 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from acquisition.replay_frames import LapFrames  # noqa: E402
 from drivers.emulators import XbusPty  # noqa: E402
 from drivers.radar.srf1 import PackedEncoder  # noqa: E402
 from drivers.radar.udp import UdpSender  # noqa: E402
-from imaging.core import strict_json  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
 from imaging.sim.scene import load_scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from reference_srf1 import encode_frame as encode_frame_before  # noqa: E402
+from results_file import load_average, write_results  # noqa: E402
 
-RESULTS = ROOT / "docs" / "results"
 RADAR = "left_front"
 RADARS_IN_SOAK = 4
 SPEED = 4.0  # x the recorded frame rate: paced like the soak, a pass in a quarter of the time
@@ -199,6 +199,7 @@ def main(argv: list[str]) -> int:
     rx = ctx.Process(target=receiver, args=(ready, counts, stop), daemon=True)
     rx.start()
     address = ready.get(timeout=60)
+    started_load = load_average()
     passes: dict[str, list[Pass]] = {"before": [], "now": []}
     loads = []
     with Recording(path) as rec:
@@ -258,8 +259,7 @@ def main(argv: list[str]) -> int:
         out[which]["five_minute_soak_mean_cpu_ms_per_frame"] = mean_ms
         out[which]["four_radars_and_imu_core_fraction_at_1x"] = (
             RADARS_IN_SOAK * frames_per_s * mean_ms * 1e-3 + imu["core_fraction_at_1x"])
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "emulator_cost.json").write_text(strict_json.dumps(out, indent=1) + "\n")
+    write_results("emulator_cost", out, started_load=started_load, indent=1)
     print(json.dumps({k: v for k, v in out.items() if k in ("before", "now", "before_over_now_each_round", "imu_emulator")},
                      indent=1))
     return 0
