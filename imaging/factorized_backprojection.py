@@ -342,7 +342,8 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
     outline_x, outline_y = image_xy[:, 0], image_xy[:, 1]
     while candidates:
         shape = (len(candidates), image_xy.shape[0])
-        place(candidates, np.broadcast_to(outline_x, shape), np.broadcast_to(outline_y, shape), np.ones(shape, bool))
+        # (tiled, not broadcast: the arrays of the steps below, so that the pass has one compiled signature)
+        place(candidates, np.tile(outline_x, (shape[0], 1)), np.tile(outline_y, (shape[0], 1)), np.ones(shape, bool))
         deeper = []
         for node in candidates:
             if node.children and 2 * node.nr * node.na > n_pix:

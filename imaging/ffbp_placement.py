@@ -204,32 +204,7 @@ def grid_edges(centre, axis, normal, r0_m, dr_m, a0, da, nr, na, z_m: float):
 
 
 @numba.njit(cache=True, nogil=True)
-def _node_bandwidths(centre, axis, normal, centres, r, alpha, n_points, z_m):
-    """|d/dr| and |d/dalpha| of |g - m| - |g - c| over the points g(r[q], alpha[q]), q < ``n_points``, of the
-    plane and the phase centres m ([M, 3]) of one node, the largest of each: with 2 / lambda they are its
-    demodulated image's bandwidths."""
-    u0, u1, n0, n1 = axis[0], axis[1], normal[0], normal[1]
-    h = z_m - centre[2]
-    f_r = f_a = 0.0
-    for q in range(n_points):
-        rq, aq = r[q], alpha[q]
-        b = math.sqrt(max(rq * rq * (1 - aq * aq) - h * h, 1e-12))  # as Subaperture.plane_points, b >= 1e-6
-        gx = centre[0] + aq * rq * u0 + b * n0
-        gy = centre[1] + aq * rq * u1 + b * n1
-        # d g / d r = alpha u + (r (1 - alpha^2) / b) n; d g / d alpha = r u - (alpha r^2 / b) n (horizontal).
-        across_r, across_a = rq * (1 - aq * aq) / b, -(aq * rq * rq / b)
-        drx, dry = aq * u0 + across_r * n0, aq * u1 + across_r * n1
-        dax, day = rq * u0 + across_a * n0, rq * u1 + across_a * n1
-        for k in range(centres.shape[0]):
-            lx, ly, lz = gx - centres[k, 0], gy - centres[k, 1], z_m - centres[k, 2]
-            inv = 1.0 / math.sqrt(lx * lx + ly * ly + lz * lz)
-            f_r = max(f_r, abs((lx * drx + ly * dry) * inv - 1.0))
-            f_a = max(f_a, abs((lx * dax + ly * day) * inv))
-    return f_r, f_a
-
-
-@numba.njit(cache=True, nogil=True)
-def _served_extent(centre, axis, normal, centres, served_x, served_y, served, b_image, z_m, out):
+def _served_extent(centre, axis, normal, centres, served_x, served_y, served, b_image, z_m, scratch, out):
     """Per node i: the range and alpha extremes of the plane points it serves (those at least half the image's
     distance ``b_image[i]`` from its axis) and its image's bandwidths there, r_min, r_max, a_min, a_max, f_r and
     f_a into out[i].
@@ -238,10 +213,11 @@ def _served_extent(centre, axis, normal, centres, served_x, served_y, served, b_
     of the (r, alpha) box, only where a point lies at least that half distance from the axis: a corner of the
     box can lie on the axis (b -> 0), where the derivatives diverge and would size the grid in the trillions.
     One pass a node, its points in two small buffers: as numpy arrays of a level's nodes x points these were
-    ~26 MB of temporaries a plan, fresh pages from the OS wherever the allocator maps them anew."""
+    ~26 MB of temporaries a plan, fresh pages from the OS wherever the allocator maps them anew. ``scratch``:
+    [4, K + 25], the caller's (an array made in here would make loading this kernel from numba's cache several
+    times dearer: it would need numba's runtime)."""
     n_served = served_x.shape[1]
-    r_used, alpha_used = np.empty(n_served + 25), np.empty(n_served + 25)
-    r_box, alpha_box = np.empty(5), np.empty(5)
+    r_used, alpha_used, r_box, alpha_box = scratch[0], scratch[1], scratch[2], scratch[3]
     for i in range(centre.shape[0]):
         cx, cy, h = centre[i, 0], centre[i, 1], z_m - centre[i, 2]
         u0, u1, n0, n1 = axis[i, 0], axis[i, 1], normal[i, 0], normal[i, 1]
@@ -286,26 +262,32 @@ def _served_extent(centre, axis, normal, centres, served_x, served_y, served, b_
             if not r * r * (1 - alpha * alpha) - h * h < half_b * half_b:
                 r_used[used], alpha_used[used] = r, alpha
                 used += 1
-        f_r, f_a = _node_bandwidths(centre[i], axis[i], normal[i], centres[i], r_used, alpha_used, used, z_m)
+        # |d/dr| and |d/dalpha| of |g - m| - |g - c| over those points g(r, alpha) and the node's phase centres m,
+        # the largest of each: with 2 / lambda they are its demodulated image's bandwidths. (Written out here:
+        # a call of another kernel made loading this one from numba's cache 8x dearer.)
+        f_r = f_a = 0.0
+        for q in range(used):
+            rq, aq = r_used[q], alpha_used[q]
+            b = math.sqrt(max(rq * rq * (1 - aq * aq) - h * h, 1e-12))  # as Subaperture.plane_points, b >= 1e-6
+            gx = cx + aq * rq * u0 + b * n0
+            gy = cy + aq * rq * u1 + b * n1
+            # d g / d r = alpha u + (r (1 - alpha^2) / b) n; d g / d alpha = r u - (alpha r^2 / b) n (horizontal).
+            across_r, across_a = rq * (1 - aq * aq) / b, -(aq * rq * rq / b)
+            drx, dry = aq * u0 + across_r * n0, aq * u1 + across_r * n1
+            dax, day = rq * u0 + across_a * n0, rq * u1 + across_a * n1
+            for k in range(centres.shape[1]):
+                lx, ly, lz = gx - centres[i, k, 0], gy - centres[i, k, 1], z_m - centres[i, k, 2]
+                inv = 1.0 / math.sqrt(lx * lx + ly * ly + lz * lz)
+                f_r = max(f_r, abs((lx * drx + ly * dry) * inv - 1.0))
+                f_a = max(f_a, abs((lx * dax + ly * day) * inv))
         out[i, 0], out[i, 1], out[i, 2], out[i, 3], out[i, 4], out[i, 5] = r_min, r_max, a_min, a_max, f_r, f_a
 
 
 def image_distance(centre: np.ndarray, normal: np.ndarray, image_xy: np.ndarray) -> np.ndarray:
     """The least distance of the image's outline ``image_xy`` [M, 2] from N nodes' axes, on the side of their
     normals, [N]: FFBP needs it positive (a side-looking pass)."""
-    out = np.empty(len(centre))
-    _image_distance_kernel(centre, normal, np.ascontiguousarray(image_xy[:, 0]), np.ascontiguousarray(image_xy[:, 1]), out)
-    return out
-
-
-@numba.njit(cache=True, nogil=True)
-def _image_distance_kernel(centre, normal, image_x, image_y, out):
-    """:func:`image_distance` without an [N, M] temporary."""
-    for i in range(centre.shape[0]):
-        least = np.inf
-        for q in range(image_x.size):
-            least = min(least, (image_x[q] - centre[i, 0]) * normal[i, 0] + (image_y[q] - centre[i, 1]) * normal[i, 1])
-        out[i] = least
+    return ((image_xy[None, :, 0] - centre[:, None, 0]) * normal[:, None, 0]
+            + (image_xy[None, :, 1] - centre[:, None, 1]) * normal[:, None, 1]).min(axis=1)
 
 
 def place_grids(centre, axis, normal, centres, served_x, served_y, served, b_image, z_m: float, *, envelope: float,
@@ -330,7 +312,8 @@ def place_grids(centre, axis, normal, centres, served_x, served_y, served, b_ima
     (r0_m, dr_m, a0, da, nr, na), arrays of shape (N,) (as ``Subaperture``'s fields).
     """
     extent = np.empty((len(centre), 6))
-    _served_extent(centre, axis, normal, centres, served_x, served_y, served, b_image, float(z_m), extent)
+    scratch = np.empty((4, served_x.shape[1] + 25))
+    _served_extent(centre, axis, normal, centres, served_x, served_y, served, b_image, float(z_m), scratch, extent)
     r_min, r_max, a_min, a_max, f_r, f_a = extent.T
     dr = 1.0 / (2 * (envelope + two_over_lambda * f_r) * BAND_MARGIN * oversample_range)
     da = np.minimum(1.0 / (2 * np.maximum(two_over_lambda * f_a, 1e-9) * BAND_MARGIN * oversample_angle), 0.1)
