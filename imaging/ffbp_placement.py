@@ -7,10 +7,12 @@ node's polar grid, covering the plane points it serves (the image's outline, or 
 :func:`grid_edges`) with the sampling the bandwidths of its demodulated image there ask for, for every node
 of one step down the tree at once. The rules are the plan's (that module's docstring, "Geometry"); only the
 bookkeeping is batched, and the loops over profiles, served points and point x phase-centre pairs are small
-numba passes: no numpy temporaries of a level's nodes x points. Those were ~26 MB a plan of the 2 m aperture
-(~6,500 pages), which the allocator may map afresh on every plan (glibc does for blocks above its mmap
-threshold until the process has freed a large one, as in a fresh ``sarbot image``): the plan's cost then
-depended on the cost of a new page (benchmarks/ffbp.py --plan records the faults, docs/results/ffbp_plan.json).
+numba passes: no numpy temporaries of a level's nodes x served points (the image's distance from the axes,
+nodes x outline points, stays a numpy expression: a pass of its own would cost a cache load more than its
+faults). As numpy the served points' pass made ~26 MB a plan of the 2 m aperture (~6,500 pages), which the
+allocator may map afresh on every plan (glibc does for blocks above its mmap threshold until the process has
+freed a large one, as in a fresh ``sarbot image``): the plan's cost then hung on the cost of a new page
+(benchmarks/ffbp.py --plan records the faults, docs/results/ffbp_plan.json; tests/test_ffbp_plan.py counts them).
 
 Done a node at a time, as before, the plan was ~50 small numpy calls a node, 0.44 s for the 2 m aperture's
 383 nodes, more than FFBP's run of 0.33 s; batched it is several times faster (benchmarks/ffbp.py records
