@@ -85,7 +85,8 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
     "ffbp_plan": ("FFBP's plan against the node-at-a-time plan",
                   "The 2 m aperture's plan (plan_factorized) against the builder it replaced (tests/reference_ffbp_plan.py), "
                   "alternated in one process, and FFBP with its plan against the direct kernel in each round, on 2 threads, "
-                  "on whatever load the JSON records.",
+                  "on whatever load the JSON records; each plan's page faults and system time, and the plan in fresh "
+                  "processes (fresh_process: as sarbot image meets it).",
                   ".venv/bin/python benchmarks/ffbp.py --plan"),
     "stripmap": ("Live strip map",
                  "The streaming strip map: frames per second against the sensor rate, and map error against an "

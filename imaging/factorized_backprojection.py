@@ -243,6 +243,14 @@ def _outline(x_m, y_m, n: int = 64) -> np.ndarray:
                            np.stack([np.full(n, x0), y0 + (y1 - y0) * s], 1), np.stack([np.full(n, x1), y0 + (y1 - y0) * s], 1)])
 
 
+def _midpoints(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """0.5 (a + b), contiguous, in one new array (not three: a plan's arrays are fresh pages where the
+    allocator maps them anew)."""
+    out = np.add(a, b)
+    out *= 0.5
+    return out
+
+
 def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, z_m: float,
                     carrier_hz: float, bandwidth_hz: float, options: FactorizedOptions = FactorizedOptions(),
                     outline_xy: np.ndarray | None = None) -> FactorizedPlan:
@@ -275,10 +283,9 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
         raise ValueError("x_m and y_m must be increasing pixel centres")
     if not (bandwidth_hz > 0 and carrier_hz > bandwidth_hz / 2):
         raise ValueError(f"bandwidth {bandwidth_hz} Hz and carrier {carrier_hz} Hz do not describe a radar")
-    m = 0.5 * (tx + rx)
     image_xy = _outline(x_m, y_m) if outline_xy is None else np.asarray(outline_xy, np.float64).reshape(-1, 2)
     centre_xy = image_xy.mean(axis=0)
-    columns = tuple(np.ascontiguousarray(m[:, i]) for i in range(3))
+    columns = tuple(_midpoints(tx[:, i], rx[:, i]) for i in range(3))  # the phase centres' x, y and z
     overall = track_axis(columns)
     two_over_lambda = 2 * (carrier_hz + bandwidth_hz / 2) / SPEED_OF_LIGHT_MPS
     envelope = bandwidth_hz / SPEED_OF_LIGHT_MPS  # the range profile's band, cycles per metre of range
@@ -335,7 +342,8 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
     outline_x, outline_y = image_xy[:, 0], image_xy[:, 1]
     while candidates:
         shape = (len(candidates), image_xy.shape[0])
-        place(candidates, np.broadcast_to(outline_x, shape), np.broadcast_to(outline_y, shape), np.ones(shape, bool))
+        # (tiled, not broadcast: the arrays of the steps below, so that the pass has one compiled signature)
+        place(candidates, np.tile(outline_x, (shape[0], 1)), np.tile(outline_y, (shape[0], 1)), np.ones(shape, bool))
         deeper = []
         for node in candidates:
             if node.children and 2 * node.nr * node.na > n_pix:

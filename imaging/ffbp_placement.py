@@ -6,8 +6,13 @@ ones its grid's bandwidths are taken over, for every node of one length at once.
 node's polar grid, covering the plane points it serves (the image's outline, or its parent's grid edge,
 :func:`grid_edges`) with the sampling the bandwidths of its demodulated image there ask for, for every node
 of one step down the tree at once. The rules are the plan's (that module's docstring, "Geometry"); only the
-bookkeeping is batched, and the three loops over profiles or point x phase-centre pairs are small numba
-passes (no numpy temporaries of a level's ~10^5-10^6 values).
+bookkeeping is batched, and the loops over profiles, served points and point x phase-centre pairs are small
+numba passes: no numpy temporaries of a level's nodes x served points (the image's distance from the axes,
+nodes x outline points, stays a numpy expression: a pass of its own would cost a cache load more than its
+faults). As numpy the served points' pass made ~26 MB a plan of the 2 m aperture (~6,500 pages), which the
+allocator may map afresh on every plan (glibc does for blocks above its mmap threshold until the process has
+freed a large one, as in a fresh ``sarbot image``): the plan's cost then hung on the cost of a new page
+(benchmarks/ffbp.py --plan records the faults, docs/results/ffbp_plan.json; tests/test_ffbp_plan.py counts them).
 
 Done a node at a time, as before, the plan was ~50 small numpy calls a node, 0.44 s for the 2 m aperture's
 383 nodes, more than FFBP's run of 0.33 s; batched it is several times faster (benchmarks/ffbp.py records
@@ -200,41 +205,74 @@ def grid_edges(centre, axis, normal, r0_m, dr_m, a0, da, nr, na, z_m: float):
     return np.concatenate(xs, axis=1), np.concatenate(ys, axis=1), np.concatenate(valid, axis=1)
 
 
-def _masked_extremes(v: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    return np.where(mask, v, np.inf).min(axis=1), np.where(mask, v, -np.inf).max(axis=1)
-
-
-def _linspace5(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """``np.linspace(lo, hi, 5)`` per node, [N, 5] (as numpy computes it)."""
-    out = np.arange(5.0)[None, :] * ((hi - lo) / 4)[:, None] + lo[:, None]
-    out[:, -1] = hi
-    return out
-
-
-def _bandwidths(centre, axis, normal, centres, r, alpha, use, z_m: float):
-    """|d/dr| and |d/dalpha| of |g - m| - |g - c| over points g(r, alpha) of the plane ([N, Q], where ``use``)
-    and phase centres m ([N, M, 3]), largest of each per node, [N] each: with 2 / lambda they are the
-    demodulated image's bandwidths."""
-    out = np.zeros((len(centre), 2))
-    _bandwidth_kernel(centre, axis, normal, centres, r, alpha, use, z_m, out)
-    return out[:, 0], out[:, 1]
-
-
 @numba.njit(cache=True, nogil=True)
-def _bandwidth_kernel(centre, axis, normal, centres, r, alpha, use, z_m, out):
-    """:func:`_bandwidths` in one pass (in numpy a level's leaves made temporaries of ~10^6 point x centre
-    pairs, dearer than the arithmetic)."""
+def _served_extent(centre, axis, normal, centres, served_x, served_y, served, b_image, z_m, scratch, out):
+    """Per node i: the range and alpha extremes of the plane points it serves (those at least half the image's
+    distance ``b_image[i]`` from its axis) and its image's bandwidths there, r_min, r_max, a_min, a_max, f_r and
+    f_a into out[i].
+
+    The bandwidths are taken at every n-th served point (about OUTLINE_SAMPLES of them) and on a 5 x 5 grid
+    of the (r, alpha) box, only where a point lies at least that half distance from the axis: a corner of the
+    box can lie on the axis (b -> 0), where the derivatives diverge and would size the grid in the trillions.
+    One pass a node, its points in two small buffers: as numpy arrays of a level's nodes x points these were
+    ~26 MB of temporaries a plan, fresh pages from the OS wherever the allocator maps them anew. ``scratch``:
+    [4, K + 25], the caller's (an array made in here would make loading this kernel from numba's cache several
+    times dearer: it would need numba's runtime)."""
+    n_served = served_x.shape[1]
+    r_used, alpha_used, r_box, alpha_box = scratch[0], scratch[1], scratch[2], scratch[3]
     for i in range(centre.shape[0]):
+        cx, cy, h = centre[i, 0], centre[i, 1], z_m - centre[i, 2]
         u0, u1, n0, n1 = axis[i, 0], axis[i, 1], normal[i, 0], normal[i, 1]
-        h = z_m - centre[i, 2]
-        f_r = f_a = 0.0
-        for q in range(r.shape[1]):
-            if not use[i, q]:
+        half_b = 0.5 * b_image[i]
+        r_min, r_max, a_min, a_max = np.inf, -np.inf, np.inf, -np.inf
+        kept = 0
+        for q in range(n_served):
+            if not served[i, q]:
                 continue
-            rq, aq = r[i, q], alpha[i, q]
+            rel_x, rel_y = served_x[i, q] - cx, served_y[i, q] - cy
+            along, across = rel_x * u0 + rel_y * u1, rel_x * n0 + rel_y * n1
+            if not across >= half_b:  # a parent's grid reaches further out in angle than the image
+                continue
+            r = math.sqrt(along * along + across * across + h * h)
+            alpha = along / r
+            r_min, r_max, a_min, a_max = min(r_min, r), max(r_max, r), min(a_min, alpha), max(a_max, alpha)
+            kept += 1
+        step = max(1, kept // OUTLINE_SAMPLES)
+        used = seen = 0
+        for q in range(n_served):
+            if not served[i, q]:
+                continue
+            rel_x, rel_y = served_x[i, q] - cx, served_y[i, q] - cy
+            along, across = rel_x * u0 + rel_y * u1, rel_x * n0 + rel_y * n1
+            if not across >= half_b:
+                continue
+            seen += 1
+            if (seen - 1) % step != 0:
+                continue
+            r = math.sqrt(along * along + across * across + h * h)
+            alpha = along / r
+            if not r * r * (1 - alpha * alpha) - h * h < half_b * half_b:
+                r_used[used], alpha_used[used] = r, alpha
+                used += 1
+        # The box, as np.linspace(lo, hi, 5) computes it, row-major over (alpha, r).
+        for j in range(4):
+            r_box[j] = j * ((r_max - r_min) / 4) + r_min
+            alpha_box[j] = j * ((a_max - a_min) / 4) + a_min
+        r_box[4], alpha_box[4] = r_max, a_max
+        for t in range(25):
+            r, alpha = r_box[t % 5], alpha_box[t // 5]
+            if not r * r * (1 - alpha * alpha) - h * h < half_b * half_b:
+                r_used[used], alpha_used[used] = r, alpha
+                used += 1
+        # |d/dr| and |d/dalpha| of |g - m| - |g - c| over those points g(r, alpha) and the node's phase centres m,
+        # the largest of each: with 2 / lambda they are its demodulated image's bandwidths. (Written out here:
+        # a call of another kernel made loading this one from numba's cache 8x dearer.)
+        f_r = f_a = 0.0
+        for q in range(used):
+            rq, aq = r_used[q], alpha_used[q]
             b = math.sqrt(max(rq * rq * (1 - aq * aq) - h * h, 1e-12))  # as Subaperture.plane_points, b >= 1e-6
-            gx = centre[i, 0] + aq * rq * u0 + b * n0
-            gy = centre[i, 1] + aq * rq * u1 + b * n1
+            gx = cx + aq * rq * u0 + b * n0
+            gy = cy + aq * rq * u1 + b * n1
             # d g / d r = alpha u + (r (1 - alpha^2) / b) n; d g / d alpha = r u - (alpha r^2 / b) n (horizontal).
             across_r, across_a = rq * (1 - aq * aq) / b, -(aq * rq * rq / b)
             drx, dry = aq * u0 + across_r * n0, aq * u1 + across_r * n1
@@ -244,7 +282,7 @@ def _bandwidth_kernel(centre, axis, normal, centres, r, alpha, use, z_m, out):
                 inv = 1.0 / math.sqrt(lx * lx + ly * ly + lz * lz)
                 f_r = max(f_r, abs((lx * drx + ly * dry) * inv - 1.0))
                 f_a = max(f_a, abs((lx * dax + ly * day) * inv))
-        out[i, 0], out[i, 1] = f_r, f_a
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3], out[i, 4], out[i, 5] = r_min, r_max, a_min, a_max, f_r, f_a
 
 
 def image_distance(centre: np.ndarray, normal: np.ndarray, image_xy: np.ndarray) -> np.ndarray:
@@ -275,29 +313,10 @@ def place_grids(centre, axis, normal, centres, served_x, served_y, served, b_ima
     -------
     (r0_m, dr_m, a0, da, nr, na), arrays of shape (N,) (as ``Subaperture``'s fields).
     """
-    h = (z_m - centre[:, 2])[:, None]
-    b_image = b_image[:, None]
-    rel_x, rel_y = served_x - centre[:, None, 0], served_y - centre[:, None, 1]
-    along = rel_x * axis[:, None, 0] + rel_y * axis[:, None, 1]
-    across = rel_x * normal[:, None, 0] + rel_y * normal[:, None, 1]
-    # A parent's grid reaches further out in angle than the image; near the track no pixel needs it.
-    keep = served & (across >= 0.5 * b_image)
-    r = np.sqrt(along ** 2 + across ** 2 + h ** 2)
-    alpha = along / r
-    r_min, r_max = _masked_extremes(r, keep)
-    a_min, a_max = _masked_extremes(alpha, keep)
-    # Bandwidths from the geometry itself (at every n-th point of the outline, and inside it on a coarse
-    # grid), so that a long subaperture's range curvature or a bent track widens the grid instead of aliasing it.
-    step = np.maximum(1, keep.sum(axis=1) // OUTLINE_SAMPLES)
-    pick = keep & ((np.cumsum(keep, axis=1) - 1) % step[:, None] == 0)
-    rq, aq = _linspace5(r_min, r_max), _linspace5(a_min, a_max)
-    rs = np.concatenate([r, np.tile(rq, (1, 5))], axis=1)  # as np.meshgrid(rq, aq), raveled
-    as_ = np.concatenate([alpha, np.repeat(aq, 5, axis=1)], axis=1)
-    # Only where the grid is needed: a corner of the (r, alpha) box can lie on the axis (b -> 0), where the
-    # derivatives diverge and would size the grid in the trillions.
-    use = np.concatenate([pick, np.ones(rq.shape[:1] + (25,), bool)], axis=1)
-    use &= ~(rs ** 2 * (1 - as_ ** 2) - h ** 2 < (0.5 * b_image) ** 2)
-    f_r, f_a = _bandwidths(centre, axis, normal, centres, rs, as_, use, float(z_m))  # one compiled signature
+    extent = np.empty((len(centre), 6))
+    scratch = np.empty((4, served_x.shape[1] + 25))
+    _served_extent(centre, axis, normal, centres, served_x, served_y, served, b_image, float(z_m), scratch, extent)
+    r_min, r_max, a_min, a_max, f_r, f_a = extent.T
     dr = 1.0 / (2 * (envelope + two_over_lambda * f_r) * BAND_MARGIN * oversample_range)
     da = np.minimum(1.0 / (2 * np.maximum(two_over_lambda * f_a, 1e-9) * BAND_MARGIN * oversample_angle), 0.1)
     # The merge and pixel kernels read taps/2 - 1 samples below the floor of a position and taps/2 above it.
