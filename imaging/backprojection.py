@@ -52,6 +52,7 @@ import numba
 import numpy as np
 from numba.core.errors import NumbaPerformanceWarning
 
+from imaging.bin_gather import PERMUTE_GATHER, _gather_accumulate, gather_planar
 from imaging.block_profiles import (A_N, A_N2, B0, B1, B2, B_N, B_N2, CODE, E0, E1, E2, FORM_FOLDED, FORM_GRADIENT,
                                     FORM_MASK, FORM_RX_SERIES, FORM_TWO_SERIES, FRAC_C, IBASE, INT_TABLE_SIZE, LO,
                                     NEW_TX_OFFSETS, SB0, SB1, SV0, SV1, TABLE_PROFILES, TABLE_SIZE, TOP, TURNS_C,
@@ -74,6 +75,7 @@ BLOCK = 256  # grid points per work item: the accumulators (2 KiB) stay in L1 be
 #: The float32 kernel's budget for the phase error of rounding a pixel's range offset (-80 dB).
 PHASE_ROUNDING_RAD = 1e-4
 PATCH = 16  # a 2-D grid is walked in PATCH x PATCH squares: BLOCK points close together
+SUB_PATCH = 4  # ... each in 4 x 4 squares: 16 consecutive points' bins lie close together (imaging/bin_gather.py)
 PROFILE_CHUNK = 256  # profiles per parallel sweep over the grid (their rows stay in L2/L3)
 
 _TWO_PI = 2.0 * math.pi
@@ -145,9 +147,22 @@ def _gather_pairs_accumulate(row, idx, frac, turns, pairs, acc_re, acc_im, linea
     """The second and third passes of a (block, profile) of the float32 kernel: gather each pixel's two
     neighbouring bins side by side into ``pairs`` [nb, 2] (one 16-byte load and store per pixel; scalar,
     LLVM will not vectorise a gather here), then interpolate and accumulate value * exp(-j 2 pi turns)
-    (vectorised; the sin and cos are made here, from one stored phase, rather than stored and loaded)."""
+    (vectorised; the sin and cos are made here, from one stored phase, rather than stored and loaded).
+    Where the CPU has AVX-512 (linear) the bins go instead to four planar float32 arrays in ``pairs``' memory,
+    by vector permutes where 16 pixels' bins lie close together (imaging/bin_gather.py): the same values."""
     nb = idx.size
-    if linear:
+    if linear and PERMUTE_GATHER:
+        planar = pairs.view(np.float32).reshape(4, nb)
+        a_re, a_im, b_re, b_im = planar[0], planar[1], planar[2], planar[3]
+        gather_planar(row, idx, a_re, a_im, b_re, b_im)
+        for i in range(nb):
+            c, s = _cos_sin_turns(turns[i])
+            t = frac[i]
+            vr = a_re[i] + t * (b_re[i] - a_re[i])
+            vi = a_im[i] + t * (b_im[i] - a_im[i])
+            acc_re[i] += vr * c + vi * s
+            acc_im[i] += vi * c - vr * s
+    elif linear:
         for i in range(nb):
             j = idx[i]
             pairs[i, 0] = row[j]
@@ -169,33 +184,6 @@ def _gather_pairs_accumulate(row, idx, frac, turns, pairs, acc_re, acc_im, linea
             a = pairs[i, 0]
             acc_re[i] += a.real * c + a.imag * s
             acc_im[i] += a.imag * c - a.real * s
-
-
-@numba.njit(inline="always", fastmath=True)
-def _gather_accumulate(row, idx, frac, cos_, sin_, v0, v1, acc_re, acc_im, linear):
-    """The second and third passes of a (block, profile): gather the profile at idx (scalar loads and
-    stores only: LLVM will not vectorise a gather here), then interpolate and accumulate value * exp(-j k dr)
-    (vectorised)."""
-    nb = idx.size
-    if linear:
-        for i in range(nb):
-            j = idx[i]
-            v0[i] = row[j]
-            v1[i] = row[j + np.uint32(1)]
-        for i in range(nb):
-            t = frac[i]
-            vr = v0[i].real + t * (v1[i].real - v0[i].real)
-            vi = v0[i].imag + t * (v1[i].imag - v0[i].imag)
-            acc_re[i] += vr * cos_[i] + vi * sin_[i]
-            acc_im[i] += vi * cos_[i] - vr * sin_[i]
-    else:
-        for i in range(nb):
-            v0[i] = row[idx[i]]
-        for i in range(nb):
-            vr = v0[i].real
-            vi = v0[i].imag
-            acc_re[i] += vr * cos_[i] + vi * sin_[i]
-            acc_im[i] += vi * cos_[i] - vr * sin_[i]
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True, nogil=True)
@@ -430,10 +418,11 @@ def guarded_rows(profiles: RangeProfiles) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=32)
-def patch_order(shape: tuple[int, ...], width: int = PATCH, points: int = BLOCK) -> np.ndarray | None:
+def patch_order(shape: tuple[int, ...], width: int = PATCH, points: int = BLOCK, sub_patch: int = 1) -> np.ndarray | None:
     """The order that walks a grid of this shape ([..., ny, nx]) in patches of about ``points`` points,
     ``width`` columns wide (PATCH x PATCH squares by default), each layer in turn; None for a 1-D set of points or a grid
-    within one patch (kept in the order given). Cached: ``form_image`` and the strip map backproject block
+    within one patch (kept in the order given). Each patch row by row, or, with ``sub_patch`` s > 1, in s x s
+    squares (where both its sides are multiples of s): the kernel's permute gather (imaging/bin_gather.py). Cached: ``form_image`` and the strip map backproject block
     after block onto the same grid, FFBP's leaves onto grids of a few shapes (callers only index with it)."""
     if len(shape) < 2:
         return None
@@ -452,7 +441,10 @@ def patch_order(shape: tuple[int, ...], width: int = PATCH, points: int = BLOCK)
         starts = range(0, nx, w)
         for x0 in reversed(starts) if backwards else starts:
             iy, ix = np.mgrid[y0:y0 + h, x0:min(x0 + w, nx)]
-            pieces.append((iy * nx + ix).ravel())
+            piece = iy * nx + ix
+            if sub_patch > 1 and piece.shape[0] % sub_patch == 0 and piece.shape[1] % sub_patch == 0:
+                piece = piece.reshape(h // sub_patch, sub_patch, -1, sub_patch).swapaxes(1, 2)
+            pieces.append(piece.ravel())
         y0, backwards = y0 + h, not backwards
     layer = np.concatenate(pieces)
     layers = int(np.prod(shape[:-2], dtype=np.int64))
@@ -565,7 +557,7 @@ def backproject(
         k = 2.0 * math.pi * profiles.carrier_hz / SPEED_OF_LIGHT_MPS
         rows = guarded_rows(profiles)
         width, block = patch_shape(np.asarray(grid_m))
-        order = patch_order(shape, width, block)
+        order = patch_order(shape, width, block, SUB_PATCH)
         if order is not None:
             gx, gy, gz = gx[order], gy[order], gz[order]
         kernel = _bp_interp_blocks if parallel else _bp_interp_blocks_serial

@@ -1,0 +1,153 @@
+"""The float32 kernel's gather of 16 pixels' neighbouring bins as vector permutes over a register window.
+
+A block's 16 consecutive pixels are a 4 x 4 sub-patch (``imaging.backprojection.patch_order`` with
+``sub_patch=4``), whose bins lie close together: about 10-12 apart at most on the benchmark grid. Where
+they span at most 14 bins, the 16 complex64 bins from the group's lowest index on (two 512-bit registers
+of float32) hold every pixel's bin a and the next one, b; four two-register permutes
+(``vpermi2ps``, LLVM's ``llvm.x86.avx512.vpermi2var.ps.512``: LLVM's ``shufflevector`` takes no variable
+mask) take each lane's a.re, a.im, b.re and b.im out of them, already de-interleaved, into four planar
+float32 arrays. The scalar gather does one 8-byte load and four 4-byte stores per pixel instead; a group
+whose bins span more (or a CPU without AVX-512) takes it.
+
+The values are the same bit for bit either way: only loads and permutes, no arithmetic on them.
+"""
+
+from __future__ import annotations
+
+from imaging.numba_target import compiles_for_avx512, prefer_full_width_vectors
+
+prefer_full_width_vectors()  # before numba builds its target (imaging/numba_target.py)
+
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
+from llvmlite import ir  # noqa: E402
+from numba import types  # noqa: E402
+from numba.extending import intrinsic  # noqa: E402
+
+#: Pixels per permute gather: one 512-bit register of float32 lanes.
+LANES = 16
+#: Largest (max - min) of a group's bin indices the window holds: bins min .. min + 15, b being the next bin.
+WINDOW_SPAN = LANES - 2
+#: Whether the kernels compile the permute gather (numba's target has AVX-512): decided once, at import,
+#: so each compiled kernel holds one path only.
+PERMUTE_GATHER = compiles_for_avx512()
+
+
+def _declare(module: ir.Module, name: str, ret: ir.Type, args: list[ir.Type]) -> ir.Function:
+    """The LLVM intrinsic ``name`` in ``module`` (declared once per module)."""
+    fn = module.globals.get(name)
+    if fn is None:
+        fn = ir.Function(module, ir.FunctionType(ret, args), name=name)
+    return fn
+
+
+@intrinsic
+def window_gather16(typingctx, row, idx, i0, a_re, a_im, b_re, b_im):
+    """Pixels i0 .. i0 + 15's bins a = row[idx[i]] and b = row[idx[i] + 1] into a_re, a_im, b_re, b_im [i],
+    by permutes over the window of 16 bins from min(idx[i0:i0 + 16], row.size - 16) on; True if done,
+    False (nothing written) where the indices span more than WINDOW_SPAN bins or the row is shorter than
+    16 bins. ``row`` is complex64, contiguous; ``idx`` uint32 with idx + 1 inside the row; the caller
+    keeps i0 + 16 within idx and the four float32 outputs. Needs AVX-512 (``PERMUTE_GATHER``)."""
+    if not (isinstance(row, types.Array) and row.dtype == types.complex64 and row.layout == "C"
+            and isinstance(idx, types.Array) and idx.dtype == types.uint32
+            and all(isinstance(a, types.Array) and a.dtype == types.float32 for a in (a_re, a_im, b_re, b_im))):
+        return None
+    sig = types.boolean(row, idx, i0, a_re, a_im, b_re, b_im)
+
+    def codegen(context, builder, signature, args):
+        row_v, idx_v, i0_v = args[:3]
+        row_a = context.make_array(signature.args[0])(context, builder, row_v)
+        idx_a = context.make_array(signature.args[1])(context, builder, idx_v)
+        outs = [context.make_array(signature.args[3 + n])(context, builder, args[3 + n]) for n in range(4)]
+        module = builder.module
+        i32, i64, f32 = ir.IntType(32), ir.IntType(64), ir.FloatType()
+        v16i, v16f = ir.VectorType(i32, LANES), ir.VectorType(f32, LANES)
+        umin = _declare(module, "llvm.vector.reduce.umin.v16i32", i32, [v16i])
+        umax = _declare(module, "llvm.vector.reduce.umax.v16i32", i32, [v16i])
+        permute = _declare(module, "llvm.x86.avx512.vpermi2var.ps.512", v16f, [v16f, v16i, v16f])
+
+        start = context.cast(builder, i0_v, signature.args[2], types.intp)
+        lanes = builder.load(builder.bitcast(builder.gep(idx_a.data, [start]), v16i.as_pointer()), align=4)
+        lo = builder.call(umin, [lanes])
+        hi = builder.call(umax, [lanes])
+        n_row = builder.extract_value(row_a.shape, 0)
+        long_enough = builder.icmp_signed(">=", n_row, ir.Constant(i64, LANES))
+        # The window ends at the row's end where the group's lowest bin is closer to it than 16 bins.
+        last = builder.trunc(builder.sub(n_row, ir.Constant(i64, LANES)), i32)
+        base = builder.select(builder.icmp_unsigned("<", lo, last), lo, last)
+        fits = builder.and_(long_enough, builder.icmp_unsigned("<=", builder.sub(hi, base), ir.Constant(i32, WINDOW_SPAN)))
+        with builder.if_then(fits, likely=True):
+            floats = builder.bitcast(builder.gep(row_a.data, [builder.zext(base, i64)]), f32.as_pointer())
+            w0 = builder.load(builder.bitcast(floats, v16f.as_pointer()), align=4)
+            w1 = builder.load(builder.bitcast(builder.gep(floats, [ir.Constant(i64, LANES)]), v16f.as_pointer()), align=4)
+            rel = builder.sub(lanes, builder.shuffle_vector(
+                builder.insert_element(ir.Constant(v16i, ir.Undefined), base, ir.Constant(i32, 0)),
+                ir.Constant(v16i, ir.Undefined), ir.Constant(v16i, [0] * LANES)))
+            twice = builder.add(rel, rel)  # a's real part is float 2 rel of the window, its imaginary 2 rel + 1
+            for n, out in enumerate(outs):
+                sel = builder.add(twice, ir.Constant(v16i, [n] * LANES))
+                lanes_out = builder.call(permute, [w0, sel, w1])
+                dst = builder.bitcast(builder.gep(out.data, [start]), v16f.as_pointer())
+                builder.store(lanes_out, dst, align=4)
+        return fits
+
+    return sig, codegen
+
+
+@numba.njit(inline="always", fastmath=True)
+def scalar_gather(row, idx, i_from, i_to, a_re, a_im, b_re, b_im):
+    """Pixels i_from .. i_to - 1's bins a = row[idx[i]] and b = row[idx[i] + 1] into the four planar arrays."""
+    for i in range(i_from, i_to):
+        j = idx[i]
+        a = row[j]
+        b = row[j + np.uint32(1)]
+        a_re[i] = a.real
+        a_im[i] = a.imag
+        b_re[i] = b.real
+        b_im[i] = b.imag
+
+
+@numba.njit(inline="always", fastmath=True)
+def gather_planar(row, idx, a_re, a_im, b_re, b_im):
+    """Every pixel's bins a = row[idx[i]] and b = row[idx[i] + 1] into the four planar float32 arrays: by
+    ``window_gather16`` for each group of 16 whose bins it holds where the CPU has AVX-512, else scalar.
+    Returns the number of groups of 16 the permutes took."""
+    nb = idx.size
+    done = 0
+    i0 = 0
+    if PERMUTE_GATHER:
+        while i0 + LANES <= nb:
+            if window_gather16(row, idx, i0, a_re, a_im, b_re, b_im):
+                done += 1
+            else:
+                scalar_gather(row, idx, i0, i0 + LANES, a_re, a_im, b_re, b_im)
+            i0 += LANES
+    scalar_gather(row, idx, i0, nb, a_re, a_im, b_re, b_im)
+    return done
+
+
+@numba.njit(inline="always", fastmath=True)
+def _gather_accumulate(row, idx, frac, cos_, sin_, v0, v1, acc_re, acc_im, linear):
+    """The second and third passes of a (block, profile): gather the profile at idx (scalar loads and
+    stores only: LLVM will not vectorise a gather here), then interpolate and accumulate value * exp(-j k dr)
+    (vectorised)."""
+    nb = idx.size
+    if linear:
+        for i in range(nb):
+            j = idx[i]
+            v0[i] = row[j]
+            v1[i] = row[j + np.uint32(1)]
+        for i in range(nb):
+            t = frac[i]
+            vr = v0[i].real + t * (v1[i].real - v0[i].real)
+            vi = v0[i].imag + t * (v1[i].imag - v0[i].imag)
+            acc_re[i] += vr * cos_[i] + vi * sin_[i]
+            acc_im[i] += vi * cos_[i] - vr * sin_[i]
+    else:
+        for i in range(nb):
+            v0[i] = row[idx[i]]
+        for i in range(nb):
+            vr = v0[i].real
+            vi = v0[i].imag
+            acc_re[i] += vr * cos_[i] + vi * sin_[i]
+            acc_im[i] += vi * cos_[i] - vr * sin_[i]
