@@ -143,26 +143,28 @@ def _place(i, ddr, place, idx, frac, pixel_turns):
 
 
 @numba.njit(inline="always", fastmath=True)
+def _gather_planar_accumulate(row, idx, frac, turns, planar, acc_re, acc_im):
+    """``_gather_pairs_accumulate``, linear, where the CPU has AVX-512: each pixel's two neighbouring bins
+    into planar [4, nb] float32 (a.re, a.im, b.re, b.im), by vector permutes where 16 pixels' bins lie close
+    together (imaging/bin_gather.py), then the same interpolation and accumulation of the same values."""
+    gather_planar(row, idx, planar)
+    for i in range(idx.size):
+        c, s = _cos_sin_turns(turns[i])
+        t = frac[i]
+        vr = planar[0, i] + t * (planar[2, i] - planar[0, i])
+        vi = planar[1, i] + t * (planar[3, i] - planar[1, i])
+        acc_re[i] += vr * c + vi * s
+        acc_im[i] += vi * c - vr * s
+
+
+@numba.njit(inline="always", fastmath=True)
 def _gather_pairs_accumulate(row, idx, frac, turns, pairs, acc_re, acc_im, linear):
     """The second and third passes of a (block, profile) of the float32 kernel: gather each pixel's two
     neighbouring bins side by side into ``pairs`` [nb, 2] (one 16-byte load and store per pixel; scalar,
     LLVM will not vectorise a gather here), then interpolate and accumulate value * exp(-j 2 pi turns)
-    (vectorised; the sin and cos are made here, from one stored phase, rather than stored and loaded).
-    Where the CPU has AVX-512 (linear) the bins go instead to four planar float32 arrays in ``pairs``' memory,
-    by vector permutes where 16 pixels' bins lie close together (imaging/bin_gather.py): the same values."""
+    (vectorised; the sin and cos are made here, from one stored phase, rather than stored and loaded)."""
     nb = idx.size
-    if linear and PERMUTE_GATHER:
-        planar = pairs.view(np.float32).reshape(4, nb)
-        a_re, a_im, b_re, b_im = planar[0], planar[1], planar[2], planar[3]
-        gather_planar(row, idx, a_re, a_im, b_re, b_im)
-        for i in range(nb):
-            c, s = _cos_sin_turns(turns[i])
-            t = frac[i]
-            vr = a_re[i] + t * (b_re[i] - a_re[i])
-            vi = a_im[i] + t * (b_im[i] - a_im[i])
-            acc_re[i] += vr * c + vi * s
-            acc_im[i] += vi * c - vr * s
-    elif linear:
+    if linear:
         for i in range(nb):
             j = idx[i]
             pairs[i, 0] = row[j]
@@ -209,6 +211,7 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
         frac = np.empty(nb, np.float32)
         pixel_turns = np.empty(nb, np.float32)  # each pixel's phase, in turns
         pairs = np.empty((nb, 2), np.complex64)
+        planar = np.empty((4, nb), np.float32)  # the same, planar, for the permute gather
         da = np.empty(nb, np.float32)
         x_lo, x_hi = gx[g0:g0 + nb].min(), gx[g0:g0 + nb].max()
         y_lo, y_hi = gy[g0:g0 + nb].min(), gy[g0:g0 + nb].max()
@@ -241,7 +244,10 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
             for j in range(n_q):
                 _place_block_profile(table, j, ints[IBASE + j], ints[CODE + j], inv32, k_turns32, linear, dx, dy, dz, dd,
                                      da, idx, frac, pixel_turns)
-                _gather_pairs_accumulate(rows[q0 + j], idx, frac, pixel_turns, pairs, acc_re, acc_im, linear)
+                if linear and PERMUTE_GATHER:
+                    _gather_planar_accumulate(rows[q0 + j], idx, frac, pixel_turns, planar, acc_re, acc_im)
+                else:
+                    _gather_pairs_accumulate(rows[q0 + j], idx, frac, pixel_turns, pairs, acc_re, acc_im, linear)
         for i in range(nb):
             out[g0 + i] += complex(acc_re[i], acc_im[i])
 

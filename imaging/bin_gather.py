@@ -6,7 +6,7 @@ they span at most 14 bins, the 16 complex64 bins from the group's lowest index o
 of float32) hold every pixel's bin a and the next one, b; four two-register permutes
 (``vpermi2ps``, LLVM's ``llvm.x86.avx512.vpermi2var.ps.512``: LLVM's ``shufflevector`` takes no variable
 mask) take each lane's a.re, a.im, b.re and b.im out of them, already de-interleaved, into four planar
-float32 arrays. The scalar gather does one 8-byte load and four 4-byte stores per pixel instead; a group
+float32 rows. The scalar gather does two 8-byte loads and four 4-byte stores per pixel instead; a group
 whose bins span more (or a CPU without AVX-512) takes it.
 
 The values are the same bit for bit either way: only loads and permutes, no arithmetic on them.
@@ -42,23 +42,24 @@ def _declare(module: ir.Module, name: str, ret: ir.Type, args: list[ir.Type]) ->
 
 
 @intrinsic
-def window_gather16(typingctx, row, idx, i0, a_re, a_im, b_re, b_im):
-    """Pixels i0 .. i0 + 15's bins a = row[idx[i]] and b = row[idx[i] + 1] into a_re, a_im, b_re, b_im [i],
-    by permutes over the window of 16 bins from min(idx[i0:i0 + 16], row.size - 16) on; True if done,
+def window_gather16(typingctx, row, idx, i0, planar):
+    """Pixels i0 .. i0 + 15's bins a = row[idx[i]] and b = row[idx[i] + 1] into planar[:, i] (a.re, a.im, b.re,
+    b.im) by permutes over the window of 16 bins from min(idx[i0:i0 + 16], row.size - 16) on; True if done,
     False (nothing written) where the indices span more than WINDOW_SPAN bins or the row is shorter than
-    16 bins. ``row`` is complex64, contiguous; ``idx`` uint32 with idx + 1 inside the row; the caller
-    keeps i0 + 16 within idx and the four float32 outputs. Needs AVX-512 (``PERMUTE_GATHER``)."""
-    if not (isinstance(row, types.Array) and row.dtype == types.complex64 and row.layout == "C"
-            and isinstance(idx, types.Array) and idx.dtype == types.uint32
-            and all(isinstance(a, types.Array) and a.dtype == types.float32 for a in (a_re, a_im, b_re, b_im))):
+    16 bins. ``row`` is complex64, contiguous; ``idx`` uint32 with idx + 1 inside the row; ``planar``
+    float32 [4, n], contiguous; the caller keeps i0 + 16 <= n. Needs AVX-512 (``PERMUTE_GATHER``)."""
+    if not (isinstance(row, types.Array) and row.dtype == types.complex64 and row.layout == "C" and row.ndim == 1
+            and isinstance(idx, types.Array) and idx.dtype == types.uint32 and idx.layout == "C"
+            and isinstance(planar, types.Array) and planar.dtype == types.float32 and planar.ndim == 2
+            and planar.layout == "C" and isinstance(i0, types.Integer)):
         return None
-    sig = types.boolean(row, idx, i0, a_re, a_im, b_re, b_im)
+    sig = types.boolean(row, idx, i0, planar)
 
     def codegen(context, builder, signature, args):
-        row_v, idx_v, i0_v = args[:3]
+        row_v, idx_v, i0_v, planar_v = args
         row_a = context.make_array(signature.args[0])(context, builder, row_v)
         idx_a = context.make_array(signature.args[1])(context, builder, idx_v)
-        outs = [context.make_array(signature.args[3 + n])(context, builder, args[3 + n]) for n in range(4)]
+        out_a = context.make_array(signature.args[3])(context, builder, planar_v)
         module = builder.module
         i32, i64, f32 = ir.IntType(32), ir.IntType(64), ir.FloatType()
         v16i, v16f = ir.VectorType(i32, LANES), ir.VectorType(f32, LANES)
@@ -80,49 +81,49 @@ def window_gather16(typingctx, row, idx, i0, a_re, a_im, b_re, b_im):
             floats = builder.bitcast(builder.gep(row_a.data, [builder.zext(base, i64)]), f32.as_pointer())
             w0 = builder.load(builder.bitcast(floats, v16f.as_pointer()), align=4)
             w1 = builder.load(builder.bitcast(builder.gep(floats, [ir.Constant(i64, LANES)]), v16f.as_pointer()), align=4)
-            rel = builder.sub(lanes, builder.shuffle_vector(
-                builder.insert_element(ir.Constant(v16i, ir.Undefined), base, ir.Constant(i32, 0)),
-                ir.Constant(v16i, ir.Undefined), ir.Constant(v16i, [0] * LANES)))
+            splat = builder.shuffle_vector(builder.insert_element(ir.Constant(v16i, ir.Undefined), base, ir.Constant(i32, 0)),
+                                           ir.Constant(v16i, ir.Undefined), ir.Constant(v16i, [0] * LANES))
+            rel = builder.sub(lanes, splat)
             twice = builder.add(rel, rel)  # a's real part is float 2 rel of the window, its imaginary 2 rel + 1
-            for n, out in enumerate(outs):
-                sel = builder.add(twice, ir.Constant(v16i, [n] * LANES))
-                lanes_out = builder.call(permute, [w0, sel, w1])
-                dst = builder.bitcast(builder.gep(out.data, [start]), v16f.as_pointer())
-                builder.store(lanes_out, dst, align=4)
+            n_cols = builder.extract_value(out_a.shape, 1)
+            for n in range(4):
+                lanes_out = builder.call(permute, [w0, builder.add(twice, ir.Constant(v16i, [n] * LANES)), w1])
+                at = builder.add(builder.mul(ir.Constant(i64, n), n_cols), start)
+                builder.store(lanes_out, builder.bitcast(builder.gep(out_a.data, [at]), v16f.as_pointer()), align=4)
         return fits
 
     return sig, codegen
 
 
 @numba.njit(inline="always", fastmath=True)
-def scalar_gather(row, idx, i_from, i_to, a_re, a_im, b_re, b_im):
-    """Pixels i_from .. i_to - 1's bins a = row[idx[i]] and b = row[idx[i] + 1] into the four planar arrays."""
+def scalar_gather(row, idx, i_from, i_to, planar):
+    """Pixels i_from .. i_to - 1's bins a = row[idx[i]] and b = row[idx[i] + 1] into planar[:, i]."""
     for i in range(i_from, i_to):
         j = idx[i]
         a = row[j]
         b = row[j + np.uint32(1)]
-        a_re[i] = a.real
-        a_im[i] = a.imag
-        b_re[i] = b.real
-        b_im[i] = b.imag
+        planar[0, i] = a.real
+        planar[1, i] = a.imag
+        planar[2, i] = b.real
+        planar[3, i] = b.imag
 
 
 @numba.njit(inline="always", fastmath=True)
-def gather_planar(row, idx, a_re, a_im, b_re, b_im):
-    """Every pixel's bins a = row[idx[i]] and b = row[idx[i] + 1] into the four planar float32 arrays: by
-    ``window_gather16`` for each group of 16 whose bins it holds where the CPU has AVX-512, else scalar.
-    Returns the number of groups of 16 the permutes took."""
+def gather_planar(row, idx, planar):
+    """Every pixel's bins a = row[idx[i]] and b = row[idx[i] + 1] into planar [4, idx.size] float32 (a.re,
+    a.im, b.re, b.im): by ``window_gather16`` for each group of 16 whose bins it holds where the CPU has
+    AVX-512, else scalar. Returns the number of groups of 16 the permutes took."""
     nb = idx.size
     done = 0
     i0 = 0
     if PERMUTE_GATHER:
         while i0 + LANES <= nb:
-            if window_gather16(row, idx, i0, a_re, a_im, b_re, b_im):
+            if window_gather16(row, idx, i0, planar):
                 done += 1
             else:
-                scalar_gather(row, idx, i0, i0 + LANES, a_re, a_im, b_re, b_im)
+                scalar_gather(row, idx, i0, i0 + LANES, planar)
             i0 += LANES
-    scalar_gather(row, idx, i0, nb, a_re, a_im, b_re, b_im)
+    scalar_gather(row, idx, i0, nb, planar)
     return done
 
 
