@@ -22,6 +22,7 @@ import numba  # noqa: E402
 import numpy as np  # noqa: E402
 from llvmlite import ir  # noqa: E402
 from numba import types  # noqa: E402
+from numba.core import cgutils  # noqa: E402
 from numba.extending import intrinsic  # noqa: E402
 
 #: Pixels per permute gather: one 512-bit register of float32 lanes.
@@ -64,32 +65,61 @@ def window_gather16(typingctx, row, idx, i0, planar):
         i32, i64, f32 = ir.IntType(32), ir.IntType(64), ir.FloatType()
         v16i, v16f = ir.VectorType(i32, LANES), ir.VectorType(f32, LANES)
         umin = _declare(module, "llvm.vector.reduce.umin.v16i32", i32, [v16i])
-        umax = _declare(module, "llvm.vector.reduce.umax.v16i32", i32, [v16i])
         permute = _declare(module, "llvm.x86.avx512.vpermi2var.ps.512", v16f, [v16f, v16i, v16f])
 
         start = context.cast(builder, i0_v, signature.args[2], types.intp)
         lanes = builder.load(builder.bitcast(builder.gep(idx_a.data, [start]), v16i.as_pointer()), align=4)
-        lo = builder.call(umin, [lanes])
-        hi = builder.call(umax, [lanes])
         n_row = builder.extract_value(row_a.shape, 0)
-        long_enough = builder.icmp_signed(">=", n_row, ir.Constant(i64, LANES))
-        # The window ends at the row's end where the group's lowest bin is closer to it than 16 bins.
-        last = builder.trunc(builder.sub(n_row, ir.Constant(i64, LANES)), i32)
-        base = builder.select(builder.icmp_unsigned("<", lo, last), lo, last)
-        fits = builder.and_(long_enough, builder.icmp_unsigned("<=", builder.sub(hi, base), ir.Constant(i32, WINDOW_SPAN)))
-        with builder.if_then(fits, likely=True):
+        last = builder.trunc(builder.sub(n_row, ir.Constant(i64, LANES)), i32)  # the last window's first bin
+        n_cols = builder.extract_value(out_a.shape, 1)
+
+        def clamped(first):
+            """The window from bin ``first`` on, moved back to end at the row's end where it would not."""
+            return builder.select(builder.icmp_signed("<", first, last), first, last)
+
+        def relative(base):
+            """Each lane's bin from ``base`` on, and whether all lie within WINDOW_SPAN (negatives wrap)."""
+            splat = builder.shuffle_vector(builder.insert_element(ir.Constant(v16i, ir.Undefined), base,
+                                                                  ir.Constant(i32, 0)),
+                                           ir.Constant(v16i, ir.Undefined), ir.Constant(v16i, [0] * LANES))
+            rel = builder.sub(lanes, splat)
+            inside = builder.icmp_unsigned("<=", rel, ir.Constant(v16i, [WINDOW_SPAN] * LANES))
+            all_inside = builder.icmp_unsigned("==", builder.bitcast(inside, ir.IntType(LANES)),
+                                               ir.Constant(ir.IntType(LANES), (1 << LANES) - 1))
+            return rel, all_inside
+
+        def permute_window(base, rel):
             floats = builder.bitcast(builder.gep(row_a.data, [builder.zext(base, i64)]), f32.as_pointer())
             w0 = builder.load(builder.bitcast(floats, v16f.as_pointer()), align=4)
             w1 = builder.load(builder.bitcast(builder.gep(floats, [ir.Constant(i64, LANES)]), v16f.as_pointer()), align=4)
-            splat = builder.shuffle_vector(builder.insert_element(ir.Constant(v16i, ir.Undefined), base, ir.Constant(i32, 0)),
-                                           ir.Constant(v16i, ir.Undefined), ir.Constant(v16i, [0] * LANES))
-            rel = builder.sub(lanes, splat)
             twice = builder.add(rel, rel)  # a's real part is float 2 rel of the window, its imaginary 2 rel + 1
-            n_cols = builder.extract_value(out_a.shape, 1)
             for n in range(4):
                 lanes_out = builder.call(permute, [w0, builder.add(twice, ir.Constant(v16i, [n] * LANES)), w1])
                 at = builder.add(builder.mul(ir.Constant(i64, n), n_cols), start)
                 builder.store(lanes_out, builder.bitcast(builder.gep(out_a.data, [at]), v16f.as_pointer()), align=4)
+
+        # First the window centred on the mean of the first and last pixels' bins (opposite corners of a
+        # sub-patch): two scalar loads, no reduction. Where that misses a lane, the window from the lowest bin.
+        corner = builder.load(builder.gep(idx_a.data, [builder.add(start, ir.Constant(i64, LANES - 1))]))
+        first = builder.extract_element(lanes, ir.Constant(i32, 0))
+        mid = builder.trunc(builder.lshr(builder.add(builder.zext(first, i64), builder.zext(corner, i64)),
+                                         ir.Constant(i64, 1)), i32)
+        centred = clamped(builder.select(builder.icmp_unsigned("<", mid, ir.Constant(i32, LANES // 2 - 1)),
+                                         ir.Constant(i32, 0), builder.sub(mid, ir.Constant(i32, LANES // 2 - 1))))
+        long_enough = builder.icmp_signed(">=", n_row, ir.Constant(i64, LANES))
+        rel, inside = relative(centred)
+        fits = cgutils.alloca_once(builder, ir.IntType(1))  # in the entry block: not one per call in a loop
+        builder.store(builder.and_(long_enough, inside), fits)
+        with builder.if_else(builder.load(fits), likely=True) as (then, otherwise):
+            with then:
+                permute_window(centred, rel)
+            with otherwise:
+                lowest = clamped(builder.call(umin, [lanes]))
+                rel, inside = relative(lowest)
+                builder.store(builder.and_(long_enough, inside), fits)
+                with builder.if_then(builder.load(fits)):
+                    permute_window(lowest, rel)
+        fits = builder.load(fits)
         return fits
 
     return sig, codegen
