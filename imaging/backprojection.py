@@ -28,7 +28,8 @@ is unchanged to 0.01 dB, near the origin and 5 km out. The float32 kernel's phas
 with polynomials for half the angle and the double-angle formulas; a TX shared by consecutive profiles (the
 RX channels of one chirp) is ranged once for all of them; each pixel's two neighbouring bins are gathered as
 one 16-byte pair; and on a CPU with AVX-512 numba is told to use all 512 bits (see
-``imaging.numba_target.prefer_full_width_vectors``). The profile is sampled by one of three modes:
+``imaging.numba_target.prefer_full_width_vectors``) and the bins of 16 pixels (a 4 x 4 square of the patch)
+are taken out of a two-register window by vector permutes, into planar arrays (``imaging.bin_gather``). The profile is sampled by one of three modes:
 
 ``nearest``  nearest bin of a (heavily) oversampled profile; cheapest per sample, needs a large oversampling.
 ``linear``   linear interpolation between bins (default; about 68 dB signal-to-error at 16x oversampling,
