@@ -428,9 +428,10 @@ def guarded_rows(profiles: RangeProfiles) -> np.ndarray:
 def patch_order(shape: tuple[int, ...], width: int = PATCH, points: int = BLOCK, sub_patch: int = 1) -> np.ndarray | None:
     """The order that walks a grid of this shape ([..., ny, nx]) in patches of about ``points`` points,
     ``width`` columns wide (PATCH x PATCH squares by default), each layer in turn; None for a 1-D set of points or a grid
-    within one patch (kept in the order given). Each patch row by row, or, with ``sub_patch`` s > 1, in s x s
-    squares (where both its sides are multiples of s): the kernel's permute gather (imaging/bin_gather.py). Cached: ``form_image`` and the strip map backproject block
-    after block onto the same grid, FFBP's leaves onto grids of a few shapes (callers only index with it)."""
+    within one patch (kept in the order given). Each patch row by row; with ``sub_patch`` s > 1, a block of
+    ``points`` that is a whole patch in s x s squares (``_in_squares``; for the permute gather,
+    imaging/bin_gather.py). Cached: ``form_image`` and the strip map backproject block after block onto the
+    same grid, FFBP's leaves onto grids of a few shapes (callers only index with it)."""
     if len(shape) < 2:
         return None
     ny, nx = shape[-2], shape[-1]
@@ -448,16 +449,32 @@ def patch_order(shape: tuple[int, ...], width: int = PATCH, points: int = BLOCK,
         starts = range(0, nx, w)
         for x0 in reversed(starts) if backwards else starts:
             iy, ix = np.mgrid[y0:y0 + h, x0:min(x0 + w, nx)]
-            piece = iy * nx + ix
-            if sub_patch > 1 and piece.shape[0] % sub_patch == 0 and piece.shape[1] % sub_patch == 0:
-                piece = piece.reshape(h // sub_patch, sub_patch, -1, sub_patch).swapaxes(1, 2)
-            pieces.append(piece.ravel())
+            pieces.append((iy * nx + ix).ravel())
         y0, backwards = y0 + h, not backwards
     layer = np.concatenate(pieces)
     layers = int(np.prod(shape[:-2], dtype=np.int64))
     order = (np.arange(layers)[:, None] * (ny * nx) + layer[None, :]).ravel()
+    if sub_patch > 1:
+        order = _in_squares(order, nx, points, sub_patch)
     order.flags.writeable = False  # shared by every call on this shape
     return order
+
+
+def _in_squares(order: np.ndarray, nx: int, points: int, side: int) -> np.ndarray:
+    """``order`` with each run of ``points`` (a block) that covers a whole rectangle of one layer, both its
+    sides multiples of ``side``, walked in side x side squares, row by row: every block keeps its points,
+    so the image stays the same bit for bit, and 16 consecutive points of a block lie close together."""
+    n_full = order.size // points
+    blocks = order[:n_full * points].reshape(n_full, points)
+    rows, ix = np.divmod(blocks, nx)  # rows: layer * ny + row (a block within one layer spans few of them)
+    y, x = rows - rows.min(axis=1, keepdims=True), ix - ix.min(axis=1, keepdims=True)
+    h, w = y.max(axis=1) + 1, x.max(axis=1) + 1
+    whole = (h * w == points) & (h % side == 0) & (w % side == 0)  # distinct points filling their box
+    key = ((y // side) * (w[:, None] // side) + x // side) * side * side + (y % side) * side + x % side
+    out = order.copy()
+    out[:n_full * points].reshape(n_full, points)[whole] = np.take_along_axis(
+        blocks, np.argsort(key, axis=1), axis=1)[whole]
+    return out
 
 
 #: Largest side of a patch: two of them stay within the float32 kernel's extent (1 m at 77 GHz).

@@ -88,3 +88,15 @@ def test_the_kernel_gives_the_same_image_with_either_gather(monkeypatch):
             scalar = bp.backproject(*case, reference_range_m=r_ref)
         assert np.array_equal(permuted, scalar)
         assert np.abs(permuted).max() > 0.5 * case[0].data.shape[0]  # something was imaged (not vacuous)
+
+
+def test_walking_patches_in_4_x_4_squares_leaves_the_image_bit_for_bit(monkeypatch):
+    """A block holds the same points in either order, and each point's sum is its own: the same image."""
+    for shape, far in (((40, 70), 0.0), ((40, 70), 5000.0), ((3, 20, 32), 0.0)):
+        case = grid_case(shape, far=far)
+        squares = bp.backproject(*case)
+        with monkeypatch.context() as m:
+            m.setattr(bp, "SUB_PATCH", 1)
+            rows = bp.backproject(*case)
+        assert not np.array_equal(bp.patch_order(shape, sub_patch=4), bp.patch_order(shape))
+        assert np.array_equal(squares, rows)
