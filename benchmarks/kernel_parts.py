@@ -7,7 +7,8 @@ wrong; only their time counts):
 ``table``       the per-(block, profile) table (imaging/block_profiles.py): computed for the first group of
                 the first block only, reused by all;
 ``place``       each pixel's range offset, bin and phase (the first pass): run for a group's first profile only;
-``gather``      the two neighbouring bins of each pixel, copied side by side (the second pass): not run;
+``gather``      the two neighbouring bins of each pixel, copied side by side, or on AVX-512 permuted into
+                planar arrays (the second pass): not run;
 ``sincos``      the phase's sine and cosine in the third pass: replaced by two loads;
 ``accumulate``  the whole third pass (sine, cosine, interpolation and accumulation): not run.
 
@@ -52,6 +53,14 @@ EDITS = (
                 pairs[i, 1] = row[j + np.uint32(1)]
         for i in range(nb if PART != "accumulate" else 0):
             c, s = _cos_sin_turns(turns[i]) if PART != "sincos" else (turns[i], frac[i])"""),
+    # ... and the same in the permute gather's pass (imaging/bin_gather.py), which the kernel takes on AVX-512.
+    ("""    gather_planar(row, idx, planar)
+    for i in range(idx.size):
+        c, s = _cos_sin_turns(turns[i])""",
+     """    if PART != "gather":
+        gather_planar(row, idx, planar)
+    for i in range(idx.size if PART != "accumulate" else 0):
+        c, s = _cos_sin_turns(turns[i]) if PART != "sincos" else (turns[i], frac[i])"""),
     ("""            block_profile_table(cx, cy, cz, radius,""",
      """            if PART != "table" or blk == 0 and g == 0:
                 block_profile_table(cx, cy, cz, radius,"""),
@@ -62,6 +71,7 @@ EDITS = (
     ("""        table = np.empty(TABLE_SIZE, np.float32)""",
      """        table = np.zeros(TABLE_SIZE, np.float32)
         pairs[:] = 0
+        planar[:] = 0
         idx[:] = 1"""),
 )
 

@@ -57,6 +57,12 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                      "each in a worker process of its own, alternating in one run: speed-up on 1 and 2 threads, "
                      "cycles per backprojection, SER of both; on a loaded machine (the load is in the JSON).",
                      ".venv/bin/python benchmarks/kernel_versions.py --baseline f671da8 --rounds 4 --name kernel_hoist"),
+    "kernel_permute": ("Backprojection kernel: the gather as vector permutes",
+                       "The kernel that takes the bins of 16 pixels (4 x 4) out of a 16-bin window by AVX-512 "
+                       "permutes (imaging/bin_gather.py), against the one with the scalar gather (ff18b4a), each in a "
+                       "worker process of its own, alternating in one run: speed-up on 1 and 2 threads, cycles per "
+                       "backprojection, SER of both; on a loaded machine (the load is in the JSON).",
+                       ".venv/bin/python benchmarks/kernel_versions.py --baseline ff18b4a --name kernel_permute"),
     "kernel_parts": ("Backprojection kernel: cycles per part",
                      "The kernel beside copies of itself that each leave one part out (the per-(block, profile) "
                      "table, each pixel's offset, bin and phase, the gather, the sine and cosine, the whole "

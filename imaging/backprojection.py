@@ -28,7 +28,8 @@ is unchanged to 0.01 dB, near the origin and 5 km out. The float32 kernel's phas
 with polynomials for half the angle and the double-angle formulas; a TX shared by consecutive profiles (the
 RX channels of one chirp) is ranged once for all of them; each pixel's two neighbouring bins are gathered as
 one 16-byte pair; and on a CPU with AVX-512 numba is told to use all 512 bits (see
-``imaging.numba_target.prefer_full_width_vectors``). The profile is sampled by one of three modes:
+``imaging.numba_target.prefer_full_width_vectors``) and the bins of 16 pixels (a 4 x 4 square of the patch)
+are taken out of a two-register window by vector permutes, into planar arrays (``imaging.bin_gather``). The profile is sampled by one of three modes:
 
 ``nearest``  nearest bin of a (heavily) oversampled profile; cheapest per sample, needs a large oversampling.
 ``linear``   linear interpolation between bins (default; about 68 dB signal-to-error at 16x oversampling,
@@ -43,7 +44,6 @@ profiles (one profile row stays in L1 cache) and then over the block's points (v
 
 from __future__ import annotations
 
-import functools
 import math
 import types
 import warnings
@@ -52,6 +52,7 @@ import numba
 import numpy as np
 from numba.core.errors import NumbaPerformanceWarning
 
+from imaging.bin_gather import PERMUTE_GATHER, _gather_accumulate, gather_planar
 from imaging.block_profiles import (A_N, A_N2, B0, B1, B2, B_N, B_N2, CODE, E0, E1, E2, FORM_FOLDED, FORM_GRADIENT,
                                     FORM_MASK, FORM_RX_SERIES, FORM_TWO_SERIES, FRAC_C, IBASE, INT_TABLE_SIZE, LO,
                                     NEW_TX_OFFSETS, SB0, SB1, SV0, SV1, TABLE_PROFILES, TABLE_SIZE, TOP, TURNS_C,
@@ -60,6 +61,8 @@ from imaging.block_profiles import (A_N, A_N2, B0, B1, B2, B_N, B_N2, CODE, E0, 
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.numba_target import (  # noqa: F401 - compiled_target re-exported
     compiled_target, prefer_full_width_vectors, skip_extension_search)
+from imaging.patches import (  # noqa: F401 - re-exported: callers walk their grids as the kernel does
+    BLOCK, PATCH, PATCH_SIDE_MAX_M, SUB_PATCH, max_block_extent_m, patch_order, patch_shape)
 from imaging.range_compression import RangeProfiles
 from imaging.range_offsets import (  # noqa: F401 - _G, SERIES_TOLERANCE_M, midpoint_form and series_applies re-exported
     _G, MIDPOINT_PHASE_RAD, SERIES_TOLERANCE_M, _series_offset, midpoint_form, series_applies)
@@ -70,10 +73,8 @@ skip_extension_search()  # and no search of every installed distribution for num
 
 
 MODES = ("nearest", "linear", "exact")
-BLOCK = 256  # grid points per work item: the accumulators (2 KiB) stay in L1 beside a profile row
 #: The float32 kernel's budget for the phase error of rounding a pixel's range offset (-80 dB).
 PHASE_ROUNDING_RAD = 1e-4
-PATCH = 16  # a 2-D grid is walked in PATCH x PATCH squares: BLOCK points close together
 PROFILE_CHUNK = 256  # profiles per parallel sweep over the grid (their rows stay in L2/L3)
 
 _TWO_PI = 2.0 * math.pi
@@ -141,6 +142,21 @@ def _place(i, ddr, place, idx, frac, pixel_turns):
 
 
 @numba.njit(inline="always", fastmath=True)
+def _gather_planar_accumulate(row, idx, frac, turns, planar, acc_re, acc_im):
+    """``_gather_pairs_accumulate``, linear, where the CPU has AVX-512: each pixel's two neighbouring bins
+    into planar [4, nb] float32 (a.re, a.im, b.re, b.im), by vector permutes where 16 pixels' bins lie close
+    together (imaging/bin_gather.py), then the same interpolation and accumulation of the same values."""
+    gather_planar(row, idx, planar)
+    for i in range(idx.size):
+        c, s = _cos_sin_turns(turns[i])
+        t = frac[i]
+        vr = planar[0, i] + t * (planar[2, i] - planar[0, i])
+        vi = planar[1, i] + t * (planar[3, i] - planar[1, i])
+        acc_re[i] += vr * c + vi * s
+        acc_im[i] += vi * c - vr * s
+
+
+@numba.njit(inline="always", fastmath=True)
 def _gather_pairs_accumulate(row, idx, frac, turns, pairs, acc_re, acc_im, linear):
     """The second and third passes of a (block, profile) of the float32 kernel: gather each pixel's two
     neighbouring bins side by side into ``pairs`` [nb, 2] (one 16-byte load and store per pixel; scalar,
@@ -171,33 +187,6 @@ def _gather_pairs_accumulate(row, idx, frac, turns, pairs, acc_re, acc_im, linea
             acc_im[i] += a.imag * c - a.real * s
 
 
-@numba.njit(inline="always", fastmath=True)
-def _gather_accumulate(row, idx, frac, cos_, sin_, v0, v1, acc_re, acc_im, linear):
-    """The second and third passes of a (block, profile): gather the profile at idx (scalar loads and
-    stores only: LLVM will not vectorise a gather here), then interpolate and accumulate value * exp(-j k dr)
-    (vectorised)."""
-    nb = idx.size
-    if linear:
-        for i in range(nb):
-            j = idx[i]
-            v0[i] = row[j]
-            v1[i] = row[j + np.uint32(1)]
-        for i in range(nb):
-            t = frac[i]
-            vr = v0[i].real + t * (v1[i].real - v0[i].real)
-            vi = v0[i].imag + t * (v1[i].imag - v0[i].imag)
-            acc_re[i] += vr * cos_[i] + vi * sin_[i]
-            acc_im[i] += vi * cos_[i] - vr * sin_[i]
-    else:
-        for i in range(nb):
-            v0[i] = row[idx[i]]
-        for i in range(nb):
-            vr = v0[i].real
-            vi = v0[i].imag
-            acc_re[i] += vr * cos_[i] + vi * sin_[i]
-            acc_im[i] += vi * cos_[i] - vr * sin_[i]
-
-
 @numba.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, linear, max_extent_m, block, out):
     """Profiles p0..p1-1 of rows [P, n_bins + 3] (complex64, one zero guard bin before, two after) onto the
@@ -221,6 +210,7 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
         frac = np.empty(nb, np.float32)
         pixel_turns = np.empty(nb, np.float32)  # each pixel's phase, in turns
         pairs = np.empty((nb, 2), np.complex64)
+        planar = np.empty((4, nb), np.float32)  # the same, planar, for the permute gather
         da = np.empty(nb, np.float32)
         x_lo, x_hi = gx[g0:g0 + nb].min(), gx[g0:g0 + nb].max()
         y_lo, y_hi = gy[g0:g0 + nb].min(), gy[g0:g0 + nb].max()
@@ -253,7 +243,10 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
             for j in range(n_q):
                 _place_block_profile(table, j, ints[IBASE + j], ints[CODE + j], inv32, k_turns32, linear, dx, dy, dz, dd,
                                      da, idx, frac, pixel_turns)
-                _gather_pairs_accumulate(rows[q0 + j], idx, frac, pixel_turns, pairs, acc_re, acc_im, linear)
+                if linear and PERMUTE_GATHER:
+                    _gather_planar_accumulate(rows[q0 + j], idx, frac, pixel_turns, planar, acc_re, acc_im)
+                else:
+                    _gather_pairs_accumulate(rows[q0 + j], idx, frac, pixel_turns, pairs, acc_re, acc_im, linear)
         for i in range(nb):
             out[g0 + i] += complex(acc_re[i], acc_im[i])
 
@@ -429,72 +422,6 @@ def guarded_rows(profiles: RangeProfiles) -> np.ndarray:
     return rows
 
 
-@functools.lru_cache(maxsize=32)
-def patch_order(shape: tuple[int, ...], width: int = PATCH, points: int = BLOCK) -> np.ndarray | None:
-    """The order that walks a grid of this shape ([..., ny, nx]) in patches of about ``points`` points,
-    ``width`` columns wide (PATCH x PATCH squares by default), each layer in turn; None for a 1-D set of points or a grid
-    within one patch (kept in the order given). Cached: ``form_image`` and the strip map backproject block
-    after block onto the same grid, FFBP's leaves onto grids of a few shapes (callers only index with it)."""
-    if len(shape) < 2:
-        return None
-    ny, nx = shape[-2], shape[-1]
-    pw = max(1, min(width, nx))
-    ph = max(1, points // pw)
-    if nx <= pw and ny <= ph:
-        return None
-    # Rows of patches alternately left to right and right to left: a run of ``points`` that leaves a
-    # patch (after a narrower one at the grid's edge) goes on into a neighbouring one, never across the
-    # grid; the last, lower row of patches has wider ones, of about as many points.
-    pieces, y0, backwards = [], 0, False
-    while y0 < ny:
-        h = min(ph, ny - y0)
-        w = pw if h == ph else min(nx, -(-ph * pw // h))
-        starts = range(0, nx, w)
-        for x0 in reversed(starts) if backwards else starts:
-            iy, ix = np.mgrid[y0:y0 + h, x0:min(x0 + w, nx)]
-            pieces.append((iy * nx + ix).ravel())
-        y0, backwards = y0 + h, not backwards
-    layer = np.concatenate(pieces)
-    layers = int(np.prod(shape[:-2], dtype=np.int64))
-    order = (np.arange(layers)[:, None] * (ny * nx) + layer[None, :]).ravel()
-    order.flags.writeable = False  # shared by every call on this shape
-    return order
-
-
-#: Largest side of a patch: two of them stay within the float32 kernel's extent (1 m at 77 GHz).
-PATCH_SIDE_MAX_M = 0.4
-
-
-def patch_shape(grid_m: np.ndarray) -> tuple[int, int]:
-    """(columns, points) of the patches to walk a grid [..., ny, nx, 3] in, the points also the kernel's
-    block: BLOCK points (PATCH x PATCH for square pixels), fewer columns where columns lie farther apart
-    than rows (an FFBP leaf's polar grid: few, widely spaced angles), and 64 or 16 points where a patch of
-    BLOCK would be wider than PATCH_SIDE_MAX_M (a coarse grid). Compact blocks take the float32 kernel,
-    and small ones its series for the range offsets."""
-    if grid_m.ndim < 3 or grid_m.shape[-3] < 2 or grid_m.shape[-2] < 2:
-        return PATCH, BLOCK
-    g = grid_m.reshape(-1, *grid_m.shape[-3:])[0]
-    sx = float(np.linalg.norm(g[0, 1] - g[0, 0]))
-    sy = float(np.linalg.norm(g[1, 0] - g[0, 0]))
-    if not (sx > 0.0 and sy > 0.0):
-        return PATCH, BLOCK
-    points = BLOCK
-    while points > 16 and math.sqrt(points * sx * sy) > PATCH_SIDE_MAX_M:
-        points //= 4
-    return int(2 ** min(max(round(0.5 * math.log2(points * sy / sx)), 0), int(math.log2(points)))), points
-
-
-def max_block_extent_m(gx: np.ndarray, gy: np.ndarray, gz: np.ndarray) -> float:
-    """The largest extent (max over x, y, z of max - min) of any BLOCK of consecutive points."""
-    n = gx.size
-    pad = (-n) % BLOCK
-    worst = 0.0
-    for v in (gx, gy, gz):
-        blocks = np.concatenate([v, np.full(pad, v[-1])]).reshape(-1, BLOCK)
-        worst = max(worst, float((blocks.max(axis=1) - blocks.min(axis=1)).max()))
-    return worst
-
-
 def _as_points(grid_m: np.ndarray):
     grid = np.asarray(grid_m, dtype=np.float64)
     if grid.ndim < 1 or grid.shape[-1] != 3:
@@ -565,7 +492,7 @@ def backproject(
         k = 2.0 * math.pi * profiles.carrier_hz / SPEED_OF_LIGHT_MPS
         rows = guarded_rows(profiles)
         width, block = patch_shape(np.asarray(grid_m))
-        order = patch_order(shape, width, block)
+        order = patch_order(shape, width, block, SUB_PATCH)
         if order is not None:
             gx, gy, gz = gx[order], gy[order], gz[order]
         kernel = _bp_interp_blocks if parallel else _bp_interp_blocks_serial

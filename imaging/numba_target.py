@@ -100,3 +100,21 @@ def load_cached_kernels_lightly() -> bool:
     load_overload.runtime_only = True
     cache.load_overload = load_overload
     return True
+
+
+def compiles_for_avx512() -> bool:
+    """Whether numba compiles this process's kernels for a CPU with AVX-512 (F): the features it is told
+    (``NUMBA_CPU_FEATURES``, as :func:`prefer_full_width_vectors` sets them), else, unless told a CPU by
+    name (``NUMBA_CPU_NAME``: a portable target, whose features are not the host's), the host's."""
+    from numba.core import config
+
+    if config.CPU_FEATURES:
+        return "+avx512f" in config.CPU_FEATURES.split(",")
+    if config.CPU_NAME:
+        return False
+    import llvmlite.binding as llvm
+
+    try:
+        return bool(llvm.get_host_cpu_features().get("avx512f"))
+    except RuntimeError:
+        return False

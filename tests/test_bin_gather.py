@@ -1,0 +1,102 @@
+"""The permute gather (imaging/bin_gather.py) against the scalar one, and the kernel with either."""
+
+import types
+
+import numba
+import numpy as np
+import pytest
+from test_backprojection import grid_case, synthetic_case
+
+import imaging.backprojection as bp
+from imaging.bin_gather import LANES, PERMUTE_GATHER, WINDOW_SPAN, gather_planar, scalar_gather
+
+needs_avx512 = pytest.mark.skipif(not PERMUTE_GATHER, reason="numba's target has no AVX-512: the kernel keeps the "
+                                  "scalar gather, which the other tests cover")
+
+
+@numba.njit
+def both_gathers(row, idx):
+    planar = np.full((4, idx.size), np.nan, np.float32)
+    scalar = np.full((4, idx.size), np.nan, np.float32)
+    taken = gather_planar(row, idx, planar)
+    scalar_gather(row, idx, 0, idx.size, scalar)
+    return taken, planar, scalar
+
+
+def groups(rng, n_row, spans, low=None):
+    """One group of 16 indices per span, each spanning exactly that many bins (idx + 1 inside the row)."""
+    out = []
+    for span in spans:
+        lo = rng.integers(0, n_row - 1 - span) if low is None else low(span)
+        g = lo + rng.integers(0, span + 1, LANES)
+        g[rng.permutation(LANES)[:2]] = (lo, lo + span)
+        out.append(g)
+    return np.concatenate(out).astype(np.uint32)
+
+
+@needs_avx512
+def test_permute_gather_equals_the_scalar_gather_bit_for_bit():
+    rng = np.random.default_rng(3)
+    for n_row in (16, 17, 40, 2803):
+        row = (rng.standard_normal(n_row) + 1j * rng.standard_normal(n_row)).astype(np.complex64)
+        row[0] = row[-2:] = 0  # the guard bins, as the kernel's rows have them
+        row[3] = np.complex64(complex(-0.0, np.inf))  # values the bits of which a float round trip would change
+        spans = [s for s in (0, 3, 11, WINDOW_SPAN, WINDOW_SPAN + 1, 30) if s <= n_row - 2] * 3
+        cases = {
+            "anywhere": groups(rng, n_row, spans),
+            "at the leading guard": groups(rng, n_row, spans, low=lambda span: 0),
+            # the window ends at the row's end: the last bin is idx + 1 = n_row - 1, the trailing guard
+            "at the trailing guard": groups(rng, n_row, spans, low=lambda span: n_row - 2 - span),
+        }
+        for name, idx in cases.items():
+            for tail in (0, 5):  # a block that is not a whole number of groups ends on the scalar gather
+                idx_t = np.concatenate([idx, rng.integers(0, n_row - 1, tail).astype(np.uint32)])
+                taken, planar, scalar = both_gathers(row, idx_t)
+                assert np.array_equal(planar.view(np.uint32), scalar.view(np.uint32)), (n_row, name, tail)
+                want = sum(s <= WINDOW_SPAN for s in spans)
+                assert taken == want, (n_row, name, taken, want)  # groups spanning more went the scalar way
+
+
+@needs_avx512
+def test_a_row_shorter_than_the_window_takes_the_scalar_gather():
+    row = np.arange(12, dtype=np.float32).astype(np.complex64) * (1 + 2j)
+    idx = np.arange(16, dtype=np.uint32) % 10
+    taken, planar, scalar = both_gathers(row, idx)
+    assert taken == 0 and np.array_equal(planar, scalar)
+    assert np.array_equal(planar[2], row[idx + 1].real)
+
+
+def kernel_with_the_scalar_gather():
+    """The parallel kernel compiled as on a CPU without AVX-512 (``PERMUTE_GATHER`` False): today's path."""
+    f = bp._bp_interp_blocks.py_func
+    copy = types.FunctionType(f.__code__, dict(f.__globals__, PERMUTE_GATHER=False), f.__name__ + "_scalar_gather",
+                              f.__defaults__, f.__closure__)
+    return numba.njit(parallel=True, fastmath=True, nogil=True)(copy)
+
+
+@needs_avx512
+def test_the_kernel_gives_the_same_image_with_either_gather(monkeypatch):
+    scalar_kernel = kernel_with_the_scalar_gather()
+    cases = [(grid_case((40, 70)), None), (grid_case((40, 70), far=5000.0), None), (grid_case((3, 20, 32)), None),
+             (grid_case((32, 32), spacing_m=0.03), None)]  # wide pixels: groups spanning more than the window
+    prof, tx, rx, points, r_ref = synthetic_case(np.random.default_rng(5), reference=True)
+    cases.append(((prof, tx, rx, points), r_ref))  # scattered points: the float64 blocks
+    for case, r_ref in cases:
+        permuted = bp.backproject(*case, reference_range_m=r_ref)
+        with monkeypatch.context() as m:
+            m.setattr(bp, "_bp_interp_blocks", scalar_kernel)
+            scalar = bp.backproject(*case, reference_range_m=r_ref)
+        assert np.array_equal(permuted, scalar)
+        assert np.abs(permuted).max() > 0.5 * case[0].data.shape[0]  # something was imaged (not vacuous)
+
+
+def test_walking_patches_in_4_x_4_squares_leaves_the_image_bit_for_bit(monkeypatch):
+    """A block holds the same points in either order, and each point's sum is its own: the same image."""
+    for shape, far in (((40, 70), 0.0), ((40, 70), 5000.0), ((3, 20, 32), 0.0)):
+        case = grid_case(shape, far=far)
+        squares = bp.backproject(*case)
+        with monkeypatch.context() as m:
+            m.setattr(bp, "SUB_PATCH", 1)
+            rows = bp.backproject(*case)
+        assert not np.array_equal(bp.patch_order(shape, sub_patch=4), bp.patch_order(shape))
+        assert np.array_equal(squares, rows)
