@@ -100,7 +100,7 @@ def fit_statistics(traj, scans, block: int = 20) -> dict[str, dict]:
         blocks = z[:z.size // block * block].reshape(-1, block).mean(axis=1)
         # a drive that never turns gives the pitch no information: no bound (None)
         joint = np.linalg.inv(info) if np.linalg.cond(info) < 1e8 else np.full((2, 2), np.nan)
-        out[name] = {"pitch_bound_alone_deg": _deg_or_none(1 / math.sqrt(info[1, 1]) if info[1, 1] > 0 else math.nan),
+        out[name] = {"pitch_bound_alone_deg": _deg_or_none(1 / math.sqrt(info[1, 1]) if info[1, 1] > NO_INFORMATION else math.nan),
                      "pitch_bound_with_roll_deg": _deg_or_none(math.sqrt(joint[1, 1])),
                      "roll_bound_with_pitch_deg": _deg_or_none(math.sqrt(joint[0, 0])),
                      "rms_velocity_along_boresight_mps": float(np.sqrt(np.mean(v_all[:, 0] ** 2))),
@@ -112,8 +112,12 @@ def fit_statistics(traj, scans, block: int = 20) -> dict[str, dict]:
     return out
 
 
+#: Less information than this (rad^-2: a bound wider than 30 deg) is none: a drive that never turned.
+NO_INFORMATION = math.radians(30.0) ** -2
+
+
 def _deg_or_none(rad: float) -> float | None:
-    return None if not math.isfinite(rad) else math.degrees(rad)
+    return None if not math.isfinite(rad) or rad > math.radians(30.0) else math.degrees(rad)
 
 
 def drive_row(kind: str, duration_s: float, seed: int) -> dict:
@@ -147,15 +151,29 @@ def summary(rows: list[dict]) -> dict:
         for duration in sorted({r["duration_s"] for r in rows if r["drive"] == kind}):
             ps = [p for r in rows if r["drive"] == kind and r["duration_s"] == duration for p in r["radars"].values()]
             turning = [r["turning_s"] for r in rows if r["drive"] == kind and r["duration_s"] == duration]
+            group = [r for r in rows if r["drive"] == kind and r["duration_s"] == duration]
+            sigma = float(np.mean([p["pitch_sigma_deg"] for p in ps]))
+            bounds = [p["pitch_bound_alone_deg"] for p in ps if p["pitch_bound_alone_deg"] is not None]
             out[f"{kind}_{duration:.0f}s"] = {
                 "radar_drives": len(ps), "turning_s_mean": float(np.mean(turning)),
-                "pitch_sigma_deg_mean": float(np.mean([p["pitch_sigma_deg"] for p in ps])),
-                "pitch_bound_alone_deg_mean": float(np.mean([p["pitch_bound_alone_deg"] for p in ps])),
+                "pitch_sigma_deg_mean": sigma,
+                # the pitch's information grows with the time spent turning (at the drive's rate of turn)
+                "pitch_sigma_times_sqrt_turning_s": sigma * math.sqrt(np.mean(turning)),
+                "turning_s_for_pitch_sigma_0_1_deg": (sigma * math.sqrt(np.mean(turning)) / 0.1) ** 2 if np.mean(turning) > 0 else None,
+                # the same drive, as long as it takes to turn that long
+                "drive_s_for_pitch_sigma_0_1_deg": (duration * (sigma / 0.1) ** 2) if np.mean(turning) > 0 else None,
+                "pitch_bound_alone_deg_mean": float(np.mean(bounds)) if bounds else None,
                 "pitch_largest_error_deg": float(max(abs(p["pitch_error_deg"]) for p in ps)),
                 "pitch_nees": float(np.mean([(p["pitch_error_deg"] / p["pitch_sigma_deg"]) ** 2 for p in ps])),
                 "pitch_taken": sum(p["pitch_taken"] for p in ps),
-                "pitch_taken_largest_error_deg": float(max([abs(p["pitch_error_deg"]) for p in ps if p["pitch_taken"]],
-                                                          default=float("nan")))}
+                "pitch_taken_largest_error_deg": max([abs(p["pitch_error_deg"]) for p in ps if p["pitch_taken"]], default=None),
+                # the same drive over seeds: an error that repeats with the drive's geometry, not with the noise
+                "roll_error_seed_mean_deg": {name: float(np.mean([r["radars"][name]["roll_error_deg"] for r in group]))
+                                             for name in group[0]["radars"]},
+                "roll_the_fit_error_stands_for_seed_mean_deg": {
+                    name: float(np.mean([r["radars"][name]["roll_the_fit_error_stands_for_deg"] for r in group]))
+                    for name in group[0]["radars"]},
+                "roll_sigma_deg_mean": float(np.mean([p["roll_sigma_deg"] for p in ps]))}
     every = [p for r in rows if r["drive"] != "straight" for p in r["radars"].values()]
     z_roll = np.array([p["roll_error_deg"] / p["roll_sigma_deg"] for p in every])
     z_roll_true = np.array([p["true_rig_roll_error_deg"] / p["true_rig_roll_sigma_deg"] for p in every])

@@ -6,9 +6,10 @@ stamp less its time offset. So the lever arm l shows only while the robot turns,
 turns about (a robot on a floor turns about z: the lever arm along z never shows); the rotation about the
 boresight's horizontal normal (the mount's pitch for a radar looking sideways, a turn about its own array's
 axis) shows only through velocity along the boresight, which a robot driving forward gives a sideways radar
-only from w x l, and then only in the vertical velocity. Both are refused on a floor robot, and both are
-harmless there (rio.calibration_unobservable, benchmarks/calibration_unobservable.py); the time offset
-shows only while the sensor's velocity changes (accelerating, braking, turning in and out). An axis whose
+only from w x l, and then only in the vertical velocity. The lever arm along z is refused on a floor robot; the
+pitch is taken where the drive turned fast and long enough (tight circles both ways, rio.calibration_drive's
+TIGHT_TURNS, benchmarks/calibration_pitch.py) and refused otherwise. Left wrong, both are harmless on a floor
+(rio.calibration_unobservable, benchmarks/calibration_unobservable.py). The time offset shows only while the sensor's velocity changes (accelerating, braking, turning in and out). An axis whose
 standard deviation the drive did not bring below ``CalibrationLimits`` is refused: it keeps the rig's value,
 and the report says which axis and why, instead of a confident wrong value.
 
