@@ -120,6 +120,10 @@ def _deg_or_none(rad: float) -> float | None:
     return None if not math.isfinite(rad) or rad > math.radians(30.0) else math.degrees(rad)
 
 
+def _text(value: float | None) -> str:
+    return "none" if value is None else f"{value:.3f}"
+
+
 def drive_row(kind: str, duration_s: float, seed: int) -> dict:
     started = time.perf_counter()
     traj = drive(kind, duration_s)
@@ -220,7 +224,7 @@ def main(argv=None) -> int:
             load.append(os.getloadavg()[0])
             r = rows[-1]
             print(f"{kind} {duration:.0f} s seed {seed} (turning {r['turning_s']:.0f} s): pitch (error, sigma, bound) deg "
-                  + ", ".join(f"({p['pitch_error_deg']:+.3f}, {p['pitch_sigma_deg']:.3f}, {p['pitch_bound_alone_deg']:.3f}"
+                  + ", ".join(f"({p['pitch_error_deg']:+.3f}, {p['pitch_sigma_deg']:.3f}, {_text(p['pitch_bound_alone_deg'])}"
                               f"{', taken' if p['pitch_taken'] else ''})" for p in r["radars"].values())
                   + "; roll (error, sigma) " + ", ".join(f"({p['roll_error_deg']:+.3f}, {p['roll_sigma_deg']:.3f})"
                                                         for p in r["radars"].values())
