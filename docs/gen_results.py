@@ -160,7 +160,8 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
     "calibration": ("Online calibration of the radars' mounts and clocks",
                     "A simulated calibration drive with every radar's mount wrong (2 deg yaw, 1 deg pitch, 2 cm lever "
                     "arm) and one radar 5 ms late: each axis's error and standard deviation against the drive's length "
-                    "(pitch and the lever arm along z are not taken: a floor robot cannot show them), and the "
+                    "(pitch and the lever arm along z are not taken: these curves turn too little for a sideways "
+                    "radar's pitch, and a floor robot never shows the lever arm along z), and the "
                     "odometry's drift (ATE) per drive: the wrong rig calibrated online against the true rig through "
                     "the same filter (calibrate() from the true rig: the issue's 'drift equals the run with the true "
                     "rig'), against the true rig without calibration states, and the wrong rig; the second, iterated "
@@ -188,7 +189,8 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                                 ".venv/bin/python benchmarks/calibration_time_offset.py --configs 1.0:0.008,1.0:0.0045,2.0:0.008"),
     "calibration_unobservable": ("What the axes calibration refuses cost",
                                  "Every radar's mount tilted 1 deg about its array's axis (a sideways radar's pitch) "
-                                 "and 2 cm too high, not calibrated (sarbot calibrate refuses both on a floor robot): the "
+                                 "and 2 cm too high, not calibrated (sarbot calibrate refuses the lever arm along z on a floor "
+                                 "robot, and the pitch unless the drive turned enough): the "
                                  "geometry (antenna shift, cone angle, Doppler), the odometry's ATE against the true "
                                  "rig's on the calibration drives, and point targets imaged where the robot sets off "
                                  "into a turn against the true rig's image.",
@@ -204,6 +206,14 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                               "seeds) and the real bag through all three fits.",
                               ".venv/bin/python benchmarks/calibration_elevation.py --lengths 40 60 90 --seeds 1 2 "
                               "--odometry"),
+    "calibration_pitch": ("A sideways radar's pitch: what turning shows of it, and roll's spread",
+                          "Per radar and drive (curves as benchmarks/calibration.py's, tight circles both ways at "
+                          "3 rad/s, a straight drive; 40-180 s, 3 seeds): pitch and roll from calibrate() on the "
+                          "miscalibrated rig and on the true rig, their errors, standard deviations and NEES, whether "
+                          "the pitch was taken; the bound the Doppler fits' own covariances put on them; the fit's "
+                          "vertical error per m/s along the boresight and along the array, its z NEES and its "
+                          "20-scan-block variance ratio.",
+                          ".venv/bin/python benchmarks/calibration_pitch.py"),
     "map_feedback": ("The map corrects the odometry",
                      "Simulated straight drives at 0.4 m/s with the radars' Doppler 2 % low: the odometry's error along "
                      "the track at the end, and every point target's peak in the live map as imaged (before refocus) "

@@ -6,9 +6,10 @@ stamp less its time offset. So the lever arm l shows only while the robot turns,
 turns about (a robot on a floor turns about z: the lever arm along z never shows); the rotation about the
 boresight's horizontal normal (the mount's pitch for a radar looking sideways, a turn about its own array's
 axis) shows only through velocity along the boresight, which a robot driving forward gives a sideways radar
-only from w x l, and then only in the vertical velocity. Both are refused on a floor robot, and both are
-harmless there (rio.calibration_unobservable, benchmarks/calibration_unobservable.py); the time offset
-shows only while the sensor's velocity changes (accelerating, braking, turning in and out). An axis whose
+only from w x l, and then only in the vertical velocity. The lever arm along z is refused on a floor robot; the
+pitch is taken where the drive turned fast and long enough (tight circles both ways, rio.calibration_drive's
+TIGHT_TURNS, benchmarks/calibration_pitch.py) and refused otherwise. Left wrong, both are harmless on a floor
+(rio.calibration_unobservable, benchmarks/calibration_unobservable.py). The time offset shows only while the sensor's velocity changes (accelerating, braking, turning in and out). An axis whose
 standard deviation the drive did not bring below ``CalibrationLimits`` is refused: it keeps the rig's value,
 and the report says which axis and why, instead of a confident wrong value.
 
@@ -116,8 +117,9 @@ class RadarExcitation:
                                [self.velocity_change_mps2 >= limits.min_velocity_change_mps2]])
 
 
-def why_unobservable(axis: int, mount: Mount, drive: DriveExcitation) -> str:
-    """Why the drive left calibration ``axis`` (an index into AXES) undetermined, in words."""
+def why_unobservable(axis: int, mount: Mount, drive: DriveExcitation, sigma_over_limit: float | None = None) -> str:
+    """Why the drive left calibration ``axis`` (an index into AXES) undetermined, in words; ``sigma_over_limit``:
+    the standard deviation the drive left over the one needed, for how much more of the same drive it takes."""
     if axis in (3, 4, 5):
         if drive.turning_s < 2.0 and drive.tilting_s < 2.0:
             return (f"the drive hardly turned ({drive.turning_s:.1f} s above 0.2 rad/s): the lever arm shows only in "
@@ -130,17 +132,31 @@ def why_unobservable(axis: int, mount: Mount, drive: DriveExcitation) -> str:
     if axis in (0, 1, 2):
         boresight = mount.rotation_matrix[:, 0]
         if axis == 1 and abs(boresight[2]) < 0.5 and abs(boresight[0]) < 0.5:
-            return ("the radar looks sideways: this tilt turns it about its own array's axis, which moves no antenna "
-                    "and no cone angle and changes a Doppler level with the radar by 1 - cos (1.5e-4 at 1 deg); only "
-                    "the vertical velocity a turn gives the boresight shows it, which a horizontal array hardly "
-                    "measures: unobservable from the ego-velocity, and harmless to odometry and strip map on a floor "
-                    "(rio.calibration_unobservable)")
+            return _sideways_pitch_refusal(drive, sigma_over_limit)
         if drive.accelerating_s < 2.0 and drive.turning_s < 2.0:
             return "the drive had too few accelerations and turns to tell the mount's rotation from the velocity's"
         return "the drive's velocity directions in the radar frame were too few for this rotation"
     if drive.accelerating_s < 2.0 and drive.turning_s < 2.0:
         return "the velocity hardly changed (no accelerations, no turns): a time offset shows only then"
     return "the accelerations and turn onsets were too few or too gentle for this time offset"
+
+
+def _sideways_pitch_refusal(drive: DriveExcitation, sigma_over_limit: float | None) -> str:
+    """A sideways radar's pitch: observable only from turning (benchmarks/calibration_pitch.py)."""
+    why = ("the radar looks sideways: this tilt turns it about its own array's axis, which moves no antenna and no "
+           "cone angle and changes a Doppler level with the radar by 1 - cos (1.5e-4 at 1 deg); only the vertical "
+           "velocity a turn gives the boresight (w x l) shows it")
+    harmless = "harmless to odometry and strip map on a floor (rio.calibration_unobservable)"
+    if drive.turning_s < 2.0:
+        return (f"{why}, and the drive hardly turned ({drive.turning_s:.1f} s above 0.2 rad/s): unobservable on this "
+                f"drive, and {harmless}")
+    more = ""
+    if sigma_over_limit is not None and sigma_over_limit > 1.0:
+        # the information grows with the time spent turning: the variance falls as 1 / turning time
+        more = f": about {drive.turning_s * (sigma_over_limit ** 2 - 1):.0f} s more of such turning"
+    return (f"{why}, and the {drive.turning_s:.0f} s of turning were too few or too slow{more}, or tight circles "
+            "both ways (rio.calibration_drive.TIGHT_TURNS); unobservable without turns, and left wrong "
+            f"{harmless}")
 
 
 @dataclasses.dataclass
@@ -238,7 +254,8 @@ def calibrate(imu: ImuData, scans: list[RadarScan], options: RioOptions = RioOpt
         if not time_offset:
             accepted[6] = False
         reasons = {AXIS_KEYS[i]: ("not estimated" if i == 6 and not time_offset else
-                                  f"{why_unobservable(i, prior_mounts[name], drive)} ({_excitation_text(i, excitation)}; "
+                                  f"{why_unobservable(i, prior_mounts[name], drive, est.sigma[i] / limit[i])} "
+                                  f"({_excitation_text(i, excitation)}; "
                                   f"standard deviation {_axis_value(i, est.sigma[i])} left, {_axis_value(i, limit[i])} "
                                   "needed)")
                    for i in range(7) if not accepted[i]}

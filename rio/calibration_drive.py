@@ -29,6 +29,13 @@ SIM_EKF = EkfConfig(radar_velocity_sigma_floor_mps=0.008)
 #: smoothly, the path's would step where an arc meets a straight at speed.
 CURVES = [("straight", 1.0), ("arc", 0.4, 180.0), ("straight", 0.5), ("arc", 0.3, -270.0), ("straight", 1.0),
           ("arc", 0.5, 120.0)]
+#: A drive for a sideways radar's pitch: circles of 0.2 m (3 rad/s at the drive's 0.6 m/s) both ways, with short
+#: straights between. The pitch shows only in the vertical velocity w x l gives the boresight (0.15 m of lever
+#: arm across it: 0.45 m/s), so it needs time turning fast. The roll shows in the same vertical velocity, from
+#: the velocity along the array; turning both ways (and the straights) changes the one against the other, which
+#: tells them apart. 90 deg more one way than the other keeps the drive in the room
+#: (benchmarks/calibration_pitch.py).
+TIGHT_TURNS = [("straight", 0.4), ("arc", 0.2, 810.0), ("straight", 0.4), ("arc", 0.2, -720.0)]
 
 
 def wrong_mount(mount: Mount) -> Mount:

@@ -1,5 +1,6 @@
-"""What the two axes a floor robot cannot calibrate do: a sideways radar's tilt about its own array's axis (the
-mount's pitch, rotation about the sensor's y) and its lever arm along z. ``rio.calibration`` refuses both; this
+"""What the two axes a floor robot hardly or never shows do: a sideways radar's tilt about its own array's axis
+(the mount's pitch, rotation about the sensor's y) and its lever arm along z. ``rio.calibration`` refuses the
+lever arm along z always and the pitch unless the drive turned enough (benchmarks/calibration_pitch.py); this
 module says why in numbers, and ``benchmarks/calibration_unobservable.py`` measures what leaving them wrong
 costs the odometry and the strip map (docs/results/calibration_unobservable.json).
 
@@ -10,7 +11,9 @@ split of the radar's velocity between its x (boresight) and z: a velocity (vx, v
 becomes (vx cos t, vy, -vx sin t). The Doppler of a return level with the radar changes by vx (1 - cos t)
 (1.5e-4 of vx at 1 deg); only the vertical velocity, which a horizontal array hardly measures, changes to first
 order. On a floor robot vx (the velocity across a sideways radar's boresight plane) comes only from turning
-(w x l), so the tilt shows only while turning and only there.
+(w x l), so the tilt shows only while turning and only there: slowly (the vertical velocity is known per scan
+to a few cm/s, vx is 0.45 m/s at 3 rad/s), but without a bias since the Doppler fit's vertical cross-talk is
+removed (rio.ego_velocity.remove_crosstalk).
 
 A lever arm along z enters the radar's velocity as w x l: a robot that turns only about z gives w x (0, 0, lz)
 = 0. It moves the antennas up or down by lz along the whole track, which moves a target level with the radar
@@ -29,7 +32,7 @@ from scipy.spatial.transform import Rotation
 
 from imaging.core.rig import Mount, RadarConfig
 
-#: The issue's mount error on the axes a floor robot cannot show (rio.calibration_drive's rig has them wrong too).
+#: The issue's mount error on the axes a floor robot shows slowly or never (rio.calibration_drive's rig has them wrong too).
 TILT_ERROR_DEG = 1.0
 LEVER_Z_ERROR_M = 0.02
 
