@@ -1,6 +1,7 @@
 """The map corrects the odometry (rio.map_feedback): a tile's track error read as a velocity error of the
 trajectory, the filter update that takes it, and none where the map's estimate is not to be trusted."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -231,6 +232,43 @@ def test_a_late_measurement_learns_the_scale_at_the_speed_its_span_was_driven_at
         gain = 0.05 ** 2 / (0.05 ** 2 + (0.00462 / (0.4 if noted else 0.1)) ** 2)
         assert feedback.doppler_scale - 1 == pytest.approx(gain * 0.0117 / (0.4 if noted else 0.1), rel=1e-6)
     assert feedback.doppler_scale - 1 < 0.03
+
+
+def test_a_span_begun_while_the_filter_settles_from_the_start_teaches_no_doppler_scale():
+    """Every live run's first tile (a span begun 0.5 s after the robot started) read -11.1 to -11.9 mm/s
+    and taught the scale +26.9k to +28.8k ppm (truth +20.4k, sigma 11.5k), which the spans straddling that
+    update could not take back: the filter settles from a start for about 1.25 s, its velocity error changing
+    over a span begun earlier by up to as much as the whole scale makes (docs/results/map_feedback_settling.json).
+    Its velocity update is taken; the scale learns from a span begun once the filter has settled (1.5 s), and
+    from any where no start was noted."""
+    ekf = moving_filter()
+    feedback = MapFeedback()
+    start_ns = ekf.state.time_ns - 5 * 10**9  # 2 s standing, then 0.4 m/s (poses as the odometry worker notes them)
+    t = start_ns + np.arange(-20, 51) * 100_000_000
+    v = np.where((t >= start_ns)[:, None], [0.4, 0.0, 0.0], 0.0)
+    for k in range(0, t.size, 7):  # in batches, as they come
+        feedback.note_poses(t[k:k + 7], v[k:k + 7])
+    assert feedback.motion_starts_ns == [start_ns]
+    first = LookVelocityMeasurement(start_ns + 1_450_000_000, 1.5, np.array([1.0, 0.0, 0.0]), 0.0111, 0.0047,
+                                    ("right_front",), 1)
+    assert feedback.settling(first)
+    assert feedback.apply_measurements(ekf, [first]) == [first]  # its velocity update is taken
+    assert ekf.state.v[0] > 0.409
+    assert feedback.doppler_scale == 1.0 and feedback.scale_sigma == 0.05
+    assert feedback.updates[-1].settling and ": accepted; no scale learnt: its span began while the filter settled" \
+        in feedback.updates[-1].line()
+    ekf.state.time_ns += 10**9
+    settled = LookVelocityMeasurement(start_ns + 2_300_000_000, 1.5, np.array([1.0, 0.0, 0.0]), 0.008, 0.003,
+                                      ("left_front",), 1)
+    assert not feedback.settling(settled)  # begun 1.55 s after the start
+    feedback.apply_measurements(ekf, [settled])
+    # it learns what the first's velocity update (held by nothing else) left of its error
+    left = 0.008 - feedback.updates[-1].corrected_by_updates_mps
+    assert feedback.updates[-1].corrected_by_updates_mps > 0.009 and not feedback.updates[-1].settling
+    assert feedback.doppler_scale - 1 == pytest.approx(0.05 ** 2 / (0.05 ** 2 + (0.003 / 0.4) ** 2) * left / 0.4, rel=1e-6)
+    # a span holding a start (the robot set off during it) is settling too; without poses noted, nothing is
+    assert feedback.settling(dataclasses.replace(settled, time_ns=start_ns + 500_000_000))
+    assert not MapFeedback().settling(first)
 
 
 def test_a_measurement_whose_span_holds_an_earlier_update_is_not_taken():
