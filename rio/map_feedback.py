@@ -46,6 +46,10 @@ corrected) moves it by the filter's gain, weighted by the measurement's sigma ag
 gain (0.7 of each error, as before) let the last measurement decide: over the live CI drive five measurements
 left the scale at 4.6 % for a 2.0 % error; with the filter's gain they average -- as long as their sigmas
 are honest (see above), and the scale's own sigma (``MapFeedback.scale_sigma``) says how far to trust it.
+A span begun while the filter still settles from a start teaches no scale (``scale_settle_s``): its velocity
+error is a transient, not the steady one a scale makes, and as the first measurement of a drive it would
+decide the scale (gain 0.95 against the 5 % prior) before the spans straddling its update, which are not
+taken, could pull it back.
 
 Pure computation: used by the offline loop (``rio.feedback_drive``) and the live odometry worker.
 """
@@ -128,13 +132,14 @@ class MapFeedbackConfig:
     scale_min_speed_mps: float = 0.1
     #: Nor from a span that began less than this after the trajectory last started moving (its horizontal speed
     #: reached ``scale_min_speed_mps``; known from ``MapFeedback.note_poses``), or holds such a start: the filter
-    #: is still settling, and its velocity error is not yet the steady one a scale makes. On simulated drives
-    #: with the live worker's filter, the along-track velocity error changes by +1.5 to +6.2 mm/s (means over 6
-    #: drives; up to 8.3) over a span begun 0 to 1 s after the start -- up to as much as the whole 2 % scale
-    #: makes at 0.4 m/s -- and by -0.8 to +1.0 mm/s over one begun 1.25 s after
-    #: (docs/results/map_feedback_settling.json). Every live run's first tile, a span begun 0.5 s after the
-    #: start, taught the scale +26.9k to +28.8k ppm (truth +20.4k) at a gain of 0.95, and the spans that
-    #: straddled that update, which saw the overshoot, were not taken. Its velocity update is still taken: the trajectory's velocity was off by what it read.
+    #: is still settling, and its velocity error is not yet the steady one a scale makes. On the live test's drive
+    #: as the live worker makes it (point clouds from raw frames, 3 noise seeds), a span begun 0 to 1 s after the
+    #: start reads a velocity error +3.4k to +4.8k ppm of the speed above the scale's (means; +1.8k to +6.6k on
+    #: each seed), one begun 1.5 s or more after +0.2k to -2.9k; on simulated drives the error changes by +1.5 to +6.2
+    #: mm/s over a span begun 0 to 1 s after the start (docs/results/map_feedback_settling.json). Every live
+    #: run's first tile, a span begun 0.5 s after the start, taught the scale +26.9k to +28.8k ppm (truth
+    #: +20.4k) at a gain of 0.95, and the spans that straddled that update, which saw the overshoot, were not
+    #: taken. Its velocity update is still taken: the trajectory's velocity was off by what it read.
     scale_settle_s: float = 1.5
 
 
