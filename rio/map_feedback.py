@@ -46,10 +46,10 @@ corrected) moves it by the filter's gain, weighted by the measurement's sigma ag
 gain (0.7 of each error, as before) let the last measurement decide: over the live CI drive five measurements
 left the scale at 4.6 % for a 2.0 % error; with the filter's gain they average -- as long as their sigmas
 are honest (see above), and the scale's own sigma (``MapFeedback.scale_sigma``) says how far to trust it.
-A span begun while the filter still settles from a start teaches no scale (``scale_settle_s``): its velocity
-error is a transient, not the steady one a scale makes, and as the first measurement of a drive it would
-decide the scale (gain 0.95 against the 5 % prior) before the spans straddling its update, which are not
-taken, could pull it back.
+A span begun while the filter still settles from a start reads a transient, not the steady error a scale
+makes, and as a drive's first measurement it decides the scale (gain 0.95 against the 5 % prior) before the
+spans straddling its update, which are not taken, can pull it back: ``scale_settle_s`` keeps it from teaching
+the scale, off by default until a wild tile cannot be the first to teach it instead (see there).
 
 Pure computation: used by the offline loop (``rio.feedback_drive``) and the live odometry worker.
 """
@@ -140,7 +140,12 @@ class MapFeedbackConfig:
     #: run's first tile, a span begun 0.5 s after the start, taught the scale +26.9k to +28.8k ppm (truth
     #: +20.4k) at a gain of 0.95, and the spans that straddled that update, which saw the overshoot, were not
     #: taken. Its velocity update is still taken: the trajectory's velocity was off by what it read.
-    scale_settle_s: float = 1.5
+    #: Off (0) by default: at 1.5 s the first tile no longer anchors the scale, and a wild tile became the first
+    #: to teach it against the 5 % prior: a live run ended at +178.6k ppm (a +96 mm/s tile's velocity update
+    #: taken by the wide gate, then the next tile's -63 mm/s residual taught the scale), and offline on the
+    #: live test's drive one of 3 noise seeds at -58.6k (+25.3 +- 6.0 mm/s read where the truth was -5.7).
+    #: Turn it on once a wild tile cannot be the first to teach the scale.
+    scale_settle_s: float = 0.0
 
 
 def displacement_per_velocity(geometry) -> np.ndarray:
@@ -390,7 +395,10 @@ class MapFeedback:
 
     def settling(self, m: LookVelocityMeasurement) -> bool:
         """Whether ``m``'s span began less than ``scale_settle_s`` after the noted trajectory started moving, or
-        holds a start (False where no start was noted: poses not noted, or none near the span)."""
+        holds a start (False where no start was noted: poses not noted, or none near the span; and with
+        ``scale_settle_s`` 0, off)."""
+        if self.config.scale_settle_s <= 0:
+            return False
         half_ns = 0.5 * m.span_s * 1e9
         settle_ns = self.config.scale_settle_s * 1e9
         return any(m.time_ns - half_ns - settle_ns < t <= m.time_ns + half_ns for t in self.motion_starts_ns)

@@ -240,9 +240,10 @@ def test_a_span_begun_while_the_filter_settles_from_the_start_teaches_no_doppler
     update could not take back: the filter settles from a start for about 1.25 s, its velocity error changing
     over a span begun earlier by up to as much as the whole scale makes (docs/results/map_feedback_settling.json).
     Its velocity update is taken; the scale learns from a span begun once the filter has settled (1.5 s), and
-    from any where no start was noted."""
+    from any where no start was noted. Off by default (scale_settle_s 0: the first tile no longer anchoring the
+    scale, a wild tile taught it instead, live +178.6k ppm): then the first tile teaches, as before."""
     ekf = moving_filter()
-    feedback = MapFeedback()
+    feedback = MapFeedback(MapFeedbackConfig(scale_settle_s=1.5))
     start_ns = ekf.state.time_ns - 5 * 10**9  # 2 s standing, then 0.4 m/s (poses as the odometry worker notes them)
     t = start_ns + np.arange(-20, 51) * 100_000_000
     v = np.where((t >= start_ns)[:, None], [0.4, 0.0, 0.0], 0.0)
@@ -268,7 +269,13 @@ def test_a_span_begun_while_the_filter_settles_from_the_start_teaches_no_doppler
     assert feedback.doppler_scale - 1 == pytest.approx(0.05 ** 2 / (0.05 ** 2 + (0.003 / 0.4) ** 2) * left / 0.4, rel=1e-6)
     # a span holding a start (the robot set off during it) is settling too; without poses noted, nothing is
     assert feedback.settling(dataclasses.replace(settled, time_ns=start_ns + 500_000_000))
-    assert not MapFeedback().settling(first)
+    assert not MapFeedback(feedback.config).settling(first)
+    off = MapFeedback()
+    assert off.config.scale_settle_s == 0.0
+    off.note_poses(t, v)
+    assert off.motion_starts_ns == [start_ns] and not off.settling(first)
+    off.apply_measurements(moving_filter(), [first])
+    assert off.doppler_scale - 1 == pytest.approx(0.05 ** 2 / (0.05 ** 2 + (0.0047 / 0.4) ** 2) * 0.0111 / 0.4, rel=1e-6)
 
 
 def test_a_measurement_whose_span_holds_an_earlier_update_is_not_taken():
