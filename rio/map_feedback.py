@@ -370,10 +370,10 @@ class MapFeedback:
         self._moving: bool | None = None
 
     def note_poses(self, time_ns: np.ndarray, velocity_mps: np.ndarray, keep_s: float = 60.0) -> None:
-        """Keep the trajectory's velocities of the last ``keep_s``: a scale error makes a velocity error in
-        proportion to the speed at the measurement's span, which lies in the past when it arrives (the map
-        lags by seconds; a late measurement met the robot slowing at the end of a drive at a quarter of its
-        speed, and taken at that speed read as a scale four times too large)."""
+        """Keep the trajectory's velocities (and its starts from standing) of the last ``keep_s``: a scale error
+        makes a velocity error in proportion to the speed at the measurement's span, which lies in the past when
+        it arrives (the map lags by seconds; a late measurement met the robot slowing at the end of a drive at a
+        quarter of its speed, and taken at that speed read as a scale four times too large)."""
         time_ns = np.asarray(time_ns, np.int64)
         velocity_mps = np.asarray(velocity_mps, float).reshape(-1, 3)
         new = time_ns > self._velocity_times[-1] if self._velocity_times.size else np.ones(time_ns.size, bool)
@@ -382,6 +382,8 @@ class MapFeedback:
         v = np.concatenate([self._velocities, velocity_mps[new]])
         keep = t >= t[-1] - int(keep_s * 1e9) if t.size else np.zeros(0, bool)
         self._velocity_times, self._velocities = t[keep], v[keep]
+        if t.size:
+            self.motion_starts_ns = [s for s in self.motion_starts_ns if s >= t[-1] - int(keep_s * 1e9)]
 
     def _note_motion_starts(self, time_ns: np.ndarray, velocity_mps: np.ndarray) -> None:
         """Each time the noted trajectory's horizontal speed rises to ``scale_min_speed_mps`` from below, into
