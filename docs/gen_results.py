@@ -228,6 +228,21 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                            "squared normalised error, 1 where the sigmas are honest) with the sigma now and with the "
                            "fit's residual alone, the tiles of a call jointly and each alone.",
                            ".venv/bin/python benchmarks/map_feedback_sigma.py --seeds --live RUN_DIR --thin 1 3"),
+    "map_feedback_settling": ("The odometry settles after a start: when may the map teach the Doppler scale?",
+                              "Simulated straight drives (2 s standing, then 0.4 m/s, the radars' Doppler 2 % low), "
+                              "the odometry alone, with the unit tests' filter and the live worker's: over a map "
+                              "tile's 1.5 s span begun begin_s after the odometry's speed reached 0.1 m/s, how much "
+                              "the along-track velocity error changes (a tile cannot see it; a scale does not make "
+                              "it) and what the span's velocity error would teach the scale beyond the truth "
+                              "(rio.map_feedback's scale_settle_s).",
+                              ".venv/bin/python benchmarks/map_feedback_settling.py"),
+    "map_feedback_live_drive": ("The Doppler scale the map teaches on the live test's drive, offline",
+                                "The live test's drive (tests/test_map_feedback_live.py) with three noise seeds, "
+                                "run as the daemon runs it but in one process: odometry on point clouds from the raw "
+                                "frames (the live worker's filter), the refocusing map on its poses, each set of tiles "
+                                "fed back as it comes; the scale learnt against the truth (+20408 ppm) with "
+                                "scale_settle_s off (0, the default) and at 1.5 s, and each measurement with its truth.",
+                                ".venv/bin/python benchmarks/map_feedback_live_drive.py"),
     "pointcloud": ("Point clouds from raw frames",
                    "What each live odometry scan costs before the filter sees it, stage by stage.",
                    ".venv/bin/python benchmarks/pointcloud.py"),
