@@ -45,6 +45,9 @@ from imaging.backprojection import (_G, _TWO_PI, BLOCK, _gather_pairs_accumulate
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.core.prefetch import prefetch
 from imaging.range_compression import RangeProfiles
+from imaging.numba_target import prefer_full_width_vectors
+
+prefer_full_width_vectors()  # before this module's first numba function (imaging/numba_target.py)
 
 #: While a profile is gathered, the bins of the profile this many ahead are prefetched (1 to 8 measured alike:
 #: benchmarks/ffbp_leaves.py).

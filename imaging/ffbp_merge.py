@@ -14,6 +14,9 @@ import numba
 import numpy as np
 
 from imaging.backprojection import _cos_sin
+from imaging.numba_target import prefer_full_width_vectors
+
+prefer_full_width_vectors()  # before this module's first numba function (imaging/numba_target.py)
 
 
 @numba.njit(fastmath=True, cache=True, nogil=True)

@@ -31,6 +31,9 @@ import numba
 import numpy as np
 
 from imaging.ffbp_interpolation import BAND_MARGIN
+from imaging.numba_target import prefer_full_width_vectors
+
+prefer_full_width_vectors()  # before this module's first numba function (imaging/numba_target.py)
 
 #: Points of a grid's edge per side (:func:`grid_edges`).
 EDGE_POINTS = 64

@@ -25,6 +25,14 @@ def prefer_full_width_vectors() -> str | None:
         return None
     import llvmlite.binding as llvm
     from numba.core import config
+    from numba.core.registry import cpu_target
+
+    if "_toplevel_target_context" in getattr(cpu_target, "__dict__", {}):
+        # numba built its target machine already (a numba function was made before this call, as by a
+        # module imported before this package's kernels): its vector width is fixed. A config saying
+        # otherwise would file this process's 256-bit kernels in numba's cache under the 512-bit target's
+        # key, where a later process loads them as its own and images differ in their last bits.
+        return None
 
     try:
         features = llvm.get_host_cpu_features()

@@ -23,6 +23,9 @@ import numba
 import numpy as np
 
 from imaging.core.constants import CHI2_999
+from imaging.numba_target import prefer_full_width_vectors
+
+prefer_full_width_vectors()  # before this module's first numba function (imaging/numba_target.py)
 
 #: Variance given to a velocity component the radar does not measure (m/s)^2.
 UNMEASURED_VARIANCE = 100.0

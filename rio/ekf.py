@@ -26,6 +26,9 @@ from scipy.spatial.transform import Rotation
 
 from imaging.core.constants import CHI2_999, GRAVITY_MPS2
 from rio.strapdown import _exp_so3_nb, _strapdown, _strapdown_batch
+from imaging.numba_target import prefer_full_width_vectors
+
+prefer_full_width_vectors()  # before this module's first numba function (imaging/numba_target.py)
 
 GRAVITY = np.array([0.0, 0.0, -GRAVITY_MPS2])
 

@@ -21,6 +21,9 @@ import numba
 import numpy as np
 
 from imaging.core.constants import GRAVITY_MPS2
+from imaging.numba_target import prefer_full_width_vectors
+
+prefer_full_width_vectors()  # before this module's first numba function (imaging/numba_target.py)
 
 
 @numba.njit(cache=True)

@@ -18,6 +18,9 @@ from imaging.core.constants import SPEED_OF_LIGHT_MPS, TAI_MINUS_UTC_NS
 from imaging.core.geometry import Vibration, antenna_track, chirp_times_ns
 from imaging.core.rig import RadarConfig
 from imaging.core.trajectory import Trajectory
+from imaging.numba_target import prefer_full_width_vectors
+
+prefer_full_width_vectors()  # before this module's first numba function (imaging/numba_target.py)
 
 
 @numba.njit(parallel=True, cache=True)

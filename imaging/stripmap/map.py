@@ -21,6 +21,9 @@ from imaging.stripmap.polar import (beams_at_masked, beams_at_points, frame_axes
                                     masked_extent)
 from imaging.stripmap.presum import presum_chirps
 from imaging.stripmap.refocus import TileRefocus
+from imaging.numba_target import prefer_full_width_vectors
+
+prefer_full_width_vectors()  # before this module's first numba function (imaging/numba_target.py)
 
 
 #: The most frames ``StripMap.add_frames`` takes at once (each pixel notes which of them take it in one int64).

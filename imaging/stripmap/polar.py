@@ -37,6 +37,9 @@ import numpy as np
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.ffbp_interpolation import interpolation_table
 from imaging.range_compression import range_compress
+from imaging.numba_target import prefer_full_width_vectors
+
+prefer_full_width_vectors()  # before this module's first numba function (imaging/numba_target.py)
 
 #: Beams per Nyquist interval of the frame's angular band, and interpolation taps across them: the
 #: least-squares kernel's worst error for a tone in that band is -48 dB (``interpolation_error(6, 2)``).

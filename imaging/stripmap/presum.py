@@ -11,6 +11,9 @@ import numpy as np
 
 from imaging.core.rig import RadarConfig
 from imaging.stripmap.config import StripMapConfig
+from imaging.numba_target import prefer_full_width_vectors
+
+prefer_full_width_vectors()  # before this module's first numba function (imaging/numba_target.py)
 
 
 def presum_phase_spread_rad(config: StripMapConfig, radar: RadarConfig, speed_mps: float) -> float:
