@@ -217,7 +217,7 @@ def plot(rows, path: Path) -> None:
         ax.set_xlabel("calibration drive (s)")
         ax.set_ylabel(unit)
         ax.legend(fontsize=7)
-    axes[0].set_title("mount rotation (pitch: not taken, a floor robot cannot show it)", fontsize=9)
+    axes[0].set_title("mount rotation (pitch: taken only after enough turning; benchmarks/calibration_pitch.py)", fontsize=9)
     axes[1].set_title("lever arm in the plane", fontsize=9)
     axes[2].set_title("time offset (one radar 5 ms late)", fontsize=9)
     ax = axes[3]
