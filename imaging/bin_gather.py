@@ -1,6 +1,6 @@
 """The float32 kernel's gather of 16 pixels' neighbouring bins as vector permutes over a register window.
 
-A block's 16 consecutive pixels are a 4 x 4 sub-patch (``imaging.backprojection.patch_order`` with
+A block's 16 consecutive pixels are a 4 x 4 sub-patch (``imaging.patches.patch_order`` with
 ``sub_patch=4``), whose bins lie close together: about 10-12 apart at most on the benchmark grid. Where
 they span at most 14 bins, the 16 complex64 bins from the group's lowest index on (two 512-bit registers
 of float32) hold every pixel's bin a and the next one, b; four two-register permutes

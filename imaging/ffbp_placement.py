@@ -15,8 +15,9 @@ freed a large one, as in a fresh ``sarbot image``): the plan's cost then hung on
 (benchmarks/ffbp.py --plan records the faults, docs/results/ffbp_plan.json; tests/test_ffbp_plan.py counts them).
 
 Done a node at a time, as before, the plan was ~50 small numpy calls a node, 0.44 s for the 2 m aperture's
-383 nodes, more than FFBP's run of 0.33 s; batched it is several times faster (benchmarks/ffbp.py records
-``plan_s``, docs/results/ffbp.json). tests/test_ffbp_plan.py checks it against the node-at-a-time builder.
+383 nodes, more than FFBP's run of 0.33 s; batched, 0.076 s against 0.228 s in the same rounds on the quiet
+machine, 0.024 s in a fresh process after its first (``benchmarks/ffbp.py --plan``, docs/results/ffbp_plan.json).
+tests/test_ffbp_plan.py checks it against the node-at-a-time builder.
 
 Ragged sets (a node's phase centres, the plane points it serves) are padded: with copies of one of its own
 points where only their minimum or maximum is taken (a copy changes neither), with a mask where their order
