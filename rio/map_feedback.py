@@ -471,23 +471,26 @@ class MapFeedback:
             by_updates, by_scale = self._corrected_parts(m.time_ns, m.direction, speed)
             done = by_updates + by_scale
             scale_before = self.doppler_scale
+
+            def not_taken(**why) -> MapUpdate:
+                """``m`` as not offered to the filter, ``why`` (a MapUpdate flag) saying why."""
+                return MapUpdate(m, int(ekf.state.time_ns), speed, by_updates, by_scale, m.velocity_error_mps - done,
+                                 float("nan"), float("nan"), False, scale_before, self.doppler_scale, self.scale_sigma,
+                                 **why)
+
             if self._spans_update(m):
                 # The map imaged the span on poses whose velocity an update changed part-way: its tiles saw a
                 # kink, not one velocity error, and read it as a large one (live, 0.03-0.05 m/s at a claimed
                 # 0.003, which the scale then chased). What was corrected before the span is still taken off
                 # the measurements of spans after it.
                 self.spanning_update += 1
-                self.updates.append(MapUpdate(m, int(ekf.state.time_ns), speed, by_updates, by_scale,
-                                              m.velocity_error_mps - done, float("nan"), float("nan"), False,
-                                              scale_before, self.doppler_scale, self.scale_sigma, spans_update=True))
+                self.updates.append(not_taken(spans_update=True))
                 continue
             if self.settling(m):
                 # Its span began while the filter settled from a start: what it read is a transient, and taking
                 # its velocity update would kink the spans after it, which then are not taken either.
                 self.settling_not_taken += 1
-                self.updates.append(MapUpdate(m, int(ekf.state.time_ns), speed, by_updates, by_scale,
-                                              m.velocity_error_mps - done, float("nan"), float("nan"), False,
-                                              scale_before, self.doppler_scale, self.scale_sigma, settling=True))
+                self.updates.append(not_taken(settling=True))
                 continue
             res = update_look_velocity(ekf, m, done, self.config.gate_chi2)
             # the residual's sigma as the filter judged it (its velocity's and the measurement's, combined)
