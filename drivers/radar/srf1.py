@@ -90,14 +90,9 @@ def encode_frame_packed(radar_id: int, frame_counter: int, frame_time_ns: int, i
                         payload_bytes: int = MAX_PAYLOAD, version: int = VERSION) -> PackedDatagrams:
     """``encode_frame``'s datagrams back to back in one buffer (``PackedDatagrams``), built with whole-array
     copies: one header packed and copied to every datagram with its offset patched in, the payload copied
-    in one strided step. What is left per datagram is its CRC32C (version 2)."""
-    data = _wire_bytes(iq)
-    out = np.empty(_packed_size(data.size, payload_bytes, header_size(version)), np.uint8)
-    head = _lay_out(out, data, _header(radar_id, frame_counter, frame_time_ns, data.size, ptp_locked, version),
-                    payload_bytes, version)
-    if version >= 2:
-        _crc_column(out, payload_bytes, version)[:] = _datagram_crcs(out, head, payload_bytes)
-    return PackedDatagrams(out, header_size(version) + payload_bytes)
+    in one strided step. What is left per datagram is its CRC32C (version 2). A ``PackedEncoder`` of its own,
+    so the buffer is the caller's."""
+    return PackedEncoder(radar_id, ptp_locked, payload_bytes, version)(frame_counter, frame_time_ns, iq)
 
 
 class PackedEncoder:
@@ -125,8 +120,8 @@ class PackedEncoder:
         if self._buffer.size != size:
             self._buffer = np.empty(size, np.uint8)
         out = self._buffer
-        head = _lay_out(out, data, _header(self.radar_id, frame_counter, frame_time_ns, data.size, self.ptp_locked,
-                                           self.version), self.payload_bytes, self.version)
+        head = _header(self.radar_id, frame_counter, frame_time_ns, data.size, self.ptp_locked, self.version)
+        _lay_out(out, data, head, self.payload_bytes, self.version)
         if self.version >= 2:
             column = _crc_column(out, self.payload_bytes, self.version)
             frame_crc = crc32c.crc32c(data) if frame_key is not None else None
@@ -172,9 +167,9 @@ def _packed_size(frame_bytes: int, payload_bytes: int, head_size: int) -> int:
     return n_full * (head_size + payload_bytes) + (head_size + rest if rest else 0)
 
 
-def _lay_out(out: np.ndarray, data: np.ndarray, head: bytes, payload_bytes: int, version: int) -> bytes:
+def _lay_out(out: np.ndarray, data: np.ndarray, head: bytes, payload_bytes: int, version: int) -> None:
     """Headers (``head`` with each datagram's offset) and payloads into ``out``, by whole-array copies; the
-    CRC field is left as it was. Returns ``head``."""
+    CRC field is left as it was."""
     head_size = header_size(version)
     stride = head_size + payload_bytes
     n_full, rest = divmod(data.size, payload_bytes)
@@ -188,7 +183,6 @@ def _lay_out(out: np.ndarray, data: np.ndarray, head: bytes, payload_bytes: int,
         last[:HEADER.size] = head_bytes
         last[_OFFSET_AT:HEADER.size] = np.array([n_full * payload_bytes], "<u4").view(np.uint8)
         last[head_size:] = data[n_full * payload_bytes:]
-    return head
 
 
 def _crc_column(out: np.ndarray, payload_bytes: int, version: int) -> np.ndarray:
@@ -549,9 +543,5 @@ def _open_encoder(radar_id: int):
     return functools.partial(encode_frame, radar_id)
 
 
-def _open_packed_encoder(radar_id: int) -> PackedEncoder:
-    return PackedEncoder(radar_id)
-
-
 WIRE_FORMAT = WireFormat("SRF1", "PTP-stamped frame chunks (the reference radar)", _open_stream, _open_encoder,
-                         open_packed_encoder=_open_packed_encoder)
+                         open_packed_encoder=PackedEncoder)
