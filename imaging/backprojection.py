@@ -58,7 +58,7 @@ from imaging.block_profiles import (A_N, A_N2, B0, B1, B2, B_N, B_N2, CODE, E0, 
                                     NEW_TX_OFFSETS, SB0, SB1, SV0, SV1, TABLE_PROFILES, TABLE_SIZE, TOP, TURNS_C,
                                     TX_SERIES, V0, V1, V2, block_profile_table, block_series_distances,
                                     profile_rows)
-from imaging.core.constants import SPEED_OF_LIGHT_MPS
+from imaging.core.constants import BACKPROJECTION_MODES, SPEED_OF_LIGHT_MPS
 from imaging.numba_target import (  # noqa: F401 - compiled_target re-exported
     compiled_target, prefer_full_width_vectors, skip_extension_search)
 from imaging.patches import (  # noqa: F401 - re-exported: callers walk their grids as the kernel does
@@ -72,7 +72,7 @@ prefer_full_width_vectors()
 skip_extension_search()  # and no search of every installed distribution for numba extensions
 
 
-MODES = ("nearest", "linear", "exact")
+MODES = BACKPROJECTION_MODES
 #: The float32 kernel's budget for the phase error of rounding a pixel's range offset (-80 dB).
 PHASE_ROUNDING_RAD = 1e-4
 PROFILE_CHUNK = 256  # profiles per parallel sweep over the grid (their rows stay in L2/L3)

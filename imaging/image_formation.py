@@ -8,6 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from imaging.core.constants import BACKPROJECTION_MODES
 from imaging.core.errors import SarbotError
 from imaging.core.geometry import antenna_track, chirp_times_ns, principal_axis
 from imaging.core.grid import Grid
@@ -22,9 +23,9 @@ log = logging.getLogger(f"sarbot.{__name__}")
 #: How an image is formed: "direct" (every profile onto every pixel) or "ffbp" (fast factorized
 #: backprojection, a horizontal plane only; holds all the profiles in memory; imaging.factorized_backprojection).
 ALGORITHMS = ("direct", "ffbp")
-#: How profiles are sampled: ``imaging.backprojection.MODES``, named here so that options are checked without
-#: importing the kernels (numba): a command imports those while its first blocks are read (``form_image``).
-MODES = ("nearest", "linear", "exact")
+#: How profiles are sampled (imaging.core.constants: options are checked without importing the kernels, which
+#: a command imports while its first blocks are read, ``form_image``).
+MODES = BACKPROJECTION_MODES
 
 
 @dataclasses.dataclass

@@ -15,3 +15,8 @@ CHI2_999 = {1: 10.83, 2: 13.82, 3: 16.27}
 
 #: Arbitration id of the sync box's trigger frame on CAN (its payload: the trigger's PTP time, u64 LE).
 CAN_TRIGGER_ID = 0x100
+
+#: How backprojection samples a range profile (imaging.backprojection): nearest bin, linear interpolation, or
+#: the exact matched filter. Here, not in the kernels' module, so that options are checked without importing
+#: numba (image formation's and the strip map's configurations).
+BACKPROJECTION_MODES = ("nearest", "linear", "exact")

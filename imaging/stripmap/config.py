@@ -6,9 +6,10 @@ import dataclasses
 import math
 
 from imaging.core.config import require
+from imaging.core.constants import BACKPROJECTION_MODES
 from imaging.core.rig import RadarConfig
 
-MODES = ("nearest", "linear", "exact")
+MODES = BACKPROJECTION_MODES
 ALGORITHMS = ("polar", "direct", "ffbp")
 
 #: Limits of a map pixel, m: a tenth of a millimetre is far below the radar's resolution (a pixel of a
