@@ -144,9 +144,10 @@ class MapFeedbackConfig:
     #: the live test's drive: -140, +88, +144 mm/s at claimed 9-31 mm/s).
     #: Off (0) by default, until a live run shows it: offline on the live test's drive (the map and odometry in
     #: time, 3 noise seeds) the scale ended at +20.2k, +22.1k and +19.1k ppm at 1.5 s (off: +16.5k, +25.3k,
-    #: +22.4k; docs/results/map_feedback_live_drive.json). Learning no scale from such a span but taking its velocity update was worse: the first tile
-    #: no longer anchored the scale, a wild tile taught it first against the 5 % prior (-58.6k offline; a live
-    #: run +178.6k, after a +96 mm/s tile's velocity update the wide gate took).
+    #: +22.4k; docs/results/map_feedback_live_drive.json). Learning no scale from such a span but taking its
+    #: velocity update was worse: the first tile no longer anchored the scale, a wild tile taught it first
+    #: against the 5 % prior (-58.6k offline; a live run +178.6k, after a +96 mm/s tile's velocity update the
+    #: wide gate took).
     scale_settle_s: float = 0.0
 
 
@@ -523,7 +524,8 @@ class MapFeedback:
 
     def _learn_scale(self, relative_error: float, relative_sigma: float) -> bool:
         """One scalar Kalman update of ``doppler_scale`` by a speed ``relative_error`` (truth faster than the
-        corrected Doppler by that part of the speed: the Doppler reads (v - dv) / v of the truth)."""
+        corrected Doppler by that part of the speed: the Doppler reads (v - dv) / v of the truth). Returns
+        whether it learnt: False, the scale unchanged, where the error lies outside ``scale_gate_chi2``."""
         r = max(relative_sigma, self.config.scale_min_sigma) ** 2
         if relative_error ** 2 / (self.scale_variance + r) > self.config.scale_gate_chi2:
             return False
