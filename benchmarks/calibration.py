@@ -40,8 +40,7 @@ sys.path.insert(0, str(ROOT))
 
 from imaging.core.rig import CalibrationPrior, default_rig  # noqa: E402
 from rio.calibration import AXIS_KEYS, calibrate  # noqa: E402
-from rio.calibration_drive import SIM_EKF, calibration_drive, estimate_errors, simulate_drive  # noqa: E402
-from rio.ego_velocity import EgoStatus, sensor_velocity  # noqa: E402
+from rio.calibration_drive import SIM_EKF, calibration_drive, estimate_errors, fits_with_truth, simulate_drive  # noqa: E402
 from rio.evaluation import drift_report  # noqa: E402
 from rio.odometry import RioOptions, run_rio  # noqa: E402
 from results_file import load_average, write_results  # noqa: E402
@@ -78,16 +77,7 @@ def doppler_fit_errors(traj, scans) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     for name in rig.radar_names:
         mount = rig.radar(name).mount
         err, v = [], []
-        for s in scans:
-            if s.radar != name:
-                continue
-            est = sensor_velocity(s.xyz_m, s.doppler_mps, rng=rng)
-            if est.status is not EgoStatus.OK:
-                continue
-            truth = traj.sample(np.array([s.time_ns]))
-            v_body = truth.rotation_matrix[0].T @ truth.velocity_mps[0] + np.cross(truth.angular_velocity_body_radps[0],
-                                                                                   mount.translation_m)
-            v_sensor = mount.rotation_matrix.T @ v_body
+        for est, v_sensor in fits_with_truth(traj, scans, name, mount, rng):
             err.append(est.velocity_mps[2] - v_sensor[2])
             v.append(v_sensor)
         out[name] = (np.asarray(v).reshape(-1, 3), np.asarray(err))

@@ -40,7 +40,7 @@ sys.path.insert(0, str(ROOT))
 
 from imaging.core.rig import default_rig  # noqa: E402
 from rio.calibration import calibrate  # noqa: E402
-from rio.calibration_drive import SIM_EKF, calibration_drive, estimate_errors, simulate_drive  # noqa: E402
+from rio.calibration_drive import SIM_EKF, calibration_drive, estimate_errors, fits_with_truth, simulate_drive  # noqa: E402
 from rio.ego_velocity import EgoStatus, EgoVelocity, EgoVelocityConfig, direction_moments, fit_gain, sensor_velocity  # noqa: E402
 from rio.evaluation import drift_report  # noqa: E402
 from rio.odometry import RioOptions  # noqa: E402
@@ -129,16 +129,7 @@ def drive_fit_errors(traj, scans, config: EgoVelocityConfig, block: int = 20) ->
     for name in rig.radar_names:
         mount = rig.radar(name).mount
         err, vx, normalised = [], [], []
-        for s in scans:
-            if s.radar != name:
-                continue
-            est = sensor_velocity(s.xyz_m, s.doppler_mps, config, rng)
-            if est.status is not EgoStatus.OK:
-                continue
-            truth = traj.sample(np.array([s.time_ns]))
-            v_body = truth.rotation_matrix[0].T @ truth.velocity_mps[0] + np.cross(
-                truth.angular_velocity_body_radps[0], mount.translation_m)
-            v_sensor = mount.rotation_matrix.T @ v_body
+        for est, v_sensor in fits_with_truth(traj, scans, name, mount, rng, config):
             err.append(est.velocity_mps[2] - v_sensor[2])
             vx.append(v_sensor[0])
             normalised.append(err[-1] / math.sqrt(est.covariance[2, 2]))

@@ -46,8 +46,7 @@ from imaging.core.rig import default_rig  # noqa: E402
 from imaging.core.trajectory import PathWithTurns  # noqa: E402
 from imaging.sim.scene import DEFAULT_START_TIME_NS as T0  # noqa: E402
 from rio.calibration import CalibrationLimits, calibrate  # noqa: E402
-from rio.calibration_drive import CURVES, SIM_EKF, TIGHT_TURNS, calibration_drive, estimate_errors, simulate_drive  # noqa: E402
-from rio.ego_velocity import EgoStatus, sensor_velocity  # noqa: E402
+from rio.calibration_drive import CURVES, SIM_EKF, TIGHT_TURNS, calibration_drive, estimate_errors, fits_with_truth, simulate_drive  # noqa: E402
 from rio.odometry import RioOptions  # noqa: E402
 from results_file import load_average, write_results  # noqa: E402
 
@@ -80,16 +79,7 @@ def fit_statistics(traj, scans, block: int = 20) -> dict[str, dict]:
         mount = rig.radar(name).mount
         info = np.zeros((2, 2))
         v_all, ez, z = [], [], []
-        for s in scans:
-            if s.radar != name:
-                continue
-            est = sensor_velocity(s.xyz_m, s.doppler_mps, rng=rng)
-            if est.status is not EgoStatus.OK:
-                continue
-            truth = traj.sample(np.array([s.time_ns]))
-            v_body = truth.rotation_matrix[0].T @ truth.velocity_mps[0] + np.cross(
-                truth.angular_velocity_body_radps[0], mount.translation_m)
-            v = mount.rotation_matrix.T @ v_body
+        for est, v in fits_with_truth(traj, scans, name, mount, rng):
             cov = est.covariance + np.eye(3) * floor2
             # the velocity's change per radian of roll and pitch (the filter's H: skew(v) on the rotation error)
             d = np.column_stack([np.cross(v, [1.0, 0.0, 0.0]), np.cross(v, [0.0, 1.0, 0.0])])

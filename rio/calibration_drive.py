@@ -15,6 +15,7 @@ from imaging.sim.detection_simulator import DetectionModel, room_scatterers, sim
 from imaging.sim.imu_simulator import ImuErrors, simulate_imu
 from imaging.sim.scene import DEFAULT_START_TIME_NS as T0
 
+from .ego_velocity import EgoStatus, EgoVelocityConfig, sensor_velocity
 from .ekf import EkfConfig
 from .odometry import ImuData, RadarScan
 
@@ -79,3 +80,20 @@ def estimate_errors(result, name: str, late_stamps: bool = True) -> np.ndarray:
     rot = (truth.rotation.inv() * est.mount.rotation).as_rotvec()
     return np.concatenate([rot, est.mount.translation_m - truth.translation_m,
                            [est.time_offset_s - (LATE_S if late_stamps and name == LATE_RADAR else 0.0)]])
+
+
+def fits_with_truth(trajectory, scans, name: str, mount: Mount, rng: np.random.Generator,
+                    config: EgoVelocityConfig = EgoVelocityConfig()):
+    """Radar ``name``'s scans that the Doppler fit takes, each as (the fit, an ``EgoVelocity``; the true
+    velocity of the radar [3], m/s, in the frame of ``mount``: the trajectory's velocity in the body frame plus
+    its turn rate x the mount's lever arm). What the benchmarks hold the fit's errors against."""
+    for s in scans:
+        if s.radar != name:
+            continue
+        est = sensor_velocity(s.xyz_m, s.doppler_mps, config, rng)
+        if est.status is not EgoStatus.OK:
+            continue
+        truth = trajectory.sample(np.array([s.time_ns]))
+        v_body = truth.rotation_matrix[0].T @ truth.velocity_mps[0] + np.cross(truth.angular_velocity_body_radps[0],
+                                                                               mount.translation_m)
+        yield est, mount.rotation_matrix.T @ v_body
