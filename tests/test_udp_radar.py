@@ -50,6 +50,22 @@ def test_frames_over_loopback_udp_arrive_whole_with_kernel_timestamps():
     tx.close()
 
 
+def _stop_and_drain(stop: threading.Event, driver: threading.Thread, sub) -> tuple[list, list[str]]:
+    """Let the last datagrams land, stop the driver loop, and take every frame and event it published."""
+    from acquisition.messages import Event, RadarFrameMessage
+
+    time.sleep(0.5)
+    stop.set()
+    driver.join(5)
+    frames, events = [], []
+    while (m := sub.receive(timeout_ms=300)) is not None:
+        if m.topic == Event.TOPIC:
+            events.append(Event.from_message(m).message)
+        else:
+            frames.append(RadarFrameMessage.from_message(m).frame)
+    return frames, events
+
+
 def test_wire_faults_through_a_proxy_never_give_a_wrong_valid_frame():
     """SRF1 v2 through a real UDP proxy that drops, duplicates, reorders, truncates and flips bits, with
     datagrams of another radar mixed in, and a spoofer on another address sending the radar's counters:
@@ -123,15 +139,7 @@ def test_wire_faults_through_a_proxy_never_give_a_wrong_valid_frame():
                 proxy.sendto(held, rx.address)
                 held = None
         time.sleep(0.002)
-    time.sleep(0.5)
-    stop.set()
-    driver.join(5)
-    frames, events = [], []
-    while (m := sub.receive(timeout_ms=300)) is not None:
-        if m.topic == Event.TOPIC:
-            events.append(Event.from_message(m).message)
-        else:
-            frames.append(RadarFrameMessage.from_message(m).frame)
+    frames, events = _stop_and_drain(stop, driver, sub)
     rx.close(), proxy.close(), spoofer.close(), pub.close(), sub.close(), ctx.term()
     assert all(n > 0 for n in counts.values()), counts
     assert len({f.frame_counter for f in frames}) == len(frames)  # no counter passed on twice
@@ -183,15 +191,7 @@ def test_late_duplicates_through_a_proxy_lose_nothing_and_write_no_counter_twice
                 proxy.sendto(back[k % len(back)], rx.address)
                 late += 1
         time.sleep(0.003)
-    time.sleep(0.5)
-    stop.set()
-    driver.join(5)
-    frames, events = [], []
-    while (m := sub.receive(timeout_ms=300)) is not None:
-        if m.topic == Event.TOPIC:
-            events.append(Event.from_message(m).message)
-        else:
-            frames.append(RadarFrameMessage.from_message(m).frame)
+    frames, events = _stop_and_drain(stop, driver, sub)
     rx.close(), proxy.close(), pub.close(), sub.close(), ctx.term()
     assert late == 10
     assert [f.frame_counter for f in frames] == list(sent)  # each once, in order, across the wrap
