@@ -40,8 +40,9 @@ import math
 import numba
 import numpy as np
 
-from imaging.backprojection import (_G, _TWO_PI, BLOCK, _gather_pairs_accumulate, guarded_rows,
-                                    series_applies)
+from imaging.backprojection import (_G, _TWO_PI, BLOCK, _gather_pairs_accumulate, _gather_planar_accumulate,
+                                    guarded_rows, series_applies)
+from imaging.bin_gather import PERMUTE_GATHER
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.core.prefetch import prefetch
 from imaging.range_compression import RangeProfiles
@@ -113,6 +114,7 @@ def _leaf_block(rows, r0, inv_dr, k, tx, rx, r_ref, linear, z, p0, p1, g, na, g0
     frac = np.empty(nb, np.float32)
     turns = np.empty(nb, np.float32)
     pairs = np.empty((nb, 2), np.complex64)
+    planar = np.empty((4, nb), np.float32)  # the same, planar, for the permute gather
     da = np.empty(nb, np.float32)
     c_0, c_1, c_2, c_3, c_4, c_5 = (np.float32(_G[0]), np.float32(_G[1]), np.float32(_G[2]), np.float32(_G[3]),
                                     np.float32(_G[4]), np.float32(_G[5]))
@@ -149,7 +151,10 @@ def _leaf_block(rows, r0, inv_dr, k, tx, rx, r_ref, linear, z, p0, p1, g, na, g0
                 idx[i], frac[i], turns[i] = _place_polar(d, r_bins[i], frac_c, inv32, lo, top, ibase, turns_c, k_turns32, linear)
         if p + PREFETCH_AHEAD < p1:
             _prefetch_bins(rows, p + PREFETCH_AHEAD, idx)
-        _gather_pairs_accumulate(rows[p], idx, frac, turns, pairs, acc_re, acc_im, linear)
+        if linear and PERMUTE_GATHER:
+            _gather_planar_accumulate(rows[p], idx, frac, turns, planar, acc_re, acc_im)
+        else:
+            _gather_pairs_accumulate(rows[p], idx, frac, turns, pairs, acc_re, acc_im, linear)
     for i in range(nb):
         out[i] = np.complex64(complex(acc_re[i], acc_im[i]))
 
