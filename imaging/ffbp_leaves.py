@@ -6,7 +6,7 @@ Python around one call a leaf held the GIL for much of a small leaf's time); the
 threads.
 
 The kernel is the direct one's (``imaging.backprojection``: the same profile sampling, linear or nearest, the
-same gather and float32 phase in turns) with its geometry taken from the polar grid itself. A grid point g
+same gather -- below -- and float32 phase in turns) with its geometry taken from the polar grid itself. A grid point g
 lies at range r along the unit vector e from c, and a leaf's phase centres m lie within a few centimetres of c
 (s = m - c), so
 
@@ -26,6 +26,13 @@ A leaf's block of grid points spans several range rows, so each profile's gather
 of its row, lines no earlier block read (the next block lies at other ranges): each was a wait on memory, as
 the rows of a leaf's 512 profiles do not stay in cache. The kernel prefetches them PREFETCH_AHEAD profiles
 ahead (``imaging.core.prefetch``); benchmarks/ffbp_leaves.py times the kernel's parts.
+
+The gather: where numba's target has AVX-512 and the mode is linear, each profile's bins are gathered as
+the direct kernel gathers them (``imaging.bin_gather``: 16 consecutive grid points' bin pairs taken by vector
+permutes from a window of 16 bins, where their bins lie within it; else the scalar gather), the same values
+bit for bit (tests/test_ffbp_leaves_gather.py). On the 2 m aperture every group of 16 fits (a block's points
+run along a polar row, at most one row boundary a group): the leaves 1.12x, FFBP's run 1.06x in CPU time on
+the loaded machine (benchmarks/ffbp_leaves_permute.py, docs/results/ffbp_leaves_permute.json).
 
 Numba note: an inlined helper that is handed arrays inside a loop over points costs a reference count's
 increment and decrement per point (here it made the loop 15x slower); the helpers below take and return
