@@ -27,7 +27,10 @@ kernel in each round, both on 2 threads (a run of a minute or two, for a loaded 
 Each plan's page faults are counted, and the plan is also timed as a user meets it, in new processes
 (``fresh_process``: the first plan, with numba's start and cache loads, and four more), beside the rounds'
 (each after an 11 s direct image in a process that has freed large arrays, whose allocator state a user's
-``sarbot image`` does not share).
+``sarbot image`` does not share). Why a plan in the rounds may cost more than in a fresh process
+(``plan_conditions``): in each round the plan right after the direct kernel (the rounds' ``plan_s``), again,
+after a 1 s pause and on a new thread; each with its parts' CPU time, the other threads' CPU time while it ran
+(OpenMP's workers spinning), its wait for a core, the machine's steal time and the main heap's free chunks.
 
     python benchmarks/ffbp.py [--quick | --plan]
 
