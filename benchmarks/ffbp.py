@@ -27,7 +27,10 @@ kernel in each round, both on 2 threads (a run of a minute or two, for a loaded 
 Each plan's page faults are counted, and the plan is also timed as a user meets it, in new processes
 (``fresh_process``: the first plan, with numba's start and cache loads, and four more), beside the rounds'
 (each after an 11 s direct image in a process that has freed large arrays, whose allocator state a user's
-``sarbot image`` does not share).
+``sarbot image`` does not share). Why a plan in the rounds may cost more than in a fresh process
+(``plan_conditions``): in each round the plan right after the direct kernel (the rounds' ``plan_s``), again,
+after a 1 s pause and on a new thread; each with its parts' CPU time, the other threads' CPU time while it ran
+(OpenMP's workers spinning), its wait for a core, the machine's steal time and the main heap's free chunks.
 
     python benchmarks/ffbp.py [--quick | --plan]
 
@@ -44,6 +47,7 @@ import platform
 import resource
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -58,6 +62,7 @@ from backprojection import make_case  # noqa: E402
 from imaging.backprojection import backproject  # noqa: E402
 from imaging.factorized_backprojection import FactorizedOptions, plan_factorized, run_factorized  # noqa: E402
 from imaging.range_compression import range_compress  # noqa: E402
+from process_stats import free_heap_chunks, machine_cpu_s, other_threads_cpu_s, this_thread_wait_s  # noqa: E402
 from results_file import load_average, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
@@ -270,6 +275,33 @@ def thread_usage() -> tuple:
     return usage.ru_minflt, usage.ru_stime
 
 
+#: The plan's parts whose CPU time ``plan_study`` splits out (imaging.factorized_backprojection's names): the
+#: phase centres' frames (numba passes and a batched eigh), the grids' placement (a numba pass), their edges
+#: (numpy); the rest of a plan is its Python.
+PLAN_PARTS = ("node_frames", "place_grids", "grid_edges", "image_distance", "track_axis")
+
+
+def split_plan_parts() -> dict:
+    """Wrap PLAN_PARTS in imaging.factorized_backprojection with a CPU timer (this thread's); returns the dict
+    the wrappers add to (cleared by the caller before a plan)."""
+    import imaging.factorized_backprojection as fb
+
+    spent: dict = {}
+
+    def timed_part(name, fn):
+        def part(*args, **kwargs):
+            t = time.thread_time()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                spent[name] = spent.get(name, 0.0) + time.thread_time() - t
+        return part
+
+    for name in PLAN_PARTS:
+        setattr(fb, name, timed_part(name, getattr(fb, name)))
+    return spent
+
+
 #: The plan as ``sarbot image --algorithm ffbp`` meets it: a new process that imports sarbot, loads its cached
 #: kernels as that command does, and plans.
 FRESH_PLAN = """
@@ -338,6 +370,9 @@ def plan_study(rounds: int) -> dict:
     rows = {k: [] for k in ("direct_s", "plan_s", "plan_before_s", "plan_cpu_s", "plan_before_cpu_s", "run_s")}
 
     rows.update(plan_faults=[], plan_before_faults=[], plan_system_s=[], plan_before_system_s=[])
+    # Why a plan may cost more here than in a fresh process: each plan's surroundings (see plan_conditions).
+    conditions: dict = {k: [] for k in ("right_after_direct", "again", "after_pause", "new_thread_after_pause")}
+    parts = split_plan_parts()
 
     def clocked(fn):
         (faults, system), t, c = thread_usage(), time.perf_counter(), time.thread_time()
@@ -345,15 +380,47 @@ def plan_study(rounds: int) -> dict:
         wall, cpu, (faults_after, system_after) = time.perf_counter() - t, time.thread_time() - c, thread_usage()
         return wall, cpu, faults_after - faults, system_after - system
 
+    def observed(on_new_thread: bool = False) -> dict:
+        """A plan, with what went on around it: this thread's CPU time by part, the other threads' CPU time,
+        its wait for a core, the machine's steal time, and the main heap's free chunks before it."""
+        heap_chunks = free_heap_chunks()
+        parts.clear()
+        row: dict = {}
+
+        def go():
+            others, wait, steal = other_threads_cpu_s(), this_thread_wait_s(), machine_cpu_s()["steal"]
+            row["wall_s"], row["cpu_s"], row["faults"], row["system_s"] = clocked(lambda: plan_factorized(*args))
+            row["other_threads_cpu_s"] = other_threads_cpu_s() - others
+            row["wait_for_core_s"] = this_thread_wait_s() - wait
+            row["machine_steal_s"] = machine_cpu_s()["steal"] - steal
+
+        if on_new_thread:
+            worker = threading.Thread(target=go)
+            worker.start()
+            worker.join()
+        else:
+            go()
+        row["parts_cpu_s"] = dict(parts)
+        row["free_heap_chunks_before"] = heap_chunks
+        return row
+
     for _ in range(rounds):
         rows["direct_s"].append(timed(lambda: backproject(prof, tx, rx, grid), 1)[0])
-        for name, build in (("plan", plan_factorized), ("plan_before", plan_factorized_reference)):
-            wall, cpu, faults, system = clocked(lambda: build(*args))
-            rows[f"{name}_system_s"].append(system)
-            rows[f"{name}_s"].append(wall)
-            rows[f"{name}_cpu_s"].append(cpu)
-            rows[f"{name}_faults"].append(faults)
+        first = observed()  # the rounds' plan, as before: right after the direct kernel
+        conditions["right_after_direct"].append(first)
+        for key, value in (("system_s", "system_s"), ("s", "wall_s"), ("cpu_s", "cpu_s"), ("faults", "faults")):
+            rows[f"plan_{key}"].append(first[value])
+        wall, cpu, faults, system = clocked(lambda: plan_factorized_reference(*args))
+        rows["plan_before_system_s"].append(system)
+        rows["plan_before_s"].append(wall)
+        rows["plan_before_cpu_s"].append(cpu)
+        rows["plan_before_faults"].append(faults)
+        conditions["again"].append(observed())  # the same process state, not right after the direct kernel
         rows["run_s"].append(timed(lambda: run_factorized(plan, prof, tx, rx), 1)[0])
+        time.sleep(1.0)  # workers asleep, the cores idle a while
+        conditions["after_pause"].append(observed())
+        time.sleep(1.0)
+        conditions["new_thread_after_pause"].append(observed(on_new_thread=True))  # another thread, another heap
     numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
     fresh = fresh_process_plans(tx, rx, x, y, prof.carrier_hz, prof.bandwidth_hz, rounds)
     r = {k: np.array(v) for k, v in rows.items()}
@@ -372,7 +439,9 @@ def plan_study(rounds: int) -> dict:
                float(np.median(r["direct_s"] / (fresh["plan_s"] + r["run_s"]))),
            "speedup_with_fresh_process_first_plan_over_direct_2_threads_interleaved":
                float(np.median(r["direct_s"] / (fresh["first_plan_s"] + r["run_s"]))),
-           "error_db": errors["plan"], "error_db_plan_before": errors["plan_before"]}
+           "error_db": errors["plan"], "error_db_plan_before": errors["plan_before"],
+           "plan_conditions": conditions,
+           "plan_cpu_s_by_condition": {name: float(np.median([c["cpu_s"] for c in rows_])) for name, rows_ in conditions.items()}}
     print(f"2 m: plan {out['plan_s']:.3f} s (first in the process {t_first:.3f} s) against {out['plan_before_s']:.3f} s before "
           f"({out['plan_over_before_wall']:.1f}x wall, {out['plan_over_before_cpu']:.1f}x CPU), {out['plan_over_run']:.2f} of the run; "
           f"FFBP {out['speedup_over_direct_2_threads_interleaved']:.1f}x the direct kernel, with its plan "
@@ -384,6 +453,9 @@ def plan_study(rounds: int) -> dict:
           f"{fresh['plan_s']:.3f} s ({fresh['plan_faults']} faults): FFBP {out['speedup_with_fresh_process_plan_over_direct_2_threads_interleaved']:.1f}x "
           f"the direct kernel with such a plan, {out['speedup_with_fresh_process_first_plan_over_direct_2_threads_interleaved']:.1f}x "
           f"with the first", flush=True)
+    print("  a plan's CPU time (median of the rounds): " + ", ".join(
+        f"{name.replace('_', ' ')} {v:.3f} s" for name, v in out["plan_cpu_s_by_condition"].items())
+        + f"; in a fresh process {fresh['plan_cpu_s']:.3f} s", flush=True)
     return out
 
 

@@ -45,7 +45,9 @@ sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]
 from backprojection import make_case  # noqa: E402
 from ffbp import load_text  # noqa: E402
 
-from imaging.backprojection import _G, _TWO_PI, BLOCK, _gather_pairs_accumulate, backproject, guarded_rows  # noqa: E402
+from imaging.backprojection import (_G, _TWO_PI, BLOCK, _gather_pairs_accumulate, _gather_planar_accumulate,  # noqa: E402
+                                    backproject, guarded_rows)
+from imaging.bin_gather import PERMUTE_GATHER  # noqa: E402
 from results_file import load_average, write_results  # noqa: E402
 from imaging.core.constants import SPEED_OF_LIGHT_MPS  # noqa: E402
 from imaging.core.prefetch import prefetch  # noqa: E402
@@ -94,6 +96,7 @@ def _block(rows, r0, inv_dr, k, tx, rx, linear, z, p0, p1, g, na, g0, nb, out, p
     frac = np.zeros(nb, np.float32)
     turns = np.zeros(nb, np.float32)
     pairs = np.empty((nb, 2), np.complex64)
+    planar = np.empty((4, nb), np.float32)
     da = np.empty(nb, np.float32)
     c_0, c_1, c_2, c_3, c_4, c_5 = (np.float32(_G[0]), np.float32(_G[1]), np.float32(_G[2]), np.float32(_G[3]),
                                     np.float32(_G[4]), np.float32(_G[5]))
@@ -130,6 +133,8 @@ def _block(rows, r0, inv_dr, k, tx, rx, linear, z, p0, p1, g, na, g0, nb, out, p
             for i in range(nb):
                 acc_re[i] += frac[i] + turns[i]
                 acc_im[i] += np.float32(idx[i])
+        elif linear and PERMUTE_GATHER:
+            _gather_planar_accumulate(rows[p], idx, frac, turns, planar, acc_re, acc_im)
         else:
             _gather_pairs_accumulate(rows[p], idx, frac, turns, pairs, acc_re, acc_im, linear)
     for i in range(nb):

@@ -1,10 +1,13 @@
 """What a benchmark reads of a running process tree from /proc (Linux): its children, CPU time, resident
-memory, time spent waiting for a core, and the machine's CPU time. Not a benchmark itself (run_all.py skips
-it); ``daemon_recording.py`` and ``soak.py`` import it."""
+memory, time spent waiting for a core, and the machine's CPU time; of the calling process, its other threads'
+CPU time, this thread's wait for a core and its main heap's free chunks. Not a benchmark itself (run_all.py
+skips it); ``daemon_recording.py``, ``soak.py`` and ``ffbp.py`` import it."""
 
 from __future__ import annotations
 
+import ctypes
 import os
+import threading
 from pathlib import Path
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -84,3 +87,40 @@ def machine_cpu_s() -> dict[str, float]:
     fields = [int(v) / CLK_TCK for v in Path("/proc/stat").read_text().splitlines()[0].split()[1:]]
     user, nice, system, idle, iowait, irq, softirq, steal = (fields + [0.0] * 8)[:8]
     return {"busy": user + nice + system + irq + softirq, "steal": steal, "idle": idle + iowait}
+
+
+def other_threads_cpu_s() -> float:
+    """CPU time the calling process's other threads have run so far (their schedstat, to the nanosecond), s:
+    numba's OpenMP workers spinning after a parallel region show here."""
+    me, total = threading.get_native_id(), 0
+    for task in Path("/proc/self/task").iterdir():
+        if int(task.name) != me:
+            try:
+                total += int((task / "schedstat").read_text().split()[0])
+            except (FileNotFoundError, IndexError, ValueError):
+                continue  # a thread that ended since the listing
+    return total * 1e-9
+
+
+def this_thread_wait_s() -> float:
+    """How long the calling thread has waited, runnable, for a core so far (its schedstat), s."""
+    try:
+        return int(Path(f"/proc/self/task/{threading.get_native_id()}/schedstat").read_text().split()[1]) * 1e-9
+    except (FileNotFoundError, IndexError, ValueError):
+        return 0.0
+
+
+class _MallInfo2(ctypes.Structure):
+    _fields_ = [(name, ctypes.c_size_t) for name in ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks",
+                                                      "fsmblks", "uordblks", "fordblks", "keepcost")]
+
+
+def free_heap_chunks() -> int | None:
+    """Free chunks in glibc's main heap (``mallinfo2().ordblks``; None without glibc 2.33's mallinfo2): a heap
+    left fragmented by earlier work makes each large allocation search longer."""
+    try:
+        mallinfo2 = ctypes.CDLL(None).mallinfo2
+    except (OSError, AttributeError):
+        return None
+    mallinfo2.restype = _MallInfo2
+    return int(mallinfo2().ordblks)

@@ -88,11 +88,17 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                     "The leaf kernel on one thread, nanoseconds a backprojection: as it runs, without prefetching, "
                     "its geometry and its gather alone, with the rows in cache, against the direct kernel.",
                     ".venv/bin/python benchmarks/ffbp_leaves.py"),
+    "ffbp_leaves_permute": ("FFBP's leaves with the permute gather",
+                            "The leaf kernel compiled with the permute gather (imaging/bin_gather.py) and with the "
+                            "scalar gather, alternated in one run: 16 leaves on one thread and FFBP's whole run on 2 "
+                            "threads, in wall and CPU time; the groups of 16 the permutes took; the images compared.",
+                            ".venv/bin/python benchmarks/ffbp_leaves_permute.py"),
     "ffbp_plan": ("FFBP's plan against the node-at-a-time plan",
                   "The 2 m aperture's plan (plan_factorized) against the builder it replaced (tests/reference_ffbp_plan.py), "
                   "alternated in one process, and FFBP with its plan against the direct kernel in each round, on 2 threads, "
                   "on whatever load the JSON records; each plan's page faults and system time, and the plan in fresh "
-                  "processes (fresh_process: as sarbot image meets it).",
+                  "processes (fresh_process: as sarbot image meets it); plan_conditions: a plan right after the direct "
+                  "kernel, again, after a pause and on a new thread, each with its parts' CPU time and what ran beside it.",
                   ".venv/bin/python benchmarks/ffbp.py --plan"),
     "stripmap": ("Live strip map",
                  "The streaming strip map: frames per second against the sensor rate, and map error against an "

@@ -6,7 +6,7 @@ Python around one call a leaf held the GIL for much of a small leaf's time); the
 threads.
 
 The kernel is the direct one's (``imaging.backprojection``: the same profile sampling, linear or nearest, the
-same gather and float32 phase in turns) with its geometry taken from the polar grid itself. A grid point g
+same gather -- below -- and float32 phase in turns) with its geometry taken from the polar grid itself. A grid point g
 lies at range r along the unit vector e from c, and a leaf's phase centres m lie within a few centimetres of c
 (s = m - c), so
 
@@ -27,6 +27,13 @@ of its row, lines no earlier block read (the next block lies at other ranges): e
 the rows of a leaf's 512 profiles do not stay in cache. The kernel prefetches them PREFETCH_AHEAD profiles
 ahead (``imaging.core.prefetch``); benchmarks/ffbp_leaves.py times the kernel's parts.
 
+The gather: where numba's target has AVX-512 and the mode is linear, each profile's bins are gathered as
+the direct kernel gathers them (``imaging.bin_gather``: 16 consecutive grid points' bin pairs taken by vector
+permutes from a window of 16 bins, where their bins lie within it; else the scalar gather), the same values
+bit for bit (tests/test_ffbp_leaves_gather.py). On the 2 m aperture every group of 16 fits (a block's points
+run along a polar row, at most one row boundary a group): the leaves 1.12x, FFBP's run 1.06x in CPU time on
+the loaded machine (benchmarks/ffbp_leaves_permute.py, docs/results/ffbp_leaves_permute.json).
+
 Numba note: an inlined helper that is handed arrays inside a loop over points costs a reference count's
 increment and decrement per point (here it made the loop 15x slower); the helpers below take and return
 scalars there, and the array-taking ones run once a profile.
@@ -40,8 +47,9 @@ import math
 import numba
 import numpy as np
 
-from imaging.backprojection import (_G, _TWO_PI, BLOCK, _gather_pairs_accumulate, guarded_rows,
-                                    series_applies)
+from imaging.backprojection import (_G, _TWO_PI, BLOCK, _gather_pairs_accumulate, _gather_planar_accumulate,
+                                    guarded_rows, series_applies)
+from imaging.bin_gather import PERMUTE_GATHER
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.core.prefetch import prefetch
 from imaging.range_compression import RangeProfiles
@@ -113,6 +121,7 @@ def _leaf_block(rows, r0, inv_dr, k, tx, rx, r_ref, linear, z, p0, p1, g, na, g0
     frac = np.empty(nb, np.float32)
     turns = np.empty(nb, np.float32)
     pairs = np.empty((nb, 2), np.complex64)
+    planar = np.empty((4, nb), np.float32)  # the same, planar, for the permute gather
     da = np.empty(nb, np.float32)
     c_0, c_1, c_2, c_3, c_4, c_5 = (np.float32(_G[0]), np.float32(_G[1]), np.float32(_G[2]), np.float32(_G[3]),
                                     np.float32(_G[4]), np.float32(_G[5]))
@@ -149,7 +158,10 @@ def _leaf_block(rows, r0, inv_dr, k, tx, rx, r_ref, linear, z, p0, p1, g, na, g0
                 idx[i], frac[i], turns[i] = _place_polar(d, r_bins[i], frac_c, inv32, lo, top, ibase, turns_c, k_turns32, linear)
         if p + PREFETCH_AHEAD < p1:
             _prefetch_bins(rows, p + PREFETCH_AHEAD, idx)
-        _gather_pairs_accumulate(rows[p], idx, frac, turns, pairs, acc_re, acc_im, linear)
+        if linear and PERMUTE_GATHER:
+            _gather_planar_accumulate(rows[p], idx, frac, turns, planar, acc_re, acc_im)
+        else:
+            _gather_pairs_accumulate(rows[p], idx, frac, turns, pairs, acc_re, acc_im, linear)
     for i in range(nb):
         out[i] = np.complex64(complex(acc_re[i], acc_im[i]))
 
