@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import math
 
 import numba
@@ -313,11 +314,18 @@ def remove_crosstalk(u: np.ndarray, est: EgoVelocity, config: EgoVelocityConfig)
     keeps both (1.0x, 20.3 mm; benchmarks/calibration_elevation.py). The horizontal velocity is kept as
     fitted. The joint fit of several radars (``body_velocity``) is not corrected.
     """
-    e2, a2 = math.radians(config.elevation_sigma_deg) ** 2, math.radians(config.azimuth_sigma_deg) ** 2
-    # direction_moments' factors for sign -1 (taking the noise out)
     est.velocity_mps, est.covariance = _remove_crosstalk_nb(
         np.ascontiguousarray(u, dtype=np.float64), est.inliers, est.velocity_mps, est.covariance,
-        math.exp(2 * e2), math.exp(2 * a2), math.exp(0.5 * a2), math.exp(0.5 * e2) * math.exp(0.5 * a2), math.exp(0.5 * e2))
+        *_noise_factors(config.elevation_sigma_deg, config.azimuth_sigma_deg))
+
+
+@functools.lru_cache(maxsize=16)
+def _noise_factors(elevation_sigma_deg: float, azimuth_sigma_deg: float) -> tuple[float, ...]:
+    """``direction_moments``' factors for sign -1 (taking the noise out), as ``_remove_crosstalk_nb`` takes them:
+    exp(2 s_e^2), exp(2 s_a^2), exp(s_a^2 / 2), and the mean direction's horizontal and vertical 1 / g."""
+    e2, a2 = math.radians(elevation_sigma_deg) ** 2, math.radians(azimuth_sigma_deg) ** 2
+    return (math.exp(2 * e2), math.exp(2 * a2), math.exp(0.5 * a2), math.exp(0.5 * e2) * math.exp(0.5 * a2),
+            math.exp(0.5 * e2))
 
 
 @numba.njit(cache=True)
