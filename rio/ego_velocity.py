@@ -334,8 +334,8 @@ def _remove_crosstalk_nb(u, inliers, velocity, covariance, k_e2, k_a2, k_a1, inv
     """``remove_crosstalk`` for one scan in one compiled call: (velocity [3], covariance [3, 3]) corrected.
 
     The same quantities as ``direction_moments`` (sign -1) and ``np.linalg.solve``, without their per-scan
-    overhead (about 20 numpy calls, 0.5 ms a scan on a loaded machine: more than half of what the odometry had
-    slowed down by since fae5f5c; docs/results/odometry_speed.json):
+    overhead (about 20 numpy calls on a few dozen detections, the largest part of what had halved the
+    odometry's speed since fae5f5c; docs/results/odometry_speed.json):
     the angles' cosines and sines come from u itself, el = arcsin(u_z) and az = atan2(u_y, u_x) giving
     cos 2el = 1 - 2 u_z^2, sin 2el = 2 u_z sqrt(1 - u_z^2), cos az = u_x / h, sin az = u_y / h with
     h = hypot(u_x, u_y), and row 2 of (sum u u^T)^-1 from its cofactors. Equal to the numpy form to rounding
