@@ -157,6 +157,12 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                           "loop end) with the filter of earlier commits on the same recordings: the standstill changes "
                           "(1b9f9b5, 7744ef7) moved them, the midpoint strapdown (a6d4858 against this checkout) did not.",
                           ".venv/bin/python benchmarks/odometry_versions.py"),
+    "odometry_speed": ("What halved the odometry's speed, and the fix",
+                       "The odometry's time on the one-lap hall drive (four radars, and one) with fae5f5c's filter "
+                       "(rio.json's quiet 106-116x), main before the fix (ac0c048) and this checkout, interleaved in "
+                       "rounds by one worker process per version (ratios hold under load; the load is in the "
+                       "provenance), and each trajectory's largest difference from this checkout's.",
+                       ".venv/bin/python benchmarks/odometry_speed.py"),
     "strapdown_rules": ("Strapdown integration rules without the filter",
                         "Dead reckoning on exact IMU data of the 7-lap drive, restarted from the truth every 10 s: "
                         "the sample at the interval's start rotated at its start or its midpoint (the filter's), the "

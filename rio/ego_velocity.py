@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import math
 
 import numba
@@ -313,14 +314,80 @@ def remove_crosstalk(u: np.ndarray, est: EgoVelocity, config: EgoVelocityConfig)
     keeps both (1.0x, 20.3 mm; benchmarks/calibration_elevation.py). The horizontal velocity is kept as
     fitted. The joint fit of several radars (``body_velocity``) is not corrected.
     """
-    u_in = u[est.inliers]
-    moments, inv_gain = direction_moments(u_in, math.radians(config.elevation_sigma_deg),
-                                          math.radians(config.azimuth_sigma_deg), -1)
-    crosstalk = np.linalg.solve(u_in.T @ u_in, moments[:, :2] / inv_gain[:, None])[2]
-    j = np.eye(3)
-    j[2, :2] = -crosstalk
-    est.velocity_mps = j @ est.velocity_mps
-    est.covariance = j @ est.covariance @ j.T
+    est.velocity_mps, est.covariance = _remove_crosstalk_nb(
+        np.ascontiguousarray(u, dtype=np.float64), est.inliers, est.velocity_mps, est.covariance,
+        *_noise_factors(config.elevation_sigma_deg, config.azimuth_sigma_deg))
+
+
+@functools.lru_cache(maxsize=16)
+def _noise_factors(elevation_sigma_deg: float, azimuth_sigma_deg: float) -> tuple[float, ...]:
+    """``direction_moments``' factors for sign -1 (taking the noise out), as ``_remove_crosstalk_nb`` takes them:
+    exp(2 s_e^2), exp(2 s_a^2), exp(s_a^2 / 2), and the mean direction's horizontal and vertical 1 / g."""
+    e2, a2 = math.radians(elevation_sigma_deg) ** 2, math.radians(azimuth_sigma_deg) ** 2
+    return (math.exp(2 * e2), math.exp(2 * a2), math.exp(0.5 * a2), math.exp(0.5 * e2) * math.exp(0.5 * a2),
+            math.exp(0.5 * e2))
+
+
+@numba.njit(cache=True)
+def _remove_crosstalk_nb(u, inliers, velocity, covariance, k_e2, k_a2, k_a1, inv_gain_horizontal,
+                         inv_gain_vertical):
+    """``remove_crosstalk`` for one scan in one compiled call: (velocity [3], covariance [3, 3]) corrected.
+
+    The same quantities as ``direction_moments`` (sign -1) and ``np.linalg.solve``, without their per-scan
+    overhead (about 20 numpy calls on a few dozen detections, the largest part of what had halved the
+    odometry's speed since fae5f5c; docs/results/odometry_speed.json):
+    the angles' cosines and sines come from u itself, el = arcsin(u_z) and az = atan2(u_y, u_x) giving
+    cos 2el = 1 - 2 u_z^2, sin 2el = 2 u_z sqrt(1 - u_z^2), cos az = u_x / h, sin az = u_y / h with
+    h = hypot(u_x, u_y), and row 2 of (sum u u^T)^-1 from its cofactors. Equal to the numpy form to rounding
+    (tests/test_odometry_speed.py).
+    """
+    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
+    m00 = m01 = m11 = m20 = m21 = 0.0
+    for i in range(u.shape[0]):
+        if not inliers[i]:
+            continue
+        x, y, z = u[i, 0], u[i, 1], u[i, 2]
+        a00 += x * x
+        a01 += x * y
+        a02 += x * z
+        a11 += y * y
+        a12 += y * z
+        a22 += z * z
+        z = min(1.0, max(-1.0, z))
+        c2e = k_e2 * (1.0 - 2.0 * z * z)
+        s2e = k_e2 * 2.0 * z * math.sqrt(1.0 - z * z)
+        h2 = x * x + y * y
+        if h2 > 0.0:
+            h = math.sqrt(h2)
+            ca, sa, c2a, s2a = x / h, y / h, (x * x - y * y) / h2, 2.0 * x * y / h2
+        else:  # straight up or down: atan2(0, 0) = 0
+            ca, sa, c2a, s2a = 1.0, 0.0, 1.0, 0.0
+        c2a *= k_a2
+        s2a *= k_a2
+        ca *= k_a1
+        sa *= k_a1
+        m00 += (1.0 + c2e) * (1.0 + c2a) / 4.0
+        m11 += (1.0 + c2e) * (1.0 - c2a) / 4.0
+        m01 += (1.0 + c2e) * s2a / 4.0
+        m20 += s2e * ca / 2.0
+        m21 += s2e * sa / 2.0
+    # Row 2 of the inverse of the symmetric sum u u^T, by its cofactors.
+    c0 = a01 * a12 - a11 * a02
+    c1 = a01 * a02 - a00 * a12
+    c2 = a00 * a11 - a01 * a01
+    det = a02 * c0 + a12 * c1 + a22 * c2
+    # The true directions' moments times the mean direction's gain g, row by row (direction_moments gives 1 / g)
+    crosstalk_x = (c0 * m00 / inv_gain_horizontal + c1 * m01 / inv_gain_horizontal + c2 * m20 / inv_gain_vertical) / det
+    crosstalk_y = (c0 * m01 / inv_gain_horizontal + c1 * m11 / inv_gain_horizontal + c2 * m21 / inv_gain_vertical) / det
+    v = velocity.copy()
+    v[2] = velocity[2] - crosstalk_x * velocity[0] - crosstalk_y * velocity[1]
+    rows = covariance.copy()  # J C with J the identity whose row 2 is (-crosstalk_x, -crosstalk_y, 1)
+    for k in range(3):
+        rows[2, k] = covariance[2, k] - crosstalk_x * covariance[0, k] - crosstalk_y * covariance[1, k]
+    out = rows.copy()  # (J C) J^T
+    for k in range(3):
+        out[k, 2] = rows[k, 2] - crosstalk_x * rows[k, 0] - crosstalk_y * rows[k, 1]
+    return v, out
 
 
 def sensor_velocity(xyz_m: np.ndarray, doppler_mps: np.ndarray, config: EgoVelocityConfig = EgoVelocityConfig(),

@@ -185,6 +185,49 @@ def _joseph_update(P, H, R_meas, residual, gate):
     return True, chi2, dx, 0.5 * (P_new + P_new.T), S
 
 
+@numba.njit(cache=True)
+def _imu_still_nb(t, gyro, accel, window_ns, R, ba, bg, gyro_limit, accel_limit, accel_std_limit):
+    """``RadarInertialEkf.imu_was_still`` on the recent samples (times ascending) in one compiled call: 1 still,
+    0 moving, -1 fewer than 3 samples in the window. The specific force's mean is taken over the window and
+    over its last 25 ms (at least 3 samples): a robot that has just started to creep out of a stop has
+    accelerated for a fraction of the window only."""
+    n = t.size
+    first = n
+    while first > 0 and t[first - 1] >= t[n - 1] - window_ns:
+        first -= 1
+    if n - first < 3:
+        return -1
+    latest = n
+    while latest > first and t[latest - 1] >= t[n - 1] - 25_000_000:
+        latest -= 1
+    latest = min(latest, n - 3)
+    rate = np.zeros(3)
+    force = np.zeros(3)
+    force_latest = np.zeros(3)
+    for i in range(first, n):
+        for k in range(3):
+            rate[k] += gyro[i, k]
+            force[k] += accel[i, k]
+            if i >= latest:
+                force_latest[k] += accel[i, k]
+    rate = rate / (n - first) - bg
+    force = force / (n - first)
+    if math.sqrt(rate[0] ** 2 + rate[1] ** 2 + rate[2] ** 2) >= gyro_limit:
+        return 0
+    for mean in (force, force_latest / (n - latest)):
+        world = R @ (mean - ba)
+        world[2] -= GRAVITY_MPS2
+        if math.sqrt(world[0] ** 2 + world[1] ** 2 + world[2] ** 2) >= accel_limit:
+            return 0
+    for k in range(3):
+        spread = 0.0
+        for i in range(first, n):
+            spread += (accel[i, k] - force[k]) ** 2
+        if math.sqrt(spread / (n - first)) >= accel_std_limit:
+            return 0
+    return 1
+
+
 class RadarInertialEkf:
     """The filter. Call ``initialise_static`` once, then feed IMU samples and radar measurements in time order."""
 
@@ -207,10 +250,12 @@ class RadarInertialEkf:
         self._last_accel = np.zeros(3)
         #: The calibrated radars by name (empty: the 15-state filter of before).
         self.calibration: dict[str, RadarCalibration] = {}
-        # The IMU samples (time ns, rate, specific force) of the last ``still_window_s`` (at least 50 ms):
-        # whether the IMU stands still, and the gyro's slope, the angular acceleration the time-offset
-        # update needs (d/dt of w x l).
-        self._recent_imu = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+        # The runs of IMU samples (time ns, rate, specific force) that hold the last ``still_window_s`` (at
+        # least 50 ms, at most 512 samples): whether the IMU stands still, and the gyro's slope, the angular
+        # acceleration the time-offset update needs (d/dt of w x l). Joined only when asked (``_recent_imu``):
+        # joining them at every run of samples cost more than the runs' strapdown.
+        self._recent_runs: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._recent_joined: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._has_moved = False  # a radar velocity update has been taken: the robot has driven
 
     # -- initialisation -----------------------------------------------------------------------------
@@ -327,11 +372,7 @@ class RadarInertialEkf:
             return None
         if self._in_standstill:
             self._standstill.append((times_ns, gyro_radps))
-        # The latest IMU samples, for the standstill test and the angular acceleration.
-        t, g, a = self._recent_imu
-        t = np.concatenate([t, times_ns])[-512:]
-        keep = t >= t[-1] - int(max(self.config.still_window_s, 0.05) * 1e9)
-        self._recent_imu = (t[keep], np.concatenate([g, gyro_radps])[-512:][keep], np.concatenate([a, accel_mps2])[-512:][keep])
+        self._keep_recent(times_ns, gyro_radps, accel_mps2)
         (s.p, s.v, s.R, s.P, t_ns, self._last_accel, self._last_gyro,
          *recorded) = _strapdown_batch(s.p, s.v, s.R, s.P, s.time_ns, self._last_accel, self._last_gyro, s.ba, s.bg,
                                        times_ns, accel_mps2, gyro_radps, record, self._q_density)
@@ -339,6 +380,33 @@ class RadarInertialEkf:
         self._last_accel = self._last_accel.copy()
         self._last_gyro = self._last_gyro.copy()
         return recorded
+
+    def _keep_recent(self, times_ns: np.ndarray, gyro_radps: np.ndarray, accel_mps2: np.ndarray) -> None:
+        """Add a run of IMU samples to the recent ones, dropping the runs ``_recent_imu`` can no longer hold."""
+        runs = self._recent_runs
+        runs.append((times_ns, gyro_radps, accel_mps2))
+        oldest_ns = int(times_ns[-1]) - int(max(self.config.still_window_s, 0.05) * 1e9)
+        newer = 0
+        for i in range(len(runs) - 1, 0, -1):  # runs[i - 1] goes when every sample it holds is too old or beyond 512
+            newer += runs[i][0].size
+            if newer >= 512 or runs[i - 1][0][-1] < oldest_ns:
+                del runs[:i]
+                break
+        self._recent_joined = None
+
+    @property
+    def _recent_imu(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The IMU samples of the last ``still_window_s`` (at least 50 ms, at most the last 512): times (ns),
+        rates [k, 3], specific forces [k, 3]."""
+        if self._recent_joined is None:
+            runs = self._recent_runs
+            if not runs:
+                return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3))
+            t = np.concatenate([r[0] for r in runs])[-512:]
+            keep = t >= t[-1] - int(max(self.config.still_window_s, 0.05) * 1e9)
+            self._recent_joined = (t[keep], np.concatenate([r[1] for r in runs])[-512:][keep],
+                                   np.concatenate([r[2] for r in runs])[-512:][keep])
+        return self._recent_joined
 
     def update(self, residual: np.ndarray, H: np.ndarray, R_meas: np.ndarray, gate: float | None,
                kind: str = "") -> UpdateResult:
@@ -443,19 +511,12 @@ class RadarInertialEkf:
         c = self.config
         limit = c.still_accel_mps2 if accel_limit_mps2 is None else accel_limit_mps2
         t, gyro, accel = self._recent_imu
-        keep = t >= t[-1] - int(c.still_window_s * 1e9) if t.size else t.astype(bool)
-        if keep.sum() < 3:
+        if t.size < 3:
             return None
-        t, gyro, accel = t[keep], gyro[keep], accel[keep]
         s = self.state
-        # The specific force's mean over the window and over its last 25 ms: a robot that has just started
-        # to creep out of a stop has accelerated for a fraction of the window only.
-        latest = t >= t[-1] - 25_000_000
-        latest[-3:] = True
-        return bool(np.linalg.norm(gyro.mean(axis=0) - s.bg) < c.still_gyro_radps
-                    and np.linalg.norm(s.R @ (accel.mean(axis=0) - s.ba) + GRAVITY) < limit
-                    and np.linalg.norm(s.R @ (accel[latest].mean(axis=0) - s.ba) + GRAVITY) < limit
-                    and accel.std(axis=0).max() < c.still_accel_std_mps2)
+        still = _imu_still_nb(t, gyro, accel, int(c.still_window_s * 1e9), s.R, s.ba, s.bg, c.still_gyro_radps, limit,
+                              c.still_accel_std_mps2)
+        return None if still < 0 else bool(still)
 
     def update_zero_velocity(self) -> UpdateResult:
         """Standstill: world velocity zero now; the angular rate is used once the standstill ends.
