@@ -82,7 +82,9 @@ def variant_source(source: str, part: str) -> str:
         if old not in source:
             raise SystemExit(f"kernel_parts: the kernel's source has changed; this benchmark no longer finds {old.strip()[:60]!r}")
         source = source.replace(old, new)
-    return source.replace("\nMODES = (", f"\nPART = {part!r}\nMODES = (", 1)
+    if "\nMODES = " not in source:
+        raise SystemExit("kernel_parts: the kernel's source has changed; this benchmark no longer finds 'MODES = '")
+    return source.replace("\nMODES = ", f"\nPART = {part!r}\nMODES = ", 1)
 
 
 def main() -> int:
