@@ -63,6 +63,13 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                        "worker process of its own, alternating in one run: speed-up on 1 and 2 threads, cycles per "
                        "backprojection, SER of both; on a loaded machine (the load is in the JSON).",
                        ".venv/bin/python benchmarks/kernel_versions.py --baseline ff18b4a --name kernel_permute"),
+    "kernel_placement": ("Backprojection kernel: each pixel's bin placed for one mode",
+                         "The kernel whose per-pixel placement loops are compiled for the linear mode alone (they "
+                         "computed the nearest mode's bin too and stored one under a mask), against ac0c048, each in a "
+                         "worker process of its own, alternating in one run: speed-up on 1 and 2 threads, cycles per "
+                         "backprojection, SER of both; on a loaded machine (the load is in the JSON).",
+                         ".venv/bin/python benchmarks/kernel_versions.py --baseline ac0c048 --rounds 4 "
+                         "--name kernel_placement"),
     "kernel_parts": ("Backprojection kernel: cycles per part",
                      "The kernel beside copies of itself that each leave one part out (the per-(block, profile) "
                      "table, each pixel's offset, bin and phase, the gather, the sine and cosine, the whole "
