@@ -7,9 +7,10 @@ load and all), as a user runs it: with sarbot's modules byte-compiled, as they a
 environment's PYTHONDONTWRITEBYTECODE is left out of the command's, else every run compiles sarbot's
 sources again); the kernel in this process, on the same profiles, alternating with it.
 
-The command imports numba and its kernels on a thread of its own while it opens the recording and reads
-and range-compresses the first blocks, range-compresses the next block while the kernel backprojects this
-one, places the antennas, backprojects, writes the image and its PNG (the pixels; ``--png-figure``'s
+The command imports numba and its kernels, and loads the direct kernel from numba's cache, on a thread of
+its own while it opens the recording and reads and range-compresses blocks ahead (imaging.kernel_import),
+range-compresses the next block while the kernel backprojects this one (into the buffer of a block already
+backprojected: imaging.image_formation.RowBuffers), places the antennas, backprojects, writes the image and its PNG (the pixels; ``--png-figure``'s
 matplotlib figure is timed apart). ``form_image`` is the same without the files. Its throughput (grid
 points x profiles per second of wall time) is printed as a fraction of the kernel's on the same profiles
 in the same process, with the time of each stage, and what the process start costs, step by step, in a
