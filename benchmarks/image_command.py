@@ -7,9 +7,10 @@ load and all), as a user runs it: with sarbot's modules byte-compiled, as they a
 environment's PYTHONDONTWRITEBYTECODE is left out of the command's, else every run compiles sarbot's
 sources again); the kernel in this process, on the same profiles, alternating with it.
 
-The command imports numba and its kernels on a thread of its own while it opens the recording and reads
-and range-compresses the first blocks, range-compresses the next block while the kernel backprojects this
-one, places the antennas, backprojects, writes the image and its PNG (the pixels; ``--png-figure``'s
+The command imports numba and its kernels, and loads the direct kernel from numba's cache, on a thread of
+its own while it opens the recording and reads and range-compresses blocks ahead (imaging.kernel_import),
+range-compresses the next block while the kernel backprojects this one (into the buffer of a block already
+backprojected: imaging.image_formation.RowBuffers), places the antennas, backprojects, writes the image and its PNG (the pixels; ``--png-figure``'s
 matplotlib figure is timed apart). ``form_image`` is the same without the files. Its throughput (grid
 points x profiles per second of wall time) is printed as a fraction of the kernel's on the same profiles
 in the same process, with the time of each stage, and what the process start costs, step by step, in a
@@ -17,6 +18,11 @@ new process of its own (``fixed_costs``: with the cyclic garbage collector pause
 the command runs it, and running, alternating), and scipy's range FFT against numpy's (``range_fft``).
 ``baseline_comparison`` is the command against its kernel at issue 34's commit and now, alternating, on the
 cases the issue's figure could have come from (benchmarks/command_versions.py, which also runs alone).
+
+``command_stages_s`` is the command's own account of where its wall time goes (``sarbot -v image``'s
+"stage seconds" line, in runs of their own after the timed ones), and ``batch_of_benchmark_case_images``
+the same question per image of a batch: 8 benchmark-case images formed one after another in one new
+process, as a resident ``sarbot batch`` worker forms them (acquisition.batch.run_job), against the kernel.
 
     python benchmarks/image_command.py [--quick] [--baseline COMMIT | --no-baseline]
 
@@ -125,6 +131,8 @@ print(json.dumps({"samples": n, "n_fft": n_fft, "rows": 1024, "numpy_dtype": str
 """
 
 RESULTS = ROOT / "docs" / "results"
+#: Images of the benchmark case formed in one process (``batch_per_image``).
+BATCH_IMAGES = 8
 
 
 def make_recording(path: Path, n_frames: int) -> None:
@@ -241,6 +249,7 @@ def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int) -
         backproject(profiles, tx_m, rx_m, points)
         rounds.append((t_cmd, time.perf_counter() - t))
         cpu_rounds.append((after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, time.process_time() - c))
+    stages = command_stages(command_line, max(2, repeats // 2))
     t_command = min(r[0] for r in rounds)
     fractions = [k / c for c, k in rounds]
     cpu_fractions = [k / c for c, k in cpu_rounds]
@@ -260,12 +269,92 @@ def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int) -
                     "write_image": t_write, "png": t_png,
                     "command_minus_form_image_write_png": t_command - t_form - t_write - t_png,
                     "png_figure_layout": t_figure_layout, "png_figure_draw": t_figure},
+        "command_stages_s": stages,
     }
     sec = result["seconds"]
     print(f"{name}: kernel {work / t_kernel / 1e9:.3f} G/s, form_image {100 * t_kernel / t_form:.0f} %, sarbot image "
           f"{100 * t_kernel / t_command:.0f} % of the kernel (rounds {100 * min(fractions):.0f}-{100 * max(fractions):.0f} %; "
           f"CPU time {100 * statistics.median(cpu_fractions):.0f} %);"
           " seconds: " + ", ".join(f"{k} {v:.3f}" for k, v in sec.items()), flush=True)
+    print(f"{name}: the command's stages (median of {stages['runs']} runs with -v): "
+          + ", ".join(f"{k} {v:.3f}" for k, v in stages["median_s"].items()), flush=True)
+    return result
+
+
+def command_stages(command_line: list, runs: int) -> dict:
+    """The command's own account of its wall time (``sarbot -v image``'s "stage seconds" line, read from its
+    stderr: imaging.core.stage_clock), in runs of their own after the timed rounds, with what it cannot see:
+    the interpreter's start before sarbot's command line is imported and the process's end after the line
+    (``outside_command``: the process's wall time minus the line's ``command``). Median of each over the runs."""
+    verbose = [command_line[0], "-m", "acquisition.cli", "-v", *command_line[4:]]  # -v in place of -q
+    found = []
+    for _ in range(runs):
+        t = time.perf_counter()
+        err = subprocess.run(verbose, check=True, cwd=ROOT, env=COMMAND_ENV, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.PIPE, text=True).stderr
+        wall = time.perf_counter() - t
+        line = next(x for x in err.splitlines() if "stage seconds: " in x)
+        seconds = json.loads(line.split("stage seconds: ", 1)[1])
+        found.append({**seconds, "outside_command": wall - seconds["command"], "process": wall})
+    names = list(found[0])
+    return {"runs": runs, "median_s": {k: statistics.median(f.get(k, 0.0) for f in found) for k in names},
+            "note": "the main thread's stages add up to 'command' (before_command, start_up, open_recording, image_recording, "
+                    "write_image, write_png); form_image's (open_frames, wait_for_block, kernel_import_wait, "
+                    "backproject, antenna_summary, free_block, attributes) add up to image_recording less its grid "
+                    "and trajectory set-up; compress_thread.* run on the other thread, beside them"}
+
+
+#: A batch in one process, as a resident worker (a Dask worker of ``sarbot batch``) forms it:
+#: acquisition.batch.run_job, as many times as asked (argv[3]), on the recording argv[1] and grid argv[2]; each
+#: job's seconds as run_job counts them, the process's wall time from outside.
+BATCH = r"""
+import json, sys, time
+t = time.perf_counter()
+from acquisition.batch import ImageJob, run_job
+seconds = []
+for i in range(int(sys.argv[3])):
+    r = run_job(ImageJob(sys.argv[1], "left_front", sys.argv[2], f"{sys.argv[4]}_{i}.h5"))
+    assert r["error"] is None, r["error"]
+    seconds.append(r["seconds"])
+print(json.dumps({"job_seconds": seconds, "in_process_s": time.perf_counter() - t}))
+"""
+
+
+def batch_per_image(tmp: Path, n_frames: int, n_px: int, n_images: int, rounds: int) -> dict:
+    """``n_images`` images of the case in one new process (``BATCH``: as ``sarbot batch``'s workers form them,
+    without the PNG), alternating with the kernel alone in this process on the same profiles: each image's
+    fraction of the kernel, the first (the process's start in it) and the later ones, and the whole process's
+    wall time per image."""
+    grid_text = f"-0.5:0.5:{1.0 / n_px},1.5:2.5:{1.0 / n_px},0.3"
+    rec_path = tmp / "batch.h5"
+    make_recording(rec_path, n_frames)
+    grid = Grid.parse(grid_text, default_z_m=0.3)
+    points = grid.points()
+    with Recording(rec_path) as rec:
+        profiles, tx_m, rx_m, _, _ = frame_profiles(rec.adc("left_front"), rec.frame_time_ns("left_front"),
+                                                    rec.radar("left_front"), rec.truth(),
+                                                    rec.tdm_tx_order("left_front"), ImagingOptions())
+    backproject(profiles, tx_m, rx_m, points[:2, :2])  # compiled or loaded
+    runs, kernels = [], []
+    for i in range(rounds + 1):  # the first warms numba's cache and the page cache
+        t = time.perf_counter()
+        out = subprocess.run([sys.executable, "-c", BATCH, str(rec_path), grid_text, str(n_images), str(tmp / "batch")],
+                             check=True, cwd=ROOT, env=COMMAND_ENV, capture_output=True, text=True).stdout
+        wall = time.perf_counter() - t
+        t = time.perf_counter()
+        backproject(profiles, tx_m, rx_m, points)
+        if i:
+            runs.append({**json.loads(out.splitlines()[-1]), "process_s": wall})
+            kernels.append(time.perf_counter() - t)
+    fractions = [{"first": k / r["job_seconds"][0], "later_median": k / statistics.median(r["job_seconds"][1:]),
+                  "process_per_image": k * n_images / r["process_s"]} for r, k in zip(runs, kernels)]
+    result = {"case": {"frames": n_frames, "grid": grid_text, "images": n_images, "png": False},
+              "rounds": [{**r, "kernel_s": k, "fraction_of_kernel": f} for r, k, f in zip(runs, kernels, fractions)],
+              "fraction_of_kernel_median": {key: statistics.median(f[key] for f in fractions) for key in fractions[0]}}
+    med = result["fraction_of_kernel_median"]
+    print(f"batch of {n_images} in one process: an image after the first {100 * med['later_median']:.0f} % of the "
+          f"kernel, the first {100 * med['first']:.0f} %, the whole process {100 * med['process_per_image']:.0f} % "
+          "per image", flush=True)
     return result
 
 
@@ -284,6 +373,8 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         results = {name: measure_case(tmp, name, *case) for name, case in cases.items()}
+        bench_frames, bench_px, _ = cases["benchmark_case"]
+        batch = batch_per_image(tmp, bench_frames, bench_px, BATCH_IMAGES, 1 if args.quick else 3)
         bench = tmp / "benchmark_case.h5"
         imports = import_times([sys.executable, "-X", "importtime", "-m", "acquisition.cli", "-q", "image", str(bench),
                                 "-o", str(tmp / "imp.h5"), "--grid", results["benchmark_case"]["case"]["grid"]])
@@ -304,6 +395,7 @@ def main() -> int:
         "command_imports": imports,
         "process_start": start,
         "range_fft": fft,
+        "batch_of_benchmark_case_images": batch,
         "baseline_comparison": baseline,
     }
     name = "image_command_quick" if args.quick else "image_command"

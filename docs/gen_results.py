@@ -87,6 +87,11 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
     "image_command": ("`sarbot image` as a whole command",
                       "The command as a new process against its kernel alone, with the time of every stage.",
                       ".venv/bin/python benchmarks/image_command.py"),
+    "image_command_quick": ("`sarbot image` as a whole command (quick)",
+                            "The command benchmark's smoke run (cases of 4 and 8 frames, small grids), with its new "
+                            "parts: the command's own stage times and 8 images in one process; on whatever load the "
+                            "JSON records (11-13 on 2 cores when committed: its fractions are the load's).",
+                            ".venv/bin/python benchmarks/image_command.py --quick --no-baseline"),
     "ffbp": ("Fast factorized backprojection",
              "FFBP against the direct kernel on the same profiles: speed-up against error energy and aperture; "
              "the settings' speed against their error; the default's error further out and longer.",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import logging
 from concurrent.futures import ThreadPoolExecutor
@@ -13,6 +14,7 @@ from imaging.core.errors import SarbotError
 from imaging.core.geometry import antenna_track, chirp_times_ns, principal_axis
 from imaging.core.grid import Grid
 from imaging.core.rig import RadarConfig
+from imaging.core.stage_clock import StageClock, timed
 from imaging.core.trajectory import Trajectory
 from imaging.io.image_file import SarImage
 from imaging.io.recording import Recording
@@ -26,6 +28,10 @@ ALGORITHMS = ("direct", "ffbp")
 #: How profiles are sampled (imaging.core.constants: options are checked without importing the kernels, which
 #: a command imports while its first blocks are read, ``form_image``).
 MODES = BACKPROJECTION_MODES
+#: Blocks ``form_image`` range-compresses ahead of its first backprojection while the kernels are made
+#: ready on another thread (imaging.kernel_import): each block's profiles are about 180 MB on the
+#: benchmark's radar (8 frames of 1,024 profiles of 2,803 complex64 bins).
+COMPRESS_AHEAD = 3
 
 
 @dataclasses.dataclass
@@ -59,7 +65,7 @@ class ImagingOptions:
 
 
 def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajectory, tx_order, options: ImagingOptions,
-                   time_window_ns: tuple[int, int] | None = None, track_error=None):
+                   time_window_ns: tuple[int, int] | None = None, track_error=None, row_buffers=None):
     """Range profiles and bistatic antenna positions of a block of frames.
 
     Parameters
@@ -72,6 +78,8 @@ def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajector
         Keep only chirps starting in [start, stop).
     track_error : imaging.core.track_error.TrackError, optional
         A displacement of the radar along its boresight the trajectory does not know (from autofocus).
+    row_buffers : RowBuffers, optional
+        Buffers of earlier blocks to write the profiles into (see ``RowBuffers``).
 
     Returns
     -------
@@ -82,9 +90,41 @@ def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajector
     wf = radar.waveform
     times, tx_index, keep, rx_sel = _selected_chirps(frame_time_ns, wf, tx_order, options, time_window_ns)
     samples = adc.reshape(adc.shape[0] * wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)[keep][:, rx_sel, :]
+    rows_out = None if row_buffers is None else \
+        row_buffers.take((samples.shape[0] * samples.shape[1], options.oversample * wf.samples_per_chirp + 3))
     return chirp_profiles(samples, times[keep], tx_index[keep], radar, trajectory, window=options.window,
                           oversample=options.oversample, keep_samples=options.mode == "exact", rx=rx_sel,
-                          track_error=track_error, workers=-1)
+                          track_error=track_error, workers=-1, rows_out=rows_out)
+
+
+class RowBuffers:
+    """The profile rows of blocks already backprojected, handed on to the range compression of later blocks
+    (``range_compress``'s ``rows_out``): a block's profiles are hundreds of MB, and every new buffer's pages
+    cost the system time of their first touch (about 0.05-0.5 s of CPU a block, more on a loaded machine).
+    Safe between two threads (a deque's append and pop are atomic)."""
+
+    #: Buffers kept for reuse: a block backprojected while the next is compressed needs two.
+    KEPT = 2
+
+    def __init__(self) -> None:
+        self._free: collections.deque = collections.deque()
+
+    def take(self, shape: tuple[int, int]) -> np.ndarray | None:
+        """A free buffer's first ``shape[0]`` rows where one has that many of ``shape[1]`` bins, else None."""
+        try:
+            rows = self._free.pop()
+        except IndexError:
+            return None
+        return rows[:shape[0]] if rows.shape[1] == shape[1] and rows.shape[0] >= shape[0] else None
+
+    def give(self, rows: np.ndarray | None) -> None:
+        """Hand back a block's ``RangeProfiles.rows`` (the whole buffer it is a part of), once nothing reads them."""
+        if rows is None:
+            return
+        whole = rows if rows.base is None else rows.base
+        if isinstance(whole, np.ndarray) and whole.ndim == 2 and whole.dtype == np.complex64 and whole.flags.c_contiguous \
+                and len(self._free) < self.KEPT:
+            self._free.append(whole)
 
 
 def _selected_chirps(frame_time_ns, wf, tx_order, options: ImagingOptions, time_window_ns):
@@ -156,8 +196,10 @@ class _BlockReader:
     """One radar's selected valid frames, read and range-compressed ``options.frames_per_block`` at a time."""
 
     def __init__(self, recording: Recording, radar_name: str, trajectory: Trajectory | None, frames: slice,
-                 options: ImagingOptions, time_window_ns, track_error) -> None:
-        self.recording, self.radar_name, self.options = recording, radar_name, options
+                 options: ImagingOptions, time_window_ns, track_error, clock: StageClock | None = None,
+                 row_buffers: RowBuffers | None = None) -> None:
+        self.recording, self.radar_name, self.options, self.clock = recording, radar_name, options, clock
+        self.row_buffers = row_buffers
         self.time_window_ns, self.track_error = time_window_ns, track_error
         self.radar = recording.radar(radar_name)
         if trajectory is None:
@@ -198,11 +240,13 @@ class _BlockReader:
         aperture if the options ask for it."""
         idx = self.frame_indices[b:b + (n_frames or self.options.frames_per_block)]
         block = slice(int(idx[0]), int(idx[-1]) + 1)
-        adc = self.recording.adc(self.radar_name, block)
-        ftimes = self.recording.frame_time_ns(self.radar_name, block)
+        with timed(self.clock, "compress_thread.read_frames"):
+            adc = self.recording.adc(self.radar_name, block)
+            ftimes = self.recording.frame_time_ns(self.radar_name, block)
         keep = np.isin(np.arange(block.start, block.stop), idx)
-        result = frame_profiles(adc[keep], ftimes[keep], self.radar, self.trajectory, self.tx_order, self.options,
-                                self.time_window_ns, self.track_error)
+        with timed(self.clock, "compress_thread.range_compress_and_place"):
+            result = frame_profiles(adc[keep], ftimes[keep], self.radar, self.trajectory, self.tx_order, self.options,
+                                    self.time_window_ns, self.track_error, self.row_buffers)
         if self.taper is not None:
             profiles, tx_m, rx_m = result[:3]
             self.taper.apply(profiles, 0.5 * (tx_m + rx_m))
@@ -230,15 +274,25 @@ def form_image(
     time_window_ns: tuple[int, int] | None = None,
     progress=None,
     track_error=None,
+    clock: StageClock | None = None,
 ) -> SarImage:
     """Backproject one radar's frames onto ``grid``.
 
     Frames flagged invalid in the recording (data lost on the wire) are left out and logged. The image
     attributes record what theory needs: aperture length, look direction, speed, wavelength, bandwidth.
     ``track_error`` (from autofocus) moves the radar along its boresight by that much at every chirp.
+    ``clock`` (``imaging.core.stage_clock.StageClock``), if given, gets the wall time of each stage: this
+    thread's (``wait_for_block``, ``kernel_import_wait``, ``backproject``, ...) add up to the call's; the
+    range-compression thread's (``compress_thread.*``) overlap them.
     """
+    from imaging import kernel_import
+
     options = options or ImagingOptions()
-    reader = _BlockReader(recording, radar_name, trajectory, frames, options, time_window_ns, track_error)
+    ffbp = options.algorithm == "ffbp"
+    row_buffers = None if ffbp else RowBuffers()  # FFBP holds every block's profiles to the end
+    with timed(clock, "open_frames"):
+        reader = _BlockReader(recording, radar_name, trajectory, frames, options, time_window_ns, track_error, clock,
+                              row_buffers)
     sel, frame_indices, trajectory, wf = reader.sel, reader.frame_indices, reader.trajectory, reader.radar.waveform
     image = np.zeros(grid.shape, np.complex128)
     mids, tracks_times, speeds = [], [], []
@@ -254,36 +308,59 @@ def form_image(
     def prepare(n):
         return reader.block(starts[n], ends[n] - starts[n])
 
-    ffbp = options.algorithm == "ffbp"
     if ffbp and grid.z_m.size > 1:
         raise SarbotError("fast factorized backprojection images a horizontal plane; the grid is a volume (use the direct algorithm)")
     points = None if ffbp else grid.points()
     held: list = []  # ffbp: every block's (profiles, tx, rx), imaged at the end
     with ThreadPoolExecutor(1, thread_name_prefix="range-compress") as pool:
-        pending = pool.submit(prepare, 0) if starts else None
+        ahead = collections.deque([pool.submit(prepare, 0)] if starts else [])  # blocks submitted, in order
+        submitted = len(ahead)
         for n in range(len(starts)):
-            profiles, tx_m, rx_m, times, track = pending.result()
-            pending = pool.submit(prepare, n + 1) if n + 1 < len(starts) else None
+            with timed(clock, "wait_for_block"):
+                profiles, tx_m, rx_m, times, track = ahead.popleft().result()
+            if not ahead and submitted < len(starts):
+                ahead.append(pool.submit(prepare, submitted))
+                submitted += 1
             if n == 0 and not ffbp:
-                # The kernel's module (numba's import, in a new process) once the next block is being
-                # read: its import takes one core, the reading the other.
-                from imaging.backprojection import backproject
+                with timed(clock, "kernel_import_wait"):
+                    # While the kernels are made ready on another thread (a new process's numba import
+                    # and cache load, imaging.kernel_import), the other core range-compresses blocks
+                    # ahead rather than idle; at most COMPRESS_AHEAD of them are held.
+                    while kernel_import.in_progress() and submitted < len(starts) and len(ahead) < COMPRESS_AHEAD:
+                        ahead[-1].result()
+                        if kernel_import.in_progress():
+                            ahead.append(pool.submit(prepare, submitted))
+                            submitted += 1
+                    from imaging.backprojection import backproject
             if profiles.data.shape[0] and profiles.data.size:
                 if ffbp:
                     held.append((profiles, tx_m, rx_m))
                 else:
-                    backproject(profiles, tx_m, rx_m, points, mode=options.mode, out=image)
-                n_profiles += profiles.data.shape[0]
-                mids.append(0.5 * (tx_m + rx_m))
-                tracks_times.append(times)
-                boresights.append(track.boresight)
-                speeds.append(np.linalg.norm(trajectory.sample(track.time_ns).velocity_mps, axis=1))
-            del profiles  # before the next block's are made: at most two blocks of profiles in memory
+                    with timed(clock, "backproject"):
+                        backproject(profiles, tx_m, rx_m, points, mode=options.mode, out=image)
+                    row_buffers.give(profiles.rows)  # for a later block's profiles
+                with timed(clock, "antenna_summary"):
+                    n_profiles += profiles.data.shape[0]
+                    mids.append(0.5 * (tx_m + rx_m))
+                    tracks_times.append(times)
+                    boresights.append(track.boresight)
+                    speeds.append(np.linalg.norm(trajectory.sample(track.time_ns).velocity_mps, axis=1))
+            with timed(clock, "free_block"):
+                del profiles  # before the next block's are made: at most two blocks in memory after the first
             if progress is not None:
                 progress(ends[n], frame_indices.size)
     if n_profiles == 0:
         raise SarbotError(f"{recording.path}: radar {radar_name}: no chirp falls in the selected frames and time window")
     extra = _image_factorized(held, grid, options, image) if ffbp else {}
+    with timed(clock, "attributes"):
+        return _with_attributes(image, grid, recording, radar_name, sel, trajectory, options, extra, wf, frame_indices,
+                                n_profiles, mids, boresights, speeds)
+
+
+def _with_attributes(image, grid, recording, radar_name, sel, trajectory, options, extra, wf, frame_indices, n_profiles,
+                     mids, boresights, speeds) -> SarImage:
+    """The SarImage of ``form_image``: the image and what theory needs to know of it (docs/formats/image.md)."""
+    ffbp = options.algorithm == "ffbp"
     mid = np.concatenate(mids)
     attrs = {
         "radar": radar_name,
@@ -422,13 +499,14 @@ def choose_radar(recording: Recording, radar: str | None) -> str:
 
 def image_recording(recording: Recording, radar: str | None, grid_spec: str, trajectory: str = "truth",
                     frames: slice = slice(None), options: ImagingOptions | None = None, progress=None,
-                    autofocus=None, imu_aided: bool = False, aperture_m: float | None = None) -> SarImage:
+                    autofocus=None, imu_aided: bool = False, aperture_m: float | None = None,
+                    clock: StageClock | None = None) -> SarImage:
     """What ``sarbot image`` (and every job of ``sarbot batch``) forms: ``radar`` (None: the only one),
     on ``trajectory`` ("truth" or a trajectory file), on the grid ``x0:x1:dx,y0:y1:dy[,z]`` whose height
     defaults to the radar's mean height over the recording; autofocused with ``autofocus``
     (``AutofocusOptions``) unless it is None or its method "none", the track first corrected by the radar's
     own IMU with ``imu_aided``; only the central ``aperture_m`` of the frames' track if given
-    (``central_aperture``)."""
+    (``central_aperture``). ``clock``: the stages of a plain image's formation (``form_image``)."""
     from imaging.io.trajectory_file import read_trajectory
 
     radar = choose_radar(recording, radar)
@@ -444,7 +522,7 @@ def image_recording(recording: Recording, radar: str | None, grid_spec: str, tra
     if imu_aided or autofocus is not None and autofocus.method != "none":
         return focus_image(recording, radar, grid, traj, frames, options, autofocus, time_window_ns=window,
                            progress=progress, imu_aided=imu_aided)
-    return form_image(recording, radar, grid, traj, frames, options, time_window_ns=window, progress=progress)
+    return form_image(recording, radar, grid, traj, frames, options, time_window_ns=window, progress=progress, clock=clock)
 
 
 def check_aperture_m(aperture_m: float) -> None:

@@ -29,7 +29,7 @@ class ChirpProfiles(typing.NamedTuple):
 def chirp_profiles(samples: np.ndarray, chirp_time_ns: np.ndarray, tx_index: np.ndarray, radar: RadarConfig,
                    trajectory: Trajectory, *, window: str, oversample: int, keep_samples: bool,
                    rx: np.ndarray | None = None, rx_centroid: bool = False, track_error=None,
-                   workers: int | None = None) -> ChirpProfiles:
+                   workers: int | None = None, rows_out: np.ndarray | None = None) -> ChirpProfiles:
     """Range-compress chirps and place their antennas.
 
     Parameters
@@ -51,6 +51,8 @@ def chirp_profiles(samples: np.ndarray, chirp_time_ns: np.ndarray, tx_index: np.
         A displacement of the radar along its boresight the trajectory does not know (from autofocus).
     workers : int, optional
         FFT threads (-1: all cores).
+    rows_out : ndarray, optional
+        A buffer to write the profiles' rows into (``range_compress``'s ``rows_out``: [C R, bins + 3]).
     """
     track = antenna_track(radar, trajectory, chirp_time_ns, tx_index)
     if track_error is not None:
@@ -61,7 +63,7 @@ def chirp_profiles(samples: np.ndarray, chirp_time_ns: np.ndarray, tx_index: np.
     n_channels = samples.shape[1]
     profiles = range_compress(samples.reshape(-1, wf.samples_per_chirp), wf.f0_hz, wf.frequency_step_hz,
                               window=window, oversample=oversample, keep_samples=keep_samples, guarded=True,
-                              workers=workers)
+                              workers=workers, rows_out=rows_out)
     if rx_centroid:
         rx_m = track.rx_m.mean(axis=1, keepdims=True)
     elif rx is not None:

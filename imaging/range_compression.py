@@ -61,6 +61,7 @@ def range_compress(
     keep_samples: bool = True,
     guarded: bool = False,
     workers: int | None = None,
+    rows_out: np.ndarray | None = None,
 ) -> RangeProfiles:
     """Window and FFT along the last axis.
 
@@ -82,6 +83,10 @@ def range_compress(
         then be 2-D [P, n].
     workers : int, optional
         Threads for the FFT (scipy.fft's ``workers``; -1: all cores). One by default.
+    rows_out : ndarray, complex64, shape (P, n_fft + 3), optional
+        With ``guarded``: where to write the profiles' rows (``RangeProfiles.rows``), a buffer of an
+        earlier call reused (C-contiguous; whatever it holds is overwritten) instead of a new one: a block of
+        profiles is hundreds of MB, and the new pages of each new one cost the system time of their faults.
 
     Returns
     -------
@@ -98,12 +103,23 @@ def range_compress(
     w = get_window(window, n)
     w = (w / w.sum()).astype(np.float32)  # float32: complex64 samples stay complex64, no double-width temporaries
     lead = 1 if guarded else 0
-    rows = np.zeros((*samples.shape[:-1], n_fft + (3 if guarded else 0)), np.complex64)
+    shape = (*samples.shape[:-1], n_fft + (3 if guarded else 0))
+    m = (n - 1) // 2 if centred else 0
+    if rows_out is None:
+        rows = np.zeros(shape, np.complex64)
+    else:
+        if not guarded or rows_out.shape != shape or rows_out.dtype != np.complex64 or not rows_out.flags.c_contiguous:
+            raise ValueError(f"rows_out must be C-contiguous complex64 {shape} for guarded profiles, got "
+                             f"{rows_out.dtype} {rows_out.shape}")
+        rows = rows_out
+        # All but the samples' bins, written below: the guards, and the zero padding the last FFT filled.
+        rows[:, :lead] = 0
+        rows[:, lead + n - m:lead + n_fft - m] = 0
+        rows[:, lead + n_fft:] = 0
     buf = rows[..., lead:lead + n_fft]
     # Centring multiplies bin k by exp(2j pi m k / n_fft), which is the same as moving sample i to
     # position i - m (mod n_fft) before the FFT; so the samples are written there and no pass over the
     # (oversampled, 16 times larger) spectrum is needed. m is the middle sample, rounded down for even n.
-    m = (n - 1) // 2 if centred else 0
     np.multiply(samples[..., m:], w[m:], out=buf[..., :n - m], casting="same_kind")
     if m:
         np.multiply(samples[..., :m], w[:m], out=buf[..., n_fft - m:], casting="same_kind")

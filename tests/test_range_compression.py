@@ -38,3 +38,19 @@ def test_a_tone_peaks_at_its_range_with_unit_amplitude():
     assert abs(prof.data[0, k]) == pytest.approx(1.0, abs=0.02)
     # Centred, the peak's phase is that of the carrier at the target's range (what backprojection removes).
     assert np.angle(prof.data[0, k] * np.exp(-2j * np.pi * prof.carrier_hz * prof.range_axis_m[k] / C)) == pytest.approx(0.0, abs=0.1)
+
+
+@pytest.mark.parametrize("n", [175, 64])
+def test_rows_written_into_a_reused_buffer_are_those_of_a_new_one(n):
+    """Profiles compressed into a buffer an earlier block left full (``rows_out``, as form_image hands its
+    blocks' buffers on) are the new buffer's bit for bit: guards, zero padding and spectrum; a buffer of
+    the wrong shape is refused."""
+    rng = np.random.default_rng(3)
+    samples = (rng.standard_normal((40, n)) + 1j * rng.standard_normal((40, n))).astype(np.complex64)
+    fresh = range_compress(samples, 77e9, 2.27e7, guarded=True, keep_samples=False, workers=2)
+    used = np.full((40, 16 * n + 3), 7 - 3j, np.complex64)  # what an earlier block's FFT left, and more
+    again = range_compress(samples, 77e9, 2.27e7, guarded=True, keep_samples=False, workers=2, rows_out=used)
+    assert again.rows is used and np.shares_memory(again.data, used)
+    np.testing.assert_array_equal(again.rows, fresh.rows)
+    with pytest.raises(ValueError, match="rows_out"):
+        range_compress(samples, 77e9, 2.27e7, guarded=True, rows_out=np.zeros((40, 16 * n + 2), np.complex64))

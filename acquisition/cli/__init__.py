@@ -13,6 +13,10 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import time
+
+#: When sarbot's command line was imported: the commands measure their stages from here (``sarbot -v image``).
+STARTED = time.perf_counter()
 
 from ..processes import configure_logging, ensure_jit_cache_dir
 from .exit_codes import run_command

@@ -7,7 +7,7 @@ import contextlib
 import logging
 import math
 import sys
-import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +16,7 @@ from imaging.core import strict_json
 from imaging.core.errors import SarbotError
 
 from . import options as opt
+from . import STARTED
 from .exit_codes import EXIT_OK, EXIT_USAGE
 from .start_up import collector_paused
 
@@ -124,16 +125,22 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_image(args) -> int:
-    # numba and the kernels are most of a new process's start; they are imported on a thread of their own
-    # from here on, while this one opens the recording and the first blocks are read and range-compressed
-    # (imaging.image_formation.form_image imports the kernels after its first block, waiting for this import).
-    # All of that with the cyclic collector paused (see start_up), a plain image's formation too: it makes
-    # next to no reference cycles. Autofocus's long Python work runs with the collector as usual.
+    # numba and the kernels are most of a new process's start; they are made ready on a thread of their own
+    # from here on (imaging.kernel_import), while this one opens the recording and the first blocks are read
+    # and range-compressed (imaging.image_formation.form_image waits for them before its first
+    # backprojection, compressing further blocks meanwhile). All of that with the cyclic collector paused
+    # (see start_up), a plain image's formation too: it makes next to no reference cycles. Autofocus's long
+    # Python work runs with the collector as usual.
+    from imaging import kernel_import
+    from imaging.core.stage_clock import StageClock
+
+    clock = StageClock()
+    clock.add("before_command", time.perf_counter() - STARTED)
+    began = time.perf_counter()
     plain = args.autofocus == "none" and not args.imu_aided
     with contextlib.ExitStack() as start_up:
         start_up.enter_context(collector_paused())  # the modules live as long as the process
-        kernels = threading.Thread(target=_import_kernels, name="import-kernels")
-        kernels.start()
+        kernels = kernel_import.start_in_background()
         start_up.callback(kernels.join)  # a user's mistake found meanwhile ends the command after it
         from imaging.image_formation import ImagingOptions, image_recording
         from imaging.io.image_file import write_image
@@ -159,39 +166,31 @@ def cmd_image(args) -> int:
                                          decision=args.autofocus_decision)
         if not plain:
             start_up.close()
+        opened = time.perf_counter()
+        clock.add("start_up", opened - began)
         with Recording(args.recording) as rec:
             opt.use_rig_file(rec, args.rig)
-            img = image_recording(rec, args.radar, args.grid, args.trajectory, opt.parse_frames(args.frames),
-                                  options, progress=Progress("backproject"), autofocus=autofocus,
-                                  imu_aided=args.imu_aided, aperture_m=args.aperture)
+            clock.add("open_recording", time.perf_counter() - opened)
+            with clock.stage("image_recording"):
+                img = image_recording(rec, args.radar, args.grid, args.trajectory, opt.parse_frames(args.frames),
+                                      options, progress=Progress("backproject"), autofocus=autofocus,
+                                      imu_aided=args.imu_aided, aperture_m=args.aperture, clock=clock)
     if args.rig:  # the image says whose mounts placed its antennas
         img.attrs["rig"] = str(args.rig)
-    path = opt.write_output(out, lambda p: write_image(p, img), "-o ")
-    opt.write_output(png, lambda p: write_picture(p, img, args.png_figure), "--png ")
+    with clock.stage("write_image"):
+        path = opt.write_output(out, lambda p: write_image(p, img), "-o ")
+    with clock.stage("write_png"):
+        opt.write_output(png, lambda p: write_picture(p, img, args.png_figure), "--png ")
     print(f"wrote {path} and {png}")
     if img.track_error is not None:
         print(autofocus_summary(img))
+    clock.add("command", time.perf_counter() - STARTED)
+    # Where the time went (benchmarks/image_command.py reads this line): seconds since sarbot's command line
+    # was imported ("command"): "before_command" (its parser, the arguments, the log set-up), then this
+    # function's stages; form_image's own are inside "image_recording", its range-compression thread's
+    # ("compress_thread.*") overlap them.
+    log.debug("stage seconds: %s", strict_json.dumps(clock.seconds))
     return EXIT_OK
-
-
-def _import_kernels() -> None:
-    """Import the backprojection kernels' module (numba), its cached kernels set to load without numba's
-    compiler registries first (imaging.numba_target.load_cached_kernels_lightly), so that the first
-    kernel call, after this import, finds it done; and what that first call imports and starts besides:
-    numpy.ma (numba's typeof asks of every array argument whether it is masked), numba.np.arrayobj (where
-    the cached kernels' environments are rebuilt; numba.core.environment) and numba's runtime (NRT)."""
-    from imaging.numba_target import load_cached_kernels_lightly
-
-    load_cached_kernels_lightly()
-    import imaging.backprojection  # noqa: F401 - first: it sets the CPU features numba's target is built with
-    import numpy.ma  # noqa: F401
-    from numba.core.compiler_lock import global_compiler_lock
-    from numba.core.registry import cpu_target
-    from numba.core.runtime import rtsys
-    from numba.np import arrayobj  # noqa: F401
-
-    with global_compiler_lock:  # numba's runtime, which every cache load starts (idempotent), started now
-        rtsys.initialize(cpu_target.target_context)
 
 
 def write_picture(path: Path, img, figure: bool) -> Path:
