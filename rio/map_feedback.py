@@ -340,7 +340,7 @@ class MapUpdate:
     #: not offered to the filter: a wild tile, its residual outside ``MapFeedbackConfig.wild_gate_chi2`` (``chi2``
     #: and ``innovation_sigma_mps`` are then that gate's)
     wild: bool = False
-    #: the residual's chi2 against ``wild_gate_chi2``'s sigma (NaN where not reached)
+    #: the residual's chi2 against ``wild_gate_chi2``'s sigma (also where not taken for another reason)
     wild_chi2: float = float("nan")
 
     def line(self) -> str:
@@ -493,10 +493,17 @@ class MapFeedback:
             done = by_updates + by_scale
             scale_before = self.doppler_scale
 
+            # the speed the span was driven at (where poses were noted), not the speed now
+            noted = self.speed_at(m.time_ns, m.direction)
+            span_speed = speed if noted is None else noted
+            wild_sigma = self._expected_residual_sigma(ekf, m, span_speed)
+            wild_chi2 = (m.velocity_error_mps - done) ** 2 / wild_sigma ** 2
+
             def not_taken(sigma_mps: float = float("nan"), chi2: float = float("nan"), **why) -> MapUpdate:
                 """``m`` as not offered to the filter, ``why`` (a MapUpdate flag) saying why."""
                 return MapUpdate(m, int(ekf.state.time_ns), speed, by_updates, by_scale, m.velocity_error_mps - done,
-                                 sigma_mps, chi2, False, scale_before, self.doppler_scale, self.scale_sigma, **why)
+                                 sigma_mps, chi2, False, scale_before, self.doppler_scale, self.scale_sigma,
+                                 wild_chi2=wild_chi2, **why)
 
             if self._spans_update(m):
                 # The map imaged the span on poses whose velocity an update changed part-way: its tiles saw a
@@ -512,17 +519,12 @@ class MapFeedback:
                 self.settling_not_taken += 1
                 self.updates.append(not_taken(settling=True))
                 continue
-            # the speed the span was driven at (where poses were noted), not the speed now
-            noted = self.speed_at(m.time_ns, m.direction)
-            span_speed = speed if noted is None else noted
-            wild_sigma = self._expected_residual_sigma(ekf, m, span_speed)
-            wild_chi2 = (m.velocity_error_mps - done) ** 2 / wild_sigma ** 2
             if wild_chi2 > self.config.wild_gate_chi2:
                 # A tile whose refocus went wrong: taken, it would move the velocity (and, as a first
                 # measurement, the scale against its wide prior) by far more than any error the filter or an
                 # unlearnt scale can make.
                 self.wild_not_taken += 1
-                self.updates.append(not_taken(wild_sigma, wild_chi2, wild=True, wild_chi2=wild_chi2))
+                self.updates.append(not_taken(wild_sigma, wild_chi2, wild=True))
                 continue
             res = update_look_velocity(ekf, m, done, self.config.gate_chi2)
             # the residual's sigma as the filter judged it (its velocity's and the measurement's, combined)
