@@ -48,8 +48,8 @@ left the scale at 4.6 % for a 2.0 % error; with the filter's gain they average -
 are honest (see above), and the scale's own sigma (``MapFeedback.scale_sigma``) says how far to trust it.
 A span begun while the filter still settles from a start reads a transient, not the steady error a scale
 makes, and as a drive's first measurement it decides the scale (gain 0.95 against the 5 % prior) before the
-spans straddling its update, which are not taken, can pull it back: with ``scale_settle_s`` such a span is not
-taken (off by default until a live run shows it; see there).
+spans straddling its update, which are not taken, can pull it back: with ``scale_settle_s`` (1.5 s) such a span
+is not taken.
 A wild tile (its refocus gone wrong: live, -140 to +156 mm/s at claimed sigmas of 7-31 mm/s) is not taken
 (``wild_gate_chi2``): its residual is far outside what the filter's velocity, its own sigma and the Doppler
 scale's uncertainty at the span's speed allow. The scale's part keeps the gate open to the error the map is
@@ -147,13 +147,14 @@ class MapFeedbackConfig:
     #: straddled that update, which saw the overshoot, were not taken. Its velocity update is not taken either:
     #: it would kink the spans after it, and tiles refocused while the filter settles often go wild (offline on
     #: the live test's drive: -140, +88, +144 mm/s at claimed 9-31 mm/s).
-    #: Off (0) by default, until a live run shows it: offline on the live test's drive (the map and odometry in
-    #: time, 3 noise seeds) the scale ended at +20.2k, +22.1k and +19.1k ppm at 1.5 s (off: +16.5k, +25.3k,
-    #: +22.4k; docs/results/map_feedback_live_drive.json). Learning no scale from such a span but taking its
-    #: velocity update was worse: the first tile no longer anchored the scale, a wild tile taught it first
-    #: against the 5 % prior (-58.6k offline; a live run +178.6k, after a +96 mm/s tile's velocity update the
-    #: wide gate took).
-    scale_settle_s: float = 0.0
+    #: Learning no scale from such a span but taking its velocity update was worse: the first tile no longer
+    #: anchored the scale, a wild tile taught it first against the 5 % prior (-58.6k offline; a live run
+    #: +178.6k, after a +96 mm/s tile's velocity update the wide gate took). With wild tiles not taken
+    #: (``wild_gate_chi2``), on the live test's drive offline (the map and odometry in time, 3 noise seeds) the
+    #: scale ends at +20.2k +- 3.0k, +22.1k +- 3.2k and +19.1k +- 3.4k ppm (-0.06, +0.52, -0.37 of its sigma
+    #: from the truth; docs/results/map_feedback_wild.json; off: +16.5k, +25.3k, +22.4k,
+    #: docs/results/map_feedback_live_drive.json). 0 turns it off.
+    scale_settle_s: float = 1.5
     #: A wild tile is not taken: a measurement whose residual lies farther than this (chi2, 1 dof) from none,
     #: against what the residual should scatter by -- the filter's velocity variance along it, the
     #: measurement's sigma and the Doppler scale's own variance at the span's speed (the error the filter does

@@ -241,7 +241,7 @@ def test_a_span_begun_while_the_filter_settles_from_a_start_is_not_taken():
     velocity error +1.8k to +6.6k ppm above the scale's on the live test's drive
     (docs/results/map_feedback_settling.json). With ``scale_settle_s`` such a span is not taken (neither its
     velocity update, which would kink the spans after it, nor a scale); one begun once the filter has settled
-    is, and so is any where no start was noted. Off by default: then the first tile teaches, as before."""
+    is, and so is any where no start was noted. On (1.5 s) by default; off (0), the first tile teaches, as before."""
     ekf = moving_filter()
     feedback = MapFeedback(MapFeedbackConfig(scale_settle_s=1.5))
     start_ns = ekf.state.time_ns - 5 * 10**9  # 2 s standing, then 0.4 m/s (poses as the odometry worker notes them)
@@ -267,8 +267,8 @@ def test_a_span_begun_while_the_filter_settles_from_a_start_is_not_taken():
     # a span holding a start (the robot set off during it) is settling too; without poses noted, nothing is
     assert feedback.settling(dataclasses.replace(settled, time_ns=start_ns + 500_000_000))
     assert not MapFeedback(feedback.config).settling(first)
-    off = MapFeedback()
-    assert off.config.scale_settle_s == 0.0
+    assert MapFeedbackConfig().scale_settle_s == 1.5  # on by default
+    off = MapFeedback(MapFeedbackConfig(scale_settle_s=0.0))
     off.note_poses(t, v)
     assert off.motion_starts_ns == [start_ns] and not off.settling(first)
     assert off.apply_measurements(moving_filter(), [first]) == [first]
