@@ -15,7 +15,6 @@ docs/results/map_feedback_live_drive.json. About a minute a run on a quiet machi
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import sys
 import tempfile
@@ -29,36 +28,19 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import rio.feedback_drive as feedback_drive  # noqa: E402
-from imaging.core.rig import default_rig  # noqa: E402
-from imaging.io.recording import Recording  # noqa: E402
-from imaging.sim.simulator import simulate_recording  # noqa: E402
 from rio.ekf import EkfConfig  # noqa: E402
 from rio.map_feedback import MapFeedbackConfig  # noqa: E402
 from results_file import load_average, write_results  # noqa: E402
 from rio.map_feedback_truth import measurement_truths  # noqa: E402
-from rio.odometry import _scans_from_adc  # noqa: E402
-from acquisition.studies.map_feedback_live import RADARS, TRUE_SCALE_PPM, feedback_scene, simulated_rig  # noqa: E402
-
+from acquisition.studies.map_feedback_live import TRUE_SCALE_PPM, live_drive_inputs  # noqa: E402
 
 
 def live_drive(seed: int, tmp: Path) -> tuple[feedback_drive.FeedbackDrive, int]:
-    """The live test's drive with noise seed ``seed``, as rio.feedback_drive's loop takes it: scans from the raw
-    frames read with the daemon's rig, every radar's frames, the IMU and the truth; and its first IMU time."""
-    rig = default_rig()
-    path = tmp / f"drive_{seed}.h5"
-    simulate_recording(dataclasses.replace(feedback_scene(), rig=simulated_rig(), seed=seed), path, overwrite=True)
-    with Recording(path) as rec:
-        imu = rec.imu()
-        scans, frames = [], {}
-        for name in RADARS:
-            every = max(1, int(round(1.0 / (rig.radar(name).waveform.frame_interval_s * 10.0))))
-            scans += _scans_from_adc(rec, name, rig.radar(name), 0, None)[::every]
-            frames[name] = (np.asarray(rec.frame_time_ns(name)), rec.adc(name))
-        truth = rec.truth()
-    path.unlink()
-    start_ns = int(imu["time_ns"][0])
-    return feedback_drive.FeedbackDrive(truth, (imu["time_ns"], imu["accel_mps2"], imu["gyro_radps"]), scans, frames,
-                                        np.zeros((0, 3)), (int(imu["time_ns"][-1]) - start_ns) * 1e-9), start_ns
+    """The live test's drive with noise seed ``seed``, as rio.feedback_drive's loop takes it
+    (acquisition.studies.map_feedback_live.live_drive_inputs); and its first IMU time."""
+    inputs = live_drive_inputs(seed, tmp)
+    return feedback_drive.FeedbackDrive(inputs.truth, inputs.imu, inputs.scans, inputs.frames, np.zeros((0, 3)),
+                                        inputs.duration_s), inputs.start_ns
 
 
 def run(drive, start_ns: int, settle_s: float) -> dict:

@@ -19,7 +19,6 @@ second a radar, ``EkfConfig()``. Writes docs/results/map_feedback_settling.json.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import sys
 import tempfile
@@ -39,7 +38,7 @@ from rio.feedback_drive import T0, simulate_feedback_drive  # noqa: E402
 from rio.map_feedback import MapFeedbackConfig  # noqa: E402
 from results_file import load_average, write_results  # noqa: E402
 from rio.odometry import RioOptions  # noqa: E402
-from rio.streaming import StreamingRio  # noqa: E402
+from rio.streaming import StreamingRio, trajectory_of  # noqa: E402
 
 SPAN_S = 1.5
 BEGINS_S = np.arange(0.0, 4.01, 0.25)
@@ -61,48 +60,32 @@ def odometry(drive, ekf: EkfConfig) -> SampledTrajectory:
         poses.append(rio.add_imu(t_imu[i:k], acc[i:k], gyr[i:k]))
         i = k
     poses.append(rio.finish())
-    done = [p for p in poses if len(p)]
-    return SampledTrajectory(*(np.concatenate([getattr(p, f) for p in done])
-                               for f in ("time_ns", "position_m", "orientation_xyzw", "velocity_mps")), source="rio")
+    return trajectory_of(poses)
 
 
 def live_odometry(seed: int) -> tuple[SampledTrajectory, SampledTrajectory]:
-    """The live test's drive simulated with noise seed ``seed``, and the odometry as the live worker makes it
-    from its raw frames; returns (truth, odometry)."""
-    from acquisition.studies.map_feedback_live import RADARS, feedback_scene, simulated_rig
+    """The live test's drive simulated with noise seed ``seed`` (acquisition.studies.map_feedback_live), and the
+    odometry as the live worker makes it from its raw frames; returns (truth, odometry)."""
+    from acquisition.studies.map_feedback_live import RADARS, live_drive_inputs
 
     from imaging.core.rig import default_rig
-    from imaging.io.recording import Recording
-    from imaging.sim.simulator import simulate_recording
-    from rio.odometry import _scans_from_adc
 
-    rig = default_rig()  # the daemon's: its chirp interval 2 % longer than the radars', so the Doppler reads 2 % low
+    rig = default_rig()
     with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "drive.h5"
-        simulate_recording(dataclasses.replace(feedback_scene(), rig=simulated_rig(), seed=seed), path, overwrite=True)
-        with Recording(path) as rec:
-            imu = rec.imu()
-            truth = rec.truth()
-            scans = []
-            for name in RADARS:
-                # with the daemon's rig, as the worker reads them (the recording holds the radars' own waveform)
-                every = max(1, int(round(1.0 / (rig.radar(name).waveform.frame_interval_s * 10.0))))
-                scans += _scans_from_adc(rec, name, rig.radar(name), 0, None)[::every]
-    scans.sort(key=lambda s: s.time_ns)
+        inputs = live_drive_inputs(seed, Path(tmp), frames=False)
+    t_imu, acc, gyr = inputs.imu
     rio = StreamingRio(RioOptions(calibration_priors={n: p for n, p in rig.calibration_priors().items() if n in RADARS}),
                        imu_rate_hz=rig.imu.rate_hz)
     poses, i = [], 0
-    for scan in scans:
-        k = int(np.searchsorted(imu["time_ns"], scan.time_ns, side="right"))
+    for scan in inputs.scans:
+        k = int(np.searchsorted(t_imu, scan.time_ns, side="right"))
         if k > i:
-            poses.append(rio.add_imu(imu["time_ns"][i:k], imu["accel_mps2"][i:k], imu["gyro_radps"][i:k]))
+            poses.append(rio.add_imu(t_imu[i:k], acc[i:k], gyr[i:k]))
             i = k
         poses.append(rio.add_scan(scan))
-    poses.append(rio.add_imu(imu["time_ns"][i:], imu["accel_mps2"][i:], imu["gyro_radps"][i:]))
+    poses.append(rio.add_imu(t_imu[i:], acc[i:], gyr[i:]))
     poses.append(rio.finish())
-    done = [p for p in poses if len(p)]
-    return truth, SampledTrajectory(*(np.concatenate([getattr(p, f) for p in done])
-                                      for f in ("time_ns", "position_m", "orientation_xyzw", "velocity_mps")), source="rio")
+    return inputs.truth, trajectory_of(poses)
 
 
 def spans(truth, traj: SampledTrajectory) -> list[dict]:

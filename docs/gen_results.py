@@ -265,8 +265,18 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                                 "run as the daemon runs it but in one process: odometry on point clouds from the raw "
                                 "frames (the live worker's filter), the refocusing map on its poses, each set of tiles "
                                 "fed back as it comes; the scale learnt against the truth (+20408 ppm) with "
-                                "scale_settle_s off (0, the default) and at 1.5 s, and each measurement with its truth.",
+                                "scale_settle_s off (0) and at 1.5 s (the default since the wild gate), and each "
+                                "measurement with its truth (before the wild gate: see the next section).",
                                 ".venv/bin/python benchmarks/map_feedback_live_drive.py"),
+    "map_feedback_wild": ("Wild tiles on the live test's drive, and the scale learnt without and with the wild gate",
+                          "The live test's drive with three noise seeds, offline as the live workers run it (as "
+                          "above): every map measurement against its truth (wild: erring by more than 4 of its sigmas "
+                          "and 20 mm/s), with what the live worker can tell it by (its residual's chi2 against the "
+                          "filter's velocity sigma, its own sigma and the Doppler scale's at the span's speed: "
+                          "rio.map_feedback's wild_gate_chi2) and its tiles' refocus figures (groups, coverage, "
+                          "entropy drop: none tells a wild tile); the scale learnt with the wild gate and "
+                          "scale_settle_s 1.5, the defaults (--runs 1 2 add the wild gate alone and the old defaults).",
+                          ".venv/bin/python benchmarks/map_feedback_wild.py --runs 0"),
     "pointcloud": ("Point clouds from raw frames",
                    "What each live odometry scan costs before the filter sees it, stage by stage.",
                    ".venv/bin/python benchmarks/pointcloud.py"),

@@ -29,7 +29,7 @@ from imaging.stripmap import StripMap, StripMapConfig
 from .calibration_drive import SIM_EKF
 from .map_feedback import LookVelocityMeasurement, MapFeedback, MapFeedbackConfig, velocity_error_from_tiles
 from .odometry import RadarScan, RioOptions
-from .streaming import StreamingRio
+from .streaming import StreamingRio, trajectory_of
 
 IMAGING_RADARS = ("left_front", "right_front")
 START_DELAY_S = 2.0
@@ -143,12 +143,9 @@ def run_feedback_loop(drive: FeedbackDrive, feedback: bool, step_s: float = 0.25
                 j_scan += 1
             poses.append(rio.add_imu(t_imu[i_imu:k], acc[i_imu:k], gyr[i_imu:k]))
             i_imu = k
-            done = [p for p in poses if len(p)]
-            if sum(len(p) for p in done) < 2:
+            if sum(len(p) for p in poses) < 2:
                 continue
-            traj = SampledTrajectory(np.concatenate([p.time_ns for p in done]), np.concatenate([p.position_m for p in done]),
-                                     np.concatenate([p.orientation_xyzw for p in done]),
-                                     np.concatenate([p.velocity_mps for p in done]), source="rio")
+            traj = trajectory_of(poses)
         else:
             traj = trajectory
         covered = int(traj.time_ns[-1]) if trajectory is None else t
@@ -173,10 +170,7 @@ def run_feedback_loop(drive: FeedbackDrive, feedback: bool, step_s: float = 0.25
                 loop.apply_measurements(rio.ekf, measurements)
     if trajectory is None:
         poses.append(rio.finish())
-        done = [p for p in poses if len(p)]
-        traj = SampledTrajectory(np.concatenate([p.time_ns for p in done]), np.concatenate([p.position_m for p in done]),
-                                 np.concatenate([p.orientation_xyzw for p in done]),
-                                 np.concatenate([p.velocity_mps for p in done]), source="rio")
+        traj = trajectory_of(poses)
     return LoopResult(traj, plain, refocusing, loop, tile_sets)
 
 

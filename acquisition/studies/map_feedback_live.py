@@ -5,7 +5,9 @@ Doppler reads 2 % low in the daemon (their chirp interval 2 % shorter than its r
 off), which is what the map's refocus sees.
 
 One set-up for the two that run it: tests/test_map_feedback_live.py (the map's velocity errors reach the
-odometry's filter) and benchmarks/map_lag.py (the map worker's lag over the run).
+odometry's filter) and benchmarks/map_lag.py (the map worker's lag over the run); and the same drive's inputs
+for an offline run as the live workers make them (``live_drive_inputs``: benchmarks/map_feedback_live_drive.py,
+map_feedback_settling.py, map_feedback_wild.py).
 """
 
 from __future__ import annotations
@@ -71,6 +73,56 @@ def simulate_drive(path: Path) -> Scene:
     scene = dataclasses.replace(feedback_scene(), rig=simulated_rig())
     simulate_recording(scene, path, overwrite=True)
     return scene
+
+
+@dataclasses.dataclass
+class LiveDriveInputs:
+    """The live test's drive as the live workers take it: the truth, the IMU (time ns, specific force m/s^2,
+    rate rad/s), the odometry's scans (``rio.odometry.RadarScan``, time-ordered) and, where asked, each imaging
+    radar's raw frames (time ns [F], ADC samples)."""
+
+    truth: object
+    imu: tuple[np.ndarray, np.ndarray, np.ndarray]
+    scans: list
+    frames: dict[str, tuple[np.ndarray, np.ndarray]]
+
+    @property
+    def start_ns(self) -> int:
+        """The first IMU sample's time."""
+        return int(self.imu[0][0])
+
+    @property
+    def duration_s(self) -> float:
+        """From the first IMU sample to the last."""
+        return (int(self.imu[0][-1]) - self.start_ns) * 1e-9
+
+
+def live_drive_inputs(seed: int, folder: Path, frames: bool = True) -> LiveDriveInputs:
+    """The live test's drive (:func:`feedback_scene` on :func:`simulated_rig`) simulated with noise seed ``seed``
+    into a recording in ``folder`` (removed after), read as the live workers read it: scans from the raw frames
+    with the daemon's rig (its chirp interval 2 % longer than the radars', so the Doppler reads 2 % low), 10 a
+    second a radar; with ``frames``, every imaging radar's raw frames for the map."""
+    from imaging.io.recording import Recording
+    from imaging.sim.simulator import simulate_recording
+    from rio.odometry import _scans_from_adc
+
+    rig = default_rig()
+    path = Path(folder) / f"drive_{seed}.h5"
+    simulate_recording(dataclasses.replace(feedback_scene(), rig=simulated_rig(), seed=seed), path, overwrite=True)
+    try:
+        with Recording(path) as rec:
+            imu = rec.imu()
+            scans, raw = [], {}
+            for name in RADARS:
+                every = max(1, int(round(1.0 / (rig.radar(name).waveform.frame_interval_s * 10.0))))
+                scans += _scans_from_adc(rec, name, rig.radar(name), 0, None)[::every]
+                if frames:
+                    raw[name] = (np.asarray(rec.frame_time_ns(name)), rec.adc(name))
+            truth = rec.truth()
+    finally:
+        path.unlink(missing_ok=True)
+    scans.sort(key=lambda s: s.time_ns)
+    return LiveDriveInputs(truth, (imu["time_ns"], imu["accel_mps2"], imu["gyro_radps"]), scans, raw)
 
 
 @dataclasses.dataclass

@@ -230,6 +230,7 @@ class OdometryWorker(Worker):
             counted["map_velocity_refused"] = self.map_feedback.rejected
             counted["map_velocity_spanning_update"] = self.map_feedback.spanning_update
             counted["map_velocity_settling"] = self.map_feedback.settling_not_taken
+            counted["map_velocity_wild"] = self.map_feedback.wild_not_taken
             # The radars' Doppler scale learnt from the map, in parts per million off 1 (counters are integers).
             counted["map_doppler_scale_ppm"] = round((self.map_feedback.doppler_scale - 1.0) * 1e6)
             counted["map_doppler_scale_sigma_ppm"] = round(self.map_feedback.scale_sigma * 1e6)
