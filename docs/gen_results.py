@@ -63,13 +63,15 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                        "worker process of its own, alternating in one run: speed-up on 1 and 2 threads, cycles per "
                        "backprojection, SER of both; on a loaded machine (the load is in the JSON).",
                        ".venv/bin/python benchmarks/kernel_versions.py --baseline ff18b4a --name kernel_permute"),
-    "kernel_placement": ("Backprojection kernel: each pixel's bin placed for one mode",
-                         "The kernel whose per-pixel placement loops are compiled for the linear mode alone (they "
-                         "computed the nearest mode's bin too and stored one under a mask), against ac0c048, each in a "
-                         "worker process of its own, alternating in one run: speed-up on 1 and 2 threads, cycles per "
-                         "backprojection, SER of both; on a loaded machine (the load is in the JSON).",
-                         ".venv/bin/python benchmarks/kernel_versions.py --baseline ac0c048 --rounds 4 "
-                         "--name kernel_placement"),
+    "kernel_placement": ("Backprojection kernel: each pixel's bin placed for one mode (tried, reverted)",
+                         "The kernel whose per-pixel placement loops were compiled for the linear mode alone "
+                         "(b91f47f: they computed the nearest mode's bin too and stored one under a mask), against "
+                         "ac0c048, each in a worker process of its own, alternating in one run: speed-up on 1 and 2 "
+                         "threads, cycles per backprojection, SER of both. Measured on the quiet machine with "
+                         "b91f47f's kernel checked out (0.90x: reverted, e40edd3); the load is in the JSON.",
+                         "git checkout b91f47f -- imaging/backprojection.py && .venv/bin/python "
+                         "benchmarks/kernel_versions.py --baseline ac0c048 --rounds 4 --name kernel_placement; "
+                         "git checkout HEAD -- imaging/backprojection.py"),
     "kernel_parts": ("Backprojection kernel: cycles per part",
                      "The kernel beside copies of itself that each leave one part out (the per-(block, profile) "
                      "table, each pixel's offset, bin and phase, the gather, the sine and cosine, the whole "
