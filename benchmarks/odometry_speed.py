@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from odometry_versions import version_tree  # each commit's packages in a tree of its own
 from results_file import load_average, write_results
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,18 +59,6 @@ for line in sys.stdin:
     run_rio(imu, scans, RioOptions())
     print(json.dumps({"elapsed_s": time.perf_counter() - t}), flush=True)
 '''
-
-
-def version_tree(commit: str, tmp: Path) -> Path:
-    """This checkout for HEAD, else the commit's packages from ``git archive`` in a directory of its own."""
-    if commit == "HEAD":
-        return ROOT
-    tree = tmp / commit
-    tree.mkdir()
-    archive = subprocess.run(["git", "-C", str(ROOT), "archive", commit, "rio", "imaging", "acquisition", "drivers"],
-                             check=True, capture_output=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
-    return tree
 
 
 def simulate(laps: int, path: Path) -> None:
