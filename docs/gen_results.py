@@ -72,6 +72,13 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                          "git checkout b91f47f -- imaging/backprojection.py && .venv/bin/python "
                          "benchmarks/kernel_versions.py --baseline ac0c048 --rounds 4 --name kernel_placement; "
                          "git checkout HEAD -- imaging/backprojection.py"),
+    "kernel_placement_fast_hour": ("Backprojection kernel: each pixel's bin placed for one mode, re-run in the VM's fast hour",
+                                   "The same comparison as kernel_placement (b91f47f's kernel against ac0c048's, alternating "
+                                   "in one run), an hour later, when the VM ran sarbot's kernels at full speed again "
+                                   "(docs/benchmark-notes.md, the peer benchmark): 1.03-1.08x, where the slow hour gave 0.90x.",
+                                   "git checkout b91f47f -- imaging/backprojection.py && .venv/bin/python "
+                                   "benchmarks/kernel_versions.py --baseline ac0c048 --rounds 4 --name kernel_placement_fast_hour; "
+                                   "git checkout HEAD -- imaging/backprojection.py"),
     "kernel_parts": ("Backprojection kernel: cycles per part",
                      "The kernel beside copies of itself that each leave one part out (the per-(block, profile) "
                      "table, each pixel's offset, bin and phase, the gather, the sine and cosine, the whole "
