@@ -38,7 +38,7 @@ from rio.feedback_drive import T0, simulate_feedback_drive  # noqa: E402
 from rio.map_feedback import MapFeedbackConfig  # noqa: E402
 from results_file import load_average, write_results  # noqa: E402
 from rio.odometry import RioOptions  # noqa: E402
-from rio.streaming import StreamingRio, trajectory_of  # noqa: E402
+from rio.streaming import StreamingRio  # noqa: E402
 
 SPAN_S = 1.5
 BEGINS_S = np.arange(0.0, 4.01, 0.25)
@@ -60,7 +60,7 @@ def odometry(drive, ekf: EkfConfig) -> SampledTrajectory:
         poses.append(rio.add_imu(t_imu[i:k], acc[i:k], gyr[i:k]))
         i = k
     poses.append(rio.finish())
-    return trajectory_of(poses)
+    return SampledTrajectory.from_batches(poses)
 
 
 def live_odometry(seed: int) -> tuple[SampledTrajectory, SampledTrajectory]:
@@ -85,7 +85,7 @@ def live_odometry(seed: int) -> tuple[SampledTrajectory, SampledTrajectory]:
         poses.append(rio.add_scan(scan))
     poses.append(rio.add_imu(t_imu[i:], acc[i:], gyr[i:]))
     poses.append(rio.finish())
-    return inputs.truth, trajectory_of(poses)
+    return inputs.truth, SampledTrajectory.from_batches(poses)
 
 
 def spans(truth, traj: SampledTrajectory) -> list[dict]:

@@ -29,7 +29,7 @@ from imaging.stripmap import StripMap, StripMapConfig
 from .calibration_drive import SIM_EKF
 from .map_feedback import LookVelocityMeasurement, MapFeedback, MapFeedbackConfig, velocity_error_from_tiles
 from .odometry import RadarScan, RioOptions
-from .streaming import StreamingRio, trajectory_of
+from .streaming import StreamingRio
 
 IMAGING_RADARS = ("left_front", "right_front")
 START_DELAY_S = 2.0
@@ -145,7 +145,7 @@ def run_feedback_loop(drive: FeedbackDrive, feedback: bool, step_s: float = 0.25
             i_imu = k
             if sum(len(p) for p in poses) < 2:
                 continue
-            traj = trajectory_of(poses)
+            traj = SampledTrajectory.from_batches(poses)
         else:
             traj = trajectory
         covered = int(traj.time_ns[-1]) if trajectory is None else t
@@ -170,7 +170,7 @@ def run_feedback_loop(drive: FeedbackDrive, feedback: bool, step_s: float = 0.25
                 loop.apply_measurements(rio.ekf, measurements)
     if trajectory is None:
         poses.append(rio.finish())
-        traj = trajectory_of(poses)
+        traj = SampledTrajectory.from_batches(poses)
     return LoopResult(traj, plain, refocusing, loop, tile_sets)
 
 

@@ -25,8 +25,6 @@ from collections import Counter
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from imaging.core.trajectory import SampledTrajectory
-
 from .ekf import RadarInertialEkf
 from .odometry import RadarScan, RioOptions, add_calibration_states, radar_update, shift_by_known_offsets
 
@@ -46,13 +44,6 @@ class PoseBatch:
 
     def __len__(self) -> int:
         return int(self.time_ns.size)
-
-
-def trajectory_of(batches) -> SampledTrajectory:
-    """The poses of ``batches`` (``PoseBatch``, in time order; empty ones skipped) as one trajectory."""
-    done = [b for b in batches if len(b)]
-    return SampledTrajectory(*(np.concatenate([getattr(b, f) for b in done])
-                               for f in ("time_ns", "position_m", "orientation_xyzw", "velocity_mps")), source="rio")
 
 
 class StreamingRio:

@@ -286,12 +286,9 @@ class StripMapWorker(Worker):
             while first > 0 and int(poses[first].time_ns[0]) > start:
                 first -= 1
         batches = list(itertools.islice(poses, max(first - 1, 0), None))
-        t = np.concatenate([b.time_ns for b in batches])
-        if t.size < 2:
+        if sum(b.time_ns.size for b in batches) < 2:
             return None
-        return SampledTrajectory(t, np.concatenate([b.position_m for b in batches]),
-                                 np.concatenate([b.orientation_xyzw for b in batches]),
-                                 np.concatenate([b.velocity_mps for b in batches]), source="rio")
+        return SampledTrajectory.from_batches(batches)
 
     def _image_ready(self, final: bool = False, budget_s: float | None = None) -> None:
         """Image the queued frames the poses cover, oldest first; live, for at most ``budget_s``."""

@@ -302,6 +302,15 @@ class SampledTrajectory(Trajectory):
         self._omega_body = self._step_rotvec / self._dt[:, None]
         self.source = source
 
+    @classmethod
+    def from_batches(cls, batches, source: str = "rio") -> SampledTrajectory:
+        """The poses of ``batches`` as one trajectory: objects with ``time_ns`` [N], ``position_m`` [N, 3],
+        ``orientation_xyzw`` [N, 4] and ``velocity_mps`` [N, 3] (the odometry's pose batches), in time order;
+        empty ones add nothing."""
+        done = [b for b in batches if b.time_ns.size]
+        return cls(*(np.concatenate([getattr(b, f) for b in done])
+                     for f in ("time_ns", "position_m", "orientation_xyzw", "velocity_mps")), source=source)
+
     def sample(self, time_ns: np.ndarray) -> TrajectorySample:
         """Linear in position, velocity and acceleration; attitude by slerp, R_k exp(u log(R_k^T R_{k+1}))
         (scipy's Slerp, in plain numpy: a live map samples a short trajectory thousands of times)."""
