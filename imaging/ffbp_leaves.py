@@ -31,8 +31,8 @@ The gather: where numba's target has AVX-512 and the mode is linear, each profil
 the direct kernel gathers them (``imaging.bin_gather``: 16 consecutive grid points' bin pairs taken by vector
 permutes from a window of 16 bins, where their bins lie within it; else the scalar gather), the same values
 bit for bit (tests/test_ffbp_leaves_gather.py). On the 2 m aperture every group of 16 fits (a block's points
-run along a polar row, at most one row boundary a group): the leaves 1.12x, FFBP's run 1.06x in CPU time on
-the loaded machine (benchmarks/ffbp_leaves_permute.py, docs/results/ffbp_leaves_permute.json).
+run along a polar row, at most one row boundary a group): the leaves 1.07x on one thread, FFBP's run 1.07x on
+2, on the quiet machine (benchmarks/ffbp_leaves_permute.py, docs/results/ffbp_leaves_permute.json).
 
 Numba note: an inlined helper that is handed arrays inside a loop over points costs a reference count's
 increment and decrement per point (here it made the loop 15x slower); the helpers below take and return
