@@ -217,22 +217,60 @@ def bus_endpoint(role: str = "bus") -> str:
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
     """A loopback port free at the moment of asking (TCP by default, or socket.SOCK_DGRAM). For tests and
-    benchmarks only: another process may take it before it is bound (production code binds port 0, or uses
-    ``bus_endpoint``)."""
+    benchmarks only: production code binds port 0, or uses ``bus_endpoint``."""
     return free_ports(1, kind)[0]
 
 
-def free_ports(n: int, kind: int = socket.SOCK_DGRAM) -> list[int]:
-    """``n`` distinct loopback ports, free at the moment of asking (held together while chosen, so no port
-    is handed out twice)."""
-    socks = [socket.socket(socket.AF_INET, kind) for _ in range(n)]
+#: Ports this process has handed out: never handed out again, so two endpoints asked for one after the other
+#: are never the same port.
+_HANDED_OUT: set[int] = set()
+
+
+def _ephemeral_range() -> tuple[int, int]:
     try:
-        for s in socks:
-            s.bind(("127.0.0.1", 0))
-        return [s.getsockname()[1] for s in socks]
+        with open("/proc/sys/net/ipv4/ip_local_port_range") as f:
+            low, high = (int(v) for v in f.read().split())
+        return low, high
+    except (OSError, ValueError):
+        return 32768, 60999
+
+
+def free_ports(n: int, kind: int = socket.SOCK_DGRAM) -> list[int]:
+    """``n`` distinct loopback ports, free at the moment of asking and not handed out before by this process.
+
+    They are drawn below the kernel's ephemeral range (``ip_local_port_range``), where an outgoing connection
+    never takes its local port: a port picked by binding port 0 came from that range, and between the pick
+    and the bind another socket's ``connect`` could take it (a ZeroMQ socket left reconnecting by an earlier
+    test does so every 100 ms), which failed a CI run with "Address already in use".
+    """
+    import random
+
+    low, _ = _ephemeral_range()
+    low_port = 10000 if low > 12000 else 1024
+    chosen: list[int] = []
+    socks: list[socket.socket] = []
+    try:
+        for _ in range(200 * n):
+            if len(chosen) == n:
+                break
+            port = random.randrange(low_port, low)
+            if port in _HANDED_OUT or port in chosen:
+                continue
+            s = socket.socket(socket.AF_INET, kind)
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                s.close()
+                continue
+            socks.append(s)
+            chosen.append(port)
     finally:
         for s in socks:
             s.close()
+    if len(chosen) < n:
+        raise RuntimeError(f"free_ports: found only {len(chosen)} of {n} free loopback ports in {low_port}-{low - 1}")
+    _HANDED_OUT.update(chosen)
+    return chosen
 
 
 def free_tcp_endpoint() -> str:

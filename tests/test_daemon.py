@@ -310,3 +310,19 @@ def test_production_code_never_picks_a_free_port_to_bind_later():
                 if name in text.replace(f"def {name}", ""):
                     offenders.append(f"{path.relative_to(root)}: {name}")
     assert offenders == [], offenders
+
+
+def test_free_ports_are_distinct_and_outside_the_ephemeral_range():
+    """Ports for tests come from below ip_local_port_range, where no outgoing connection takes its local port,
+    and are never handed out twice in a process: three endpoints asked for one after the other all bind (a
+    CI run once got the same port twice, or one a reconnecting socket had just taken, and failed to bind)."""
+    from acquisition.processes import _ephemeral_range
+    from acquisition.bus import BusPublisher
+
+    low, _ = _ephemeral_range()
+    ports = [free_port() for _ in range(50)] + free_ports(50) + [int(free_tcp_endpoint().rsplit(":", 1)[1]) for _ in range(50)]
+    assert len(set(ports)) == len(ports)
+    assert all(1024 <= p < low for p in ports)
+    publishers = [BusPublisher(free_tcp_endpoint()) for _ in range(3)]
+    for p in publishers:
+        p.close()
