@@ -2,7 +2,7 @@
 
 This machine is a Firecracker VM whose speed changes by up to 1.5x within an hour while idle
 (docs/benchmark-notes.md, "The VM's speed"): a figure, and even a ratio taken in one run, needs to say which
-hour it ran in. The probe measures, each as the best of a few short repeats on one thread:
+hour it ran in. The probe measures, each as the best of a few short repeats on one thread (in rounds: kernel, FMA, copy, kernel, ...):
 
 ``kernel``   sarbot's float32 backprojection (the public ``backproject``, linear mode, numba held to one thread)
              on a fixed case: 256 profiles onto 128 x 128 points, after a warm-up call. G backprojections/s, and
@@ -149,16 +149,21 @@ def kernel_case():
     return _case
 
 
-def _best(fn, repeats: int) -> dict:
-    """Run ``fn`` ``repeats`` times: the best wall time and the best CPU time of the calling thread (which runs
-    the kernel held to one thread), s, and the worst wall time over the best."""
-    wall, cpu = [], []
+def _best(fns: dict, repeats: int) -> dict:
+    """Run each of ``fns`` (name -> callable) ``repeats`` times, in rounds (each once, in turn), so that a
+    moment when another process shares the core hits all of them alike and each has the probe's whole length
+    to catch a quiet moment. Per name: the best wall time and the best CPU time of the calling thread (which
+    runs the kernel held to one thread), s, and the worst wall time over the best."""
+    wall = {name: [] for name in fns}
+    cpu = {name: [] for name in fns}
     for _ in range(repeats):
-        c, t = time.thread_time(), time.perf_counter()
-        fn()
-        wall.append(time.perf_counter() - t)
-        cpu.append(time.thread_time() - c)
-    return {"wall_s": min(wall), "cpu_s": min(cpu), "worst_over_best": max(wall) / min(wall)}
+        for name, fn in fns.items():
+            c, t = time.thread_time(), time.perf_counter()
+            fn()
+            wall[name].append(time.perf_counter() - t)
+            cpu[name].append(time.thread_time() - c)
+    return {name: {"wall_s": min(wall[name]), "cpu_s": min(cpu[name]),
+                   "worst_over_best": max(wall[name]) / min(wall[name])} for name in fns}
 
 
 def probe(repeats: int = REPEATS) -> dict:
@@ -199,9 +204,8 @@ def probe(repeats: int = REPEATS) -> dict:
 
         steal_before = steal_ticks()
         measured = time.perf_counter()
-        timed = {"kernel": _best(kernel, repeats),
-                 "fma": _best(lambda: fma_chains(x0, 0.999999, 1e-6, FMA_STEPS), repeats),
-                 "copy": _best(lambda: np.copyto(dst, src), repeats)}
+        timed = _best({"kernel": kernel, "fma": lambda: fma_chains(x0, 0.999999, 1e-6, FMA_STEPS),
+                       "copy": lambda: np.copyto(dst, src)}, repeats)
         probe_s = time.perf_counter() - measured
         steal_after = steal_ticks()
     finally:
