@@ -2,7 +2,8 @@
 
 This machine is a Firecracker VM whose speed changes by up to 1.5x within an hour while idle
 (docs/benchmark-notes.md, "The VM's speed"): a figure, and even a ratio taken in one run, needs to say which
-hour it ran in. The probe measures, each as the best of a few short repeats on one thread (in rounds: kernel, FMA, copy, kernel, ...):
+hour it ran in. The probe measures, each as the best of a few short repeats on one thread (in rounds: kernel,
+FMA, copy, kernel, ...):
 
 ``kernel``   sarbot's float32 backprojection (the public ``backproject``, linear mode, numba held to one thread)
              on a fixed case: 256 profiles onto 128 x 128 points, after a warm-up call. G backprojections/s, and
@@ -64,6 +65,20 @@ def nominal_hz() -> float | None:
             if line.startswith("cpu MHz"):
                 return float(line.split(":")[1]) * 1e6
     except (OSError, ValueError):
+        pass
+    return None
+
+
+def widest_vectors() -> str | None:
+    """The widest x86 vector extension the VM's CPU offers (``avx512f``, ``avx2``, ``avx``, ``sse2``, from
+    /proc/cpuinfo's flags): a host without AVX-512 runs sarbot's kernel without its permute gather, at a
+    fraction of the speed, which no load explains. None where /proc/cpuinfo has no flags."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("flags"):
+                flags = set(line.split(":", 1)[1].split())
+                return next((f for f in ("avx512f", "avx2", "avx", "sse2") if f in flags), "other")
+    except OSError:
         pass
     return None
 
@@ -174,11 +189,13 @@ def probe(repeats: int = REPEATS) -> dict:
     -------
     dict
         ``utc``; ``kernel_gbp_per_s`` (G backprojections/s) and ``kernel_cycles_per_backprojection`` (at
-        ``nominal_hz``); ``fma_gflops`` and ``fma_flops_per_cycle``; ``copy_gb_per_s`` (read + written);
-        ``worst_over_best`` (each probe's slowest repeat over its best: the scatter within this probe);
-        ``probe_s`` (wall time of the measurement), ``setup_s`` (making the case and loading the kernels, the
-        first time in a process), ``steal_fraction`` (the CPU time the host took from this VM during the
-        probe, /proc/stat), ``load_average``.
+        ``nominal_hz``); ``fma_gflops`` and ``fma_flops_per_cycle``; ``copy_gb_per_s`` (read + written): all
+        from the best CPU time of the repeats; ``wall``: the three speeds from the best wall time;
+        ``worst_over_best`` (each figure's slowest repeat over its best, wall time: the scatter within this
+        probe); ``repeats``; ``widest_vectors`` (the CPU's widest vector extension); ``probe_s`` (wall time of
+        the measurement), ``setup_s`` (making the case and loading the kernels, the first time in a process),
+        ``steal_fraction`` (the CPU time the host took from this VM during the probe, /proc/stat; None where
+        unknown), ``load_average``.
     """
     from imaging.backprojection import backproject
 
@@ -235,6 +252,7 @@ def probe(repeats: int = REPEATS) -> dict:
         "worst_over_best": {k: v["worst_over_best"] for k, v in timed.items()},
         "repeats": repeats,
         "nominal_hz": hz,
+        "widest_vectors": widest_vectors(),
         "probe_s": probe_s,
         "setup_s": setup_s,
         "steal_fraction": steal,
@@ -248,7 +266,7 @@ def line(p: dict) -> str:
     return (f"{p['utc']}  kernel {p['kernel_gbp_per_s']:.3f} G bp/s"
             + (f" ({cycles:.2f} cycles)" if cycles is not None else "")
             + f"  fma {p['fma_gflops']:.2f} GFLOP/s  copy {p['copy_gb_per_s']:.1f} GB/s"
-            + f"  probe {p['probe_s']:.2f} s  load {p['load_average'][0]:.2f}"
+            + f"  {p['widest_vectors']}  probe {p['probe_s']:.2f} s  load {p['load_average'][0]:.2f}"
             + (f"  steal {100 * p['steal_fraction']:.1f} %" if p["steal_fraction"] is not None else ""))
 
 

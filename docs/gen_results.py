@@ -405,6 +405,8 @@ def machine_speed_text(probe) -> str:
                              ("copy_gb_per_s", "GB/s", "copy")):
         if isinstance(probe.get(key), (int, float)):
             parts.append(f"{label} {probe[key]:.3g} {unit}")
+    if isinstance(probe.get("widest_vectors"), str):
+        parts.append(probe["widest_vectors"])
     if isinstance(probe.get("utc"), str):
         parts.append(f"at {probe['utc'][11:19]} UTC")
     return ", ".join(parts) if parts else fmt(probe)

@@ -174,7 +174,7 @@ def test_the_provenance_carries_the_probe_before_and_after(tmp_path, monkeypatch
 def test_the_probe_gives_plausible_positive_figures_under_the_right_keys():
     probe = machine_speed.probe(repeats=2)
     assert set(probe) == {"utc", "kernel_gbp_per_s", "kernel_cycles_per_backprojection", "fma_gflops",
-                          "fma_flops_per_cycle", "copy_gb_per_s", "wall", "worst_over_best", "repeats", "nominal_hz",
+                          "fma_flops_per_cycle", "copy_gb_per_s", "wall", "worst_over_best", "repeats", "nominal_hz", "widest_vectors",
                           "probe_s", "setup_s", "steal_fraction", "load_average"}
     # Bounds 100x either side of this machine's (about 0.8 G backprojections/s on one thread, 9 GFLOP/s, 10 GB/s):
     # a wrong count of the work (bytes, FLOPs, points) would leave them, a slow hour would not.
@@ -190,6 +190,7 @@ def test_the_probe_gives_plausible_positive_figures_under_the_right_keys():
         assert 0 < wall_speed <= probe[key] * 1.05
     assert all(ratio >= 1.0 for ratio in probe["worst_over_best"].values()) and probe["repeats"] == 2
     assert probe["probe_s"] > 0 and probe["setup_s"] > 0 and len(probe["load_average"]) == 3
+    assert probe["widest_vectors"] in (None, "avx512f", "avx2", "avx", "sse2", "other")
     assert probe["steal_fraction"] is None or 0.0 <= probe["steal_fraction"] <= 1.0
 
 
