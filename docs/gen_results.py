@@ -90,7 +90,12 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                       "128 x 128 points (1 thread), a float64 FMA loop and a 64 MiB copy, each the best of 5 repeats, "
                       "with the load and the host's steal time; the chart shows each relative to its best probe. Every "
                       "speed benchmark records one probe before and one after its run (provenance.machine_speed).",
-                      ".venv/bin/python benchmarks/machine_speed.py --watch 300"),
+                      ".venv/bin/python benchmarks/machine_speed.py --watch 240 --every 5"),
+    "machine_speed_back_to_back": ("The probe's spread back to back",
+                                   "benchmarks/machine_speed.py's probe repeated back to back for a minute: how far "
+                                   "apart two probes of the same minute read (on the load the JSON records).",
+                                   ".venv/bin/python benchmarks/machine_speed.py --watch 60 --every 0 --name "
+                                   "machine_speed_back_to_back"),
     "peers": ("sarbot beside torchbp",
               "sarbot's kernel against the real torchbp (built from ../shared/bench/) in one process, alternating: its "
               "Cartesian and polar CPU kernels, two cases, each image's SER against the exact matched filter, 5 km out.",

@@ -207,3 +207,25 @@ def test_the_watch_refuses_bad_arguments_with_a_message(capsys):
             machine_speed.main(argv)
         assert exited.value.code == 2
         assert "must be" in capsys.readouterr().err
+
+
+def test_the_results_page_shows_each_runs_probes_beside_its_load(tmp_path):
+    sys.path.insert(0, str(ROOT / "docs"))
+    try:
+        import gen_results
+    finally:
+        sys.path.remove(str(ROOT / "docs"))
+    probe = {"utc": "2026-11-26T21:04:18+00:00", "kernel_gbp_per_s": 1.234, "fma_gflops": 7.41,
+             "copy_gb_per_s": 15.4, "widest_vectors": "avx2"}
+    provenance = {"load_average_start": [1.0, 1.0, 1.0], "load_average_end": [2.0, 2.0, 2.0],
+                  "machine_speed": {"before": probe, "after": {**probe, "kernel_gbp_per_s": 0.9}}}
+    (tmp_path / "toy.json").write_text(json.dumps({"speed": 2.0, "provenance": provenance,
+                                                   "part": {"ratio": 1.1, "provenance": provenance}}))
+    lines = gen_results.render(tmp_path).splitlines()
+    before = "| `provenance.machine_speed.before` | kernel 1.23 G bp/s, FMA 7.41 GFLOP/s, copy 15.4 GB/s, avx2, " \
+             "at 21:04:18 UTC |"
+    assert before in lines
+    assert lines.index(before) == lines.index("| `provenance.load_average_end` | [2, 2, 2] |") + 1
+    assert "| `provenance.machine_speed.after` | kernel 0.9 G bp/s, FMA 7.41 GFLOP/s, copy 15.4 GB/s, avx2, " \
+           "at 21:04:18 UTC |" in lines
+    assert any(line.startswith("| `part.provenance.machine_speed.before` | kernel 1.23 G bp/s") for line in lines)
