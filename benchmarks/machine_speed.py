@@ -15,8 +15,8 @@ FMA, copy, kernel, ...):
              read and those written.
 
 The speeds are from the calling thread's CPU time (best of the repeats), which a shared machine's load leaves
-nearly alone; the same from wall time are under ``wall``. It takes about 0.3 s once numba has its kernels (the
-first call in a process also loads them: ``setup_s``).
+nearly alone; the same from wall time are under ``wall``. It costs about 0.2 s of CPU once numba has its
+kernels (the first call in a process also loads them: ``setup_s``).
 ``probe()`` returns the figures as a dict; ``benchmarks/results_file.py`` records one before and one after
 every speed benchmark (``provenance.machine_speed``).
 
@@ -311,7 +311,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--every", type=float, default=5.0, metavar="SECONDS",
                     help="start a probe this often while watching (0: back to back; default 5)")
     ap.add_argument("--name", default="machine_speed", help="the watch's JSON and chart name (default machine_speed)")
-    ap.add_argument("--repeats", type=int, default=REPEATS, help=f"repeats per probe, the best kept (default {REPEATS})")
+    ap.add_argument("--repeats", type=int, default=REPEATS,
+                    help=f"repeats per probe, the best kept (default {REPEATS})")
     args = ap.parse_args(argv)
     if args.repeats < 1:
         ap.error(f"--repeats must be at least 1, got {args.repeats}")

@@ -76,7 +76,7 @@ def _machine_speed():
 
 
 def probe_machine() -> dict:
-    """Probe the machine's speed now (``machine_speed.probe``, about 0.3 s) and keep it as the run's "before":
+    """Probe the machine's speed now (``machine_speed.probe``, about 0.2 s of CPU) and keep it as the run's "before":
     a speed benchmark calls this at its start, before its measurement, and :func:`write_results` probes again
     after it and records both in the provenance.
 
@@ -190,7 +190,7 @@ def write_results(name: str, result: dict, *, started_load: list[float], folder:
         summarised anew) keeps the run that measured it as ``provenance.measured_by``.
     started_load
         :func:`load_average` taken when the measurement started.
-        Where :func:`probe_machine` was called, the machine is probed again here (about 0.3 s) and both
+        Where :func:`probe_machine` was called, the machine is probed again here (about 0.2 s of CPU) and both
         probes are written as ``provenance.machine_speed``.
     folder
         Where to write; made if missing.
