@@ -41,7 +41,7 @@ from imaging.image_formation import ImagingOptions, focus_image, form_image  # n
 from imaging.io.recording import Recording  # noqa: E402
 from imaging.sim.scene import load_scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
-from results_file import load_average, write_results  # noqa: E402
+from results_file import load_average, probe_machine, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 VIBRATION = Vibration(3.83, 0.319e-3, 0.7)
@@ -195,6 +195,7 @@ def main() -> int:
     args = ap.parse_args()
     repeats = args.repeats or (1 if args.quick else 3)
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     load_start = started_load[0]
     with tempfile.TemporaryDirectory() as tmp:
         rows = vibration_case(Path(tmp), args.quick, repeats)

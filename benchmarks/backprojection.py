@@ -38,7 +38,7 @@ from imaging.core.trajectory import StraightLine  # noqa: E402
 from imaging.range_compression import range_compress  # noqa: E402
 from imaging.sim.simulator import simulate_frames  # noqa: E402
 from imaging.sim.targets import PointTarget  # noqa: E402
-from results_file import finite_or_none, load_average, write_results  # noqa: E402
+from results_file import finite_or_none, load_average, probe_machine, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 
@@ -121,6 +121,7 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="a smaller case (for a smoke run)")
     args = ap.parse_args()
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     n_frames, nx, ny, repeats = (4, 128, 128, 2) if args.quick else (16, 256, 256, 3)
     samples, wf, tx, rx, grid = make_case(n_frames, nx, ny)
     n_p, n_g = tx.shape[0], nx * ny

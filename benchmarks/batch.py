@@ -30,7 +30,7 @@ from image_command import make_recording  # noqa: E402
 
 from acquisition.batch import plan_jobs, run_batch, run_job  # noqa: E402
 from imaging.io.image_file import read_image  # noqa: E402
-from results_file import load_average, write_results  # noqa: E402
+from results_file import load_average, probe_machine, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 
@@ -40,6 +40,7 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     n_frames, n_px = (4, 64) if args.quick else (8, 192)
     grid = f"-0.5:0.5:{1.0 / n_px},1.5:2.5:{1.0 / n_px},0.3"
     with tempfile.TemporaryDirectory() as tmp:

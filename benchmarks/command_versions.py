@@ -39,7 +39,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from results_file import load_average, write_results
+from results_file import load_average, probe_machine, write_results
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "docs" / "results"
@@ -213,6 +213,7 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         result = compare(args.baseline, QUICK_CASES if args.quick else CASES, args.rounds, Path(tmp))

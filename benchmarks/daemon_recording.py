@@ -37,7 +37,7 @@ from drivers.radar.srf1 import encode_frame, restamp  # noqa: E402
 from imaging.core.rig import default_rig  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
 from process_stats import child_pids, cpu_s  # noqa: E402
-from results_file import load_average, write_results  # noqa: E402
+from results_file import load_average, probe_machine, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 
@@ -89,6 +89,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--quick", action="store_true", help="fewer, shorter phases")
     args = ap.parse_args(argv)
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     multiples = [1.0, 2.0, 3.0] if args.quick else [1.0, 1.5, 2.0, 2.5, 3.0, 4.0]
     phase_s = 3.0 if args.quick else 5.0
     rig = default_rig()

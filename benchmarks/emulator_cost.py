@@ -56,7 +56,7 @@ from imaging.io.recording import Recording  # noqa: E402
 from imaging.sim.scene import load_scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from reference_srf1 import encode_frame as encode_frame_before  # noqa: E402
-from results_file import load_average, write_results  # noqa: E402
+from results_file import load_average, probe_machine, write_results  # noqa: E402
 
 RADAR = "left_front"
 RADARS_IN_SOAK = 4
@@ -200,6 +200,7 @@ def main(argv: list[str]) -> int:
     rx.start()
     address = ready.get(timeout=60)
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     passes: dict[str, list[Pass]] = {"before": [], "now": []}
     loads = []
     with Recording(path) as rec:

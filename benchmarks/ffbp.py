@@ -63,7 +63,7 @@ from imaging.backprojection import backproject  # noqa: E402
 from imaging.factorized_backprojection import FactorizedOptions, plan_factorized, run_factorized  # noqa: E402
 from imaging.range_compression import range_compress  # noqa: E402
 from process_stats import free_heap_chunks, machine_cpu_s, other_threads_cpu_s, this_thread_wait_s  # noqa: E402
-from results_file import load_average, write_results  # noqa: E402
+from results_file import load_average, probe_machine, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 SPEED_MPS = 0.4
@@ -514,6 +514,7 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=3, help="rounds of --plan (default 3)")
     args = ap.parse_args()
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     if args.plan:
         uptime_before = load_text()
         backproject(*[range_compress(np.ones((4, 175), complex), 76e9, 22.75e6, oversample=8, guarded=True)],

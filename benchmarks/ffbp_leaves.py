@@ -48,7 +48,7 @@ from ffbp import load_text  # noqa: E402
 from imaging.backprojection import (_G, _TWO_PI, BLOCK, _gather_pairs_accumulate, _gather_planar_accumulate,  # noqa: E402
                                     backproject, guarded_rows)
 from imaging.bin_gather import PERMUTE_GATHER  # noqa: E402
-from results_file import load_average, write_results  # noqa: E402
+from results_file import load_average, probe_machine, write_results  # noqa: E402
 from imaging.core.constants import SPEED_OF_LIGHT_MPS  # noqa: E402
 from imaging.core.prefetch import prefetch  # noqa: E402
 from imaging.factorized_backprojection import FactorizedOptions, _slice, plan_factorized  # noqa: E402
@@ -166,6 +166,7 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="a smaller case (for a smoke run)")
     args = ap.parse_args()
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     numba.set_num_threads(1)
     frames, n_leaves, rounds = (24, 4, 2) if args.quick else (96, 16, 6)
     uptime_before = load_text()

@@ -34,7 +34,7 @@ sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]
 
 from backprojection import make_case  # noqa: E402
 from ffbp import load_text  # noqa: E402
-from results_file import load_average, write_results  # noqa: E402
+from results_file import load_average, probe_machine, write_results  # noqa: E402
 
 import imaging.ffbp_leaves as fl  # noqa: E402
 from imaging.bin_gather import LANES, PERMUTE_GATHER, gather_planar  # noqa: E402
@@ -75,6 +75,7 @@ def main() -> int:
         print("numba's target has no AVX-512 here: the leaves take the scalar gather either way", file=sys.stderr)
         return 2
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     uptime_before = load_text()
     frames, n_leaves, rounds = (24, 4, 2) if args.quick else (96, 16, 7)
     samples, wf, tx, rx, _ = make_case(frames, 2, 2)

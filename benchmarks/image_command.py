@@ -57,7 +57,7 @@ from imaging.io.recording import Recording  # noqa: E402
 from imaging.sim.scene import DEFAULT_START_TIME_NS, Scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.sim.targets import PointTarget  # noqa: E402
-from results_file import load_average, write_results  # noqa: E402
+from results_file import load_average, probe_machine, write_results  # noqa: E402
 from command_versions import BASELINE, CASES, QUICK_CASES, compare, uptime  # noqa: E402
 
 #: The command's environment: this one without PYTHONDONTWRITEBYTECODE (see the module's docstring).
@@ -369,6 +369,7 @@ def main() -> int:
     cases = {"benchmark_case": (4, 128, 1), "larger_case": (8, 256, 1)} if args.quick else \
         {"benchmark_case": (16, 256, 5), "larger_case": (32, 512, 2)}
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     load_before, uptime_before = os.getloadavg(), uptime()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)

@@ -103,11 +103,12 @@ def main() -> int:
     from backprojection import make_case
     from kernel_versions import cpu_hz, current_commit, uptime
     from peers import one_antenna_case
-    from results_file import load_average, write_results
+    from results_file import load_average, probe_machine, write_results
 
     from imaging.range_compression import range_compress
 
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     uptime_before = uptime()
     source = (ROOT / "imaging" / "backprojection.py").read_text()
     kernels = {}

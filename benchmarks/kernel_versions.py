@@ -28,7 +28,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from results_file import load_average, write_results
+from results_file import load_average, probe_machine, write_results
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "docs" / "results"
@@ -118,6 +118,7 @@ def main() -> int:
     ap.add_argument("--name", default=None, help="the JSON's name (default kernel_versions[_quick])")
     args = ap.parse_args()
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     cases = tuple(args.cases)
     frames, px, one = (4, 128, 1024) if args.quick else (16, 256, 4096)
     rounds = args.rounds or (2 if args.quick else 6)

@@ -32,7 +32,7 @@ from imaging.sim.simulator import simulate_recording  # noqa: E402
 from rio.ego_velocity import EgoVelocityConfig  # noqa: E402
 from rio.evaluation import drift_report  # noqa: E402
 from rio.odometry import RioOptions, imu_from_recording, run_rio, scans_from_recording  # noqa: E402
-from results_file import load_average, write_results  # noqa: E402
+from results_file import load_average, probe_machine, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 
@@ -106,6 +106,7 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     logging.basicConfig(level=logging.ERROR)
     laps_list = [1] if args.quick else [7, 10]
     out: dict = {"drives": [], "knobs": []}

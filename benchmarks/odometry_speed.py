@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from odometry_versions import version_tree  # each commit's packages in a tree of its own
-from results_file import load_average, write_results
+from results_file import load_average, probe_machine, write_results
 
 ROOT = Path(__file__).resolve().parents[1]
 VERSIONS = {
@@ -123,6 +123,7 @@ def main() -> int:
     ap.add_argument("--laps", type=int, default=1)
     args = ap.parse_args()
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     versions = args.versions.split(",")
     out: dict = {"laps": args.laps, "rounds": args.rounds, "cases": {}}
     with tempfile.TemporaryDirectory() as tmp_name:

@@ -281,6 +281,7 @@ def main() -> int:
               "it into a benchmark-only environment", file=sys.stderr)
         return 2
     started_load = results_file.load_average()
+    results_file.probe_machine()  # the VM's speed before; write_results probes after
     rounds = args.rounds or (2 if args.quick else 7)
     frames, one, px = (4, 1024, 128) if args.quick else (16, 4096, 256)
     load_before = load_average()

@@ -29,7 +29,7 @@ from imaging.sim.simulator import simulate_frames  # noqa: E402
 from imaging.sim.targets import PointTarget  # noqa: E402
 from reference_pointcloud import reference_cube  # noqa: E402
 from rio.pointcloud import PointCloudConfig, cfar_2d, detect, range_doppler_cube  # noqa: E402
-from results_file import load_average, write_results  # noqa: E402
+from results_file import load_average, probe_machine, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 SCANS_PER_S_PER_RADAR = 10.0  # the odometry worker's default scan rate
@@ -52,6 +52,7 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     repeats = 5 if args.quick else 50
     radar = default_rig().radar("left_front")
     wf = radar.waveform

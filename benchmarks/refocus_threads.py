@@ -43,7 +43,7 @@ from imaging.core.rig import default_rig  # noqa: E402
 from imaging.core.trajectory import SampledTrajectory  # noqa: E402
 from imaging.stripmap import StripMap  # noqa: E402
 from rio.feedback_drive import IMAGING_RADARS, MAP_CONFIG, simulate_feedback_drive  # noqa: E402
-from results_file import load_average, write_results  # noqa: E402
+from results_file import load_average, probe_machine, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 LENGTH_M = 3.0  # the live test's drive
@@ -85,6 +85,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--quick", action="store_true", help="one repeat, the target tiles only")
     args = parser.parse_args(argv)
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     load_before = os.getloadavg()
     strip, frame_cpu = image_drive(LENGTH_M)
     keys = [k for k, g in strip._refocus.groups.items() if len(g) >= 8]

@@ -1,15 +1,22 @@
 """The one way a benchmark writes its figures: ``docs/results/NAME.json``, strict JSON, with where and how
 they were measured.
 
-    from results_file import load_average, write_results
+    from results_file import load_average, probe_machine, write_results
     started_load = load_average()
+    probe_machine()                                # the VM's speed before (a speed benchmark's first step)
     ...                                            # the measurement
-    write_results("stripmap", result, started_load=started_load)
+    write_results("stripmap", result, started_load=started_load)   # probes again: the speed after
 
 Every number the README and the docs quote comes from one of these files (docs/results.md is generated from
 them), so each records what reproduces it under ``"provenance"``: the git commit and whether the code differed
 from it, the load average at the start and at the end (the machine is shared: a figure measured under load
 says so), the CPU model and the command line. The benchmark's own keys are left as they are.
+
+A benchmark that times things calls :func:`probe_machine` at its start; ``write_results`` then probes again
+and records both as ``provenance.machine_speed = {"before": ..., "after": ...}``
+(``benchmarks/machine_speed.py``: this VM's speed swings by up to 1.5x within an hour, so a speed figure says
+which hour it ran in). A cheap accuracy-only benchmark does not call it and records no probe
+(tests/test_results_file.py lists those that may not).
 
 A NaN or an infinity is refused, naming where it is (``rows[3].error_db``), instead of being written as a
 JSON that strict parsers reject or silently turned into ``null``: a figure that has no value (an image
@@ -51,6 +58,46 @@ PROVENANCE_KEY = "provenance"
 def load_average() -> list[float]:
     """The machine's 1, 5 and 15 minute load averages (what to pass as ``started_load``)."""
     return [round(x, 2) for x in os.getloadavg()]
+
+
+#: The probe :func:`probe_machine` took at the benchmark's start, for :func:`write_results` to record.
+_probe_before: dict | None = None
+
+
+def _machine_speed():
+    """benchmarks/machine_speed.py, imported only where a benchmark probes (it loads numba and sarbot's
+    kernel), from this folder whether or not it is on the import path."""
+    here = str(Path(__file__).resolve().parent)
+    if here not in sys.path:
+        sys.path.append(here)
+    import machine_speed  # noqa: PLC0415
+
+    return machine_speed
+
+
+def probe_machine() -> dict:
+    """Probe the machine's speed now (``machine_speed.probe``, about 0.2 s of CPU) and keep it as the run's "before":
+    a speed benchmark calls this at its start, before its measurement, and :func:`write_results` probes again
+    after it and records both in the provenance.
+
+    Returns
+    -------
+    dict
+        The probe (``kernel_gbp_per_s``, ``fma_gflops``, ``copy_gb_per_s``, ...; see ``machine_speed.probe``).
+    """
+    global _probe_before
+    machine_speed = _machine_speed()
+
+    _probe_before = machine_speed.probe()
+    return _probe_before
+
+
+def _probe_after() -> dict | None:
+    """``{"before": ..., "after": ...}`` where :func:`probe_machine` was called, with a new probe; else None."""
+    if _probe_before is None:
+        return None
+    machine_speed = _machine_speed()
+    return {"before": _probe_before, "after": machine_speed.probe()}
 
 
 def finite_or_none(value: float) -> float | None:
@@ -143,6 +190,8 @@ def write_results(name: str, result: dict, *, started_load: list[float], folder:
         summarised anew) keeps the run that measured it as ``provenance.measured_by``.
     started_load
         :func:`load_average` taken when the measurement started.
+        Where :func:`probe_machine` was called, the machine is probed again here (about 0.2 s of CPU) and both
+        probes are written as ``provenance.machine_speed``.
     folder
         Where to write; made if missing.
     indent
@@ -176,6 +225,11 @@ def write_results(name: str, result: dict, *, started_load: list[float], folder:
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{name}.json"
     record = provenance(started_load)
+    speed = _probe_after()
+    if speed is not None:  # right after the load: the two conditions of the run a reader looks for together
+        items = list(record.items())
+        at = list(record).index("load_average_end") + 1
+        record = dict(items[:at] + [("machine_speed", speed)] + items[at:])
     earlier = result.get(PROVENANCE_KEY)
     if isinstance(earlier, dict):
         record["measured_by"] = earlier.get("measured_by", earlier)

@@ -8,8 +8,10 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 #: Scripts here that are not benchmarks: this one, and what the benchmarks import.
-#: peers.py runs in its own environment (dev.py bench --peers); image_command.py runs command_versions.py.
-NOT_BENCHMARKS = {"run_all.py", "process_stats.py", "results_file.py", "peers.py", "command_versions.py"}
+#: peers.py runs in its own environment (dev.py bench --peers); image_command.py runs command_versions.py;
+#: machine_speed.py is the probe every benchmark takes (its --watch is run by hand, for minutes).
+NOT_BENCHMARKS = {"run_all.py", "process_stats.py", "results_file.py", "peers.py", "command_versions.py",
+                  "machine_speed.py"}
 
 
 def main(argv: list[str]) -> int:

@@ -37,7 +37,7 @@ from imaging.io.recording import Recording  # noqa: E402
 from imaging.sim.scene import load_scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.stripmap import StripMap, StripMapConfig, max_presum  # noqa: E402
-from results_file import finite_or_none, load_average, write_results  # noqa: E402
+from results_file import finite_or_none, load_average, probe_machine, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 DEFAULT = StripMapConfig(aperture_m=0.3, range_min_m=1.0, range_max_m=4.0, z_m=0.3)
@@ -122,6 +122,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--quick", action="store_true", help="fewer frames and settings")
     args = ap.parse_args(argv)
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     scene = load_scene("demo_room")
     work = Path(tempfile.mkdtemp(prefix="sarbot-bench-stripmap-"))
     path = work / "demo_room.h5"

@@ -73,7 +73,7 @@ import imaging.profiles  # noqa: E402
 import imaging.stripmap.footprint as stripmap_footprint  # noqa: E402
 import imaging.stripmap.map as stripmap_map  # noqa: E402
 import imaging.stripmap.polar as stripmap_polar  # noqa: E402
-from results_file import load_average, write_results  # noqa: E402
+from results_file import load_average, probe_machine, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 RIG = ROOT / "imaging" / "rigs" / "default.toml"
@@ -500,6 +500,7 @@ def main(argv: list[str]) -> int:
                     help="frames of each radar imaged with --map-refocus pga, for its cost apart (0: not measured)")
     args = ap.parse_args(argv)
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     numba.set_num_threads(1)  # the worker's kernel threads (--map-threads 1)
     rig = load_rig(RIG)
     map_config = pipeline.resolve_map_config(types.SimpleNamespace(rig=rig), MAP, RADARS, MAX_SPEED_MPS, None)

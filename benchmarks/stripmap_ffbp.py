@@ -42,7 +42,7 @@ from imaging.sim.scene import load_scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.stripmap import StripMap, StripMapConfig  # noqa: E402
 from reference_stripmap import block_reference  # noqa: E402
-from results_file import load_average, write_results  # noqa: E402
+from results_file import load_average, probe_machine, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 RADAR = "left_front"
@@ -104,6 +104,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--quick", action="store_true", help="fewer frames and settings")
     args = ap.parse_args(argv)
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     work = Path(tempfile.mkdtemp(prefix="sarbot-bench-stripmap-ffbp-"))
     path = work / "demo_room.h5"
     print("simulating the demo scene ...", flush=True)

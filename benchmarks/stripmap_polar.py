@@ -48,7 +48,7 @@ from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.sim.targets import CornerReflector  # noqa: E402
 from imaging.stripmap import StripMap, StripMapConfig, max_presum, presum_chirps  # noqa: E402
 from imaging.stripmap.polar import beams_at_points, frame_beams  # noqa: E402
-from results_file import load_average, write_results  # noqa: E402
+from results_file import load_average, probe_machine, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 RADAR = "left_front"
@@ -217,6 +217,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args(argv)
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     numba.set_num_threads(1)  # as the live worker runs its kernel
     scene = dataclasses.replace(load_scene("soak_loop"), radars=[RADAR], duration_s=9.0, imu=False)
     work = Path(tempfile.mkdtemp(prefix="sarbot-bench-polar-"))

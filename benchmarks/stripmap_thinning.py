@@ -37,7 +37,7 @@ from imaging.sim.scene import load_scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.sim.targets import CornerReflector, Rod  # noqa: E402
 from imaging.stripmap import StripMap, StripMapConfig, max_presum  # noqa: E402
-from results_file import load_average, write_results  # noqa: E402
+from results_file import load_average, probe_machine, write_results  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
 RADAR = "left_front"
@@ -80,6 +80,7 @@ def main() -> int:
     import numba
 
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     numba.set_num_threads(1)  # as the live worker runs its kernel
     scene = load_scene("demo_room")
     work = Path(tempfile.mkdtemp(prefix="sarbot-bench-thinning-"))

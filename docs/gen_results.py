@@ -85,6 +85,17 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                      "interpolation and accumulation), alternating in one process on one thread: each part's cycles "
                      "per backprojection by difference; on a loaded machine (the load is in the JSON).",
                      ".venv/bin/python benchmarks/kernel_parts.py"),
+    "machine_speed": ("The VM's speed over a few minutes",
+                      "benchmarks/machine_speed.py's fixed probe repeated: sarbot's float32 kernel on 256 profiles x "
+                      "128 x 128 points (1 thread), a float64 FMA loop and a 64 MiB copy, each the best of 5 repeats, "
+                      "with the load and the host's steal time; the chart shows each relative to its best probe. Every "
+                      "speed benchmark records one probe before and one after its run (provenance.machine_speed).",
+                      ".venv/bin/python benchmarks/machine_speed.py --watch 240 --every 5"),
+    "machine_speed_back_to_back": ("The probe's spread back to back",
+                                   "benchmarks/machine_speed.py's probe repeated back to back for a minute: how far "
+                                   "apart two probes of the same minute read (on the load the JSON records).",
+                                   ".venv/bin/python benchmarks/machine_speed.py --watch 60 --every 0 --name "
+                                   "machine_speed_back_to_back"),
     "peers": ("sarbot beside torchbp",
               "sarbot's kernel against the real torchbp (built from ../shared/bench/) in one process, alternating: its "
               "Cartesian and polar CPU kernels, two cases, each image's SER against the exact matched filter, 5 km out.",
@@ -389,12 +400,32 @@ def _is_scalar(value) -> bool:
         not isinstance(v, (list, dict)) for v in value)
 
 
+def machine_speed_text(probe) -> str:
+    """One probe of benchmarks/machine_speed.py (a provenance's ``machine_speed.before`` or ``.after``) as a cell:
+    its three speeds and when it was taken."""
+    if not isinstance(probe, dict):
+        return fmt(probe)
+    parts = []
+    for key, unit, label in (("kernel_gbp_per_s", "G bp/s", "kernel"), ("fma_gflops", "GFLOP/s", "FMA"),
+                             ("copy_gb_per_s", "GB/s", "copy")):
+        if isinstance(probe.get(key), (int, float)):
+            parts.append(f"{label} {probe[key]:.3g} {unit}")
+    if isinstance(probe.get("widest_vectors"), str):
+        parts.append(probe["widest_vectors"])
+    if isinstance(probe.get("utc"), str):
+        parts.append(f"at {probe['utc'][11:19]} UTC")
+    return ", ".join(parts) if parts else fmt(probe)
+
+
 def _figures(data: dict, prefix: str = "", depth: int = 0) -> list[tuple[str, str]]:
-    """Scalars of ``data`` as (dotted name, value), nested dicts to depth 2."""
+    """Scalars of ``data`` as (dotted name, value), nested dicts to depth 2; a provenance's machine-speed probes
+    (before and after the run) as one row each, beside its load."""
     out = []
     for key, value in data.items():
         name = f"{prefix}{key}"
-        if _is_scalar(value):
+        if key == "machine_speed" and prefix.endswith("provenance.") and isinstance(value, dict):
+            out += [(f"{name}.{side}", machine_speed_text(value[side])) for side in ("before", "after") if side in value]
+        elif _is_scalar(value):
             out.append((name, fmt(value)))
         elif isinstance(value, dict) and depth < 2:
             out += _figures(value, f"{name}.", depth + 1)
