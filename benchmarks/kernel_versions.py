@@ -6,10 +6,14 @@ the same two cases, linear, 16x oversampled profiles: the backprojection benchma
 left-front radar, 16 channels, 256 x 256 pixels; ``threads`` in the JSON) and the peers benchmark's
 one-antenna pass (4,096 chirps of TX 0 / RX 0 onto the same pixels; ``one_antenna``). The parent asks each worker in turn to backproject once and
 report its wall time and the CPU time its threads used; the ratio is taken per round, the median over
-rounds reported, for 1 and 2 threads. Cycles per backprojection are CPU seconds x the CPU's clock
+rounds reported, for 1 and 2 threads. With ``--whole-package`` the baseline's worker takes all of ``imaging``
+from COMMIT (``git archive``), not only its kernel module: for a change outside imaging/backprojection.py (the
+block shapes of imaging/patches.py, the table of imaging/block_profiles.py), which the baseline's kernel would
+otherwise import from the current tree. Cycles per backprojection are CPU seconds x the CPU's clock
 (/proc/cpuinfo) / backprojections: what the kernel costs a core, whatever else the machine runs.
 
     python benchmarks/kernel_versions.py [--quick] [--baseline COMMIT] [--rounds N] [--cases one_antenna] [--name NAME]
+                                         [--whole-package]
 
 Writes docs/results/kernel_versions.json (NAME.json with ``--name``: a comparison with another baseline, or of
 one case, beside the issue's). A baseline kernel that already asks for full-width vectors gets the current
@@ -38,7 +42,7 @@ CASES = ("benchmark", "one_antenna")
 
 WORKER = r"""
 import importlib.util, json, os, sys, time
-sys.path[:0] = [{root!r}, {benchmarks!r}]
+sys.path[:0] = [{package_root!r}, {root!r}, {benchmarks!r}]
 spec = importlib.util.spec_from_file_location("kernel_under_test", {module!r})
 bp = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(bp)
@@ -95,9 +99,11 @@ def cpu_hz() -> float | None:
     return None
 
 
-def start_worker(module: Path, frames: int, px: int, one: int, env: dict, cases: tuple[str, ...]) -> tuple[subprocess.Popen, dict]:
-    code = WORKER.format(root=str(ROOT), benchmarks=str(ROOT / "benchmarks"), module=str(module), frames=frames, px=px,
-                         one=one, cases=cases)
+def start_worker(module: Path, frames: int, px: int, one: int, env: dict, cases: tuple[str, ...],
+                 package_root: Path = ROOT) -> tuple[subprocess.Popen, dict]:
+    """A worker for the kernel module at ``module``, importing ``imaging`` from ``package_root``."""
+    code = WORKER.format(package_root=str(package_root), root=str(ROOT), benchmarks=str(ROOT / "benchmarks"),
+                         module=str(module), frames=frames, px=px, one=one, cases=cases)
     proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
                             env=env, cwd=ROOT)
     return proc, json.loads(proc.stdout.readline())
@@ -116,6 +122,8 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=None)
     ap.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES))
     ap.add_argument("--name", default=None, help="the JSON's name (default kernel_versions[_quick])")
+    ap.add_argument("--whole-package", action="store_true",
+                    help="the baseline's worker imports all of imaging from the baseline commit, not only its kernel")
     args = ap.parse_args()
     started_load = load_average()
     probe_machine()  # the VM's speed before; write_results probes after
@@ -128,6 +136,15 @@ def main() -> int:
         old_source = subprocess.run(["git", "show", f"{args.baseline}:imaging/backprojection.py"], cwd=ROOT,
                                     capture_output=True, text=True, check=True).stdout
         old_module.write_text(old_source)
+        old_root = ROOT
+        if args.whole_package:
+            # The baseline commit's imaging/ in a tree of its own, first on the worker's path.
+            old_root = Path(tmp) / "baseline_tree"
+            old_root.mkdir()
+            archive = subprocess.run(["git", "archive", args.baseline, "imaging"], cwd=ROOT, capture_output=True,
+                                     check=True).stdout
+            subprocess.run(["tar", "-x", "-C", str(old_root)], input=archive, check=True)
+            old_module = old_root / "imaging" / "backprojection.py"
         base_env = {k: v for k, v in os.environ.items() if k != "NUMBA_CPU_FEATURES"}
         # The earlier kernel with numba's own target, the host's features as LLVM tunes them (set explicitly,
         # so that importing the current imaging.backprojection for the case leaves them alone); a cache of
@@ -137,7 +154,8 @@ def main() -> int:
         host = llvm.get_host_cpu_features().flatten()
         old_target = {} if "prefer_full_width_vectors()" in old_source else {"NUMBA_CPU_FEATURES": host}
         old, old_info = start_worker(old_module, frames, px, one, {**base_env, **old_target,
-                                                                   "NUMBA_CACHE_DIR": str(Path(tmp) / "cache")}, cases)
+                                                                   "NUMBA_CACHE_DIR": str(Path(tmp) / "cache")}, cases,
+                                     old_root)
         # The current kernel with a cache of its own too: loaded under another module name, its cache entries
         # in the project's would be found by the next ordinary import and fail to load ("No module named
         # '<dynamic>'").
@@ -176,7 +194,7 @@ def main() -> int:
                 proc.wait(timeout=60)
     load = os.getloadavg()
     result = {
-        "baseline_commit": args.baseline, "current_commit": current_commit(),
+        "baseline_commit": args.baseline, "current_commit": current_commit(), "whole_package": args.whole_package,
         "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(), "cpu_hz": hz,
                     "load_average": load, "uptime_before": uptime_before, "uptime_after": uptime()},
         "full_width_vectors": {"baseline": old_info["prefer_256_bit_off"], "current": new_info["prefer_256_bit_off"]},

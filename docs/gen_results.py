@@ -96,6 +96,17 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                                    "apart two probes of the same minute read (on the load the JSON records).",
                                    ".venv/bin/python benchmarks/machine_speed.py --watch 60 --every 0 --name "
                                    "machine_speed_back_to_back"),
+    "block_sizes": ("Backprojection kernel: blocks of 512 and 1,024 points (tried, not taken)",
+                    "The kernel with blocks of 256 (16 x 16), 512 (32 x 16, 16 x 32) and 1,024 (32 x 32) points, "
+                    "alternating in one process, CPU time on 1 and 2 threads, SER of each; and per shape the share of "
+                    "(block, profile) pairs per range-offset form, with the series' tolerance as it is and at the "
+                    "midpoint form's (-100 dB). Measured on a loaded machine without AVX-512 (in the JSON).",
+                    ".venv/bin/python benchmarks/block_sizes.py --rounds 3"),
+    "block_sizes_tolerance_6nm": ("Backprojection kernel: larger blocks with the series' tolerance at 6 nm",
+                                  "The same as the previous section with the kernel compiled with SERIES_TOLERANCE_M "
+                                  "= 6e-9 m (1e-5 rad at 77 GHz, the midpoint form's budget) instead of 1e-9 m.",
+                                  ".venv/bin/python benchmarks/block_sizes.py --rounds 3 --series-tolerance 6e-9 "
+                                  "--name block_sizes_tolerance_6nm"),
     "peers": ("sarbot beside torchbp",
               "sarbot's kernel against the real torchbp (built from ../shared/bench/) in one process, alternating: its "
               "Cartesian and polar CPU kernels, two cases, each image's SER against the exact matched filter, 5 km out.",
