@@ -116,12 +116,13 @@ def main() -> int:
     from backprojection import make_case, ser_db
     from kernel_versions import cpu_hz, current_commit, uptime
     from peers import one_antenna_case
-    from results_file import load_average, write_results
+    from results_file import load_average, probe_machine, write_results
 
     from imaging.core.constants import SPEED_OF_LIGHT_MPS
     from imaging.range_compression import range_compress
 
     started_load, uptime_before = load_average(), uptime()
+    probe_machine()  # the VM's speed before; write_results probes after
     hz = cpu_hz() or float("nan")
     own_shape = bp.patch_shape
     result = {"commit": current_commit(), "rounds": args.rounds, "series_tolerance_m": ro.SERIES_TOLERANCE_M,
