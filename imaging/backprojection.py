@@ -52,7 +52,7 @@ import numba
 import numpy as np
 from numba.core.errors import NumbaPerformanceWarning
 
-from imaging.bin_gather import LANES, PERMUTE_GATHER, _gather_accumulate, scalar_gather, window_gather16
+from imaging.bin_gather import PERMUTE_GATHER, _gather_accumulate, gather_planar
 from imaging.block_profiles import (A_N, A_N2, B0, B1, B2, B_N, B_N2, CODE, E0, E1, E2, FORM_FOLDED, FORM_GRADIENT,
                                     FORM_MASK, FORM_RX_SERIES, FORM_TWO_SERIES, FRAC_C, IBASE, INT_TABLE_SIZE, LO,
                                     NEW_TX_OFFSETS, SB0, SB1, SV0, SV1, TABLE_PROFILES, TABLE_SIZE, TOP, TURNS_C,
@@ -142,19 +142,12 @@ def _place(i, ddr, place, idx, frac, pixel_turns):
 
 
 @numba.njit(inline="always", fastmath=True)
-def _gather_planar_accumulate(row, idx, frac, turns, planar, acc_re, acc_im, i0, n):
-    """``_gather_pairs_accumulate``, linear, where the CPU has AVX-512, for pixels i0 .. i0 + n - 1 (a group of
-    LANES, or a block's last few): each pixel's two neighbouring bins into planar [4, nb] float32 (a.re, a.im,
-    b.re, b.im), by vector permutes where 16 pixels' bins lie close together (imaging/bin_gather.py), then
-    the same interpolation and accumulation of the same values. A constant n = LANES makes every loop one
-    trip of 16-lane vectors."""
-    if n == LANES:
-        if not window_gather16(row, idx, i0, planar):
-            scalar_gather(row, idx, i0, i0 + LANES, planar)
-    else:
-        scalar_gather(row, idx, i0, i0 + n, planar)
-    for m in range(n):
-        i = i0 + m
+def _gather_planar_accumulate(row, idx, frac, turns, planar, acc_re, acc_im):
+    """``_gather_pairs_accumulate``, linear, where the CPU has AVX-512: each pixel's two neighbouring bins
+    into planar [4, nb] float32 (a.re, a.im, b.re, b.im), by vector permutes where 16 pixels' bins lie close
+    together (imaging/bin_gather.py), then the same interpolation and accumulation of the same values."""
+    gather_planar(row, idx, planar)
+    for i in range(idx.size):
         c, s = _cos_sin_turns(turns[i])
         t = frac[i]
         vr = planar[0, i] + t * (planar[2, i] - planar[0, i])
@@ -164,20 +157,18 @@ def _gather_planar_accumulate(row, idx, frac, turns, planar, acc_re, acc_im, i0,
 
 
 @numba.njit(inline="always", fastmath=True)
-def _gather_pairs_accumulate(row, idx, frac, turns, pairs, acc_re, acc_im, linear, i0, n):
-    """The gather, interpolation and accumulation of a (block, profile) of the float32 kernel, for pixels
-    i0 .. i0 + n - 1: gather each pixel's two neighbouring bins side by side into ``pairs`` [nb, 2] (one
-    16-byte load and store per pixel; scalar, LLVM will not vectorise a gather here), then interpolate and
-    accumulate value * exp(-j 2 pi turns) (vectorised; the sin and cos are made here, from one stored phase,
-    rather than stored and loaded)."""
+def _gather_pairs_accumulate(row, idx, frac, turns, pairs, acc_re, acc_im, linear):
+    """The second and third passes of a (block, profile) of the float32 kernel: gather each pixel's two
+    neighbouring bins side by side into ``pairs`` [nb, 2] (one 16-byte load and store per pixel; scalar,
+    LLVM will not vectorise a gather here), then interpolate and accumulate value * exp(-j 2 pi turns)
+    (vectorised; the sin and cos are made here, from one stored phase, rather than stored and loaded)."""
+    nb = idx.size
     if linear:
-        for m in range(n):
-            i = i0 + m
+        for i in range(nb):
             j = idx[i]
             pairs[i, 0] = row[j]
             pairs[i, 1] = row[j + np.uint32(1)]
-        for m in range(n):
-            i = i0 + m
+        for i in range(nb):
             c, s = _cos_sin_turns(turns[i])
             t = frac[i]
             a = pairs[i, 0]
@@ -187,25 +178,13 @@ def _gather_pairs_accumulate(row, idx, frac, turns, pairs, acc_re, acc_im, linea
             acc_re[i] += vr * c + vi * s
             acc_im[i] += vi * c - vr * s
     else:
-        for m in range(n):
-            i = i0 + m
+        for i in range(nb):
             pairs[i, 0] = row[idx[i]]
-        for m in range(n):
-            i = i0 + m
+        for i in range(nb):
             c, s = _cos_sin_turns(turns[i])
             a = pairs[i, 0]
             acc_re[i] += a.real * c + a.imag * s
             acc_im[i] += a.imag * c - a.real * s
-
-
-@numba.njit(inline="always", fastmath=True)
-def _gather_group_accumulate(row, idx, frac, turns, pairs, planar, acc_re, acc_im, linear, i0, n):
-    """Pixels i0 .. i0 + n - 1 of a (block, profile): by the permute gather where the CPU has AVX-512 and the
-    mode is linear (``_gather_planar_accumulate``), else by the scalar pair gather (``_gather_pairs_accumulate``)."""
-    if linear and PERMUTE_GATHER:
-        _gather_planar_accumulate(row, idx, frac, turns, planar, acc_re, acc_im, i0, n)
-    else:
-        _gather_pairs_accumulate(row, idx, frac, turns, pairs, acc_re, acc_im, linear, i0, n)
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True, nogil=True)
@@ -262,33 +241,25 @@ def _bp_interp_blocks(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, gx, gy, gz, li
             block_profile_table(cx, cy, cz, radius, u_one, u_mid, groups[g], n_q, r0, inv_dr, hi, k, midpoint_tol_m, table,
                                 ints)
             for j in range(n_q):
-                # One pass per group of 16 pixels, placed, gathered and accumulated while its rows are hot; a
-                # constant LANES makes each of the group's loops one trip of vectors.
-                i0 = 0
-                while i0 + LANES <= nb:
-                    _place_block_profile(table, j, ints[IBASE + j], ints[CODE + j], inv32, k_turns32, linear, dx, dy,
-                                         dz, dd, da, idx, frac, pixel_turns, i0, LANES)
-                    _gather_group_accumulate(rows[q0 + j], idx, frac, pixel_turns, pairs, planar, acc_re, acc_im, linear,
-                                             i0, LANES)
-                    i0 += LANES
-                if i0 < nb:  # the block's last few pixels
-                    _place_block_profile(table, j, ints[IBASE + j], ints[CODE + j], inv32, k_turns32, linear, dx, dy,
-                                         dz, dd, da, idx, frac, pixel_turns, i0, nb - i0)
-                    _gather_group_accumulate(rows[q0 + j], idx, frac, pixel_turns, pairs, planar, acc_re, acc_im, linear,
-                                             i0, nb - i0)
+                _place_block_profile(table, j, ints[IBASE + j], ints[CODE + j], inv32, k_turns32, linear, dx, dy, dz, dd,
+                                     da, idx, frac, pixel_turns)
+                if linear and PERMUTE_GATHER:
+                    _gather_planar_accumulate(rows[q0 + j], idx, frac, pixel_turns, planar, acc_re, acc_im)
+                else:
+                    _gather_pairs_accumulate(rows[q0 + j], idx, frac, pixel_turns, pairs, acc_re, acc_im, linear)
         for i in range(nb):
             out[g0 + i] += complex(acc_re[i], acc_im[i])
 
 
 @numba.njit(inline="always", fastmath=True)
-def _place_block_profile(t, j, ibase, code, inv32, k_turns32, linear, dx, dy, dz, dd, da, idx, frac, pixel_turns, i0,
-                         n):
-    """The first pass of a (block, profile), for pixels i0 .. i0 + n - 1: each pixel's range offset from the
-    block centre in the form ``code`` says, with profile j's coefficients in ``t`` (block_profile_table's
-    table), then its bin and phase (``_place``). ``da`` holds the TX's offsets, computed where NEW_TX_OFFSETS
-    says and kept for the profiles that share the TX."""
+def _place_block_profile(t, j, ibase, code, inv32, k_turns32, linear, dx, dy, dz, dd, da, idx, frac, pixel_turns):
+    """The first pass of a (block, profile): each pixel's range offset from the block centre in the form
+    ``code`` says, with profile j's coefficients in ``t`` (block_profile_table's table), then its bin
+    and phase (``_place``). ``da`` holds the TX's offsets, computed where NEW_TX_OFFSETS says and kept for
+    the profiles that share the TX."""
     place = (t[FRAC_C + j], inv32, t[LO + j], t[TOP + j], ibase, t[TURNS_C + j], k_turns32, linear)
     form = code & FORM_MASK
+    nb = dx.size
     v0, v1, v2 = t[V0 + j], t[V1 + j], t[V2 + j]
     b0, b1, b2 = t[B0 + j], t[B1 + j], t[B2 + j]
     sv = (t[SV0 + j], t[SV1 + j], np.float32(_G[0]), np.float32(_G[1]), np.float32(_G[2]), np.float32(_G[3]),
@@ -298,20 +269,17 @@ def _place_block_profile(t, j, ibase, code, inv32, k_turns32, linear, dx, dy, dz
     if form == FORM_FOLDED:
         # One series per pixel on the TX-RX midpoint, doubled, delta's gradient folded into its
         # numerator; delta(c) is in the centre's range (see imaging/range_offsets.py).
-        for m in range(n):
-            i = i0 + m
+        for i in range(nb):
             _place(i, _series_offset(v0 * dx[i] + v1 * dy[i] + v2 * dz[i] + dd[i], sv), place, idx, frac, pixel_turns)
     elif form == FORM_GRADIENT:  # the same with delta's gradient term per pixel, where folding it would cost accuracy
         f0, f1, f2 = t[E0 + j], t[E1 + j], t[E2 + j]
-        for m in range(n):
-            i = i0 + m
+        for i in range(nb):
             num_m = v0 * dx[i] + v1 * dy[i] + v2 * dz[i] + dd[i]
             _place(i, _series_offset(num_m, sv) + (f0 * dx[i] + f1 * dy[i] + f2 * dz[i]), place, idx, frac,
                    pixel_turns)
     elif form == FORM_TWO_SERIES:
         # Both antennas in one pass where delta bends too much for the midpoint form, the TX's offsets not stored.
-        for m in range(n):
-            i = i0 + m
+        for i in range(nb):
             num_a = v0 * dx[i] + v1 * dy[i] + v2 * dz[i] + dd[i]
             num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
             _place(i, _series_offset(num_a, sv) + _series_offset(num_b, sb), place, idx, frac, pixel_turns)
@@ -319,25 +287,21 @@ def _place_block_profile(t, j, ibase, code, inv32, k_turns32, linear, dx, dy, dz
         # A TX shared with the previous profile (the RX channels of one chirp) has the same offsets.
         if code & NEW_TX_OFFSETS:
             if code & TX_SERIES:
-                for m in range(n):
-                    i = i0 + m
+                for i in range(nb):
                     da[i] = _series_offset(v0 * dx[i] + v1 * dy[i] + v2 * dz[i] + dd[i], sv)
             else:
                 a_n, a_n2 = t[A_N + j], t[A_N2 + j]
-                for m in range(n):
-                    i = i0 + m
+                for i in range(nb):
                     # |u + d|^2 = |u|^2 + (2 u.d + d.d): the sum's rounding only touches the denominator.
                     num = v0 * dx[i] + v1 * dy[i] + v2 * dz[i] + dd[i]
                     da[i] = num / (math.sqrt(a_n2 + num) + a_n)
         if form == FORM_RX_SERIES:
-            for m in range(n):
-                i = i0 + m
+            for i in range(nb):
                 num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
                 _place(i, da[i] + _series_offset(num_b, sb), place, idx, frac, pixel_turns)
         else:
             b_n, b_n2 = t[B_N + j], t[B_N2 + j]
-            for m in range(n):
-                i = i0 + m
+            for i in range(nb):
                 num_b = b0 * dx[i] + b1 * dy[i] + b2 * dz[i] + dd[i]
                 _place(i, da[i] + num_b / (math.sqrt(b_n2 + num_b) + b_n), place, idx, frac, pixel_turns)
 
