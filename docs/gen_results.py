@@ -84,7 +84,8 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                      "against main's three passes over a block per profile (be1579c), each in a worker process of its "
                      "own, alternating in one run: speed-up on 1 and 2 threads, cycles per backprojection, SER of both. "
                      "Measured on an AMD EPYC without AVX-512 (the generic path: scalar pair gather), loaded machine "
-                     "(the load is in the JSON); reverted.",
+                     "(the load is in the JSON); reverted. 7b03966's commit message says bit for bit: that held for an "
+                     "earlier cut (the fusion on the AVX-512 path alone), not for 7b03966 (1.3e-6 of the peak).",
                      "git checkout 7b03966 -- imaging/backprojection.py && .venv/bin/python "
                      "benchmarks/kernel_versions.py --baseline be1579c --rounds 3 --name kernel_fused; "
                      "git checkout HEAD -- imaging/backprojection.py"),
