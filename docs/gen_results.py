@@ -79,6 +79,16 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                                    "git checkout b91f47f -- imaging/backprojection.py && .venv/bin/python "
                                    "benchmarks/kernel_versions.py --baseline ac0c048 --rounds 4 --name kernel_placement_fast_hour; "
                                    "git checkout HEAD -- imaging/backprojection.py"),
+    "kernel_fused": ("Backprojection kernel: placement, gather and accumulation fused per 16-pixel group (tried, reverted)",
+                     "The kernel that placed, gathered and accumulated each group of 16 pixels in one pass (7b03966) "
+                     "against main's three passes over a block per profile (be1579c), each in a worker process of its "
+                     "own, alternating in one run: speed-up on 1 and 2 threads, cycles per backprojection, SER of both. "
+                     "Measured on an AMD EPYC without AVX-512 (the generic path: scalar pair gather), loaded machine "
+                     "(the load is in the JSON); reverted. 7b03966's commit message says bit for bit: that held for an "
+                     "earlier cut (the fusion on the AVX-512 path alone), not for 7b03966 (1.3e-6 of the peak).",
+                     "git checkout 7b03966 -- imaging/backprojection.py && .venv/bin/python "
+                     "benchmarks/kernel_versions.py --baseline be1579c --rounds 3 --name kernel_fused; "
+                     "git checkout HEAD -- imaging/backprojection.py"),
     "kernel_parts": ("Backprojection kernel: cycles per part",
                      "The kernel beside copies of itself that each leave one part out (the per-(block, profile) "
                      "table, each pixel's offset, bin and phase, the gather, the sine and cosine, the whole "
