@@ -133,6 +133,11 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                             "parts: the command's own stage times and 8 images in one process; on whatever load the "
                             "JSON records (11-13 on 2 cores when committed: its fractions are the load's).",
                             ".venv/bin/python benchmarks/image_command.py --quick --no-baseline"),
+    "range_window": ("Range compression of the bins an image needs",
+                     "Only the range bins between the grid's nearest and farthest pixel (a chirp-z transform) against "
+                     "every bin (the zero-padded FFT), alternated on the command's blocks: the window, the CPU time, "
+                     "the images against each other and against the exact matched filter; one chirp's cost by window.",
+                     ".venv/bin/python benchmarks/range_window.py"),
     "ffbp": ("Fast factorized backprojection",
              "FFBP against the direct kernel on the same profiles: speed-up against error energy and aperture; "
              "the settings' speed against their error; the default's error further out and longer.",

@@ -65,7 +65,8 @@ class ImagingOptions:
 
 
 def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajectory, tx_order, options: ImagingOptions,
-                   time_window_ns: tuple[int, int] | None = None, track_error=None, row_buffers=None):
+                   time_window_ns: tuple[int, int] | None = None, track_error=None, row_buffers=None,
+                   image_box_m=None):
     """Range profiles and bistatic antenna positions of a block of frames.
 
     Parameters
@@ -80,6 +81,9 @@ def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajector
         A displacement of the radar along its boresight the trajectory does not know (from autofocus).
     row_buffers : RowBuffers, optional
         Buffers of earlier blocks to write the profiles into (see ``RowBuffers``).
+    image_box_m : (lo, hi), optional
+        A box holding every pixel the profiles will be backprojected onto (metres, 3 each): only the range
+        bins it needs are made (``imaging.profiles.chirp_profiles``).
 
     Returns
     -------
@@ -90,11 +94,10 @@ def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajector
     wf = radar.waveform
     times, tx_index, keep, rx_sel = _selected_chirps(frame_time_ns, wf, tx_order, options, time_window_ns)
     samples = adc.reshape(adc.shape[0] * wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)[keep][:, rx_sel, :]
-    rows_out = None if row_buffers is None else \
-        row_buffers.take((samples.shape[0] * samples.shape[1], options.oversample * wf.samples_per_chirp + 3))
     return chirp_profiles(samples, times[keep], tx_index[keep], radar, trajectory, window=options.window,
                           oversample=options.oversample, keep_samples=options.mode == "exact", rx=rx_sel,
-                          track_error=track_error, workers=-1, rows_out=rows_out)
+                          track_error=track_error, workers=-1, rows_out=None if row_buffers is None else row_buffers.take,
+                          image_box_m=image_box_m)
 
 
 class RowBuffers:
@@ -110,12 +113,14 @@ class RowBuffers:
         self._free: collections.deque = collections.deque()
 
     def take(self, shape: tuple[int, int]) -> np.ndarray | None:
-        """A free buffer's first ``shape[0]`` rows where one has that many of ``shape[1]`` bins, else None."""
+        """A C-contiguous [shape] view of the start of a free buffer where one is at least that large, else None
+        (blocks' range windows differ by a few bins: imaging.range_window)."""
         try:
             rows = self._free.pop()
         except IndexError:
             return None
-        return rows[:shape[0]] if rows.shape[1] == shape[1] and rows.shape[0] >= shape[0] else None
+        size = shape[0] * shape[1]
+        return rows.reshape(-1)[:size].reshape(shape) if rows.size >= size else None
 
     def give(self, rows: np.ndarray | None) -> None:
         """Hand back a block's ``RangeProfiles.rows`` (the whole buffer it is a part of), once nothing reads them."""
@@ -200,6 +205,7 @@ class _BlockReader:
                  row_buffers: RowBuffers | None = None) -> None:
         self.recording, self.radar_name, self.options, self.clock = recording, radar_name, options, clock
         self.row_buffers = row_buffers
+        self.image_box_m = None  # a box holding every pixel to be imaged (form_image's direct kernel), or None
         self.time_window_ns, self.track_error = time_window_ns, track_error
         self.radar = recording.radar(radar_name)
         if trajectory is None:
@@ -246,7 +252,7 @@ class _BlockReader:
         keep = np.isin(np.arange(block.start, block.stop), idx)
         with timed(self.clock, "compress_thread.range_compress_and_place"):
             result = frame_profiles(adc[keep], ftimes[keep], self.radar, self.trajectory, self.tx_order, self.options,
-                                    self.time_window_ns, self.track_error, self.row_buffers)
+                                    self.time_window_ns, self.track_error, self.row_buffers, self.image_box_m)
         if self.taper is not None:
             profiles, tx_m, rx_m = result[:3]
             self.taper.apply(profiles, 0.5 * (tx_m + rx_m))
@@ -294,6 +300,9 @@ def form_image(
         reader = _BlockReader(recording, radar_name, trajectory, frames, options, time_window_ns, track_error, clock,
                               row_buffers)
     sel, frame_indices, trajectory, wf = reader.sel, reader.frame_indices, reader.trajectory, reader.radar.waveform
+    if not ffbp:  # only the bins the grid needs (imaging.range_window); FFBP's grids reach beyond it
+        reader.image_box_m = (np.array([grid.x_m.min(), grid.y_m.min(), grid.z_m.min()]),
+                              np.array([grid.x_m.max(), grid.y_m.max(), grid.z_m.max()]))
     image = np.zeros(grid.shape, np.complex128)
     mids, tracks_times, speeds = [], [], []
     boresights = []

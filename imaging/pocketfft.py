@@ -74,3 +74,15 @@ def fft_in_place(x: np.ndarray, workers: int | None = None) -> np.ndarray:
 
         return scipy.fft.fft(x, axis=-1, overwrite_x=True, workers=workers)
     return module.c2c(x, (-1,), True, 0, x, _threads(workers))
+
+
+def ifft_in_place(x: np.ndarray, workers: int | None = None) -> np.ndarray:
+    """The inverse FFT of ``x`` along its last axis, unnormalised (no 1 / n), written over ``x`` where it can
+    be: ``scipy.fft.ifft(x, axis=-1, norm="forward", overwrite_x=True, workers=workers)``, the same numbers."""
+    module = _extension()
+    if (module is None or x.dtype not in (np.complex64, np.complex128) or not x.flags.aligned
+            or not x.dtype.isnative or x.ndim == 0 or x.shape[-1] < 1):
+        import scipy.fft
+
+        return scipy.fft.ifft(x, axis=-1, norm="forward", overwrite_x=True, workers=workers)
+    return module.c2c(x, (-1,), False, 0, x, _threads(workers))

@@ -11,7 +11,9 @@ import numpy as np
 from imaging.core.geometry import AntennaTrack, antenna_track
 from imaging.core.rig import RadarConfig
 from imaging.core.trajectory import Trajectory
+from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.range_compression import RangeProfiles, range_compress
+from imaging.range_window import needed_bins, two_way_range_bounds_m, worth_it
 
 
 class ChirpProfiles(typing.NamedTuple):
@@ -29,7 +31,7 @@ class ChirpProfiles(typing.NamedTuple):
 def chirp_profiles(samples: np.ndarray, chirp_time_ns: np.ndarray, tx_index: np.ndarray, radar: RadarConfig,
                    trajectory: Trajectory, *, window: str, oversample: int, keep_samples: bool,
                    rx: np.ndarray | None = None, rx_centroid: bool = False, track_error=None,
-                   workers: int | None = None, rows_out: np.ndarray | None = None) -> ChirpProfiles:
+                   workers: int | None = None, rows_out=None, image_box_m=None) -> ChirpProfiles:
     """Range-compress chirps and place their antennas.
 
     Parameters
@@ -51,8 +53,13 @@ def chirp_profiles(samples: np.ndarray, chirp_time_ns: np.ndarray, tx_index: np.
         A displacement of the radar along its boresight the trajectory does not know (from autofocus).
     workers : int, optional
         FFT threads (-1: all cores).
-    rows_out : ndarray, optional
-        A buffer to write the profiles' rows into (``range_compress``'s ``rows_out``: [C R, bins + 3]).
+    rows_out : ndarray or callable, optional
+        A buffer to write the profiles' rows into (``range_compress``'s ``rows_out``: [C R, bins + 3]), or a
+        function of that shape giving one (or None: a new buffer).
+    image_box_m : (lo, hi), optional
+        The corners of a box holding every pixel to be imaged from these profiles (metres, world frame, 3 each):
+        only the bins between its nearest and farthest two-way range (``imaging.range_window.needed_bins``)
+        are made, where that is cheaper (``range_compress``'s ``bins``).
     """
     track = antenna_track(radar, trajectory, chirp_time_ns, tx_index)
     if track_error is not None:
@@ -61,14 +68,24 @@ def chirp_profiles(samples: np.ndarray, chirp_time_ns: np.ndarray, tx_index: np.
         track.rx_m = track.rx_m + d[:, None, :]
     wf = radar.waveform
     n_channels = samples.shape[1]
-    profiles = range_compress(samples.reshape(-1, wf.samples_per_chirp), wf.f0_hz, wf.frequency_step_hz,
-                              window=window, oversample=oversample, keep_samples=keep_samples, guarded=True,
-                              workers=workers, rows_out=rows_out)
     if rx_centroid:
         rx_m = track.rx_m.mean(axis=1, keepdims=True)
-    elif rx is not None:
-        rx_m = track.rx_m[:, rx, :]
     else:
-        rx_m = track.rx_m
+        rx_m = track.rx_m if rx is None else track.rx_m[:, rx, :]
+    n_fft = oversample * wf.samples_per_chirp
+    bins = None
+    if image_box_m is not None and samples.shape[0] and samples.shape[1]:
+        step_m = SPEED_OF_LIGHT_MPS / (n_fft * wf.frequency_step_hz)
+        tx_pairs = np.repeat(track.tx_m, n_channels, axis=0)
+        near_m, far_m = two_way_range_bounds_m(tx_pairs, rx_m.reshape(-1, 3), *image_box_m)
+        bins = needed_bins(near_m, far_m, step_m, n_fft)
+        if bins[1] <= bins[0] or not worth_it(wf.samples_per_chirp, n_fft, bins[1] - bins[0]):
+            bins = None  # the box lies beyond the profiles' range, or the window is most of it: all bins
+    if callable(rows_out):
+        width = n_fft if bins is None else bins[1] - bins[0]
+        rows_out = rows_out((samples.shape[0] * n_channels, width + 3))
+    profiles = range_compress(samples.reshape(-1, wf.samples_per_chirp), wf.f0_hz, wf.frequency_step_hz,
+                              window=window, oversample=oversample, keep_samples=keep_samples, guarded=True,
+                              workers=workers, rows_out=rows_out, bins=bins)
     return ChirpProfiles(profiles, np.repeat(track.tx_m, n_channels, axis=0), rx_m.reshape(-1, 3),
                          np.repeat(chirp_time_ns, n_channels), track)

@@ -9,6 +9,7 @@ import numpy as np
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.core.windows import get_window
 from imaging.pocketfft import fft_in_place
+from imaging.range_window import worth_it, zoom_spectrum
 
 
 @dataclasses.dataclass
@@ -62,6 +63,7 @@ def range_compress(
     guarded: bool = False,
     workers: int | None = None,
     rows_out: np.ndarray | None = None,
+    bins: tuple[int, int] | None = None,
 ) -> RangeProfiles:
     """Window and FFT along the last axis.
 
@@ -87,6 +89,14 @@ def range_compress(
         With ``guarded``: where to write the profiles' rows (``RangeProfiles.rows``), a buffer of an
         earlier call reused (C-contiguous; whatever it holds is overwritten) instead of a new one: a block of
         profiles is hundreds of MB, and the new pages of each new one cost the system time of their faults.
+        With ``bins``: shape (P, k1 - k0 + 3).
+    bins : (k0, k1), optional
+        Only bins k0 .. k1 - 1 of the n_fft-point profile (unsigned), by a chirp-z transform
+        (``imaging.range_window``): ``data`` is then (..., k1 - k0) and starts at ``range_start_m = k0 *
+        range_step_m``, the same numbers as those bins of the full profile to float32 precision. Where that
+        is not cheaper than the full FFT (``range_window.worth_it``: the window is more than about a third of
+        the range) the full profile is made, as without ``bins``. An image reads only the bins between its
+        nearest and farthest pixel (``imaging.range_window.needed_bins``).
 
     Returns
     -------
@@ -102,6 +112,13 @@ def range_compress(
         raise ValueError(f"guarded profiles need samples [P, n], got shape {samples.shape}")
     w = get_window(window, n)
     w = (w / w.sum()).astype(np.float32)  # float32: complex64 samples stay complex64, no double-width temporaries
+    if bins is not None:
+        k0, k1 = int(bins[0]), int(bins[1])
+        if signed or not 0 <= k0 < k1 <= n_fft:
+            raise ValueError(f"bins {bins} must be a non-empty part of 0..{n_fft} of unsigned profiles")
+        if worth_it(n, n_fft, k1 - k0) and samples.ndim == 2:
+            return _window_of_bins(samples, w, f0_hz, frequency_step_hz, n_fft, k0, k1, centred, keep_samples,
+                                   guarded, workers, rows_out)
     lead = 1 if guarded else 0
     shape = (*samples.shape[:-1], n_fft + (3 if guarded else 0))
     m = (n - 1) // 2 if centred else 0
@@ -147,6 +164,39 @@ def range_compress(
         f0_hz=f0_hz,
         frequency_step_hz=frequency_step_hz,
         samples=windowed,
+        rows=rows if guarded else None,
+        bandwidth_hz=n * frequency_step_hz,
+    )
+
+
+def _window_of_bins(samples, w, f0_hz, frequency_step_hz, n_fft, k0, k1, centred, keep_samples, guarded, workers,
+                    rows_out) -> RangeProfiles:
+    """``range_compress`` of bins k0 .. k1 - 1 only (its ``bins``), by ``imaging.range_window.zoom_spectrum``."""
+    n_p, n = samples.shape
+    n_bins = k1 - k0
+    shape = (n_p, n_bins + (3 if guarded else 0))
+    if rows_out is None:
+        rows = np.empty(shape, np.complex64)
+    else:
+        if not guarded or rows_out.shape != shape or rows_out.dtype != np.complex64 or not rows_out.flags.c_contiguous:
+            raise ValueError(f"rows_out must be C-contiguous complex64 {shape} for guarded profiles, got "
+                             f"{rows_out.dtype} {rows_out.shape}")
+        rows = rows_out
+    lead = 1 if guarded else 0
+    if guarded:  # the kernel's guard bins: one zero before each profile, two after
+        rows[:, :1] = 0
+        rows[:, -2:] = 0
+    m = (n - 1) // 2 if centred else 0
+    data = zoom_spectrum(samples, w, m, n_fft, k0, rows[:, lead:lead + n_bins], workers)
+    step = SPEED_OF_LIGHT_MPS / (n_fft * frequency_step_hz)
+    return RangeProfiles(
+        data=data,
+        range_start_m=k0 * step,
+        range_step_m=step,
+        carrier_hz=f0_hz + m * frequency_step_hz,
+        f0_hz=f0_hz,
+        frequency_step_hz=frequency_step_hz,
+        samples=np.multiply(samples, w, dtype=np.complex64) if keep_samples else None,
         rows=rows if guarded else None,
         bandwidth_hz=n * frequency_step_hz,
     )

@@ -167,3 +167,32 @@ def test_fit_integration_gain_recovers_exponent():
     assert alpha == pytest.approx(0.62) and g0 == pytest.approx(10 * np.log10(3.0))
     with pytest.raises(ValueError):
         metrics.fit_integration_gain([4, 4], [1.0, 2.0])
+
+
+@pytest.mark.parametrize("options", [ImagingOptions(), ONE_CHANNEL])
+def test_the_range_window_gives_the_image_of_every_bin(pass_recordings, monkeypatch, options):
+    """form_image makes only the range bins the grid needs (imaging.range_window: a chirp-z transform of
+    about a sixth of the bins here); its image is the one made from every bin to float32 precision (SER
+    above 100 dB), on all 16 channels and on one."""
+    import imaging.profiles
+    import imaging.range_compression
+
+    made = []
+    compress = imaging.range_compression.range_compress
+
+    def recorded(*args, **kwargs):
+        profiles = compress(*args, **kwargs)
+        made.append((kwargs.get("bins"), profiles.n_bins))
+        return profiles
+
+    grid = Grid.from_ranges((-0.3, 0.3, 0.004), (R0 - 0.3, R0 + 0.3, 0.004), LEFT_FRONT_OFFSET[2])
+    monkeypatch.setattr(imaging.profiles, "range_compress", recorded)
+    with Recording(pass_recordings[0.4]) as rec:
+        windowed = form_image(rec, RADAR, grid, frames=slice(2, 8), options=options).image
+        assert made and all(bins is not None and n_bins == bins[1] - bins[0] < 2800 / 4 for bins, n_bins in made)
+        monkeypatch.setattr(imaging.profiles, "worth_it", lambda *args: False)  # every bin, as before the window
+        made.clear()
+        full = form_image(rec, RADAR, grid, frames=slice(2, 8), options=options).image
+        assert made and all(bins is None and n_bins == 2800 for bins, n_bins in made)
+    ser_db = 10 * np.log10(np.sum(np.abs(full) ** 2) / np.sum(np.abs(windowed - full) ** 2))
+    assert ser_db > 100.0
