@@ -36,7 +36,7 @@ from imaging.io.recording import Recording  # noqa: E402
 from imaging.range_compression import range_compress  # noqa: E402
 from imaging.core.windows import get_window  # noqa: E402
 from imaging.range_window import fast_length, zoom_spectrum  # noqa: E402
-from results_file import load_average, write_results  # noqa: E402
+from results_file import load_average, probe_machine, write_results  # noqa: E402
 
 
 def ser_db(reference: np.ndarray, image: np.ndarray) -> float:
@@ -152,6 +152,7 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     cases = {"benchmark_case": (16, 256, 2, 200)} if args.quick else \
         {"benchmark_case": (16, 256, 5, 1000), "larger_case": (32, 512, 3, 1000)}
     costs = chirp_costs(2 if args.quick else 5)
