@@ -54,22 +54,24 @@ def track_axis(m: tuple) -> np.ndarray:
     """The horizontal principal direction of all phase centres (``m`` as for :func:`node_frames`), [2]
     (x where they all coincide)."""
     moments = np.empty((1, 6))
-    _moments(*m, np.zeros(1, np.int64), m[0].size, moments)
+    _moments(*m, np.zeros(1, np.int64), np.full(1, m[0].size, np.int64), moments)
     cov = moments[0, [3, 4, 4, 5]].reshape(2, 2)
     u = np.linalg.eigh(cov)[1][:, -1] if np.any(cov) else np.array([1.0, 0.0])
     return u / np.linalg.norm(u)
 
 
-def node_frames(m: tuple, starts: np.ndarray, length: int, overall: np.ndarray, centre_xy: np.ndarray):
-    """Centre, axis, normal and extreme phase centres of nodes of ``length`` profiles from ``starts``.
+def node_frames(m: tuple, starts: np.ndarray, lengths: np.ndarray, overall: np.ndarray, centre_xy: np.ndarray):
+    """Centre, axis, normal and extreme phase centres of nodes of ``lengths`` profiles from ``starts``.
 
     Parameters
     ----------
     m : tuple of three ndarray, shape (P,)
         x, y and z of the phase centres of all profiles (each contiguous: this pass reads every profile of
         every node, so the whole track once per level of the tree).
-    starts : ndarray of int, shape (N,)
-        First profile of each node; node i holds profiles [starts[i], starts[i] + length).
+    starts, lengths : ndarray of int64, shape (N,)
+        First profile and profile count of each node; node i holds [starts[i], starts[i] + lengths[i]).
+        All nodes of a plan in one call: what costs here is per call (numpy's batched eigh and gathers,
+        two passes' dispatch), not per node.
     overall : ndarray, shape (2,)
         The whole track's horizontal axis: a node's axis points its way.
     centre_xy : ndarray, shape (2,)
@@ -78,11 +80,13 @@ def node_frames(m: tuple, starts: np.ndarray, length: int, overall: np.ndarray, 
     Returns
     -------
     centre (N, 3), axis (N, 2), normal (N, 2) and centres (N, M, 3): the phase centres furthest along and
-    across the axis (both ways, diagonally, and in height) and every ``length / 23``-th, repeats included.
+    across the axis (both ways, diagonally, and in height) and every ``length / 23``-th, repeats included;
+    a node with fewer than M of them fills its row up with copies of its first (which change neither
+    maximum its grid's bandwidths are taken as).
     """
     n_nodes = len(starts)
     moments = np.empty((n_nodes, 6))
-    _moments(*m, starts, length, moments)
+    _moments(*m, starts, lengths, moments)
     centre = moments[:, :3].copy()
     cov = moments[:, [3, 4, 4, 5]].reshape(-1, 2, 2)
     # The horizontal principal direction; a node whose phase centres coincide takes the track's.
@@ -95,17 +99,25 @@ def node_frames(m: tuple, starts: np.ndarray, length: int, overall: np.ndarray, 
     normal = np.stack([-u[:, 1], u[:, 0]], axis=1)
     normal *= np.where(_dot2(normal, centre_xy - centre[:, :2]) < 0, -1.0, 1.0)[:, None]
     picks = np.empty((n_nodes, 10), np.int64)
-    _extremes(*m, starts, length, u, normal, picks)
-    stride = np.arange(0, length, max(1, length // CENTRE_STRIDE_DIVISOR))
-    chosen = starts[:, None] + np.concatenate([picks, np.broadcast_to(stride, (n_nodes, stride.size))], axis=1)
-    return centre, u, normal, np.stack([v[chosen] for v in m], axis=-1)
+    _extremes(*m, starts, lengths, u, normal, picks)
+    # Every step-th profile, np.arange(0, length, step) per node, padded with the first extreme.
+    step = np.maximum(1, lengths // CENTRE_STRIDE_DIVISOR)
+    count = -(-lengths // step)
+    column = np.arange(int(count.max()))
+    strided = np.where(column < count[:, None], column * step[:, None], picks[:, :1])
+    chosen = starts[:, None] + np.concatenate([picks, strided], axis=1)
+    centres = np.empty(chosen.shape + (3,))
+    for axis_, v in enumerate(m):
+        np.take(v, chosen, out=centres[..., axis_])
+    return centre, u, normal, centres
 
 
 @numba.njit(cache=True, nogil=True)
-def _moments(x, y, z, starts, length, out):
-    """Per node (profiles [starts[i], starts[i] + length)): the mean of x, y, z and the sums of dx dx, dx dy,
+def _moments(x, y, z, starts, lengths, out):
+    """Per node (profiles [starts[i], starts[i] + lengths[i])): the mean of x, y, z and the sums of dx dx, dx dy,
     dy dy about it, into out[i] (two passes: the sums of squares about the mean, not about the origin)."""
     for i in range(starts.size):
+        length = lengths[i]
         first, last = starts[i], starts[i] + length
         sx = sy = sz = 0.0
         for j in range(first, last):
@@ -123,11 +135,11 @@ def _moments(x, y, z, starts, length, out):
 
 
 @numba.njit(cache=True, nogil=True)
-def _extremes(x, y, z, starts, length, u, n, out):
+def _extremes(x, y, z, starts, lengths, u, n, out):
     """Per node, the offsets (from its first profile) of the least and the greatest s, p, s + p, s - p and z
     (s along its axis u, p along its normal n), the first of equals as np.argmin / np.argmax, into out[i]."""
     for i in range(starts.size):
-        first = starts[i]
+        first, length = starts[i], lengths[i]
         u0, u1, n0, n1 = u[i, 0], u[i, 1], n[i, 0], n[i, 1]
         s = x[first] * u0 + y[first] * u1
         p = x[first] * n0 + y[first] * n1
