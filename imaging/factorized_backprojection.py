@@ -356,9 +356,9 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
     parents = roots[~leaf[roots]]
     while parents.size:
         edge = grid_edges(centre[parents], axis[parents], normal[parents], r0[parents], dr[parents], a0[parents],
-                          da[parents], nr[parents], na[parents], z_m)
+                          da[parents], nr[parents], na[parents], z_m, copies=2)
         children = np.stack([tree.left[parents], tree.right[parents]], axis=1).ravel()
-        place(children, *(np.repeat(e, 2, axis=0) for e in edge))
+        place(children, *edge)
         parents = children[~leaf[children]]
     nodes = _subapertures(tree, centre, axis, normal, (r0, dr, a0, da, nr, na), direct)
     whole, roots = nodes[0], [nodes[i] for i in roots.tolist()]

@@ -79,7 +79,8 @@ def node_frames(m: tuple, starts: np.ndarray, lengths: np.ndarray, overall: np.n
 
     Returns
     -------
-    centre (N, 3), axis (N, 2), normal (N, 2) and centres (N, M, 3): the phase centres furthest along and
+    centre (N, 3), axis (N, 2), normal (N, 2) and centres (N, 3, M), their x, y and z rows apart (so that
+    the bandwidths' pass reads each contiguously, a vector at a time): the phase centres furthest along and
     across the axis (both ways, diagonally, and in height) and every ``length / 23``-th, repeats included;
     a node with fewer than M of them fills its row up with copies of its first (which change neither
     maximum its grid's bandwidths are taken as).
@@ -106,9 +107,9 @@ def node_frames(m: tuple, starts: np.ndarray, lengths: np.ndarray, overall: np.n
     column = np.arange(int(count.max()))
     strided = np.where(column < count[:, None], column * step[:, None], picks[:, :1])
     chosen = starts[:, None] + np.concatenate([picks, strided], axis=1)
-    centres = np.empty(chosen.shape + (3,))
+    centres = np.empty((chosen.shape[0], 3, chosen.shape[1]))
     for axis_, v in enumerate(m):
-        np.take(v, chosen, out=centres[..., axis_])
+        np.take(v, chosen, out=centres[:, axis_])
     return centre, u, normal, centres
 
 
@@ -186,42 +187,57 @@ def plane_points(centre, axis, normal, r, alpha, z_m: float, b_min_m: float = 0.
     return x, y, b
 
 
-def _edge_indices(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per node, ``np.unique(np.linspace(0, n - 1, EDGE_POINTS).astype(int))`` as [N, EDGE_POINTS] indices
-    (the linspace as numpy computes it) and a mask of the first of each run of equal ones."""
-    index = np.arange(EDGE_POINTS, dtype=np.float64)[None, :] * ((n - 1) / (EDGE_POINTS - 1))[:, None]
-    index[:, -1] = n - 1
-    index = index.astype(int)
-    first = np.ones(index.shape, bool)
-    first[:, 1:] = index[:, 1:] != index[:, :-1]
-    return index, first
-
-
-def grid_edges(centre, axis, normal, r0_m, dr_m, a0, da, nr, na, z_m: float):
+def grid_edges(centre, axis, normal, r0_m, dr_m, a0, da, nr, na, z_m: float, copies: int = 1):
     """Points on the edge of N nodes' polar grids (their first and last rows at up to 64 columns, their
-    first and last columns at up to 64 rows, in that order): x, y of shape [N, 4 EDGE_POINTS] and the mask
-    of the points that are there (a grid with fewer rows or columns has fewer)."""
-    ir, first_r = _edge_indices(nr)
-    ia, first_a = _edge_indices(na)
-    ends_r = np.stack([np.zeros_like(nr), nr - 1], axis=1)
-    ends_a = np.stack([np.zeros_like(na), na - 1], axis=1)
-    # [N, 2, 64]: the end rows over the columns; [N, 64, 2]: the rows over the end columns (row-major, as
-    # the order of the points counts where every n-th is taken).
-    rows = [(ends_r[:, :, None], ia[:, None, :], np.broadcast_to(first_a[:, None, :], (len(nr), 2, EDGE_POINTS))),
-            (ir[:, :, None], ends_a[:, None, :], np.broadcast_to(first_r[:, :, None], (len(nr), EDGE_POINTS, 2)))]
-    xs, ys, valid = [], [], []
-    for i_r, i_a, there in rows:
-        r = r0_m[:, None, None] + dr_m[:, None, None] * i_r
-        alpha = a0[:, None, None] + da[:, None, None] * i_a
-        r, alpha = np.broadcast_arrays(r, alpha)
-        x, y, _ = plane_points(centre, axis, normal, r, alpha, z_m)
-        xs.append(x.reshape(len(nr), -1))
-        ys.append(y.reshape(len(nr), -1))
-        valid.append(there.reshape(len(nr), -1))
-    return np.concatenate(xs, axis=1), np.concatenate(ys, axis=1), np.concatenate(valid, axis=1)
+    first and last columns at up to 64 rows, in that order): x, y of shape [N copies, 4 EDGE_POINTS] (each
+    node's ``copies`` times in a row, one for each of its children) and the mask of the points that are
+    there (a grid with fewer rows or columns has fewer). One numba pass: as numpy broadcasts it was ~40
+    calls a step down the tree, a tenth of a plan."""
+    shape = (len(nr) * copies, 4 * EDGE_POINTS)
+    x, y, valid = np.empty(shape), np.empty(shape), np.empty(shape, bool)
+    scratch = np.empty((2, 2, EDGE_POINTS), np.int64)
+    _grid_edges(centre, axis, normal, r0_m, dr_m, a0, da, nr, na, float(z_m), copies, scratch, x, y, valid)
+    return x, y, valid
 
 
 @numba.njit(cache=True, nogil=True)
+def _grid_edges(centre, axis, normal, r0_m, dr_m, a0, da, nr, na, z_m, copies, scratch, x, y, valid):
+    """:func:`grid_edges` into x, y and valid: per node, its up to EDGE_POINTS rows and columns
+    (``np.unique(np.linspace(0, n - 1, EDGE_POINTS).astype(int))``, the linspace as numpy computes it; a
+    repeat is there but not valid), the end rows over the columns, then the rows over the end columns,
+    each point as ``Subaperture.plane_points`` computes it. ``scratch``: [2, 2, EDGE_POINTS] int64, the
+    caller's (no arrays made in here: see _served_extent)."""
+    last = EDGE_POINTS - 1
+    for i in range(nr.size):
+        row = i * copies
+        h = z_m - centre[i, 2]
+        for d in range(2):  # 0: the rows, 1: the columns, indices and whether each is the first of its value
+            n = nr[i] if d == 0 else na[i]
+            spacing = (n - 1) / last
+            for j in range(EDGE_POINTS):
+                scratch[d, 0, j] = int(j * spacing) if j < last else n - 1
+                scratch[d, 1, j] = j == 0 or scratch[d, 0, j] != scratch[d, 0, j - 1]
+        q = 0
+        for part in range(2):  # [2, 64]: the end rows over the columns; [64, 2]: the rows over the end columns
+            for outer in range(2 if part == 0 else EDGE_POINTS):
+                for inner in range(EDGE_POINTS if part == 0 else 2):
+                    if part == 0:
+                        ir, ia, there = outer * (nr[i] - 1), scratch[1, 0, inner], scratch[1, 1, inner]
+                    else:
+                        ir, ia, there = scratch[0, 0, outer], inner * (na[i] - 1), scratch[0, 1, outer]
+                    r = r0_m[i] + dr_m[i] * ir
+                    alpha = a0[i] + da[i] * ia
+                    b = math.sqrt(max(r * r * (1 - alpha * alpha) - h * h, 0.0))
+                    ar = alpha * r
+                    x[row, q] = centre[i, 0] + ar * axis[i, 0] + b * normal[i, 0]
+                    y[row, q] = centre[i, 1] + ar * axis[i, 1] + b * normal[i, 1]
+                    valid[row, q] = there != 0
+                    q += 1
+        for c in range(1, copies):
+            x[row + c], y[row + c], valid[row + c] = x[row], y[row], valid[row]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _served_extent(centre, axis, normal, centres, served_x, served_y, served, b_image, z_m, scratch, out):
     """Per node i: the range and alpha extremes of the plane points it serves (those at least half the image's
     distance ``b_image[i]`` from its axis) and its image's bandwidths there, r_min, r_max, a_min, a_max, f_r and
@@ -233,9 +249,12 @@ def _served_extent(centre, axis, normal, centres, served_x, served_y, served, b_
     One pass a node, its points in two small buffers: as numpy arrays of a level's nodes x points these were
     ~26 MB of temporaries a plan, fresh pages from the OS wherever the allocator maps them anew. ``scratch``:
     [4, K + 25], the caller's (an array made in here would make loading this kernel from numba's cache several
-    times dearer: it would need numba's runtime)."""
+    times dearer: it would need numba's runtime); [6, max(K + 25, M)], its last two rows the ratios of one
+    point against each phase centre, computed a vector at a time (no branch in that loop: numpy's error
+    model, no ZeroDivisionError check) before their maxima are taken in order."""
     n_served = served_x.shape[1]
-    r_used, alpha_used, r_box, alpha_box = scratch[0], scratch[1], scratch[2], scratch[3]
+    r_used, alpha_used, r_box, alpha_box, ratio_r, ratio_a = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], scratch[5]
+    n_centres = centres.shape[2]
     for i in range(centre.shape[0]):
         cx, cy, h = centre[i, 0], centre[i, 1], z_m - centre[i, 2]
         u0, u1, n0, n1 = axis[i, 0], axis[i, 1], normal[i, 0], normal[i, 1]
@@ -293,11 +312,15 @@ def _served_extent(centre, axis, normal, centres, served_x, served_y, served, b_
             across_r, across_a = rq * (1 - aq * aq) / b, -(aq * rq * rq / b)
             drx, dry = aq * u0 + across_r * n0, aq * u1 + across_r * n1
             dax, day = rq * u0 + across_a * n0, rq * u1 + across_a * n1
-            for k in range(centres.shape[1]):
-                lx, ly, lz = gx - centres[i, k, 0], gy - centres[i, k, 1], z_m - centres[i, k, 2]
+            mx, my, mz = centres[i, 0], centres[i, 1], centres[i, 2]
+            for k in range(n_centres):
+                lx, ly, lz = gx - mx[k], gy - my[k], z_m - mz[k]
                 inv = 1.0 / math.sqrt(lx * lx + ly * ly + lz * lz)
-                f_r = max(f_r, abs((lx * drx + ly * dry) * inv - 1.0))
-                f_a = max(f_a, abs((lx * dax + ly * day) * inv))
+                ratio_r[k] = abs((lx * drx + ly * dry) * inv - 1.0)
+                ratio_a[k] = abs((lx * dax + ly * day) * inv)
+            for k in range(n_centres):
+                f_r = max(f_r, ratio_r[k])
+                f_a = max(f_a, ratio_a[k])
         out[i, 0], out[i, 1], out[i, 2], out[i, 3], out[i, 4], out[i, 5] = r_min, r_max, a_min, a_max, f_r, f_a
 
 
@@ -330,7 +353,7 @@ def place_grids(centre, axis, normal, centres, served_x, served_y, served, b_ima
     (r0_m, dr_m, a0, da, nr, na), arrays of shape (N,) (as ``Subaperture``'s fields).
     """
     extent = np.empty((len(centre), 6))
-    scratch = np.empty((4, served_x.shape[1] + 25))
+    scratch = np.empty((6, max(served_x.shape[1] + 25, centres.shape[2])))
     _served_extent(centre, axis, normal, centres, served_x, served_y, served, b_image, float(z_m), scratch, extent)
     r_min, r_max, a_min, a_max, f_r, f_a = extent.T
     dr = 1.0 / (2 * (envelope + two_over_lambda * f_r) * BAND_MARGIN * oversample_range)
