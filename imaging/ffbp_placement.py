@@ -233,8 +233,9 @@ def _grid_edges(centre, axis, normal, r0_m, dr_m, a0, da, nr, na, z_m, copies, s
                     y[row, q] = centre[i, 1] + ar * axis[i, 1] + b * normal[i, 1]
                     valid[row, q] = there != 0
                     q += 1
-        for c in range(1, copies):
-            x[row + c], y[row + c], valid[row + c] = x[row], y[row], valid[row]
+        for c in range(1, copies):  # (element by element: a slice is an array, which needs numba's runtime)
+            for q in range(x.shape[1]):
+                x[row + c, q], y[row + c, q], valid[row + c, q] = x[row, q], y[row, q], valid[row, q]
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -253,7 +254,7 @@ def _served_extent(centre, axis, normal, centres, served_x, served_y, served, b_
     point against each phase centre, computed a vector at a time (no branch in that loop: numpy's error
     model, no ZeroDivisionError check) before their maxima are taken in order."""
     n_served = served_x.shape[1]
-    r_used, alpha_used, r_box, alpha_box, ratio_r, ratio_a = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], scratch[5]
+    r_used, alpha_used, r_box, alpha_box, ratio_r, ratio_a = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], scratch[5]  # noqa: E501
     n_centres = centres.shape[2]
     for i in range(centre.shape[0]):
         cx, cy, h = centre[i, 0], centre[i, 1], z_m - centre[i, 2]
@@ -312,9 +313,8 @@ def _served_extent(centre, axis, normal, centres, served_x, served_y, served, b_
             across_r, across_a = rq * (1 - aq * aq) / b, -(aq * rq * rq / b)
             drx, dry = aq * u0 + across_r * n0, aq * u1 + across_r * n1
             dax, day = rq * u0 + across_a * n0, rq * u1 + across_a * n1
-            mx, my, mz = centres[i, 0], centres[i, 1], centres[i, 2]
             for k in range(n_centres):
-                lx, ly, lz = gx - mx[k], gy - my[k], z_m - mz[k]
+                lx, ly, lz = gx - centres[i, 0, k], gy - centres[i, 1, k], z_m - centres[i, 2, k]
                 inv = 1.0 / math.sqrt(lx * lx + ly * ly + lz * lz)
                 ratio_r[k] = abs((lx * drx + ly * dry) * inv - 1.0)
                 ratio_a[k] = abs((lx * dax + ly * day) * inv)
