@@ -52,7 +52,7 @@ from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.core.grid import Grid
 from imaging.ffbp_leaves import image_leaves, load_kernel
 from imaging.ffbp_merge import _merge_rows, _to_plane, _to_plane_rows  # noqa: F401 - _to_plane: tests use it
-from imaging.ffbp_placement import grid_edges, image_distance, node_frames, place_grids, track_axis
+from imaging.ffbp_placement import grid_edges, node_frames, place_grids, track_axis
 from imaging.ffbp_tasks import Pool, leaf_runs, row_ranges
 from imaging.ffbp_tree import Tree, split_tree
 from imaging.ffbp_interpolation import (  # noqa: F401 - part of this module's interface
@@ -298,7 +298,6 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
     if not (bandwidth_hz > 0 and carrier_hz > bandwidth_hz / 2):
         raise ValueError(f"bandwidth {bandwidth_hz} Hz and carrier {carrier_hz} Hz do not describe a radar")
     image_xy = _outline(x_m, y_m) if outline_xy is None else np.asarray(outline_xy, np.float64).reshape(-1, 2)
-    centre_xy = image_xy.mean(axis=0)
     columns = tuple(_midpoints(tx[:, i], rx[:, i]) for i in range(3))  # the phase centres' x, y and z
     overall = track_axis(columns)
     two_over_lambda = 2 * (carrier_hz + bandwidth_hz / 2) / SPEED_OF_LIGHT_MPS
@@ -309,8 +308,7 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
     # step's grids placed in one pass into the arrays below; the Subaperture objects are made at the end.
     tree = split_tree(tx.shape[0], o.leaf_profiles)
     leaf = tree.left < 0
-    centre, axis, normal, centres = node_frames(columns, tree.start, tree.stop - tree.start, overall, centre_xy)
-    b_image = image_distance(centre, normal, image_xy)
+    centre, axis, normal, centres, b_image = node_frames(columns, tree.start, tree.stop - tree.start, overall, image_xy)
     sampling = np.array([o.sampling(leaf=False), o.sampling(leaf=True)])[leaf.astype(np.int64)]
     half_taps = sampling[:, 2].astype(int) // 2
     r0, dr, a0, da = (np.zeros(tree.size) for _ in range(4))

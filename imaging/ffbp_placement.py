@@ -1,23 +1,26 @@
 """Where FFBP's subapertures sit and how their polar grids are sized: many nodes a pass.
 
-``imaging.factorized_backprojection.plan_factorized`` builds the tree; this module gives its nodes their
-geometry. :func:`node_frames`: a node's centre, axis and normal from its phase centres, and the extreme
-ones its grid's bandwidths are taken over, for every node of one length at once. :func:`place_grids`: each
-node's polar grid, covering the plane points it serves (the image's outline, or its parent's grid edge,
-:func:`grid_edges`) with the sampling the bandwidths of its demodulated image there ask for, for every node
-of one step down the tree at once. The rules are the plan's (that module's docstring, "Geometry"); only the
-bookkeeping is batched, and the loops over profiles, served points and point x phase-centre pairs are small
-numba passes: no numpy temporaries of a level's nodes x served points (the image's distance from the axes,
-nodes x outline points, stays a numpy expression: a pass of its own would cost a cache load more than its
-faults). As numpy the served points' pass made ~26 MB a plan of the 2 m aperture (~6,500 pages), which the
-allocator may map afresh on every plan (glibc does for blocks above its mmap threshold until the process has
-freed a large one, as in a fresh ``sarbot image``): the plan's cost then hung on the cost of a new page
-(benchmarks/ffbp.py --plan records the faults, docs/results/ffbp_plan.json; tests/test_ffbp_plan.py counts them).
+``imaging.factorized_backprojection.plan_factorized`` builds the tree (``imaging.ffbp_tree``); this module gives
+its nodes their geometry. :func:`node_frames`: a node's centre, axis and normal from its phase centres, the
+extreme ones its grid's bandwidths are taken over and the image's distance from its axis, for every node of
+the plan at once. :func:`place_grids`: each node's polar grid, covering the plane points it serves (the
+image's outline, or its parent's grid edge, :func:`grid_edges`) with the sampling the bandwidths of its
+demodulated image there ask for, for every node of one step down the tree at once. The rules are the plan's
+(that module's docstring, "Geometry"); only the bookkeeping is batched, and the loops over profiles, served
+points, grid edges and point x phase-centre pairs are small numba passes (four kernels: each costs a cache load
+in a process's first plan): no numpy temporaries of nodes x points. As numpy the served points' pass made
+~26 MB a plan of the 2 m aperture (~6,500 pages), which the allocator may map afresh on every plan (glibc does
+for blocks above its mmap threshold until the process has freed a large one, as in a fresh ``sarbot image``):
+the plan's cost then hung on the cost of a new page (benchmarks/ffbp.py --plan records the faults,
+docs/results/ffbp_plan.json; tests/test_ffbp_plan.py counts them).
 
-Done a node at a time, as before, the plan was ~50 small numpy calls a node, 0.44 s for the 2 m aperture's
-383 nodes, more than FFBP's run of 0.33 s; batched, 0.076 s against 0.228 s in the same rounds on the quiet
-machine, 0.024 s in a fresh process after its first (``benchmarks/ffbp.py --plan``, docs/results/ffbp_plan.json).
-tests/test_ffbp_plan.py checks it against the node-at-a-time builder.
+Done a node at a time, as at first, the plan was ~50 small numpy calls a node, 0.44 s for the 2 m aperture's
+383 nodes, more than FFBP's run of 0.33 s; batched a length or a step of the tree a pass, 0.029 s on the quiet
+machine (docs/results/ffbp_plan.json), a third of it Python and numpy calls per node or per step. Now the
+whole plan's frames are one pass, its grids' edges one numba pass a step, and the bandwidths' inner loop runs a
+vector at a time: about half the CPU time of the batched planner, alternated in one process
+(benchmarks/ffbp_plan_versions.py, docs/results/ffbp_plan_versions.json). tests/test_ffbp_plan.py checks the
+plan against the node-at-a-time builder (to rounding) and against the batched one (to the bit).
 
 Ragged sets (a node's phase centres, the plane points it serves) are padded: with copies of one of its own
 points where only their minimum or maximum is taken (a copy changes neither), with a mask where their order
@@ -60,8 +63,9 @@ def track_axis(m: tuple) -> np.ndarray:
     return u / np.linalg.norm(u)
 
 
-def node_frames(m: tuple, starts: np.ndarray, lengths: np.ndarray, overall: np.ndarray, centre_xy: np.ndarray):
-    """Centre, axis, normal and extreme phase centres of nodes of ``lengths`` profiles from ``starts``.
+def node_frames(m: tuple, starts: np.ndarray, lengths: np.ndarray, overall: np.ndarray, image_xy: np.ndarray):
+    """Centre, axis, normal and extreme phase centres of nodes of ``lengths`` profiles from ``starts``, and
+    the image's least distance from their axes.
 
     Parameters
     ----------
@@ -74,8 +78,8 @@ def node_frames(m: tuple, starts: np.ndarray, lengths: np.ndarray, overall: np.n
         two passes' dispatch), not per node.
     overall : ndarray, shape (2,)
         The whole track's horizontal axis: a node's axis points its way.
-    centre_xy : ndarray, shape (2,)
-        The served region's centre: a node's normal points towards it.
+    image_xy : ndarray, shape (K, 2)
+        The served region's outline: a node's normal points towards its centre (the mean of the points).
 
     Returns
     -------
@@ -83,7 +87,9 @@ def node_frames(m: tuple, starts: np.ndarray, lengths: np.ndarray, overall: np.n
     the bandwidths' pass reads each contiguously, a vector at a time): the phase centres furthest along and
     across the axis (both ways, diagonally, and in height) and every ``length / 23``-th, repeats included;
     a node with fewer than M of them fills its row up with copies of its first (which change neither
-    maximum its grid's bandwidths are taken as).
+    maximum its grid's bandwidths are taken as); and b_image (N,), the least distance of ``image_xy`` from
+    each node's axis on the side of its normal (FFBP needs it positive: a side-looking pass), computed in
+    the extremes' pass (as numpy, nodes x outline temporaries were ~700 fresh pages a plan).
     """
     n_nodes = len(starts)
     moments = np.empty((n_nodes, 6))
@@ -98,9 +104,10 @@ def node_frames(m: tuple, starts: np.ndarray, lengths: np.ndarray, overall: np.n
     u *= np.where(_dot2(u, overall) < 0, -1.0, 1.0)[:, None]
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     normal = np.stack([-u[:, 1], u[:, 0]], axis=1)
-    normal *= np.where(_dot2(normal, centre_xy - centre[:, :2]) < 0, -1.0, 1.0)[:, None]
-    picks = np.empty((n_nodes, 10), np.int64)
-    _extremes(*m, starts, lengths, u, normal, picks)
+    normal *= np.where(_dot2(normal, image_xy.mean(axis=0) - centre[:, :2]) < 0, -1.0, 1.0)[:, None]
+    picks, b_image = np.empty((n_nodes, 10), np.int64), np.empty(n_nodes)
+    _extremes(*m, starts, lengths, u, normal, np.ascontiguousarray(image_xy[:, 0]), np.ascontiguousarray(image_xy[:, 1]),
+              centre, picks, b_image)
     # Every step-th profile, np.arange(0, length, step) per node, padded with the first extreme.
     step = np.maximum(1, lengths // CENTRE_STRIDE_DIVISOR)
     count = -(-lengths // step)
@@ -110,7 +117,7 @@ def node_frames(m: tuple, starts: np.ndarray, lengths: np.ndarray, overall: np.n
     centres = np.empty((chosen.shape[0], 3, chosen.shape[1]))
     for axis_, v in enumerate(m):
         np.take(v, chosen, out=centres[:, axis_])
-    return centre, u, normal, centres
+    return centre, u, normal, centres, b_image
 
 
 @numba.njit(cache=True, nogil=True)
@@ -136,10 +143,15 @@ def _moments(x, y, z, starts, lengths, out):
 
 
 @numba.njit(cache=True, nogil=True)
-def _extremes(x, y, z, starts, lengths, u, n, out):
+def _extremes(x, y, z, starts, lengths, u, n, image_x, image_y, centre, out, b_image):
     """Per node, the offsets (from its first profile) of the least and the greatest s, p, s + p, s - p and z
-    (s along its axis u, p along its normal n), the first of equals as np.argmin / np.argmax, into out[i]."""
+    (s along its axis u, p along its normal n), the first of equals as np.argmin / np.argmax, into out[i];
+    and the least p of the image's outline (image_x, image_y) about its centre, into b_image[i]."""
     for i in range(starts.size):
+        least = np.inf
+        for q in range(image_x.size):
+            least = min(least, (image_x[q] - centre[i, 0]) * n[i, 0] + (image_y[q] - centre[i, 1]) * n[i, 1])
+        b_image[i] = least
         first, length = starts[i], lengths[i]
         u0, u1, n0, n1 = u[i, 0], u[i, 1], n[i, 0], n[i, 1]
         s = x[first] * u0 + y[first] * u1
@@ -324,13 +336,6 @@ def _served_extent(centre, axis, normal, centres, served_x, served_y, served, b_
         out[i, 0], out[i, 1], out[i, 2], out[i, 3], out[i, 4], out[i, 5] = r_min, r_max, a_min, a_max, f_r, f_a
 
 
-def image_distance(centre: np.ndarray, normal: np.ndarray, image_xy: np.ndarray) -> np.ndarray:
-    """The least distance of the image's outline ``image_xy`` [M, 2] from N nodes' axes, on the side of their
-    normals, [N]: FFBP needs it positive (a side-looking pass)."""
-    return ((image_xy[None, :, 0] - centre[:, None, 0]) * normal[:, None, 0]
-            + (image_xy[None, :, 1] - centre[:, None, 1]) * normal[:, None, 1]).min(axis=1)
-
-
 def place_grids(centre, axis, normal, centres, served_x, served_y, served, b_image, z_m: float, *, envelope: float,
                 two_over_lambda: float, oversample_range, oversample_angle, half_taps):
     """Size N nodes' polar grids to cover the plane points they serve, with the taps to interpolate inside.
@@ -342,7 +347,7 @@ def place_grids(centre, axis, normal, centres, served_x, served_y, served, b_ima
     served_x, served_y, served : ndarray, shape (N, K)
         The points each node serves (the image's outline, or its parent's grid edge) and which are there.
     b_image : ndarray, shape (N,)
-        The image's least distance from each node's axis (:func:`image_distance`, positive).
+        The image's least distance from each node's axis (:func:`node_frames`, positive).
     envelope, two_over_lambda : float
         The profiles' band (cycles per metre of range) and 2 / the shortest wavelength.
     oversample_range, oversample_angle, half_taps : ndarray, shape (N,)
