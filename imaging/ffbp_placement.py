@@ -369,3 +369,19 @@ def place_grids(centre, axis, normal, centres, served_x, served_y, served, b_ima
     a0 = np.maximum(a_min - half_taps * da, -1.0)
     na = np.floor((np.minimum(a_max, 1.0) - a0) / da).astype(int) + half_taps + 1
     return r0, dr, a0, da, nr, na
+
+
+def load_passes() -> None:
+    """Load this module's numba passes from numba's cache (or compile them) now, with the argument types a
+    plan gives them, by placing two nodes of four phase centres: a process's first plan otherwise pays their
+    cache loads (``imaging.kernel_import`` calls this on its background thread when ``sarbot image`` asks
+    for FFBP)."""
+    m = tuple(np.ascontiguousarray(v) for v in np.array([[0.0, 0.1, 0.2, 0.3], [0.0, 0.001, 0.0, 0.001], [0.3] * 4]))
+    image_xy = np.array([[-0.5, 2.0], [0.5, 2.0], [0.5, 2.5], [-0.5, 2.5]])
+    frames = node_frames(m, np.array([0, 2]), np.array([2, 2]), track_axis(m), image_xy)
+    frames = [f[np.arange(2)] for f in frames]  # as the plan passes them: the nodes picked, contiguous copies
+    tiled = (np.tile(image_xy[:, 0], (2, 1)), np.tile(image_xy[:, 1], (2, 1)), np.ones((2, 4), bool))
+    ones = np.ones(2)
+    grids = place_grids(*frames[:4], *tiled, frames[4], 0.0, envelope=1.0, two_over_lambda=500.0,
+                        oversample_range=ones, oversample_angle=ones, half_taps=np.full(2, 3))
+    grid_edges(*frames[:3], *grids, 0.0, copies=2)

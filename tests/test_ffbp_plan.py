@@ -270,3 +270,37 @@ def test_the_identity_check_can_fail():
     node.nr += 1
     with pytest.raises(AssertionError):
         assert_identical_plan(new, old)
+
+
+_PLAN_AFTER_PREPARATION = """
+import json, sys
+import numpy as np
+from imaging import kernel_import
+import imaging.ffbp_placement as placement
+kernel_import.prepare_kernels(ffbp=True)  # as sarbot image --algorithm ffbp does on its background thread
+passes = {name: getattr(placement, name) for name in ("_moments", "_extremes", "_served_extent", "_grid_edges")}
+before = {name: [str(s) for s in p.signatures] for name, p in passes.items()}
+from imaging.factorized_backprojection import plan_factorized
+with np.load(sys.argv[1]) as case:
+    plan_factorized(case["tx"], case["rx"], case["x"], case["y"], 0.3, float(case["carrier_hz"]), float(case["bandwidth_hz"]))
+print(json.dumps([before, {name: [str(s) for s in p.signatures] for name, p in passes.items()}]))
+"""
+
+
+def test_the_background_preparation_loads_every_pass_a_plan_calls(tmp_path):
+    """``imaging.kernel_import.prepare_kernels(ffbp=True)`` (sarbot image's start-up thread) loads the plan's
+    numba passes with the very argument types a plan gives them, so that a process's first plan loads and
+    compiles nothing (a pass given an axis as eigh returns it, not contiguous, would be another signature)."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    tx, rx = track(12)
+    np.savez(tmp_path / "case.npz", tx=tx, rx=rx, x=np.arange(-0.3, 0.3, 0.005), y=np.arange(1.8, 2.2, 0.005),
+             carrier_hz=CARRIER_HZ, bandwidth_hz=BANDWIDTH_HZ)
+    out = subprocess.run([sys.executable, "-c", _PLAN_AFTER_PREPARATION, str(tmp_path / "case.npz")],
+                         cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, check=True).stdout
+    before, after = json.loads(out)
+    assert all(len(signatures) == 1 for signatures in before.values()), before
+    assert after == before
