@@ -24,8 +24,9 @@ direction of its antennas' phase centres (so a curved drive is followed piecewis
 one side of every axis (a side-looking radar). A grid's range and alpha spacing come from the largest
 derivatives of |g - m| - |g - c| over its phase centres m and the region it covers, so range curvature,
 vibration or a bend widen the grid rather than alias it. The plan computes these for many nodes a pass
-(``imaging.ffbp_placement``: the nodes of one length, then of one step down the tree), a fraction of the
-run's time; it can still be reused for images of the same geometry (``plan_factorized`` / ``run_factorized``).
+(``imaging.ffbp_placement``: every node's frame in one, then the grids of one step down the tree; the tree
+itself as arrays, ``imaging.ffbp_tree``), a fraction of the run's time; it can still be reused for images of
+the same geometry (``plan_factorized`` / ``run_factorized``).
 
 Interpolation. Separable, ``taps`` x ``taps`` per sample, with coefficients that minimise the squared error
 over the band the grid is oversampled for (the optimum for band-limited signals, Knab's kind of
