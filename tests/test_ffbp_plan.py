@@ -304,3 +304,24 @@ def test_the_background_preparation_loads_every_pass_a_plan_calls(tmp_path):
     before, after = json.loads(out)
     assert all(len(signatures) == 1 for signatures in before.values()), before
     assert after == before
+
+
+def test_the_grid_edges_pass_is_the_numpy_edges_to_the_bit():
+    """imaging.ffbp_placement.grid_edges (a numba pass) against the numpy broadcasts it replaced
+    (tests/reference_ffbp_placement_batched.py), on random grids from 1 x 1 to 500 x 300 samples, some with
+    fewer rows or columns than edge points (repeats masked), each written for two children."""
+    import imaging.ffbp_placement as placement
+    import reference_ffbp_placement_batched as before
+
+    rng = np.random.default_rng(7)
+    n = 40
+    u = rng.normal(size=(n, 2))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    args = (rng.normal(size=(n, 3)), u, np.stack([-u[:, 1], u[:, 0]], axis=1), rng.uniform(1, 3, n), rng.uniform(1e-4, 1e-2, n),
+            rng.uniform(-0.5, 0.2, n), rng.uniform(1e-4, 1e-2, n), rng.integers(1, 500, n), rng.integers(1, 300, n), 0.3)
+    args[7][:4], args[8][4:8] = [1, 2, 63, 65], [1, 3, 64, 100]
+    x, y, valid = placement.grid_edges(*args, copies=2)
+    ex, ey, evalid = before.grid_edges(*args)
+    for new, old in ((x, ex), (y, ey), (valid, evalid)):
+        assert new[0::2].tobytes() == old.tobytes() and new[1::2].tobytes() == old.tobytes()
+    assert 0 < valid.sum() < valid.size  # some repeats masked
