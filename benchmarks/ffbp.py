@@ -278,7 +278,7 @@ def thread_usage() -> tuple:
 #: The plan's parts whose CPU time ``plan_study`` splits out (imaging.factorized_backprojection's names): the
 #: phase centres' frames (numba passes and a batched eigh), the grids' placement (a numba pass), their edges
 #: (numpy); the rest of a plan is its Python.
-PLAN_PARTS = ("node_frames", "place_grids", "grid_edges", "image_distance", "track_axis")
+PLAN_PARTS = ("node_frames", "place_grids", "grid_edges", "track_axis")
 
 
 def split_plan_parts() -> dict:

@@ -158,6 +158,14 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                   "processes (fresh_process: as sarbot image meets it); plan_conditions: a plan right after the direct "
                   "kernel, again, after a pause and on a new thread, each with its parts' CPU time and what ran beside it.",
                   ".venv/bin/python benchmarks/ffbp.py --plan"),
+    "ffbp_plan_versions": ("FFBP's plan against the batched planner before it",
+                           "The 2 m aperture's plan (plan_factorized: the tree in arrays, every node's frame in one pass, "
+                           "the grids' edges a numba pass) against the batched planner it replaced "
+                           "(tests/reference_ffbp_plan_batched.py), the plans equal to the bit: alternated in one process "
+                           "(wall and CPU time, the median of the rounds' ratios), and in fresh processes (the first plan "
+                           "and later ones; new_prepared: after sarbot image's start-up preparation), on whatever load "
+                           "the JSON records.",
+                           ".venv/bin/python benchmarks/ffbp_plan_versions.py"),
     "stripmap": ("Live strip map",
                  "The streaming strip map: frames per second against the sensor rate, and map error against an "
                  "offline full-resolution map, per setting.",

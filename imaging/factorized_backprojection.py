@@ -24,8 +24,9 @@ direction of its antennas' phase centres (so a curved drive is followed piecewis
 one side of every axis (a side-looking radar). A grid's range and alpha spacing come from the largest
 derivatives of |g - m| - |g - c| over its phase centres m and the region it covers, so range curvature,
 vibration or a bend widen the grid rather than alias it. The plan computes these for many nodes a pass
-(``imaging.ffbp_placement``: the nodes of one length, then of one step down the tree), a fraction of the
-run's time; it can still be reused for images of the same geometry (``plan_factorized`` / ``run_factorized``).
+(``imaging.ffbp_placement``: every node's frame in one, then the grids of one step down the tree; the tree
+itself as arrays, ``imaging.ffbp_tree``), a fraction of the run's time; it can still be reused for images of
+the same geometry (``plan_factorized`` / ``run_factorized``).
 
 Interpolation. Separable, ``taps`` x ``taps`` per sample, with coefficients that minimise the squared error
 over the band the grid is oversampled for (the optimum for band-limited signals, Knab's kind of
@@ -52,8 +53,9 @@ from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.core.grid import Grid
 from imaging.ffbp_leaves import image_leaves, load_kernel
 from imaging.ffbp_merge import _merge_rows, _to_plane, _to_plane_rows  # noqa: F401 - _to_plane: tests use it
-from imaging.ffbp_placement import grid_edges, image_distance, node_frames, place_grids, track_axis
+from imaging.ffbp_placement import grid_edges, node_frames, place_grids, track_axis
 from imaging.ffbp_tasks import Pool, leaf_runs, row_ranges
+from imaging.ffbp_tree import Tree, split_tree
 from imaging.ffbp_interpolation import (  # noqa: F401 - part of this module's interface
     BAND_MARGIN,
     TABLE_SHIFTS,
@@ -251,6 +253,19 @@ def _midpoints(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
+def _subapertures(tree: Tree, centre, axis, normal, grids: tuple, direct: np.ndarray) -> list:
+    """The tree's nodes as Subaperture objects (children made before their parents), in the tree's order."""
+    start, stop, left, right, level = (v.tolist() for v in (tree.start, tree.stop, tree.left, tree.right, tree.level))
+    r0, dr, a0, da, nr, na = (v.tolist() for v in grids)
+    direct = direct.tolist()
+    nodes: list = [None] * tree.size
+    for i in range(tree.size - 1, -1, -1):
+        children = () if left[i] < 0 else (nodes[left[i]], nodes[right[i]])
+        nodes[i] = Subaperture(start[i], stop[i], level[i], centre[i], axis[i], normal[i], children,
+                               r0[i], dr[i], a0[i], da[i], nr[i], na[i], direct[i])
+    return nodes
+
+
 def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, z_m: float,
                     carrier_hz: float, bandwidth_hz: float, options: FactorizedOptions = FactorizedOptions(),
                     outline_xy: np.ndarray | None = None) -> FactorizedPlan:
@@ -284,86 +299,68 @@ def plan_factorized(tx_m: np.ndarray, rx_m: np.ndarray, x_m: np.ndarray, y_m: np
     if not (bandwidth_hz > 0 and carrier_hz > bandwidth_hz / 2):
         raise ValueError(f"bandwidth {bandwidth_hz} Hz and carrier {carrier_hz} Hz do not describe a radar")
     image_xy = _outline(x_m, y_m) if outline_xy is None else np.asarray(outline_xy, np.float64).reshape(-1, 2)
-    centre_xy = image_xy.mean(axis=0)
     columns = tuple(_midpoints(tx[:, i], rx[:, i]) for i in range(3))  # the phase centres' x, y and z
     overall = track_axis(columns)
     two_over_lambda = 2 * (carrier_hz + bandwidth_hz / 2) / SPEED_OF_LIGHT_MPS
     envelope = bandwidth_hz / SPEED_OF_LIGHT_MPS  # the range profile's band, cycles per metre of range
     n_pix = x_m.size * y_m.size
 
-    def build(start: int, stop: int) -> Subaperture:
-        n_leaf = -(-(stop - start) // o.leaf_profiles)
-        children: tuple = ()
-        if n_leaf > 1:
-            mid = start + (n_leaf // 2) * o.leaf_profiles
-            children = (build(start, mid), build(mid, stop))
-        return Subaperture(start, stop, 1 + max(ch.level for ch in children) if children else 0, None, None, None, children)
+    # The tree as arrays (imaging.ffbp_tree), every node's frame in one pass (imaging.ffbp_placement), each
+    # step's grids placed in one pass into the arrays below; the Subaperture objects are made at the end.
+    tree = split_tree(tx.shape[0], o.leaf_profiles)
+    leaf = tree.left < 0
+    centre, axis, normal, centres, b_image = node_frames(columns, tree.start, tree.stop - tree.start, overall, image_xy)
+    sampling = np.array([o.sampling(leaf=False), o.sampling(leaf=True)])[leaf.astype(np.int64)]
+    half_taps = sampling[:, 2].astype(int) // 2
+    r0, dr, a0, da = (np.zeros(tree.size) for _ in range(4))
+    nr, na = np.zeros(tree.size, np.int64), np.zeros(tree.size, np.int64)
 
-    # Every node's frame, the nodes of one length in one pass (imaging.ffbp_placement).
-    whole = build(0, tx.shape[0])
-    by_length: dict = {}
-    stack = [whole]
-    while stack:
-        node = stack.pop()
-        by_length.setdefault(node.stop - node.start, []).append(node)
-        stack.extend(node.children)
-    extremes = {}  # id(node) -> the phase centres its grid's bandwidths are taken over
-    for length, group in by_length.items():
-        frames = node_frames(columns, np.array([nd.start for nd in group]), length, overall, centre_xy)
-        for i, node in enumerate(group):
-            node.centre_m, node.axis, node.normal = frames[0][i], frames[1][i], frames[2][i]
-            extremes[id(node)] = frames[3][i]
-
-    def place(batch: list, served_x: np.ndarray, served_y: np.ndarray, served: np.ndarray) -> None:
+    def place(batch: np.ndarray, served_x: np.ndarray, served_y: np.ndarray, served: np.ndarray) -> None:
         """Size the grids of the nodes ``batch`` to cover the plane points each serves ([N, K], where
         ``served``: the image's outline, or the edge of its parent's grid), in one pass."""
-        centre = np.stack([nd.centre_m for nd in batch])
-        normal = np.stack([nd.normal for nd in batch])
-        b_image = image_distance(centre, normal, image_xy)
-        if np.any(b_image <= 0):
-            i = int(np.flatnonzero(b_image <= 0)[0])
+        outside = b_image[batch] <= 0
+        if np.any(outside):
+            i = batch[int(np.flatnonzero(outside)[0])]
             raise ValueError("the image must lie to one side of the radar's track (FFBP images a side-looking pass); "
-                             f"the track of profiles {batch[i].start}-{batch[i].stop} passes {-b_image[i]:.3f} m inside it")
-        sampling = np.array([o.sampling(leaf=not nd.children) for nd in batch])
-        longest = max(extremes[id(nd)].shape[0] for nd in batch)
-        centres = np.stack([np.concatenate([e, np.repeat(e[:1], longest - e.shape[0], axis=0)])
-                            for e in (extremes[id(nd)] for nd in batch)])  # padded with a copy: same maxima
-        grids = place_grids(centre, np.stack([nd.axis for nd in batch]), normal, centres, served_x, served_y, served,
-                            b_image, z_m, envelope=envelope, two_over_lambda=two_over_lambda,
-                            oversample_range=sampling[:, 0], oversample_angle=sampling[:, 1],
-                            half_taps=sampling[:, 2].astype(int) // 2)
-        for i, node in enumerate(batch):
-            node.r0_m, node.dr_m, node.a0, node.da = (float(v[i]) for v in grids[:4])
-            node.nr, node.na = int(grids[4][i]), int(grids[5][i])
+                             f"the track of profiles {tree.start[i]}-{tree.stop[i]} passes {-b_image[i]:.3f} m inside it")
+        grids = place_grids(centre[batch], axis[batch], normal[batch], centres[batch], served_x, served_y, served,
+                            b_image[batch], z_m, envelope=envelope, two_over_lambda=two_over_lambda,
+                            oversample_range=sampling[batch, 0], oversample_angle=sampling[batch, 1],
+                            half_taps=half_taps[batch])
+        for field, values in zip((r0, dr, a0, da, nr, na), grids):
+            field[batch] = values
 
     # The roots: merge up to a node only while its grid costs less than interpolating its children at the
     # pixels; a step down the tree at a time, each step's nodes placed (on the image's outline) in one pass.
-    roots, candidates = [], [whole]
+    roots, candidates = [], np.zeros(1, np.int64)
     outline_x, outline_y = image_xy[:, 0], image_xy[:, 1]
-    while candidates:
-        shape = (len(candidates), image_xy.shape[0])
+    leaf_taps2 = o.sampling(True)[2] ** 2
+    direct = np.zeros(tree.size, bool)
+    while candidates.size:
+        shape = (candidates.size, image_xy.shape[0])
         # (tiled, not broadcast: the arrays of the steps below, so that the pass has one compiled signature)
         place(candidates, np.tile(outline_x, (shape[0], 1)), np.tile(outline_y, (shape[0], 1)), np.ones(shape, bool))
         deeper = []
-        for node in candidates:
-            if node.children and 2 * node.nr * node.na > n_pix:
-                deeper.extend(node.children)
+        for i in candidates.tolist():  # a few nodes a step (Python's integers: a grid gone astray is huge)
+            grid, length = int(nr[i]) * int(na[i]), int(tree.stop[i] - tree.start[i])
+            if not leaf[i] and 2 * grid > n_pix:
+                deeper += [tree.left[i], tree.right[i]]
                 continue
-            leaf_cost = (node.stop - node.start) * node.nr * node.na + n_pix * o.sampling(True)[2] ** 2
-            if not node.children and leaf_cost > (node.stop - node.start) * n_pix:
-                node.direct = True  # cheaper straight onto the pixels
-            roots.append(node)
-        candidates = deeper
-    roots.sort(key=lambda nd: nd.start)
+            if leaf[i] and length * grid + n_pix * leaf_taps2 > length * n_pix:
+                direct[i] = True  # cheaper straight onto the pixels
+            roots.append(i)
+        candidates = np.array(deeper, np.int64)
+    roots = np.array(sorted(roots, key=lambda i: tree.start[i]), np.int64)
     # Below the roots, each child's grid covers its parent's: a step down the trees at a time.
-    parents = [r for r in roots if r.children]
-    while parents:
-        edge = grid_edges(*(np.stack([getattr(p, f) for p in parents]) for f in ("centre_m", "axis", "normal")),
-                          *(np.array([getattr(p, f) for p in parents]) for f in ("r0_m", "dr_m", "a0", "da", "nr", "na")), z_m)
-        of_parent = np.repeat(np.arange(len(parents)), [len(p.children) for p in parents])
-        children = [c for p in parents for c in p.children]
-        place(children, *(e[of_parent] for e in edge))
-        parents = [c for c in children if c.children]
+    parents = roots[~leaf[roots]]
+    while parents.size:
+        edge = grid_edges(centre[parents], axis[parents], normal[parents], r0[parents], dr[parents], a0[parents],
+                          da[parents], nr[parents], na[parents], z_m, copies=2)
+        children = np.stack([tree.left[parents], tree.right[parents]], axis=1).ravel()
+        place(children, *edge)
+        parents = children[~leaf[children]]
+    nodes = _subapertures(tree, centre, axis, normal, (r0, dr, a0, da, nr, na), direct)
+    whole, roots = nodes[0], [nodes[i] for i in roots.tolist()]
     k = 2 * math.pi * carrier_hz / SPEED_OF_LIGHT_MPS
     plan = FactorizedPlan(roots, x_m, y_m, float(z_m), o, k)
     # Phase centres all but on the image's edge, or a track bent towards it, can ask a subtree for polar grids

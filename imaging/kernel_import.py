@@ -17,14 +17,14 @@ import numpy as np
 _ready: threading.Event | None = None  # set once the background preparation has ended; None: none started
 
 
-def start_in_background() -> threading.Thread:
+def start_in_background(ffbp: bool = False) -> threading.Thread:
     """Start :func:`prepare_kernels` on a thread of its own (name "import-kernels") and return it."""
     global _ready
     ready = _ready = threading.Event()
 
     def run() -> None:
         try:
-            prepare_kernels()
+            prepare_kernels(ffbp)
         finally:
             ready.set()
 
@@ -38,14 +38,16 @@ def in_progress() -> bool:
     return _ready is not None and not _ready.is_set()
 
 
-def prepare_kernels() -> None:
+def prepare_kernels(ffbp: bool = False) -> None:
     """Import the backprojection kernels' module (numba), its cached kernels set to load without numba's
     compiler registries first (imaging.numba_target.load_cached_kernels_lightly); what a first kernel
     call imports and starts besides: numpy.ma (numba's typeof asks of every array argument whether it is
     masked), numba.np.arrayobj (where the cached kernels' environments are rebuilt;
     numba.core.environment) and numba's runtime (NRT); then one backprojection of one profile onto one
     point, with the argument types of an image's, which loads the direct kernel's machine code from
-    numba's cache (or compiles it), so that the first block's backprojection finds it loaded."""
+    numba's cache (or compiles it), so that the first block's backprojection finds it loaded. With ``ffbp``
+    also FFBP's plan passes and leaf kernel (imaging.ffbp_placement.load_passes, imaging.ffbp_leaves.load_kernel):
+    their cache loads were most of what a process's first plan cost beyond a later one."""
     from imaging.numba_target import load_cached_kernels_lightly
 
     load_cached_kernels_lightly()
@@ -59,6 +61,12 @@ def prepare_kernels() -> None:
     with global_compiler_lock:  # numba's runtime, which every cache load starts (idempotent), started now
         rtsys.initialize(cpu_target.target_context)
     bp.backproject(_one_profile(), np.zeros((1, 3)), np.zeros((1, 3)), np.array([[0.0, 1.0, 0.0]]))
+    if ffbp:
+        from imaging.ffbp_leaves import load_kernel
+        from imaging.ffbp_placement import load_passes
+
+        load_passes()
+        load_kernel()
 
 
 def _one_profile():

@@ -8,12 +8,14 @@ import pytest
 
 import imaging.factorized_backprojection as ffbp
 import reference_ffbp_plan
+import reference_ffbp_plan_batched
 from imaging.core.geometry import Vibration, antenna_track, chirp_times_ns
 from imaging.core.rig import default_rig
 from imaging.core.trajectory import PathWithTurns, StraightLine
 from imaging.factorized_backprojection import FactorizedOptions, plan_factorized, run_factorized
 from imaging.range_compression import range_compress
 from reference_ffbp_plan import plan_factorized_reference
+from reference_ffbp_plan_batched import plan_factorized_batched
 from test_factorized_backprojection import direct, error_db, pass_case
 
 RADAR = default_rig().radar("left_front")
@@ -176,3 +178,150 @@ def test_a_plan_takes_few_new_pages_where_the_allocator_maps_every_large_block_a
                          capture_output=True, text=True, check=True).stdout
     repeats = json.loads(out)[1:]  # the first also loads the kernels
     assert max(repeats) < 3000, repeats
+
+
+# -- the planner against the one before it (tests/reference_ffbp_plan_batched.py), to the bit -----------------
+def assert_identical_plan(new, old):
+    """Every node's profiles, level, children, direct flag, grid sizes and geometry (centre, axis, normal, r0,
+    dr, a0, da) equal to the bit, the roots in the same order."""
+    def walk(plan):
+        return [(n.start, n.stop, n.level, n.nr, n.na, n.direct, len(n.children)) for n in plan.nodes()]
+
+    assert [(r.start, r.stop, r.direct) for r in new.roots] == [(r.start, r.stop, r.direct) for r in old.roots]
+    assert walk(new) == walk(old)  # the same traversal: the same trees, children in the same order
+    for a, b in zip(new.nodes(), old.nodes()):
+        assert a.geometry.tobytes() == b.geometry.tobytes(), (a.start, a.stop, a.geometry - b.geometry)
+        assert type(a.nr) is int and type(a.r0_m) is float  # as before: Python numbers, not numpy scalars
+    assert new.cost() == old.cost() and new.levels == old.levels
+
+
+def _identical_case(case: str):
+    """(args, kwargs) of plan_factorized for the cases the planner is held to the one before on."""
+    x, y = np.arange(-0.4, 0.4, 0.005), np.arange(1.6, 2.4, 0.005)
+    if case == "2 m aperture":
+        tx, rx = track(96)
+        return (tx, rx, np.arange(-0.5, 0.5, 0.002), np.arange(1.7, 2.3, 0.002), 0.3, CARRIER_HZ, BANDWIDTH_HZ), {}
+    if case == "curved track":
+        tx, rx = track(24, PathWithTurns(segments=(("arc", 4.0, 7.0),), start_m=(-0.4, -0.25, 0.0), heading_deg=-3.5, speed_mps=0.4))
+    elif case == "vibration":
+        tx, rx = track(24, vibration=Vibration(3.83, 0.319e-3, 0.7))
+    elif case == "stop":
+        tx, rx = _stop_track()
+    elif case == "ragged":
+        tx, rx = (v[:10000] for v in track(24))
+        return (tx, rx, x, y, 0.3, CARRIER_HZ, BANDWIDTH_HZ), {"options": FactorizedOptions(leaf_profiles=384)}
+    elif case == "plane below the track":
+        n_p = 2048
+        centres = np.stack([np.linspace(-0.3, 0.3, n_p), np.zeros(n_p), np.full(n_p, 0.45)], 1)
+        return ((centres, centres, np.arange(-1.5, 1.5, 0.01), np.arange(0.5, 1.3, 0.01), 0.0, CARRIER_HZ, BANDWIDTH_HZ),
+                {"options": FactorizedOptions(leaf_profiles=128)})
+    elif case == "rotated footprint":
+        tx, rx = track(24)
+        turn = np.radians(12)
+        corners = np.array([[-0.3, -0.2], [0.3, -0.2], [0.3, 0.2], [-0.3, 0.2], [-0.3, -0.2]])
+        corners = corners @ np.array([[np.cos(turn), np.sin(turn)], [-np.sin(turn), np.cos(turn)]]) + [0.0, 2.0]
+        outline = np.concatenate([a + (b - a) * np.linspace(0, 1, 32, endpoint=False)[:, None] for a, b in zip(corners[:-1], corners[1:])])
+        return ((tx, rx, np.arange(-0.5, 0.5, 0.005), np.arange(1.5, 2.5, 0.005), 0.3, CARRIER_HZ, BANDWIDTH_HZ),
+                {"options": FactorizedOptions(leaf_profiles=256), "outline_xy": outline})
+    else:
+        raise AssertionError(case)
+    return (tx, rx, x, y, 0.3, CARRIER_HZ, BANDWIDTH_HZ), {"options": FactorizedOptions(leaf_profiles=256)}
+
+
+@pytest.mark.parametrize("case", ["2 m aperture", "curved track", "vibration", "stop", "ragged", "plane below the track",
+                                  "rotated footprint"])
+def test_the_plan_is_the_batched_planners_to_the_bit(case):
+    """The planner that keeps the tree in arrays and frames every node in one pass makes the plan the batched
+    planner made (a step of the tree a pass, Python objects throughout), bit for bit, so the same image."""
+    args, kwargs = _identical_case(case)
+    new, old = plan_factorized(*args, **kwargs), plan_factorized_batched(*args, **kwargs)
+    assert sum(1 for _ in new.nodes()) >= 7 and not new.direct_only  # (below the track: many roots of one leaf)
+    assert_identical_plan(new, old)
+
+
+def test_a_plan_that_goes_direct_and_a_refused_image_are_the_batched_planners(monkeypatch):
+    tx, rx = track(2)
+    x, y = np.arange(-0.3, 0.3, 0.01), np.arange(1.7, 2.1, 0.01)
+    options = FactorizedOptions(leaf_profiles=256)
+    largest = max(n.nr * n.na for n in plan_factorized(tx, rx, x, y, 0.3, CARRIER_HZ, BANDWIDTH_HZ, options).nodes())
+    for module in (ffbp, reference_ffbp_plan_batched):
+        monkeypatch.setattr(module, "MAX_GRID_PER_PIXEL", 0.9 * largest / max(x.size * y.size, 4096))
+    new = plan_factorized(tx, rx, x, y, 0.3, CARRIER_HZ, BANDWIDTH_HZ, options)
+    assert new.direct_only
+    assert_identical_plan(new, plan_factorized_batched(tx, rx, x, y, 0.3, CARRIER_HZ, BANDWIDTH_HZ, options))
+    messages = []
+    for build in (plan_factorized, plan_factorized_batched):
+        with pytest.raises(ValueError, match="one side of the radar's track") as refused:
+            build(tx, rx, x, np.linspace(-1.0, 1.0, 20), 0.3, CARRIER_HZ, BANDWIDTH_HZ)
+        messages.append(str(refused.value))
+    assert messages[0] == messages[1]
+
+
+def test_the_identity_check_can_fail():
+    """A plan one node of which is off by one ulp in r0 (or one sample in nr) is told apart."""
+    args, kwargs = _identical_case("ragged")
+    new, old = plan_factorized(*args, **kwargs), plan_factorized_batched(*args, **kwargs)
+    node = next(n for n in new.nodes() if not n.children)
+    node.r0_m = float(np.nextafter(node.r0_m, np.inf))
+    with pytest.raises(AssertionError):
+        assert_identical_plan(new, old)
+    node.r0_m = float(np.nextafter(node.r0_m, -np.inf))
+    assert_identical_plan(new, old)
+    node.nr += 1
+    with pytest.raises(AssertionError):
+        assert_identical_plan(new, old)
+
+
+_PLAN_AFTER_PREPARATION = """
+import json, sys
+import numpy as np
+from imaging import kernel_import
+import imaging.ffbp_placement as placement
+kernel_import.prepare_kernels(ffbp=True)  # as sarbot image --algorithm ffbp does on its background thread
+passes = {name: getattr(placement, name) for name in ("_moments", "_extremes", "_served_extent", "_grid_edges")}
+before = {name: [str(s) for s in p.signatures] for name, p in passes.items()}
+from imaging.factorized_backprojection import plan_factorized
+with np.load(sys.argv[1]) as case:
+    plan_factorized(case["tx"], case["rx"], case["x"], case["y"], 0.3, float(case["carrier_hz"]), float(case["bandwidth_hz"]))
+print(json.dumps([before, {name: [str(s) for s in p.signatures] for name, p in passes.items()}]))
+"""
+
+
+def test_the_background_preparation_loads_every_pass_a_plan_calls(tmp_path):
+    """``imaging.kernel_import.prepare_kernels(ffbp=True)`` (sarbot image's start-up thread) loads the plan's
+    numba passes with the very argument types a plan gives them, so that a process's first plan loads and
+    compiles nothing (a pass given an axis as eigh returns it, not contiguous, would be another signature)."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    tx, rx = track(12)
+    np.savez(tmp_path / "case.npz", tx=tx, rx=rx, x=np.arange(-0.3, 0.3, 0.005), y=np.arange(1.8, 2.2, 0.005),
+             carrier_hz=CARRIER_HZ, bandwidth_hz=BANDWIDTH_HZ)
+    out = subprocess.run([sys.executable, "-c", _PLAN_AFTER_PREPARATION, str(tmp_path / "case.npz")],
+                         cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, check=True).stdout
+    before, after = json.loads(out)
+    assert all(len(signatures) == 1 for signatures in before.values()), before
+    assert after == before
+
+
+def test_the_grid_edges_pass_is_the_numpy_edges_to_the_bit():
+    """imaging.ffbp_placement.grid_edges (a numba pass) against the numpy broadcasts it replaced
+    (tests/reference_ffbp_placement_batched.py), on random grids from 1 x 1 to 500 x 300 samples, some with
+    fewer rows or columns than edge points (repeats masked), each written for two children."""
+    import imaging.ffbp_placement as placement
+    import reference_ffbp_placement_batched as before
+
+    rng = np.random.default_rng(7)
+    n = 40
+    u = rng.normal(size=(n, 2))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    args = (rng.normal(size=(n, 3)), u, np.stack([-u[:, 1], u[:, 0]], axis=1), rng.uniform(1, 3, n), rng.uniform(1e-4, 1e-2, n),
+            rng.uniform(-0.5, 0.2, n), rng.uniform(1e-4, 1e-2, n), rng.integers(1, 500, n), rng.integers(1, 300, n), 0.3)
+    args[7][:4], args[8][4:8] = [1, 2, 63, 65], [1, 3, 64, 100]
+    x, y, valid = placement.grid_edges(*args, copies=2)
+    ex, ey, evalid = before.grid_edges(*args)
+    for new, old in ((x, ex), (y, ey), (valid, evalid)):
+        assert new[0::2].tobytes() == old.tobytes() and new[1::2].tobytes() == old.tobytes()
+    assert 0 < valid.sum() < valid.size  # some repeats masked

@@ -140,7 +140,7 @@ def cmd_image(args) -> int:
     plain = args.autofocus == "none" and not args.imu_aided
     with contextlib.ExitStack() as start_up:
         start_up.enter_context(collector_paused())  # the modules live as long as the process
-        kernels = kernel_import.start_in_background()
+        kernels = kernel_import.start_in_background(ffbp=args.algorithm == "ffbp")
         start_up.callback(kernels.join)  # a user's mistake found meanwhile ends the command after it
         from imaging.image_formation import ImagingOptions, image_recording
         from imaging.io.image_file import write_image
