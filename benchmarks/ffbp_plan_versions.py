@@ -36,7 +36,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks"), str(ROOT / "tests")]
 
-from results_file import load_average, write_results  # noqa: E402
+from results_file import load_average, probe_machine, write_results  # noqa: E402
 from test_ffbp_plan import BANDWIDTH_HZ, CARRIER_HZ, assert_identical_plan, track  # noqa: E402
 
 from imaging.factorized_backprojection import plan_factorized  # noqa: E402
@@ -80,6 +80,7 @@ def main() -> int:
     ap.add_argument("--name", default="ffbp_plan_versions", help="the JSON's name under docs/results/")
     args = ap.parse_args()
     started_load = load_average()
+    probe_machine()  # the VM's speed before; write_results probes after
     tx, rx = track(96)
     x, y = np.arange(-0.5, 0.5, 0.002), np.arange(1.7, 2.3, 0.002)
     case = (tx, rx, x, y, 0.3, CARRIER_HZ, BANDWIDTH_HZ)
