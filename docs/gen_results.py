@@ -89,6 +89,15 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                      "git checkout 7b03966 -- imaging/backprojection.py && .venv/bin/python "
                      "benchmarks/kernel_versions.py --baseline be1579c --rounds 3 --name kernel_fused; "
                      "git checkout HEAD -- imaging/backprojection.py"),
+    "kernel_avx2_gather": ("Backprojection kernel: the permute gather on AVX2 (AMD Zen 3)",
+                           "The kernel with the AVX2 permute gather (8 pixels' bins out of an 8-bin window of two "
+                           "256-bit registers: vpermps and a blend, imaging/bin_gather.py) against main's (dc9bbff: the "
+                           "scalar pair gather on a CPU without AVX-512), each with its commit's whole imaging package in "
+                           "a worker process of its own, alternating in one run: speed-up on 1 and 2 threads, cycles per "
+                           "backprojection, SER of both. Measured on an AMD EPYC (Zen 3, AVX2, no AVX-512), loaded (the "
+                           "load is in the JSON).",
+                           ".venv/bin/python benchmarks/kernel_versions.py --baseline dc9bbff --whole-package --rounds 3 "
+                           "--name kernel_avx2_gather"),
     "kernel_parts": ("Backprojection kernel: cycles per part",
                      "The kernel beside copies of itself that each leave one part out (the per-(block, profile) "
                      "table, each pixel's offset, bin and phase, the gather, the sine and cosine, the whole "

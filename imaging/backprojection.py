@@ -143,8 +143,8 @@ def _place(i, ddr, place, idx, frac, pixel_turns):
 
 @numba.njit(inline="always", fastmath=True)
 def _gather_planar_accumulate(row, idx, frac, turns, planar, acc_re, acc_im):
-    """``_gather_pairs_accumulate``, linear, where the CPU has AVX-512: each pixel's two neighbouring bins
-    into planar [4, nb] float32 (a.re, a.im, b.re, b.im), by vector permutes where 16 pixels' bins lie close
+    """``_gather_pairs_accumulate``, linear, where the CPU has AVX2 or AVX-512: each pixel's two neighbouring bins
+    into planar [4, nb] float32 (a.re, a.im, b.re, b.im), by vector permutes where 8 or 16 pixels' bins lie close
     together (imaging/bin_gather.py), then the same interpolation and accumulation of the same values."""
     gather_planar(row, idx, planar)
     for i in range(idx.size):

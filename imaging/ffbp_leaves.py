@@ -27,9 +27,9 @@ of its row, lines no earlier block read (the next block lies at other ranges): e
 the rows of a leaf's 512 profiles do not stay in cache. The kernel prefetches them PREFETCH_AHEAD profiles
 ahead (``imaging.core.prefetch``); benchmarks/ffbp_leaves.py times the kernel's parts.
 
-The gather: where numba's target has AVX-512 and the mode is linear, each profile's bins are gathered as
-the direct kernel gathers them (``imaging.bin_gather``: 16 consecutive grid points' bin pairs taken by vector
-permutes from a window of 16 bins, where their bins lie within it; else the scalar gather), the same values
+The gather: where numba's target has AVX-512 (or AVX2) and the mode is linear, each profile's bins are gathered
+as the direct kernel gathers them (``imaging.bin_gather``: 16 (8) consecutive grid points' bin pairs taken by vector
+permutes from a window of 16 (8) bins, where their bins lie within it; else the scalar gather), the same values
 bit for bit (tests/test_ffbp_leaves_gather.py). On the 2 m aperture every group of 16 fits (a block's points
 run along a polar row, at most one row boundary a group): the leaves 1.07x on one thread, FFBP's run 1.07x on
 2, on the quiet machine (benchmarks/ffbp_leaves_permute.py, docs/results/ffbp_leaves_permute.json).

@@ -114,15 +114,26 @@ def compiles_for_avx512() -> bool:
     """Whether numba compiles this process's kernels for a CPU with AVX-512 (F): the features it is told
     (``NUMBA_CPU_FEATURES``, as :func:`prefer_full_width_vectors` sets them), else, unless told a CPU by
     name (``NUMBA_CPU_NAME``: a portable target, whose features are not the host's), the host's."""
+    return _compiles_for("avx512f")
+
+
+def compiles_for_avx2() -> bool:
+    """Whether numba compiles this process's kernels for a CPU with AVX2 (every CPU with AVX-512 has it):
+    decided as :func:`compiles_for_avx512` is."""
+    return _compiles_for("avx2")
+
+
+def _compiles_for(feature: str) -> bool:
+    """Whether numba's target for this process has the LLVM CPU feature ``feature`` (``"avx2"``)."""
     from numba.core import config
 
     if config.CPU_FEATURES:
-        return "+avx512f" in config.CPU_FEATURES.split(",")
+        return "+" + feature in config.CPU_FEATURES.split(",")
     if config.CPU_NAME:
         return False
     import llvmlite.binding as llvm
 
     try:
-        return bool(llvm.get_host_cpu_features().get("avx512f"))
+        return bool(llvm.get_host_cpu_features().get(feature))
     except RuntimeError:
         return False

@@ -8,10 +8,13 @@ import pytest
 from test_backprojection import grid_case, synthetic_case
 
 import imaging.backprojection as bp
-from imaging.bin_gather import LANES, PERMUTE_GATHER, WINDOW_SPAN, gather_planar, scalar_gather
+from imaging.bin_gather import (LANES, PERMUTE_GATHER, WINDOW_SPAN, _AVX2, _AVX512, gather_planar, scalar_gather,
+                                window_gather8, window_gather16)
 
-needs_avx512 = pytest.mark.skipif(not PERMUTE_GATHER, reason="numba's target has no AVX-512: the kernel keeps the "
-                                  "scalar gather, which the other tests cover")
+needs_permute = pytest.mark.skipif(not PERMUTE_GATHER, reason="numba's target has neither AVX2 nor AVX-512: the "
+                                   "kernel keeps the scalar gather, which the other tests cover")
+#: Every permute gather this CPU runs (its own and, on a CPU with AVX-512, the AVX2 one too), by lanes.
+WIDTHS = [w for w, ok in ((8, _AVX2), (16, _AVX512)) if ok]
 
 
 @numba.njit
@@ -23,18 +26,18 @@ def both_gathers(row, idx):
     return taken, planar, scalar
 
 
-def groups(rng, n_row, spans, low=None):
-    """One group of 16 indices per span, each spanning exactly that many bins (idx + 1 inside the row)."""
+def groups(rng, n_row, spans, low=None, lanes=LANES):
+    """One group of ``lanes`` indices per span, each spanning exactly that many bins (idx + 1 inside the row)."""
     out = []
     for span in spans:
         lo = rng.integers(0, n_row - 1 - span) if low is None else low(span)
-        g = lo + rng.integers(0, span + 1, LANES)
-        g[rng.permutation(LANES)[:2]] = (lo, lo + span)
+        g = lo + rng.integers(0, span + 1, lanes)
+        g[rng.permutation(lanes)[:2]] = (lo, lo + span)
         out.append(g)
     return np.concatenate(out).astype(np.uint32)
 
 
-@needs_avx512
+@needs_permute
 def test_permute_gather_equals_the_scalar_gather_bit_for_bit():
     rng = np.random.default_rng(3)
     for n_row in (16, 17, 40, 2803):
@@ -57,13 +60,64 @@ def test_permute_gather_equals_the_scalar_gather_bit_for_bit():
                 assert taken == want, (n_row, name, taken, want)  # groups spanning more went the scalar way
 
 
-@needs_avx512
+@needs_permute
 def test_a_row_shorter_than_the_window_takes_the_scalar_gather():
-    row = np.arange(12, dtype=np.float32).astype(np.complex64) * (1 + 2j)
-    idx = np.arange(16, dtype=np.uint32) % 10
+    row = np.arange(LANES - 4, dtype=np.float32).astype(np.complex64) * (1 + 2j)
+    idx = np.arange(LANES, dtype=np.uint32) % (LANES - 6)
     taken, planar, scalar = both_gathers(row, idx)
     assert taken == 0 and np.array_equal(planar, scalar)
     assert np.array_equal(planar[2], row[idx + 1].real)
+
+
+def group_by_group(gather):
+    """``gather`` (a permute gather of ``lanes`` pixels) on each whole group of idx; which groups it took."""
+
+    @numba.njit
+    def run(row, idx, lanes):
+        planar = np.full((4, idx.size), np.nan, np.float32)
+        took = np.zeros(idx.size // lanes, np.bool_)
+        for g in range(idx.size // lanes):
+            took[g] = gather(row, idx, g * lanes, planar)
+        return took, planar
+
+    return run
+
+
+@pytest.mark.parametrize("lanes", WIDTHS)
+def test_each_permute_gather_this_cpu_runs_takes_the_bins_numpy_takes(lanes):
+    """The AVX2 gather (8 lanes) and, on a CPU with AVX-512, the 16-lane one, group by group against numpy's
+    fancy indexing, bit for bit; a group spanning more than the window writes nothing."""
+    run = group_by_group({8: window_gather8, 16: window_gather16}[lanes])
+    rng = np.random.default_rng(11)
+    for n_row in (lanes, lanes + 3, 2803):
+        row = (rng.standard_normal(n_row) + 1j * rng.standard_normal(n_row)).astype(np.complex64)
+        row[1] = np.complex64(complex(np.nan, -0.0))  # bits a float round trip could change
+        spans = [s for s in (0, 1, lanes // 2, lanes - 2, lanes - 1, 2 * lanes) if s <= n_row - 2] * 4
+        idx = np.concatenate([groups(rng, n_row, spans, lanes=lanes),
+                              groups(rng, n_row, spans, low=lambda span: n_row - 2 - span, lanes=lanes)])
+        took, planar = run(row, idx, lanes)
+        want_taken = np.array(spans * 2) <= lanes - 2
+        assert np.array_equal(took, want_taken), n_row
+        assert want_taken.any() and (n_row == lanes or not want_taken.all())  # both kinds of group
+        a, b = row[idx].view(np.float32).reshape(-1, 2), row[idx + 1].view(np.float32).reshape(-1, 2)
+        want = np.stack([a[:, 0], a[:, 1], b[:, 0], b[:, 1]])
+        pixels = np.repeat(took, lanes)
+        assert np.array_equal(planar[:, pixels].view(np.uint32), want[:, pixels].view(np.uint32)), n_row
+        assert np.isnan(planar[:, ~pixels]).all()  # nothing written where the group did not fit
+
+
+def test_a_cpu_with_avx2_compiles_a_permute_gather():
+    """Where numba compiles for the host (no NUMBA_CPU_* told): AVX2 without AVX-512 (AMD's Zen 3) gives the
+    8-lane permute gather, AVX-512 the 16-lane one."""
+    import llvmlite.binding as llvm
+    from numba.core import config
+
+    if config.CPU_NAME or (config.CPU_FEATURES and "-prefer-256-bit" not in config.CPU_FEATURES):
+        pytest.skip("numba is told a target other than the host's")
+    host = llvm.get_host_cpu_features()
+    assert PERMUTE_GATHER == bool(host.get("avx2"))
+    if PERMUTE_GATHER:
+        assert LANES == (16 if host.get("avx512f") else 8) and WINDOW_SPAN == LANES - 2
 
 
 def kernel_compiled_here(permute: bool):
@@ -77,7 +131,7 @@ def kernel_compiled_here(permute: bool):
     return numba.njit(parallel=True, fastmath=True, nogil=True)(copy)
 
 
-@needs_avx512
+@needs_permute
 def test_the_kernel_gives_the_same_image_with_either_gather(monkeypatch):
     kernels = {permute: kernel_compiled_here(permute) for permute in (True, False)}
     cases = [(grid_case((40, 70)), None), (grid_case((40, 70), far=5000.0), None), (grid_case((3, 20, 32)), None),

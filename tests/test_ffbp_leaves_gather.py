@@ -12,7 +12,7 @@ from imaging.factorized_backprojection import FactorizedOptions, _slice, plan_fa
 
 from test_factorized_backprojection import pass_case
 
-needs_avx512 = pytest.mark.skipif(not PERMUTE_GATHER, reason="numba's target has no AVX-512: the leaves keep the "
+needs_avx512 = pytest.mark.skipif(not PERMUTE_GATHER, reason="numba's target has no AVX2: the leaves keep the "
                                   "scalar gather, which test_factorized_backprojection covers")
 
 
