@@ -64,8 +64,12 @@ EDITS = (
     ("""            block_profile_table(cx, cy, cz, radius,""",
      """            if PART != "table" or blk == 0 and g == 0:
                 block_profile_table(cx, cy, cz, radius,"""),
-    ("""                _place_block_profile(table, j,""",
-     """                if PART != "place" or j == 0:
+    # (the placement is called once per mode, ``linear`` a constant in each: the benchmark's mode is linear)
+    ("""                if linear:
+                    _place_block_profile(table, j,""",
+     """                if PART == "place" and j > 0:
+                    pass
+                elif linear:
                     _place_block_profile(table, j,"""),
     # Defined contents where a part that fills them is left out (no stray bins or NaNs).
     ("""        table = np.empty(TABLE_SIZE, np.float32)""",

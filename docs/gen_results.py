@@ -79,6 +79,12 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                                    "git checkout b91f47f -- imaging/backprojection.py && .venv/bin/python "
                                    "benchmarks/kernel_versions.py --baseline ac0c048 --rounds 4 --name kernel_placement_fast_hour; "
                                    "git checkout HEAD -- imaging/backprojection.py"),
+    "kernel_placement_avx2": ("Backprojection kernel: each pixel's bin placed for one mode, on a CPU without AVX-512 (kept)",
+                              "b91f47f's per-mode placement loops re-applied on 6ecf8a6 (an AMD EPYC with AVX2: LLVM's masked "
+                              "stores there are vmaskmovps, slow on AMD's cores), against 6ecf8a6, each in a worker process of "
+                              "its own, alternating in one run: speed-up on 1 and 2 threads, cycles per backprojection, SER of both.",
+                              ".venv/bin/python benchmarks/kernel_versions.py --baseline 6ecf8a6 --rounds 3 --name "
+                              "kernel_placement_avx2"),
     "kernel_fused": ("Backprojection kernel: placement, gather and accumulation fused per 16-pixel group (tried, reverted)",
                      "The kernel that placed, gathered and accumulated each group of 16 pixels in one pass (7b03966) "
                      "against main's three passes over a block per profile (be1579c), each in a worker process of its "
