@@ -391,6 +391,14 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                                  "process's CPU per frame received and what the map got against what it needs.",
                                  ".venv/bin/python benchmarks/soak.py --minutes 1 --radars left_front,left_rear,"
                                  "right_front,right_rear --emulator-nice 19 --name 4radars_1min_loaded"),
+    "soak_4radars_5min_amd_avx2": ("Soak: four radars, 5 minutes, the emulator niced, on the AMD EPYC VM (issue 34 item 5)",
+                                   "The same run as the previous section (soak.py, four radars at 1x for 5 minutes, the "
+                                   "emulated hardware at nice 19, the machine otherwise quiet) on the VM as it was on "
+                                   "2026-11-26 from 20:45 UTC: an AMD EPYC with AVX2 and no AVX-512, where the drivers took "
+                                   "1.7x the CPU per frame they took on the AVX-512 VM and the machine was full. Written "
+                                   "under the name below (the JSON's provenance has the name it was run with).",
+                                   ".venv/bin/python benchmarks/soak.py --minutes 5 --radars left_front,left_rear,"
+                                   "right_front,right_rear --emulator-nice 19 --name 4radars_5min_amd_avx2"),
     "soak_4radars_5min_emulator_nice19": ("Soak: four radars, 5 minutes, the emulator niced (issue 34 item 5)",
                                           "The four radars at 1x for 5 minutes with the cheaper emulated hardware at "
                                           "nice 19, to be run on the otherwise quiet machine: frames pre-summed beyond "
