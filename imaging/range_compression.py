@@ -122,13 +122,8 @@ def range_compress(
     lead = 1 if guarded else 0
     shape = (*samples.shape[:-1], n_fft + (3 if guarded else 0))
     m = (n - 1) // 2 if centred else 0
-    if rows_out is None:
-        rows = np.zeros(shape, np.complex64)
-    else:
-        if not guarded or rows_out.shape != shape or rows_out.dtype != np.complex64 or not rows_out.flags.c_contiguous:
-            raise ValueError(f"rows_out must be C-contiguous complex64 {shape} for guarded profiles, got "
-                             f"{rows_out.dtype} {rows_out.shape}")
-        rows = rows_out
+    rows = _output_rows(shape, rows_out, guarded, np.zeros)
+    if rows_out is not None:
         # All but the samples' bins, written below: the guards, and the zero padding the last FFT filled.
         rows[:, :lead] = 0
         rows[:, lead + n - m:lead + n_fft - m] = 0
@@ -169,19 +164,25 @@ def range_compress(
     )
 
 
+def _output_rows(shape: tuple, rows_out: np.ndarray | None, guarded: bool, new) -> np.ndarray:
+    """The complex64 rows of ``shape`` to write profiles into: ``rows_out`` where given (checked: only guarded
+    profiles, as the kernel reads them, go into a caller's buffer), else a new array made by ``new``
+    (``np.zeros`` where the caller relies on the zero padding, ``np.empty`` where it writes every element)."""
+    if rows_out is None:
+        return new(shape, np.complex64)
+    if not guarded or rows_out.shape != shape or rows_out.dtype != np.complex64 or not rows_out.flags.c_contiguous:
+        raise ValueError(f"rows_out must be C-contiguous complex64 {shape} for guarded profiles, got "
+                         f"{rows_out.dtype} {rows_out.shape}")
+    return rows_out
+
+
 def _window_of_bins(samples, w, f0_hz, frequency_step_hz, n_fft, k0, k1, centred, keep_samples, guarded, workers,
                     rows_out) -> RangeProfiles:
     """``range_compress`` of bins k0 .. k1 - 1 only (its ``bins``), by ``imaging.range_window.zoom_spectrum``."""
     n_p, n = samples.shape
     n_bins = k1 - k0
     shape = (n_p, n_bins + (3 if guarded else 0))
-    if rows_out is None:
-        rows = np.empty(shape, np.complex64)
-    else:
-        if not guarded or rows_out.shape != shape or rows_out.dtype != np.complex64 or not rows_out.flags.c_contiguous:
-            raise ValueError(f"rows_out must be C-contiguous complex64 {shape} for guarded profiles, got "
-                             f"{rows_out.dtype} {rows_out.shape}")
-        rows = rows_out
+    rows = _output_rows(shape, rows_out, guarded, np.empty)
     lead = 1 if guarded else 0
     if guarded:  # the kernel's guard bins: one zero before each profile, two after
         rows[:, :1] = 0
