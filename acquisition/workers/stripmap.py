@@ -85,6 +85,8 @@ CATCH_UP_STEP_S = 0.15
 #: machine so short of CPU that the niced map gets a tenth of a core for tens of seconds (the four-radar soak,
 #: whose emulated hardware takes half a core of the same two), it otherwise fell 5-10 s behind.
 MAX_THINNING = 4
+#: The most steps the ladder counts (2^32 times the pre-summing is past any waveform's chirps).
+MAX_LADDER_STEPS = 32
 
 
 def is_thinning(n: int) -> bool:
@@ -198,18 +200,26 @@ class StripMapWorker(Worker):
         t0 = 1_000_000_000
         drive = StraightLine(speed_mps=0.4, t0_ns=t0)
         traj = SampledTrajectory.from_trajectory(drive, t0 + np.arange(0, 2_000_000_000, 10_000_000, dtype=np.int64))
-        scratch = StripMap(self.config.map)
+        presum = self.config.map.presum
         for name, radar in self.radars.items():
             wf = radar.waveform
             shape = (wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp, 2)  # I/Q pairs, as frames arrive
             noise = rng.integers(-512, 512, shape, dtype=np.int16)
             noise.flags.writeable = False  # as a frame off the bus is: numba compiles read-only arrays apart
-            scratch.add_frame(radar, self.orders[name], noise, t0 + 500_000_000, traj)
-            # A worker behind images queued frames together (add_frames), whose path compiles apart: warmed too,
-            # or a cold cache's first batch stalls the live map for seconds (fresh-clone CI's demo: 25 s behind).
-            later = [t0 + 600_000_000, t0 + 600_000_000 + int(wf.frame_interval_s * 1e9)]
-            scratch.add_frames(radar, self.orders[name], [noise, noise], later, traj)
-        scratch.flush()  # "ffbp": a one-frame block compiles the factorized kernels
+            # Every step of the catch-up ladder: past POLAR_MIN_PROFILES profiles a frame the map images by
+            # direct backprojection instead of by beams, a kernel of its own. Left to the first frames behind, a
+            # cold cache compiled it live (60 s of CPU on the AMD VM, 75 s at nice 10): the map fell 75 s behind
+            # and was killed at the stop (the demo in the official CI, stop 41).
+            for factor, sum_rx in self.catch_up_paths(name):
+                scratch = StripMap(self.config.map)
+                scratch.add_frames(radar, self.orders[name], [noise], [t0 + 500_000_000], traj,
+                                   presum=presum * factor, sum_rx=sum_rx)
+                # A worker behind images queued frames together (add_frames), whose path compiles apart: warmed
+                # too, or a cold cache's first batch stalls the live map for seconds.
+                later = [t0 + 600_000_000, t0 + 600_000_000 + int(wf.frame_interval_s * 1e9)]
+                scratch.add_frames(radar, self.orders[name], [noise, noise], later, traj, presum=presum * factor,
+                                   sum_rx=sum_rx)
+                scratch.flush()  # "ffbp": a one-frame block compiles the factorized kernels
 
     def _add_poses(self, batch: PoseBatch) -> None:
         """Keep poses in time order; a batch that repeats times already held keeps only its newer ones."""
@@ -464,7 +474,23 @@ class StripMapWorker(Worker):
         if backlog_s < cfg.catch_up_start_s:
             return 1, False, 1
         steps = 1 + (int((backlog_s - cfg.catch_up_start_s) / cfg.catch_up_step_s) if cfg.catch_up_step_s > 0 else 0)
-        steps = min(steps, 32)
+        return self._ladder_step(radar, min(steps, MAX_LADDER_STEPS))
+
+    def catch_up_paths(self, radar: str) -> list[tuple[int, bool]]:
+        """Every (extra pre-summing, RX channels summed) the catch-up ladder reaches for radar ``radar``, from
+        (1, False): each may image through kernels of its own (``warm_up`` compiles them all)."""
+        paths = []
+        for steps in range(MAX_LADDER_STEPS + 1):
+            factor, sum_rx, _ = self._ladder_step(radar, steps)
+            if (factor, sum_rx) not in paths:
+                paths.append((factor, sum_rx))
+        return paths
+
+    def _ladder_step(self, radar: str, steps: int) -> tuple[int, bool, int]:
+        """(extra pre-summing, RX channels summed, thinning) ``steps`` steps up the ladder (0: none)."""
+        if steps == 0:
+            return 1, False, 1
+        cfg = self.config
         wf = self.radars[radar].waveform
         most = max(1, wf.chirps_per_frame // wf.n_tx // cfg.map.presum)
         factor = min(2 ** steps, most)
