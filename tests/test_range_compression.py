@@ -105,7 +105,8 @@ def test_a_window_into_a_reused_buffer_of_another_width():
     used = range_compress(x, F0, FSTEP, guarded=True, bins=(600, 1000), rows_out=rows)
     np.testing.assert_array_equal(used.rows, range_compress(x, F0, FSTEP, guarded=True, bins=(600, 1000)).rows)
     buffers.give(used.rows)
-    assert buffers.take((60, 521)) is None  # too large for it
+    wider = buffers.take((60, 521))  # too large for it: a new buffer
+    assert buffers.new_buffers == 1 and not np.shares_memory(wider, used.rows)
 
 
 def test_range_bounds_hold_every_point_of_the_box():
