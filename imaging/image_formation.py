@@ -19,6 +19,7 @@ from imaging.core.trajectory import Trajectory
 from imaging.io.image_file import SarImage
 from imaging.io.recording import Recording
 from imaging.profiles import chirp_profiles
+from imaging.row_buffers import RowBuffers
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
@@ -98,38 +99,6 @@ def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajector
                           oversample=options.oversample, keep_samples=options.mode == "exact", rx=rx_sel,
                           track_error=track_error, workers=-1, rows_out=None if row_buffers is None else row_buffers.take,
                           image_box_m=image_box_m)
-
-
-class RowBuffers:
-    """The profile rows of blocks already backprojected, handed on to the range compression of later blocks
-    (``range_compress``'s ``rows_out``): a block's profiles are hundreds of MB, and every new buffer's pages
-    cost the system time of their first touch (about 0.05-0.5 s of CPU a block, more on a loaded machine).
-    Safe between two threads (a deque's append and pop are atomic)."""
-
-    #: Buffers kept for reuse: a block backprojected while the next is compressed needs two.
-    KEPT = 2
-
-    def __init__(self) -> None:
-        self._free: collections.deque = collections.deque()
-
-    def take(self, shape: tuple[int, int]) -> np.ndarray | None:
-        """A C-contiguous [shape] view of the start of a free buffer where one is at least that large, else None
-        (blocks' range windows differ by a few bins: imaging.range_window)."""
-        try:
-            rows = self._free.pop()
-        except IndexError:
-            return None
-        size = shape[0] * shape[1]
-        return rows.reshape(-1)[:size].reshape(shape) if rows.size >= size else None
-
-    def give(self, rows: np.ndarray | None) -> None:
-        """Hand back a block's ``RangeProfiles.rows`` (the whole buffer it is a part of), once nothing reads them."""
-        if rows is None:
-            return
-        whole = rows if rows.base is None else rows.base
-        if isinstance(whole, np.ndarray) and whole.ndim == 2 and whole.dtype == np.complex64 and whole.flags.c_contiguous \
-                and len(self._free) < self.KEPT:
-            self._free.append(whole)
 
 
 def _selected_chirps(frame_time_ns, wf, tx_order, options: ImagingOptions, time_window_ns):

@@ -11,8 +11,7 @@ import numpy as np
 from imaging.core.geometry import AntennaTrack, antenna_track
 from imaging.core.rig import RadarConfig
 from imaging.core.trajectory import Trajectory
-from imaging.core.constants import SPEED_OF_LIGHT_MPS
-from imaging.range_compression import RangeProfiles, range_compress
+from imaging.range_compression import RangeProfiles, range_bin_spacing_m, range_compress
 from imaging.range_window import needed_bins, two_way_range_bounds_m, worth_it
 
 
@@ -72,12 +71,12 @@ def chirp_profiles(samples: np.ndarray, chirp_time_ns: np.ndarray, tx_index: np.
         rx_m = track.rx_m.mean(axis=1, keepdims=True)
     else:
         rx_m = track.rx_m if rx is None else track.rx_m[:, rx, :]
+    tx_m = np.repeat(track.tx_m, n_channels, axis=0)  # one per profile, as rx_m
     n_fft = oversample * wf.samples_per_chirp
     bins = None
     if image_box_m is not None and samples.shape[0] and samples.shape[1]:
-        step_m = SPEED_OF_LIGHT_MPS / (n_fft * wf.frequency_step_hz)
-        tx_pairs = np.repeat(track.tx_m, n_channels, axis=0)
-        near_m, far_m = two_way_range_bounds_m(tx_pairs, rx_m.reshape(-1, 3), *image_box_m)
+        step_m = range_bin_spacing_m(n_fft, wf.frequency_step_hz)
+        near_m, far_m = two_way_range_bounds_m(tx_m, rx_m.reshape(-1, 3), *image_box_m)
         bins = needed_bins(near_m, far_m, step_m, n_fft)
         if bins[1] <= bins[0] or not worth_it(wf.samples_per_chirp, n_fft, bins[1] - bins[0]):
             bins = None  # the box lies beyond the profiles' range, or the window is most of it: all bins
@@ -87,5 +86,5 @@ def chirp_profiles(samples: np.ndarray, chirp_time_ns: np.ndarray, tx_index: np.
     profiles = range_compress(samples.reshape(-1, wf.samples_per_chirp), wf.f0_hz, wf.frequency_step_hz,
                               window=window, oversample=oversample, keep_samples=keep_samples, guarded=True,
                               workers=workers, rows_out=rows_out, bins=bins)
-    return ChirpProfiles(profiles, np.repeat(track.tx_m, n_channels, axis=0), rx_m.reshape(-1, 3),
+    return ChirpProfiles(profiles, tx_m, rx_m.reshape(-1, 3),
                          np.repeat(chirp_time_ns, n_channels), track)

@@ -50,6 +50,24 @@ class RangeProfiles:
         return self.range_start_m + self.range_step_m * np.arange(self.n_bins)
 
 
+def range_bin_spacing_m(n_fft: int, frequency_step_hz: float) -> float:
+    """Two-way range between adjacent bins of an ``n_fft``-point profile.
+
+    Parameters
+    ----------
+    n_fft : int
+        Points of the (zero-padded) FFT along fast time.
+    frequency_step_hz : float
+        Frequency step between fast-time samples (Hz): slope x sample interval for an FMCW chirp.
+
+    Returns
+    -------
+    float
+        ``c / (n_fft * frequency_step_hz)`` (metres of two-way range).
+    """
+    return SPEED_OF_LIGHT_MPS / (n_fft * frequency_step_hz)
+
+
 def range_compress(
     samples: np.ndarray,
     f0_hz: float,
@@ -148,7 +166,7 @@ def range_compress(
         spectrum = np.fft.fftshift(spectrum, axes=-1)  # a roll, as scipy.fft.fftshift
     if not np.shares_memory(spectrum, rows):
         buf[...] = spectrum
-    step = SPEED_OF_LIGHT_MPS / (n_fft * frequency_step_hz)
+    step = range_bin_spacing_m(n_fft, frequency_step_hz)
     start = -(n_fft // 2) * step if signed else 0.0
     carrier = f0_hz + m * frequency_step_hz
     return RangeProfiles(
@@ -189,7 +207,7 @@ def _window_of_bins(samples, w, f0_hz, frequency_step_hz, n_fft, k0, k1, centred
         rows[:, -2:] = 0
     m = (n - 1) // 2 if centred else 0
     data = zoom_spectrum(samples, w, m, n_fft, k0, rows[:, lead:lead + n_bins], workers)
-    step = SPEED_OF_LIGHT_MPS / (n_fft * frequency_step_hz)
+    step = range_bin_spacing_m(n_fft, frequency_step_hz)
     return RangeProfiles(
         data=data,
         range_start_m=k0 * step,

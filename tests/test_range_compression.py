@@ -105,7 +105,8 @@ def test_a_window_into_a_reused_buffer_of_another_width():
     used = range_compress(x, F0, FSTEP, guarded=True, bins=(600, 1000), rows_out=rows)
     np.testing.assert_array_equal(used.rows, range_compress(x, F0, FSTEP, guarded=True, bins=(600, 1000)).rows)
     buffers.give(used.rows)
-    assert buffers.take((60, 521)) is None  # too large for it
+    wider = buffers.take((60, 521))  # too large for it: a new buffer
+    assert buffers.new_buffers == 1 and not np.shares_memory(wider, used.rows)
 
 
 def test_range_bounds_hold_every_point_of_the_box():
@@ -124,3 +125,14 @@ def test_range_bounds_hold_every_point_of_the_box():
     k0, k1 = needed_bins(near, far, 0.005, 4000)
     assert k0 * 0.005 <= near - 0.015 and (k1 - 1) * 0.005 >= far + 0.015
     assert needed_bins(-1.0, 50.0, 0.005, 4000) == (0, 4000)
+
+
+def test_one_range_bin_spacing_for_the_whole_profile_and_a_window_of_it():
+    from imaging.range_compression import range_bin_spacing_m
+
+    x = np.ones((3, 175), np.complex64)
+    step_m = range_bin_spacing_m(2800, FSTEP)
+    assert step_m == 299_792_458.0 / (2800 * FSTEP)  # c / (n_fft frequency step), to the bit
+    assert range_compress(x, F0, FSTEP).range_step_m == step_m
+    window = range_compress(x, F0, FSTEP, guarded=True, bins=(600, 1000))
+    assert window.range_step_m == step_m and window.range_start_m == 600 * step_m
