@@ -1,4 +1,4 @@
-"""A radar driver's CPU per frame: the driver code of a baseline commit against the checkout's, interleaved
+"""A radar driver's and the recorder's CPU per frame: the code of a baseline commit against the checkout's, interleaved
 in one process, fed the same datagrams.
 
     python benchmarks/driver_cpu_per_frame.py [--baseline COMMIT] [--rounds 6] [--frames 20] [--speed 1]
@@ -12,6 +12,10 @@ falls on both alike):
   compared byte for byte between the two.
 - ``receive_per_frame``: ``UdpReceiver.receive`` alone (``recvmsg`` and its kernel stamp) on 3 frames'
   datagrams waiting in the socket, CPU per datagram (``time.thread_time``) times the datagrams of a frame.
+- ``recorder``: ``Recorder`` storing ``--recorder-frames`` frames of one radar as they come off the bus
+  (decoded, checked, appended to the HDF5 file) with a flush every 10 frames (its 0.5 s), closing included;
+  CPU from ``time.process_time`` (its background fsync thread included). The two files are compared column
+  by column.
 - ``driver_loop``: ``radar_driver_loop`` as the driver process runs it (``UdpReceiver`` on loopback with its
   kernel stamps, the stream, ``BusPublisher`` sending each frame to a subscriber), in a thread of its own,
   fed by this process's main thread with the datagrams of ``--frames`` frames at ``--speed`` x the radar's
@@ -19,7 +23,8 @@ falls on both alike):
   sender's and the subscriber's are left out; ZeroMQ's own I/O thread is left out too (it moves the
   frame's bytes, the same in both). The subscriber checks every frame arrived, whole and valid.
 
-The baseline's ``drivers/radar/srf1.py``, ``drivers/radar/udp.py`` and ``acquisition/driver_loops.py`` are
+The baseline's ``drivers/radar/srf1.py``, ``drivers/radar/udp.py``, ``acquisition/driver_loops.py`` and
+``acquisition/recorder.py`` are
 loaded from git (``git show COMMIT:PATH``) as modules of their own beside the checkout's; everything they
 import is the checkout's. Figures are medians over rounds of the CPU per frame, and the ratio baseline /
 now per round. The machine is shared: the load average and the VM's speed probe are recorded.
@@ -32,8 +37,10 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import statistics
+import shutil
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -45,6 +52,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import acquisition.driver_loops as driver_loops_now  # noqa: E402
+import acquisition.recorder as recorder_now  # noqa: E402
 import drivers.radar.srf1 as srf1_now  # noqa: E402
 import drivers.radar.udp as udp_now  # noqa: E402
 from acquisition.bus import BusPublisher, BusSubscriber  # noqa: E402
@@ -111,6 +119,44 @@ def receive_cpu_per_datagram(udp, packed: list) -> tuple[float, int]:
     sender.close()
     receiver.close()
     return cpu / max(n, 1), n
+
+
+def recorder_cpu_per_frame(recorder_module, folder: Path, iqs: list, n_frames: int, flush_every: int = 10) -> tuple[float, Path]:
+    """CPU seconds per frame of a version's ``Recorder`` storing ``n_frames`` radar frames as they come off
+    the bus (``Message``s built once, outside the timing) and flushing every ``flush_every`` frames (its
+    0.5 s at one radar's 19.2 frames a second), closing included; and the file it wrote."""
+    from acquisition.bus import Message
+    from drivers.radar.stream import RadarFrame
+    from imaging.core.rig import rig_from_dict
+
+    rig = rig_from_dict({"radar": {"left": {}}})
+    messages = []
+    for k in range(n_frames):
+        frame = RadarFrame(k, 1_700_000_000_000_000_000 + k * 52_000_000, 1_700_000_000_010_000_000 + k * 52_000_000,
+                           k % 7 != 3, 0, iqs[k % len(iqs)], k % 11 != 5, 0)
+        p = RadarFrameMessage("left", frame).to_parts()
+        messages.append(Message(p.topic, k, p.sensor_time_ns, 0, {"seq": k, "pub": "bench", **p.fields}, p.arrays))
+    path = folder / f"{recorder_module.__name__.rsplit('.', 1)[-1]}.h5"
+    path.unlink(missing_ok=True)
+    recorder = recorder_module.Recorder(path, rig, ["tcp://127.0.0.1:9"], flush_interval_s=1e9)
+    t0 = time.process_time()
+    for k, msg in enumerate(messages):
+        recorder._store(msg)
+        if k % flush_every == flush_every - 1:
+            recorder.flush()
+    recorder.close()
+    return (time.process_time() - t0) / n_frames, path
+
+
+def same_recordings(a: Path, b: Path) -> bool:
+    """Whether two recordings hold the same radar frames, columns and clock marks."""
+    import h5py
+
+    with h5py.File(a, "r") as fa, h5py.File(b, "r") as fb:
+        ga, gb = fa["radar/left"], fb["radar/left"]
+        names = [n for n in ga if isinstance(ga[n], h5py.Dataset)]
+        return sorted(names) == sorted(n for n in gb if isinstance(gb[n], h5py.Dataset)) and all(
+            np.array_equal(ga[n][...], gb[n][...]) for n in names)
 
 
 class CountingPublisher:
@@ -184,6 +230,7 @@ def main() -> None:
     parser.add_argument("--baseline", default=BASELINE, help="the commit whose driver code is compared")
     parser.add_argument("--rounds", type=int, default=6)
     parser.add_argument("--frames", type=int, default=20, help="frames per pass")
+    parser.add_argument("--recorder-frames", type=int, default=60, help="frames the recorder stores per pass")
     parser.add_argument("--speed", type=float, default=1.0, help="x the radar's frame rate (19.2 Hz)")
     args = parser.parse_args()
 
@@ -199,7 +246,12 @@ def main() -> None:
     datagrams = [p.split() for p in packed]
     interval_s = waveform.frame_interval_s / args.speed
 
+    baseline["recorder"] = baseline_module(args.baseline, "acquisition/recorder.py", "_baseline_recorder")
+    now["recorder"] = recorder_now
+    folder = Path(tempfile.mkdtemp(prefix="driver_cpu_per_frame."))
     versions = {"baseline": baseline, "now": now}
+    recorder = {v: [] for v in versions}
+    same_files = True
     assembly = {v: [] for v in versions}
     receive = {v: [] for v in versions}
     received = {v: [] for v in versions}
@@ -217,13 +269,19 @@ def main() -> None:
             received[v].append(n)
         same_frames &= all(a.frame_counter == b.frame_counter and a.valid and b.valid and a.iq.tobytes() == b.iq.tobytes()
                            for a, b in zip(out["baseline"], out["now"], strict=True))
+        files = {}
+        for v in order:
+            cpu, files[v] = recorder_cpu_per_frame(versions[v]["recorder"], folder, iqs, args.recorder_frames)
+            recorder[v].append(cpu)
+        same_files &= same_recordings(files["baseline"], files["now"])
         for v in order:
             loop[v].append(driver_loop_cpu_per_frame(versions[v]["loops"], versions[v]["udp"], versions[v]["srf1"],
                                                      shape, packed, interval_s, iqs))
         print(f"round {r + 1}: assembly ms/frame baseline {assembly['baseline'][-1] * 1e3:.3f} now "
               f"{assembly['now'][-1] * 1e3:.3f}; receive us/datagram baseline {receive['baseline'][-1] * 1e6:.2f} now "
               f"{receive['now'][-1] * 1e6:.2f}; driver loop baseline {loop['baseline'][-1]['cpu_s_per_frame'] * 1e3:.3f} "
-              f"now {loop['now'][-1]['cpu_s_per_frame'] * 1e3:.3f}", flush=True)
+              f"now {loop['now'][-1]['cpu_s_per_frame'] * 1e3:.3f}; recorder baseline {recorder['baseline'][-1] * 1e3:.3f} "
+              f"now {recorder['now'][-1] * 1e3:.3f}", flush=True)
 
     def summary(per_round: dict) -> dict:
         ratios = [b / n for b, n in zip(per_round["baseline"], per_round["now"])]
@@ -242,8 +300,11 @@ def main() -> None:
                         "passes": loop,
                         "every_frame_whole": all(p["frames_received_whole"] == p["frames_sent"] for ps in loop.values()
                                                  for p in ps)},
+        "recorder": {**summary(recorder), "frames_per_pass": args.recorder_frames, "flush_every_frames": 10,
+                     "files_identical": same_files},
         "load_average_end": load_average(),
     }
+    shutil.rmtree(folder, ignore_errors=True)
     path = write_results("driver_cpu_per_frame", result, started_load=started_load)
     print(f"assembly: {result['assembly']['median_ratio']:.2f}x, driver loop: {result['driver_loop']['median_ratio']:.2f}x "
           f"(baseline / now, median of {args.rounds} rounds) -> {path}")
