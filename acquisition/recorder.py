@@ -20,6 +20,7 @@ import numpy as np
 
 from drivers.imu import NO_COUNTER
 from drivers.radar import registry
+from drivers.radar.stream import RadarFrame
 from imaging.core.rig import Rig
 from imaging.io.recording import RecordingWriter
 
@@ -105,6 +106,10 @@ class Recorder:
         self.paths: list[Path] = []
         self._triggers: list[tuple[int, str]] = []
         self.on_event = on_event
+        # Each radar's frames since the last flush, written there in one append per column: seven HDF5 appends
+        # (resize and write) a frame were most of the recorder's CPU per frame. What a flush writes is what a
+        # killed recorder leaves, as before: data was only ever safe from the flush on.
+        self._pending_frames: dict[str, list[RadarFrame]] = {}
         self.writer = self._open_part()
         self._handlers = {RadarFrameMessage: self._store_frame, ImuBatch: self._store_imu, CanBatch: self._store_can,
                           Trigger: self._store_trigger, Event: self._store_event, WorkerState: self._note_worker,
@@ -198,8 +203,9 @@ class Recorder:
 
     def _store_frame(self, m: RadarFrameMessage) -> None:
         f = m.frame
-        self.writer.append_frames(m.radar, f.iq[None], [f.frame_time_ns], [f.frame_counter], [f.receive_ns],
-                                  [1 if f.valid else 0])
+        if f.iq.shape != self.writer.adc_shape(m.radar):  # said now, not at the flush that would write it
+            raise ValueError(f"radar {m.radar}: adc shape {f.iq.shape} does not fit {self.writer.adc_shape(m.radar)}")
+        self._pending_frames.setdefault(m.radar, []).append(f)
         self.frames[m.radar] += 1
         # A frame of which no datagram came (lost whole: a placeholder) has no receive time of its own; the
         # one it carries is interpolated between its neighbours', for the file's order, not a measurement.
@@ -207,8 +213,7 @@ class Recorder:
         if f.receive_ns > 0 and not lost_whole:
             self.latencies_ns.append(time.time_ns() - f.receive_ns)
         self.invalid_frames[m.radar] += 0 if f.valid else 1
-        # A frame from an unlocked clock is kept, and marked: never mixed in silently.
-        self.writer.append_frame_clock(m.radar, f.ptp_locked, f.nic_receive_ns)
+        # A frame from an unlocked clock is kept, and marked (``_write_frames``): never mixed in silently.
         self.unlocked_frames[m.radar] += 0 if f.ptp_locked else 1
         was = self.ptp_locked.get(m.radar)
         if was is not None and was != f.ptp_locked:
@@ -345,8 +350,20 @@ class Recorder:
             self._write_event(time_ns, "bus", "error", f"{topic}: {st.missed - before} message(s) lost on the bus")
             self._reported_missed[topic] = st.missed
 
+    def _write_frames(self) -> None:
+        """Append the frames stored since the last flush, each radar's in one append per column."""
+        for radar, frames in self._pending_frames.items():
+            if frames:
+                self.writer.append_frames(radar, np.stack([f.iq for f in frames]), [f.frame_time_ns for f in frames],
+                                          [f.frame_counter for f in frames], [f.receive_ns for f in frames],
+                                          [1 if f.valid else 0 for f in frames])
+                self.writer.append_frame_clock(radar, [f.ptp_locked for f in frames],
+                                               [f.nic_receive_ns for f in frames])
+        self._pending_frames = {}
+
     def flush(self) -> None:
         try:
+            self._write_frames()
             if self.imu_drift_ppm is not None:
                 self.writer.set_imu_clock_drift_ppm(self.imu_drift_ppm)
             for radar, drift in self.radar_imu_drift_ppm.items():

@@ -415,6 +415,15 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                       "send); the same datagrams arrive. With the IMU emulator's CPU, the four-radar emulator's share "
                       "of a core at 1x.",
                       ".venv/bin/python benchmarks/emulator_cost.py"),
+    "driver_cpu_per_frame": ("A radar driver's and the recorder's CPU per frame",
+                             "The radar driver's code at the commit before wave 3j (baseline) against now, interleaved "
+                             "in one process on the same datagrams of the reference waveform (716,800-byte frames, 498 "
+                             "SRF1 datagrams): the frame assembly alone, UdpReceiver.receive alone, and the driver loop "
+                             "(receive, assemble, publish to a subscriber) at 1x in a thread of its own; and the recorder "
+                             "storing one radar's frames with a flush every 10. CPU per frame; "
+                             "the machine was shared (load in the provenance), so the ratios taken in the same rounds "
+                             "are the figures, not the milliseconds.",
+                             ".venv/bin/python benchmarks/driver_cpu_per_frame.py"),
     "soak_direct_2m": ("Soak: 2 m aperture, direct kernel",
                        "The live map at a 2 m aperture with the direct kernel.",
                        ".venv/bin/python benchmarks/soak.py --minutes 3 --map-args \"--map-aperture 2\" --name direct_2m"),

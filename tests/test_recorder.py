@@ -197,3 +197,43 @@ def test_a_driver_publisher_waits_until_the_recorder_listens():
     assert not BusPublisher("tcp://127.0.0.1:0", context=ctx, watch_subscriptions=True).wait_for_subscriber(
         RECORDER_LISTENING, 5.0, stop)  # stop set: no waiting
     sub.close(), pub.close(), ctx.destroy(linger=0)
+
+
+def test_frames_are_written_at_the_flush_all_of_them_in_order_with_their_clock_marks(tmp_path):
+    """The recorder keeps a radar's frames until its flush and writes them there in one append per column:
+    after each flush the file (read as a SWMR reader reads it) holds every frame stored before, in order,
+    with its times, counter, valid flag, PTP lock and card stamp; a frame of the wrong shape is refused
+    when it is stored, not at the flush."""
+    import h5py
+    import pytest
+
+    from acquisition.bus import Message
+
+    rec = Recorder(tmp_path / "r.h5", RIG, ["tcp://127.0.0.1:9"])
+    rng = np.random.default_rng(1)
+    iqs = [rng.integers(-500, 500, SHAPE, dtype=np.int16) for _ in range(7)]
+
+    def store(k, iq):
+        frame = RadarFrame(100 + k, 5_000 + k, 9_000 + k, k != 2, 0 if k != 2 else 64, iq, k != 4, 77 * k)
+        p = RadarFrameMessage("left", frame).to_parts()
+        rec._store(Message(p.topic, k, p.sensor_time_ns, 0, {"seq": k, "pub": "t", **p.fields}, p.arrays))
+
+    for k in range(4):
+        store(k, iqs[k])
+    rec.flush()
+    with h5py.File(tmp_path / "r.h5", "r", swmr=True) as f:
+        assert f["radar/left/adc"].shape[0] == 4
+    for k in range(4, 7):
+        store(k, iqs[k])
+    with pytest.raises(ValueError, match="adc shape"):
+        store(7, np.zeros((8, 4, 35, 2), np.int16))
+    rec.close()
+    with Recording(tmp_path / "r.h5") as r:
+        np.testing.assert_array_equal(r.file["radar/left/adc"][()], np.stack(iqs))
+        np.testing.assert_array_equal(r.frame_counter("left"), 100 + np.arange(7))
+        np.testing.assert_array_equal(r.file["radar/left/frame_time_ns"][()], 5_000 + np.arange(7))
+        np.testing.assert_array_equal(r.file["radar/left/host_time_ns"][()], 9_000 + np.arange(7))
+        np.testing.assert_array_equal(r.valid("left"), [1, 1, 0, 1, 1, 1, 1])
+        np.testing.assert_array_equal(r.file["radar/left/ptp_locked"][()], [1, 1, 1, 1, 0, 1, 1])
+        np.testing.assert_array_equal(r.file["radar/left/nic_time_ns"][()], 77 * np.arange(7))
+    assert rec.frames == {"left": 7} and rec.invalid_frames == {"left": 1}

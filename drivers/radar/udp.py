@@ -33,6 +33,11 @@ SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
+#: The kernel's software stamp alone: the first ``struct timespec`` of SCM_TIMESTAMPING (64-bit time_t), the
+#: one a datagram needs without hardware stamps (``parse_scm_timestamping`` reads all three).
+_SOFTWARE_STAMP = struct.Struct("qq")
+_SCM_TIMESTAMPING_64_BYTES = 48
+
 
 def usable_rcvbuf_bytes(reported_bytes: int) -> int:
     """The receive buffer for data that getsockopt's SO_RCVBUF stands for: Linux reports twice what was
@@ -109,9 +114,13 @@ class UdpReceiver:
             self.foreign_source += 1
             return None
         t_ns = nic_ns = 0
-        for level, kind, value in ancdata:
-            if level == socket.SOL_SOCKET and kind == SCM_TIMESTAMPING and len(value) >= SCM_TIMESTAMPING_MIN_BYTES:
-                t_ns, _, nic_ns = parse_scm_timestamping(value)
+        for level, kind, value in ancdata:  # per datagram (10,000 a second): the common case first
+            if kind == SCM_TIMESTAMPING and level == socket.SOL_SOCKET:
+                if not self.hardware and len(value) >= _SCM_TIMESTAMPING_64_BYTES:
+                    seconds, nanoseconds = _SOFTWARE_STAMP.unpack_from(value)
+                    t_ns = seconds * 1_000_000_000 + nanoseconds
+                elif len(value) >= SCM_TIMESTAMPING_MIN_BYTES:
+                    t_ns, _, nic_ns = parse_scm_timestamping(value)
             elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
                 self.kernel_drops = struct.unpack_from("I", value)[0]
         if self.hardware:

@@ -229,6 +229,10 @@ class RecordingWriter:
         f.swmr_mode = True
 
     # -- appending --------------------------------------------------------------------------------
+    def adc_shape(self, radar: str) -> tuple[int, ...]:
+        """The shape of one of ``radar``'s frames in ``adc`` (e.g. [chirps, rx, samples, 2] for int16)."""
+        return self._columns[f"radar/{radar}"]["adc"].row_shape
+
     def append_frames(self, radar: str, adc, frame_time_ns, frame_counter, host_time_ns, valid=None) -> None:
         """Append F frames of one radar; ``adc`` complex [F, chirps, rx, samples] (or int16 with trailing 2)."""
         g = self._columns[f"radar/{radar}"]
