@@ -123,3 +123,67 @@ def test_a_map_worker_late_at_the_stop_is_hurried_and_writes_its_map_with_every_
                                       "frames_off_map", "frames_thinned"))
     assert counted == n_recorded, dict(a)
     print(f"stop and write {stop_s:.1f} s after the start; map {dict(a)}")
+
+
+def test_sigterm_without_a_stop_makes_a_worker_write_its_map_and_exit(tmp_path):
+    """SIGTERM alone (the kernel's when the daemon dies, ``die_with_parent``; the stop event never set): the
+    strip-map worker's process leaves its live loop, writes the map of what it imaged, says it was cut short,
+    and exits 0, instead of dying with nothing written as it did."""
+    import numpy as np
+    from conftest import RADAR as PASS_RADAR
+    from conftest import point_pass
+
+    from acquisition.bus import BusPublisher, BusSubscriber
+    from acquisition.messages import MapStatus, PoseBatch, RadarFrameMessage, WorkerState
+    from acquisition.processes import free_tcp_endpoint
+    from acquisition.workers import WorkerSpec, worker_process
+    from acquisition.workers.stripmap import StripMapWorker, StripMapWorkerConfig
+    from drivers.radar.stream import RadarFrame
+    from imaging.core.rig import Rig
+    from imaging.io.image_file import read_image
+    from imaging.io.recording import Recording
+    from imaging.sim.simulator import simulate_recording
+
+    sim = tmp_path / "pass.h5"
+    simulate_recording(point_pass(0.4, duration_s=1.5), sim)
+    with Recording(sim) as rec:
+        radar, truth = rec.radar(PASS_RADAR), rec.truth()
+        times, iq = rec.frame_time_ns(PASS_RADAR), rec.file[f"radar/{PASS_RADAR}/adc"][:]
+    driver_ep, pose_ep, out_ep = free_tcp_endpoint(), free_tcp_endpoint(), free_tcp_endpoint()
+    frames_pub, poses_pub = BusPublisher(driver_ep), BusPublisher(pose_ep)
+    ctx = mp.get_context("spawn")
+    stop = ctx.Event()
+    map_path = tmp_path / "map.h5"
+    spec = WorkerSpec("stripmap", StripMapWorker, StripMapWorkerConfig(
+        Rig((radar,)), None, StripMapConfig(presum=4), pose_ep, str(map_path)), out_ep)
+    worker = ctx.Process(target=worker_process, args=(spec, [driver_ep], stop, (), 60.0))
+    worker.start()
+    sub = BusSubscriber(out_ep, topics=["map/", WorkerState.TOPIC])
+    imaged, deadline = 0, time.monotonic() + 300
+    while time.monotonic() < deadline:  # warm before anything is sent (its subscription is up)
+        m = sub.receive(timeout_ms=300)
+        if m is not None and m.topic == WorkerState.TOPIC and WorkerState.from_message(m).warm:
+            break
+    n = len(times)
+    for k in range(n):
+        frame = iq[k]
+        pub_iq = np.stack([frame.real, frame.imag], -1).round().astype(np.int16) if frame.dtype.kind == "c" else frame
+        frames_pub.send(RadarFrameMessage(PASS_RADAR, RadarFrame(k, int(times[k]), time.time_ns(), True, 0, pub_iq)))
+        t = np.arange(times[k] - 50_000_000, times[k] + 110_000_000, 10_000_000, dtype=np.int64)
+        s = truth.sample(t)
+        poses_pub.send(PoseBatch(t, s.position_m, s.orientation_xyzw, s.velocity_mps))
+        time.sleep(0.02)
+    while time.monotonic() < deadline and imaged == 0:  # some of it in the map
+        m = sub.receive(timeout_ms=300)
+        if m is not None and m.topic == MapStatus.TOPIC:
+            imaged = MapStatus.from_message(m).frames_imaged
+    worker.terminate()  # SIGTERM; the stop event is never set
+    worker.join(120)
+    frames_pub.close(), poses_pub.close(), sub.close()
+    assert worker.exitcode == 0 and not stop.is_set()
+    a = read_image(map_path).attrs
+    assert a["stop_cut_short"] == 1 and a["frames_imaged"] >= imaged > 0
+    counted = sum(int(a[k]) for k in ("frames_imaged", "frames_standing_still", "frames_skipped_invalid",
+                                      "frames_dropped_behind", "frames_lost_on_bus", "frames_beyond_odometry",
+                                      "frames_off_map", "frames_thinned"))
+    assert counted == n, dict(a)
