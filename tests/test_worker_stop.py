@@ -187,3 +187,46 @@ def test_sigterm_without_a_stop_makes_a_worker_write_its_map_and_exit(tmp_path):
                                       "frames_dropped_behind", "frames_lost_on_bus", "frames_beyond_odometry",
                                       "frames_off_map", "frames_thinned"))
     assert counted == n, dict(a)
+
+
+def _deaf_to_sigterm():
+    import signal
+
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    time.sleep(60)
+
+
+def _hurries_on_sigterm():
+    import signal
+    import sys
+
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    time.sleep(60)
+
+
+def test_the_daemon_kills_a_worker_only_after_sigterm_and_its_grace_and_says_each_step():
+    """``stop_processes`` with real processes: a worker that exits on SIGTERM is hurried and not killed, one deaf
+    to it is killed once ``worker_hurry_timeout_s`` has passed after it; each step is an /events line; a negative
+    timeout is refused, naming the field."""
+    from acquisition.daemon import Setup, check_stop_timeouts, stop_processes
+    from acquisition.processes import ProcessSpec
+    from imaging.core.errors import SarbotError
+
+    ctx = mp.get_context("fork")
+    procs = {"quick": ctx.Process(target=_hurries_on_sigterm), "deaf": ctx.Process(target=_deaf_to_sigterm)}
+    for p in procs.values():
+        p.start()
+    specs = {role: ProcessSpec(role, None, (), worker=True) for role in procs}
+    setup = Setup(default_rig(), [], worker_stop_timeout_s=0.5, worker_hurry_timeout_s=1.0)
+    events = []
+    t0 = time.monotonic()
+    stop_processes(procs, specs, setup, t0, lambda t, source, level, message: events.append((source, level, message)))
+    took = time.monotonic() - t0
+    assert not any(p.is_alive() for p in procs.values())
+    assert procs["quick"].exitcode == 0 and procs["deaf"].exitcode == -9
+    assert [(s, lv) for s, lv, _ in events].count(("quick", "warning")) == 2  # hurried, stopped
+    assert ("deaf", "error") in [(s, lv) for s, lv, _ in events]
+    assert any(s == "deaf" and "did not stop 1 s after SIGTERM either; killed" in m for s, _, m in events)
+    assert took >= 1.5  # a lower bound (load only makes it later): no kill before the stop timeout and the grace
+    with pytest.raises(SarbotError, match="worker_hurry_timeout_s"):
+        check_stop_timeouts(dataclasses.replace(setup, worker_hurry_timeout_s=-1.0))
