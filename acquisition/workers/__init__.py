@@ -10,9 +10,10 @@ budgets (draining, ``finish``) are cut to fit in it less the time it keeps for w
 worker still running then gets SIGTERM: it hurries (``Worker.hurried``), that is, at its next chance (between
 two imaging calls, two refocused tiles) it leaves its queue, skips what is left of draining and finishing,
 and writes its products with what it has, saying so in them; the daemon kills it only if it has not exited
-``worker_hurry_timeout_s`` later. A call into a compiled kernel cannot be interrupted (numba's native code
-runs without the interpreter, whose signal handler waits for it to return): the second grace covers the call
-in progress, however long that is, and nothing else.
+``worker_hurry_timeout_s`` later. The hurry is a flag looked at between calls: a call into a compiled kernel
+cannot be interrupted (numba's native code runs without the interpreter, whose signal handler waits for it to
+return), nor is a call left halfway (numba compiling on a cold cache). The second grace is for the call in
+progress; one that outlasts it still ends in a kill.
 """
 
 from __future__ import annotations
