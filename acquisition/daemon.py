@@ -34,7 +34,7 @@ from .processes import ProcessSpec, bus_endpoint, release_free_heap
 from .ptp import PtpMonitor, PtpPoller
 from .recorder import DiskFullError, Recorder
 from .sdnotify import notify, watchdog_interval_s
-from .workers import WorkerSpec, worker_process
+from .workers import WorkerSpec, stop_needs_s, worker_process
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
@@ -58,7 +58,11 @@ class Setup:
     min_free_bytes: int = 64_000_000
     health_interval_s: float = 2.0
     health_endpoint: str | None = None
+    #: After the stop, how long the workers may take to drain, finish and write their products (their own
+    #: budgets are cut to fit: ``workers.stop_budgets``). A worker still running then gets SIGTERM and writes
+    #: what it has; one still running ``worker_hurry_timeout_s`` after that is killed (its products lost).
     worker_stop_timeout_s: float = 60.0
+    worker_hurry_timeout_s: float = 15.0
     warm_up_timeout_s: float = 300.0
     workers: list[WorkerSpec] = dataclasses.field(default_factory=list)
     #: Devices to bring up once the drivers listen, and down before they stop (``TiRadarControl``).
@@ -174,6 +178,63 @@ def open_health_publisher(endpoint: str | None) -> BusPublisher:
         raise SarbotError(f"--health-endpoint {endpoint}: cannot publish there ({exc.strerror})") from None
 
 
+def check_stop_timeouts(setup: Setup) -> None:
+    """SarbotError for a negative stop timeout; a warning for each worker whose own stop budgets (draining,
+    finishing, writing) do not fit in ``worker_stop_timeout_s``: they are cut to fit, and more is left out."""
+    for name in ("worker_stop_timeout_s", "worker_hurry_timeout_s"):
+        if not getattr(setup, name) >= 0:
+            raise SarbotError(f"{name}: must be 0 s or more, got {getattr(setup, name)}")
+    for w in setup.workers:
+        needs = stop_needs_s(w.worker)
+        if needs > setup.worker_stop_timeout_s:
+            log.warning("%s: its stop takes up to %.0f s (draining %.0f s, finishing %.0f s, writing %.0f s), more than "
+                        "worker_stop_timeout_s (%.0f s): draining and finishing are cut to fit", w.role, needs,
+                        w.worker.drain_max_s, w.worker.finish_max_s, w.worker.write_reserve_s, setup.worker_stop_timeout_s)
+
+
+def stop_processes(procs: dict, specs: dict, setup: Setup, stopped_at: float, record_event) -> None:
+    """Join the daemon's child processes after the stop (``stopped_at``, monotonic s): a driver gets 2 s, then
+    is killed; the workers share ``worker_stop_timeout_s`` from the stop, then each still running gets SIGTERM
+    (it hurries: writes what it has) and ``worker_hurry_timeout_s`` more before it is killed. Each hurry and
+    kill is logged and goes to /events through ``record_event(time_ns, source, level, message)``."""
+    for role, proc in procs.items():
+        if not specs[role].worker:
+            proc.join(2)
+            if proc.is_alive():
+                log.error("%s did not stop in time; killed", role)
+                proc.kill()
+    workers = {role: proc for role, proc in procs.items() if specs[role].worker}
+    stop_by = stopped_at + setup.worker_stop_timeout_s
+    hurried: dict[str, float] = {}
+    while True:
+        alive = {role: proc for role, proc in workers.items() if proc.is_alive()}
+        now = time.monotonic()
+        for role in hurried.keys() - alive.keys():
+            message = (f"{role} stopped {now - hurried.pop(role):.1f} s after SIGTERM (exit code {workers[role].exitcode}), "
+                       "its products written with what it had")
+            log.warning("%s", message)
+            record_event(time.time_ns(), role, "warning", message)
+        if not alive:
+            return
+        for role, proc in alive.items():
+            if role not in hurried and now >= stop_by:
+                message = (f"{role} still running {now - stopped_at:.1f} s after the stop (worker_stop_timeout_s "
+                           f"{setup.worker_stop_timeout_s:g} s); SIGTERM: it writes what it has")
+                log.warning("%s", message)
+                record_event(time.time_ns(), role, "warning", message)
+                proc.terminate()
+                hurried[role] = now
+            elif role in hurried and now >= hurried[role] + setup.worker_hurry_timeout_s:
+                message = (f"{role} did not stop {setup.worker_hurry_timeout_s:g} s after SIGTERM either; killed, "
+                           "its products lost")
+                log.error("%s", message)
+                record_event(time.time_ns(), role, "error", message)
+                proc.kill()
+                proc.join(5)
+                del workers[role], hurried[role]
+        next(iter(alive.values())).join(0.05)
+
+
 def process_specs(setup: Setup, stop) -> list[ProcessSpec]:
     """The daemon's child processes for ``setup``: drivers first, then the workers, which subscribe to them."""
     specs, frame_duration_ns = [], {}
@@ -200,8 +261,8 @@ def process_specs(setup: Setup, stop) -> list[ProcessSpec]:
         specs.append(ProcessSpec("can", can_process, (setup.can, endpoint, stop), endpoint))
     driver_endpoints = [s.endpoint for s in specs]
     for w in setup.workers:
-        specs.append(ProcessSpec(w.role, worker_process, (w, driver_endpoints, stop, radar_endpoints), w.endpoint,
-                                 worker=True))
+        specs.append(ProcessSpec(w.role, worker_process, (w, driver_endpoints, stop, radar_endpoints,
+                                                          setup.worker_stop_timeout_s), w.endpoint, worker=True))
     return specs
 
 
@@ -270,6 +331,7 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
         raise SarbotError(f"{out_dir}: cannot create the recordings folder ({exc.strerror})") from None
     path = path or out_dir / time.strftime("recording_%Y%m%dT%H%M%S.h5")
     check_radar_addresses(setup.radars)
+    check_stop_timeouts(setup)
     links, stamp_choices = choose_receive_stamps(setup.radars)
     setup = dataclasses.replace(setup, radars=links)
     health_pub = open_health_publisher(setup.health_endpoint)
@@ -314,6 +376,7 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
     quick_failures = dict.fromkeys(procs, 0)
     restart_at: dict[str, float] = {}  # roles waiting out their backoff
     disk_full = None
+    stopped_at = None  # when the stop was set: the workers' stop timeout counts from it
     devices = DeviceBringUp(setup.controls, setup.control_listen_timeout_s).start()
     ptp = PtpPoller(PtpMonitor(setup.ptp4l_socket), setup.ptp_interval_s, setup.phc2sys_log).start() \
         if setup.ptp4l_socket else None
@@ -378,6 +441,7 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
             notify("STOPPING=1")
             devices.stop(recorder.record_event)  # the radars stop sending before their drivers stop listening
             stop.set()
+            stopped_at = time.monotonic()
             deadline = time.monotonic() + 3.0
             while time.monotonic() < deadline:  # drain what the drivers flush on the way out
                 recorder.step(timeout_ms=100)
@@ -401,12 +465,8 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
         if ptp is not None:
             ptp.stop()
         stop.set()
-        for role, proc in procs.items():
-            # Workers finish their products (trajectory, map) after the drivers stop; give them time.
-            proc.join(setup.worker_stop_timeout_s if specs[role].worker else 2)
-            if proc.is_alive():
-                log.error("%s did not stop in time; killed", role)
-                proc.kill()
+        # Workers finish their products (trajectory, map) after the drivers stop; a late one is hurried, then killed.
+        stop_processes(procs, specs, setup, stopped_at or time.monotonic(), record_event_if_possible)
         recorder.close()
         health_pub.close()
         for s, h in old.items():

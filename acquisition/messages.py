@@ -330,6 +330,7 @@ class MapStatus(HeaderMessage):
     refocus_wait_s: float = 0.0  # finished to refocus begun, the latest tiles
     max_refocus_wait_s: float = 0.0
     tiles_without_radar_imu: int = 0  # --map-imu-aided: finished tiles whose frames no radar's own IMU covered
+    stop_cut_short: int = 0  # 1: hurried at the stop (SIGTERM after worker_stop_timeout_s): queue dropped, no refocus
     time_ns: int = 0
 
 

@@ -151,7 +151,8 @@ def become_child(role: str, realtime: bool = False, background: bool = False, up
 
     A driver whose supervisor died (SIGKILL, OOM) must not keep the port or the device busy; the name
     lets top and ps say which process is which. SIGINT is ignored (the supervisor decides when to stop:
-    it sets the stop event); SIGTERM ends the process at once. ``realtime``: a driver (SCHED_FIFO when
+    it sets the stop event); SIGTERM ends the process at once (a worker's own handler replaces this: it
+    hurries, ``acquisition.workers.worker_process``). ``realtime``: a driver (SCHED_FIFO when
     the unit asks for it); ``background``: a worker, niced below the drivers and the recorder (``upstream``:
     one other workers wait on, niced less; ``worker_nice``).
     """

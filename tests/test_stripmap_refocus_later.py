@@ -167,10 +167,9 @@ def test_the_worker_s_blas_runs_on_its_own_threads(vibrating):
         assert all(i["num_threads"] == worker.config.threads == 1 for i in blas)
 
 
-def test_the_worker_s_stop_is_bounded_and_it_writes_the_map_saying_what_it_left(vibrating, monkeypatch, tmp_path):
-    """The stop's imaging and refocus run for at most FINISH_BUDGET_S (here none left): the frames still
+def test_the_worker_s_stop_is_bounded_and_it_writes_the_map_saying_what_it_left(vibrating, tmp_path):
+    """The stop's imaging and refocus run for at most ``finish_max_s`` (here none left): the frames still
     queued are counted as dropped, the tiles not refocused as awaiting, and the map is written with both."""
-    from acquisition.workers import stripmap as worker_module
     from imaging.io.image_file import read_image
 
     rec = vibrating[0]
@@ -180,7 +179,7 @@ def test_the_worker_s_stop_is_bounded_and_it_writes_the_map_saying_what_it_left(
     worker._image_ready(budget_s=None)  # imaged, the finished tiles' jobs queued and not run
     assert worker.refocus_jobs and worker.status.tiles_refocused == 0
     feed(worker, vibrating, range(n - 10, n))
-    monkeypatch.setattr(worker_module, "FINISH_BUDGET_S", 0.0)
+    worker.finish_max_s = 0.0
     worker.finish()
     status = worker.status
     assert status.frames_dropped_behind == 10 and not worker.frames
@@ -188,5 +187,45 @@ def test_the_worker_s_stop_is_bounded_and_it_writes_the_map_saying_what_it_left(
     worker.write_products()
     attrs = read_image(tmp_path / "map.h5").attrs
     assert attrs["frames_dropped_behind"] == 10 and attrs["tiles_awaiting_refocus"] == status.tiles_awaiting_refocus
+    assert attrs["stop_cut_short"] == 0  # its own budget ran out: not hurried by the daemon
     # a worker 2.4 s behind thins its frames (the catch-up ladder): every frame is accounted for
     assert attrs["frames_imaged"] + attrs["frames_standing_still"] + attrs["frames_thinned"] + 10 == n
+
+
+def test_a_hurried_worker_drops_its_queue_skips_the_refocus_and_writes_the_map_saying_so(vibrating, tmp_path):
+    """Hurried (the daemon's SIGTERM after its stop timeout), the worker's finish images nothing more however
+    much budget it has: the queued frames are dropped, no tile is refocused, every frame is accounted for and
+    the file says it was cut short."""
+    from imaging.io.image_file import read_image
+
+    rec = vibrating[0]
+    n = rec.adc(RADAR).shape[0]
+    worker = make_worker(vibrating, tmp_path)
+    feed(worker, vibrating, range(n - 10))
+    worker._image_ready(budget_s=None)
+    imaged = worker.status.frames_imaged
+    feed(worker, vibrating, range(n - 10, n))
+    worker.hurried = True
+    worker._image_ready(budget_s=None)  # live imaging takes nothing more either
+    worker._refocus_ready(budget_s=None)
+    assert worker.status.frames_imaged == imaged and len(worker.frames) == 10
+    assert worker.finish_max_s == 30.0  # the budget was there: the hurry, not the budget, cut it short
+    worker.finish()
+    worker.write_products()
+    attrs = read_image(tmp_path / "map.h5").attrs
+    assert attrs["stop_cut_short"] == 1 and attrs["frames_dropped_behind"] == 10 and attrs["tiles_refocused"] == 0
+    assert attrs["tiles_awaiting_refocus"] == worker.map.tiles_to_refocus > 0
+    assert attrs["frames_imaged"] + attrs["frames_standing_still"] + attrs["frames_thinned"] + 10 == n
+
+
+def test_the_stop_budgets_fit_the_daemon_s_timeout():
+    """The map's own budgets (10 s draining, 30 s finishing, 5 s kept for writing) fit in the daemon's 60 s
+    and stay; a shorter timeout scales draining and finishing alike to what is left after writing; none left: 0."""
+    from acquisition.workers import Worker, stop_budgets, stop_needs_s
+    from acquisition.workers.stripmap import StripMapWorker
+
+    assert stop_needs_s(StripMapWorker) == 45.0
+    assert stop_budgets(StripMapWorker, 60.0) == (10.0, 30.0)
+    assert stop_budgets(StripMapWorker, 25.0) == pytest.approx((5.0, 15.0))
+    assert stop_budgets(StripMapWorker, 5.0) == (0.0, 0.0)
+    assert stop_budgets(Worker, 1.0) == (0.0, 0.0) and stop_budgets(Worker, 60.0) == (10.0, 0.0)

@@ -244,7 +244,14 @@ class OdometryWorker(Worker):
                        "sigma": e.sigma.tolist()} for name, e in self.rio.ekf.calibration_estimates().items()}
 
     def finish(self) -> None:
-        self._publish(self.rio.finish())
+        """The filter's last poses out, then ``PoseEnd``. Hurried (SIGTERM: the daemon's stop timeout passed),
+        the scans the filter still holds are left (its poses so far are in the trajectory file), said in a
+        warning."""
+        if self.hurried:
+            log.warning("RIO: hurried at the stop; the filter's last scans left out, %d poses written",
+                        self.poses_written)
+        else:
+            self._publish(self.rio.finish())
         self.pub.send(PoseEnd(time.time_ns()))
 
     def write_products(self) -> None:

@@ -58,11 +58,15 @@ STEP_BUDGET_S = 0.25
 #: did, a tile's autofocus held the frames behind it: with OpenBLAS's own threads (below) a target's tile took
 #: 5-12 s of CPU at load 9-15 and the two-radar map ended 10-21 s behind (benchmarks/refocus_threads.py).
 REFOCUS_STEP_BUDGET_S = 0.1
-#: The most the last imaging and refocus passes after the drivers stop may take: the daemon kills a worker
-#: 60 s after the stop (``worker_stop_timeout_s``), with up to 10 s of draining before this, and the worker
-#: must still write its map. Frames still queued then are dropped (``frames_dropped_behind``), tiles still
-#: awaiting their refocus stay as imaged (``tiles_awaiting_refocus``), both said in a warning.
+#: The most the last imaging and refocus passes after the drivers stop may take (``StripMapWorker.finish_max_s``):
+#: with up to 10 s of draining before it and WRITE_RESERVE_S for the map after, it fits in the daemon's 60 s
+#: (``worker_stop_timeout_s``); a shorter timeout cuts both budgets to fit (``workers.stop_budgets``). Frames
+#: still queued then are dropped (``frames_dropped_behind``), tiles still awaiting their refocus stay as imaged
+#: (``tiles_awaiting_refocus``), both said in a warning. A single imaging call can outlast it (a numba call
+#: cannot be interrupted): then the daemon's SIGTERM hurries the worker (``stop_cut_short``).
 FINISH_BUDGET_S = 30.0
+#: Kept for writing the map (HDF5 and PNG) within the daemon's stop timeout, s: an allowance, not a measurement.
+WRITE_RESERVE_S = 5.0
 #: Behind by more than CATCH_UP_START_S of sensor time, the worker sums twice the chirps per profile, four
 #: times CATCH_UP_STEP_S later, and so on (up to all of a TX's chirps in a frame): fewer profiles, a coarser
 #: map, before it drops a frame (at ``max_queue_s``). The backlog counts the frames waiting for the
@@ -141,6 +145,8 @@ class StripMapWorker(Worker):
     # It waits for the odometry's last poses (PoseEnd), which come after the drivers stop.
     drain_quiet_s = 10.0
     drain_max_s = 10.0
+    finish_max_s = FINISH_BUDGET_S
+    write_reserve_s = WRITE_RESERVE_S
 
     def __init__(self, config: StripMapWorkerConfig, pub):
         from imaging.stripmap import StripMap
@@ -310,7 +316,7 @@ class StripMapWorker(Worker):
         status.waiting_for_poses_s = max(0.0, (frames[-1].frame_time_ns - newest_pose) * 1e-9)
         traj = None
         until = None if budget_s is None else time.monotonic() + budget_s
-        while frames and (until is None or time.monotonic() < until):
+        while frames and (until is None or time.monotonic() < until) and not self.hurried:
             name, t_frame = frames[0].radar, frames[0].frame_time_ns
             if not self._covered(name, t_frame, newest_pose):
                 if not final:
@@ -415,7 +421,7 @@ class StripMapWorker(Worker):
         (``map/velocity_error``)."""
         status, jobs = self.status, self.refocus_jobs
         until = None if budget_s is None else time.monotonic() + budget_s
-        while jobs:
+        while jobs and not self.hurried:
             job = jobs[0]
             t0, cpu = time.monotonic(), time.process_time()
             if len(job.keys) == job.tiles:  # its first tile
@@ -516,13 +522,20 @@ class StripMapWorker(Worker):
             self._publish_tiles()
 
     def finish(self) -> None:
+        """The last imaging and refocus passes, within ``finish_max_s``; the last tiles and status out.
+        Hurried (SIGTERM: the daemon's stop timeout passed), the queued frames are dropped and no tile is
+        refocused (both counted, ``stop_cut_short`` set); only the FFBP block in progress is still imaged."""
         status = self.status
-        until = time.monotonic() + FINISH_BUDGET_S
-        self._image_ready(final=True, budget_s=FINISH_BUDGET_S)
-        if time.monotonic() >= until and self.frames:
-            log.warning("strip map: %d frame(s) still queued %.0f s after the stop; dropped", len(self.frames),
-                        FINISH_BUDGET_S)
-            status.frames_dropped_behind += len(self.frames)
+        budget_s = self.finish_max_s
+        until = time.monotonic() + budget_s
+        self._image_ready(final=True, budget_s=budget_s)
+        if self.hurried or (time.monotonic() >= until and self.frames):
+            left = len(self.frames)
+            if self.hurried:
+                log.warning("strip map: hurried at the stop; %d queued frame(s) dropped", left)
+            else:
+                log.warning("strip map: %d frame(s) still queued %.0f s after the stop; dropped", left, budget_s)
+            status.frames_dropped_behind += left
             self.frames.clear()
         # Whatever is left had no poses at all (an odometry that never started): counted, so every frame
         # received is accounted for in map/status.
@@ -532,16 +545,17 @@ class StripMapWorker(Worker):
         self.changed.update(ended.tiles)
         status.frames_imaged += ended.frames_imaged
         if self.config.map.refocuses:
-            while self.refocus_jobs and time.monotonic() < until:
+            while self.refocus_jobs and time.monotonic() < until and not self.hurried:
                 self._refocus_ready(budget_s=0.0)
-            if time.monotonic() < until:
+            if time.monotonic() < until and not self.hurried:
                 refocused = self.map.refocus_pending()
                 self.changed.update(refocused)
                 status.tiles_refocused += len(refocused)
             else:
                 status.tiles_awaiting_refocus = self.map.tiles_to_refocus
-                log.warning("strip map: %d tile(s) not refocused %.0f s after the stop; left as imaged",
-                            status.tiles_awaiting_refocus, FINISH_BUDGET_S)
+                log.warning("strip map: %d tile(s) not refocused %s; left as imaged", status.tiles_awaiting_refocus,
+                            "(hurried at the stop)" if self.hurried else f"{budget_s:.0f} s after the stop")
+        status.stop_cut_short = int(self.hurried)
         self._publish_tiles()
 
     def write_products(self) -> None:
@@ -550,6 +564,8 @@ class StripMapWorker(Worker):
 
         if not self.map.tiles:
             return
+        # Hurried before finish ran (SIGTERM while warming up, an error): the file says it was cut short too.
+        self.status.stop_cut_short = max(self.status.stop_cut_short, int(self.hurried))
         status = {k: v for k, v in dataclasses.asdict(self.status).items() if k not in ("tiles", "time_ns")}
         img = self.map.to_image({"radars": ",".join(sorted(self.radars)), "trajectory_source": "rio",
                                  "wavelength_m": float(np.mean([r.waveform.wavelength_m for r in self.radars.values()])),
