@@ -52,3 +52,20 @@ def pass_recordings(sim_dir):
         simulate_recording(point_pass(speed, duration_s=0.5 / speed + 0.2), path)
         paths[speed] = path
     return paths
+
+
+def send_frame_and_poses(frames_pub, poses_pub, radar: str, k: int, iq, times, truth) -> None:
+    """Frame ``k`` of ``iq`` (complex or int16 I/Q pairs) as radar ``radar``'s live frame on ``frames_pub``, and
+    the true poses around it (50 ms before to 110 ms after its start, every 10 ms) on ``poses_pub``: what the
+    drivers and the odometry send a strip-map worker."""
+    import time
+
+    from acquisition.messages import PoseBatch, RadarFrameMessage
+    from drivers.radar.stream import RadarFrame
+
+    frame = iq[k]
+    pub_iq = np.stack([frame.real, frame.imag], -1).round().astype(np.int16) if frame.dtype.kind == "c" else frame
+    frames_pub.send(RadarFrameMessage(radar, RadarFrame(k, int(times[k]), time.time_ns(), True, 0, pub_iq)))
+    t = np.arange(times[k] - 50_000_000, times[k] + 110_000_000, 10_000_000, dtype=np.int64)
+    s = truth.sample(t)
+    poses_pub.send(PoseBatch(t, s.position_m, s.orientation_xyzw, s.velocity_mps))

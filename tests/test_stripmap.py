@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import R0, RADAR, point_pass
+from conftest import R0, RADAR, point_pass, send_frame_and_poses
 from reference_stripmap import block_reference
 
 from imaging import metrics
@@ -384,7 +384,6 @@ def run_worker(drive, config, tmp_path, lost=()):
         MapStatus,
         ImuBatch,
         MapTile,
-        PoseBatch,
         PoseEnd,
         RadarFrameMessage,
         RadarImuBatch,
@@ -393,7 +392,6 @@ def run_worker(drive, config, tmp_path, lost=()):
     from acquisition.processes import free_tcp_endpoint
     from acquisition.workers import WorkerSpec, worker_process
     from acquisition.workers.stripmap import StripMapWorker, StripMapWorkerConfig
-    from drivers.radar.stream import RadarFrame
     from imaging.core.rig import Rig
     from imaging.io.image_file import read_image
 
@@ -428,12 +426,7 @@ def run_worker(drive, config, tmp_path, lost=()):
         if k in lost:
             frames_pub._seq[RadarFrameMessage.topic_of(RADAR)] += 1
             continue
-        frame = iq[k]
-        pub_iq = np.stack([frame.real, frame.imag], -1).round().astype(np.int16) if frame.dtype.kind == "c" else frame
-        frames_pub.send(RadarFrameMessage(RADAR, RadarFrame(k, int(times[k]), time.time_ns(), True, 0, pub_iq)))
-        t = np.arange(times[k] - 50_000_000, times[k] + 110_000_000, 10_000_000, dtype=np.int64)
-        s = truth.sample(t)
-        poses_pub.send(PoseBatch(t, s.position_m, s.orientation_xyzw, s.velocity_mps))
+        send_frame_and_poses(frames_pub, poses_pub, RADAR, k, iq, times, truth)
         time.sleep(0.05)
     poses_pub.send(PoseEnd(time.time_ns()))
     time.sleep(1.0)

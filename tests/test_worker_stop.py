@@ -11,6 +11,7 @@ import threading
 import time
 
 import pytest
+from conftest import send_frame_and_poses
 
 from imaging.core.rig import default_rig
 from imaging.sim.scene import scene_from_dict
@@ -129,16 +130,14 @@ def test_sigterm_without_a_stop_makes_a_worker_write_its_map_and_exit(tmp_path):
     """SIGTERM alone (the kernel's when the daemon dies, ``die_with_parent``; the stop event never set): the
     strip-map worker's process leaves its live loop, writes the map of what it imaged, says it was cut short,
     and exits 0, instead of dying with nothing written as it did."""
-    import numpy as np
     from conftest import RADAR as PASS_RADAR
     from conftest import point_pass
 
     from acquisition.bus import BusPublisher, BusSubscriber
-    from acquisition.messages import MapStatus, PoseBatch, RadarFrameMessage, WorkerState
+    from acquisition.messages import MapStatus, WorkerState
     from acquisition.processes import free_tcp_endpoint
     from acquisition.workers import WorkerSpec, worker_process
     from acquisition.workers.stripmap import StripMapWorker, StripMapWorkerConfig
-    from drivers.radar.stream import RadarFrame
     from imaging.core.rig import Rig
     from imaging.io.image_file import read_image
     from imaging.io.recording import Recording
@@ -166,12 +165,7 @@ def test_sigterm_without_a_stop_makes_a_worker_write_its_map_and_exit(tmp_path):
             break
     n = len(times)
     for k in range(n):
-        frame = iq[k]
-        pub_iq = np.stack([frame.real, frame.imag], -1).round().astype(np.int16) if frame.dtype.kind == "c" else frame
-        frames_pub.send(RadarFrameMessage(PASS_RADAR, RadarFrame(k, int(times[k]), time.time_ns(), True, 0, pub_iq)))
-        t = np.arange(times[k] - 50_000_000, times[k] + 110_000_000, 10_000_000, dtype=np.int64)
-        s = truth.sample(t)
-        poses_pub.send(PoseBatch(t, s.position_m, s.orientation_xyzw, s.velocity_mps))
+        send_frame_and_poses(frames_pub, poses_pub, PASS_RADAR, k, iq, times, truth)
         time.sleep(0.02)
     while time.monotonic() < deadline and imaged == 0:  # some of it in the map
         m = sub.receive(timeout_ms=300)
