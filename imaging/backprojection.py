@@ -330,31 +330,43 @@ def _float64_block(rows, p0, p1, r0, inv_dr, k, tx, rx, r_ref, bx, by, bz, linea
     v0 = np.empty(nb, np.complex64)
     v1 = np.empty(nb, np.complex64)
     for p in range(p0, p1):
-        tx0, tx1, tx2 = tx[p, 0], tx[p, 1], tx[p, 2]
-        rx0, rx1, rx2 = rx[p, 0], rx[p, 1], rx[p, 2]
-        ref = r_ref[p]
-        for i in range(nb):
-            a0 = bx[i] - tx0
-            a1 = by[i] - tx1
-            a2 = bz[i] - tx2
-            b0 = bx[i] - rx0
-            b1 = by[i] - rx1
-            b2 = bz[i] - rx2
-            dr = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2) + math.sqrt(b0 * b0 + b1 * b1 + b2 * b2) - ref
-            # +1: the leading guard bin; points outside the range axis land on zero guard bins.
-            pos = (dr - r0) * inv_dr + 1.0
-            pos = pos if pos > 0.0 else 0.0
-            pos = pos if pos < hi else hi
-            if linear:
-                fl = np.floor(pos)
-                idx[i] = np.uint32(fl)
-                frac[i] = np.float32(pos - fl)
-            else:
-                idx[i] = np.uint32(pos + 0.5)
-            c, s = _cos_sin(k * dr)
-            cos_[i] = c
-            sin_[i] = s
+        # ``linear`` as a constant in each call: a run-time branch inside the loop had LLVM store the bins of
+        # both modes under masks (``vpmaskmovd``, slow on AMD's cores).
+        if linear:
+            _float64_place(bx, by, bz, tx, rx, r_ref, p, r0, inv_dr, hi, k, True, idx, frac, cos_, sin_)
+        else:
+            _float64_place(bx, by, bz, tx, rx, r_ref, p, r0, inv_dr, hi, k, False, idx, frac, cos_, sin_)
         _gather_accumulate(rows[p], idx, frac, cos_, sin_, v0, v1, acc_re, acc_im, linear)
+
+
+@numba.njit(inline="always", fastmath=True)
+def _float64_place(bx, by, bz, tx, rx, r_ref, p, r0, inv_dr, hi, k, linear, idx, frac, cos_, sin_):
+    """``_float64_block``'s first pass for profile p: each point's bin (idx, frac: clamped onto the guard bins,
+    at most ``hi``) and the cos and sin of its phase (float64 geometry)."""
+    tx0, tx1, tx2 = tx[p, 0], tx[p, 1], tx[p, 2]
+    rx0, rx1, rx2 = rx[p, 0], rx[p, 1], rx[p, 2]
+    ref = r_ref[p]
+    for i in range(bx.size):
+        a0 = bx[i] - tx0
+        a1 = by[i] - tx1
+        a2 = bz[i] - tx2
+        b0 = bx[i] - rx0
+        b1 = by[i] - rx1
+        b2 = bz[i] - rx2
+        dr = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2) + math.sqrt(b0 * b0 + b1 * b1 + b2 * b2) - ref
+        # +1: the leading guard bin; points outside the range axis land on zero guard bins.
+        pos = (dr - r0) * inv_dr + 1.0
+        pos = pos if pos > 0.0 else 0.0
+        pos = pos if pos < hi else hi
+        if linear:
+            fl = np.floor(pos)
+            idx[i] = np.uint32(fl)
+            frac[i] = np.float32(pos - fl)
+        else:
+            idx[i] = np.uint32(pos + 0.5)
+        c, s = _cos_sin(k * dr)
+        cos_[i] = c
+        sin_[i] = s
 
 
 @numba.njit(parallel=True, fastmath=False, cache=True, nogil=True)
