@@ -104,22 +104,12 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                            "load is in the JSON).",
                            ".venv/bin/python benchmarks/kernel_versions.py --baseline dc9bbff --whole-package --rounds 3 "
                            "--name kernel_avx2_gather"),
-    "kernel_avx2_no_masked_stores": ("Backprojection kernel: no masked stores left (AVX2, AMD Zen 3)",
-                                     "The kernel whose compiled code has no masked stores (fce53eb: the float64 "
-                                     "block's placement in a loop per mode, the table's values chosen before their "
-                                     "store; 7 vmaskmovps/vpmaskmovd on AVX2 before) against main's (4da3eec), each "
-                                     "with its commit's whole imaging package in a worker process of its own, "
-                                     "alternating in one run: speed-up on 1 and 2 threads, cycles per backprojection, "
-                                     "SER of both. Measured on an AMD EPYC (Zen 3, AVX2, no AVX-512), loaded (the load "
-                                     "is in the JSON); the benchmark's cases take the float32 path, where only the "
-                                     "table's stores changed.",
-                                     ".venv/bin/python benchmarks/kernel_versions.py --baseline 4da3eec --whole-package "
-                                     "--rounds 3 --name kernel_avx2_no_masked_stores"),
-    "kernel_parts_avx2_quick": ("Backprojection kernel: cycles per part on AVX2 (AMD Zen 3), quick cases",
-                                "kernel_parts on the AMD EPYC (Zen 3, AVX2, no AVX-512; 8-lane loops and the 8-pixel "
-                                "permute gather), fce53eb's kernel (no masked stores), the quick cases (4 frames and "
-                                "1,024 profiles onto 128 x 128 pixels), 2 rounds, load 1.1-1.5 (the load is in the "
-                                "JSON).",
+    "kernel_avx2_no_masked_stores": ("Backprojection kernel: no masked stores left (AVX2, AMD Zen 3)", "fce53eb's kernel "
+                                     "(no masked stores) against 4da3eec's, whole imaging packages, alternating in one "
+                                     "run, loaded (the load is in the JSON).", ".venv/bin/python benchmarks/kernel_versions.py "
+                                     "--baseline 4da3eec --whole-package --rounds 3 --name kernel_avx2_no_masked_stores"),
+    "kernel_parts_avx2_quick": ("Backprojection kernel: cycles per part on AVX2 (AMD Zen 3), quick cases", "kernel_parts "
+                                "of fce53eb's kernel on the AMD EPYC (AVX2, no AVX-512), quick cases, load 1.1-1.5.",
                                 ".venv/bin/python benchmarks/kernel_parts.py --quick --name kernel_parts_avx2_quick"),
     "kernel_parts": ("Backprojection kernel: cycles per part",
                      "The kernel beside copies of itself that each leave one part out (the per-(block, profile) "
