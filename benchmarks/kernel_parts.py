@@ -17,9 +17,10 @@ and the memory traffic the parts share. On the kernel_versions benchmark's two c
 the one-antenna pass, 256 x 256 pixels), one thread, CPU time of the calling process times the CPU clock
 (/proc/cpuinfo) per backprojection; the best of the rounds.
 
-    python benchmarks/kernel_parts.py [--quick] [--rounds N]
+    python benchmarks/kernel_parts.py [--quick] [--rounds N] [--name NAME]
 
-Writes docs/results/kernel_parts.json (with the load average: the machine is shared).
+Writes docs/results/kernel_parts.json (NAME.json with ``--name``: the split on another CPU, beside the AVX-512
+machine's), with the load average: the machine is shared.
 """
 
 from __future__ import annotations
@@ -95,6 +96,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--rounds", type=int, default=None)
+    ap.add_argument("--name", default=None, help="the JSON's name (default kernel_parts[_quick])")
     args = ap.parse_args()
     frames, px, one = (4, 128, 1024) if args.quick else (16, 256, 4096)
     rounds = args.rounds or (2 if args.quick else 3)
@@ -151,7 +153,7 @@ def main() -> int:
               + ", ".join(f"{p} {v:.2f}" for p, v in result[name]["cycles_of_part"].items()), flush=True)
     result["machine"] = {"cores": os.cpu_count(), "load_average": os.getloadavg(), "uptime_before": uptime_before,
                          "uptime_after": uptime()}
-    name = "kernel_parts_quick" if args.quick else "kernel_parts"
+    name = args.name or ("kernel_parts_quick" if args.quick else "kernel_parts")
     write_results(name, result, started_load=started_load)
     print(f"load average {result['machine']['load_average'][0]:.2f}; wrote {RESULTS / (name + '.json')}")
     tmp.cleanup()

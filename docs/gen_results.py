@@ -104,6 +104,13 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                            "load is in the JSON).",
                            ".venv/bin/python benchmarks/kernel_versions.py --baseline dc9bbff --whole-package --rounds 3 "
                            "--name kernel_avx2_gather"),
+    "kernel_avx2_no_masked_stores": ("Backprojection kernel: no masked stores left (AVX2, AMD Zen 3)", "fce53eb's kernel "
+                                     "(no masked stores) against 4da3eec's, whole imaging packages, alternating in one "
+                                     "run, loaded (the load is in the JSON).", ".venv/bin/python benchmarks/kernel_versions.py "
+                                     "--baseline 4da3eec --whole-package --rounds 3 --name kernel_avx2_no_masked_stores"),
+    "kernel_parts_avx2_quick": ("Backprojection kernel: cycles per part on AVX2 (AMD Zen 3), quick cases", "kernel_parts "
+                                "of fce53eb's kernel on the AMD EPYC (AVX2, no AVX-512), quick cases, load 1.1-1.5.",
+                                ".venv/bin/python benchmarks/kernel_parts.py --quick --name kernel_parts_avx2_quick"),
     "kernel_parts": ("Backprojection kernel: cycles per part",
                      "The kernel beside copies of itself that each leave one part out (the per-(block, profile) "
                      "table, each pixel's offset, bin and phase, the gather, the sine and cosine, the whole "

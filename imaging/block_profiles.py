@@ -166,9 +166,14 @@ def block_profile_table(cx, cy, cz, radius, u_one, u_mid, prof, n, r0, inv_dr, h
         new_offsets = (form >= FORM_RX_SERIES) & (flags != 0.0)  # a TX alone is new too
         ints[CODE + j] = form | (NEW_TX_OFFSETS if new_offsets else 0) | (TX_SERIES if a_series else 0)
         on_mid = folded | gradient
-        table[V0 + j] = np.float32((2.0 * um0 + (um * e0 if folded else 0.0)) if on_mid else 2.0 * ua0)
-        table[V1 + j] = np.float32((2.0 * um1 + (um * e1 if folded else 0.0)) if on_mid else 2.0 * ua1)
-        table[V2 + j] = np.float32((2.0 * um2 + (um * e2 if folded else 0.0)) if on_mid else 2.0 * ua2)
+        # Each value chosen before its store: a choice around the whole stored value, LLVM made into two
+        # stores under complementary masks (``vmaskmovps``, slow on AMD's cores).
+        v0 = 2.0 * um0 + (um * e0 if folded else 0.0) if on_mid else 2.0 * ua0
+        v1 = 2.0 * um1 + (um * e1 if folded else 0.0) if on_mid else 2.0 * ua1
+        v2 = 2.0 * um2 + (um * e2 if folded else 0.0) if on_mid else 2.0 * ua2
+        table[V0 + j] = np.float32(v0)
+        table[V1 + j] = np.float32(v1)
+        table[V2 + j] = np.float32(v2)
         table[E0 + j] = np.float32(e0 if gradient else 0.0)
         table[E1 + j] = np.float32(e1 if gradient else 0.0)
         table[E2 + j] = np.float32(e2 if gradient else 0.0)
