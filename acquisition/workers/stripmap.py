@@ -215,7 +215,7 @@ class StripMapWorker(Worker):
             # Every step of the catch-up ladder: past POLAR_MIN_PROFILES profiles a frame the map images by
             # direct backprojection instead of by beams, a kernel of its own. Left to the first frames behind, a
             # cold cache compiled it live (60 s of CPU on the AMD VM, 75 s at nice 10): the map fell 75 s behind
-            # and was killed at the stop (the demo in the official CI, stop 41).
+            # and was killed at the stop (the official CI's demo, 2026-11-26).
             for factor, sum_rx in self.catch_up_paths(name):
                 scratch = StripMap(self.config.map)
                 scratch.add_frames(radar, self.orders[name], [noise], [t0 + 500_000_000], traj,
