@@ -3,6 +3,7 @@
 import asyncio
 import json
 import os
+import re
 import struct
 import subprocess
 import sys
@@ -87,8 +88,13 @@ def test_demo_runs_the_whole_pipeline_and_finds_the_targets(tmp_path):
     assert report["imu_samples_recorded_of_sent"][0] == report["imu_samples_recorded_of_sent"][1]
     assert report["can_frames_recorded_of_sent"][0] == report["can_frames_recorded_of_sent"][1]
     # The emulated devices are plugged in before the daemon starts and until it has stopped, as a robot's are:
-    # no warning in the file (the IMU's port had been missing at the start and lost at the end).
-    assert not [e for e in report["events"] if e[1] != "info"], report["events"]
+    # no warning in the file (the IMU's port had been missing at the start and lost at the end). The odometry
+    # may thin a few radar scans where the machine is briefly short of CPU, as designed and said in /events
+    # (the fresh-clone CI on the 2-vCPU AMD VM: one scan, 0.4 s behind): a few, never more.
+    behind = [e for e in report["events"] if e[0] == "rio" and " behind: " in e[2]]
+    assert not [e for e in report["events"] if e[1] != "info" and e not in behind], report["events"]
+    thinned = [int(re.search(r"(\d+) radar scans thinned", e[2]).group(1)) for e in behind]
+    assert max(thinned, default=0) <= 8, behind
     with Recording(out / "recording.h5") as rec, Recording(out / "simulated.h5") as sim:
         np.testing.assert_array_equal(rec.file["radar/left_front/adc"][()], sim.file["radar/left_front/adc"][()])
     # The odometry from raw ADC and IMU, and the live map placed by it.
