@@ -32,6 +32,7 @@ from drivers.radar.timestamping import (
     choose_receive_stamps,
     interface_of,
     parse_scm_timestamping,
+    software_stamp_ns,
     timestamping_info,
 )
 from drivers.radar.udp import UdpReceiver
@@ -100,6 +101,9 @@ def test_scm_timestamping_as_the_kernel_writes_it_and_the_hardware_slot():
     assert parse_scm_timestamping(with_card) == (software, 0, 1_700_000_037_123_456_789)
     # Where time_t is 32 bits, each timespec is 8 bytes.
     assert parse_scm_timestamping(struct.pack("iiiiii", 5, 6, 0, 0, 7, 8)) == (5_000_000_006, 0, 7_000_000_008)
+    # The software stamp alone (the drivers' per-datagram read without hardware stamps): the same, both layouts.
+    assert software_stamp_ns(with_card) == software and software_stamp_ns(value) == software
+    assert software_stamp_ns(struct.pack("iiiiii", 5, 6, 0, 0, 7, 8)) == 5_000_000_006
 
 
 def _ethtool_t(output: str) -> dict:

@@ -26,17 +26,12 @@ import sys
 import time
 
 from .timestamping import HARDWARE_FLAGS, SCM_TIMESTAMPING, SCM_TIMESTAMPING_MIN_BYTES, SO_TIMESTAMPING, SOFTWARE_FLAGS, \
-    StampChoice, choose_receive_stamps, parse_scm_timestamping
+    StampChoice, choose_receive_stamps, parse_scm_timestamping, software_stamp_ns
 
 SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
 SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
 
 log = logging.getLogger(f"sarbot.{__name__}")
-
-#: The kernel's software stamp alone: the first ``struct timespec`` of SCM_TIMESTAMPING (64-bit time_t), the
-#: one a datagram needs without hardware stamps (``parse_scm_timestamping`` reads all three).
-_SOFTWARE_STAMP = struct.Struct("qq")
-_SCM_TIMESTAMPING_64_BYTES = 48
 
 
 def usable_rcvbuf_bytes(reported_bytes: int) -> int:
@@ -115,12 +110,11 @@ class UdpReceiver:
             return None
         t_ns = nic_ns = 0
         for level, kind, value in ancdata:  # per datagram (10,000 a second): the common case first
-            if kind == SCM_TIMESTAMPING and level == socket.SOL_SOCKET:
-                if not self.hardware and len(value) >= _SCM_TIMESTAMPING_64_BYTES:
-                    seconds, nanoseconds = _SOFTWARE_STAMP.unpack_from(value)
-                    t_ns = seconds * 1_000_000_000 + nanoseconds
-                elif len(value) >= SCM_TIMESTAMPING_MIN_BYTES:
+            if kind == SCM_TIMESTAMPING and level == socket.SOL_SOCKET and len(value) >= SCM_TIMESTAMPING_MIN_BYTES:
+                if self.hardware:
                     t_ns, _, nic_ns = parse_scm_timestamping(value)
+                else:
+                    t_ns = software_stamp_ns(value)
             elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
                 self.kernel_drops = struct.unpack_from("I", value)[0]
         if self.hardware:
