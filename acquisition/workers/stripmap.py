@@ -212,6 +212,9 @@ class StripMapWorker(Worker):
             shape = (wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp, 2)  # I/Q pairs, as frames arrive
             noise = rng.integers(-512, 512, shape, dtype=np.int16)
             noise.flags.writeable = False  # as a frame off the bus is: numba compiles read-only arrays apart
+            # A worker behind images queued frames together (add_frames), whose path compiles apart: warmed too,
+            # or a cold cache's first batch stalls the live map for seconds.
+            later = [t0 + 600_000_000, t0 + 600_000_000 + int(wf.frame_interval_s * 1e9)]
             # Every step of the catch-up ladder: past POLAR_MIN_PROFILES profiles a frame the map images by
             # direct backprojection instead of by beams, a kernel of its own. Left to the first frames behind, a
             # cold cache compiled it live (60 s of CPU on the AMD VM, 75 s at nice 10): the map fell 75 s behind
@@ -220,9 +223,6 @@ class StripMapWorker(Worker):
                 scratch = StripMap(self.config.map)
                 scratch.add_frames(radar, self.orders[name], [noise], [t0 + 500_000_000], traj,
                                    presum=presum * factor, sum_rx=sum_rx)
-                # A worker behind images queued frames together (add_frames), whose path compiles apart: warmed
-                # too, or a cold cache's first batch stalls the live map for seconds.
-                later = [t0 + 600_000_000, t0 + 600_000_000 + int(wf.frame_interval_s * 1e9)]
                 scratch.add_frames(radar, self.orders[name], [noise, noise], later, traj, presum=presum * factor,
                                    sum_rx=sum_rx)
                 scratch.flush()  # "ffbp": a one-frame block compiles the factorized kernels
