@@ -234,6 +234,34 @@ def test_a_late_measurement_learns_the_scale_at_the_speed_its_span_was_driven_at
     assert feedback.doppler_scale - 1 < 0.03
 
 
+def test_the_scale_learnt_since_a_late_measurement_s_span_counts_at_the_span_s_speed():
+    """The CI run that failed (stop 40, its second submission): the map's second measurement, of a span driven at 0.39 m/s before the
+    first one taught the scale, arrived while the robot slowed (0.07 m/s). The scale learnt since corrects that
+    span's velocity by 0.39 x 2.8 % = 10.9 mm/s; counted at the speed now (2.0 mm/s), the rest read as error
+    still left and took the scale from +28.8k to +34.8k ppm, 3.6 of its sigmas off the truth (+20.4k)."""
+    ekf = moving_filter((0.07, 0.0, 0.0))
+    now_ns = ekf.state.time_ns
+    feedback = MapFeedback()
+    t = now_ns + np.arange(-80, 1) * 100_000_000
+    feedback.note_poses(t, np.where((t < now_ns - 10**9)[:, None], [0.39, 0.0, 0.0], [0.07, 0.0, 0.0]))
+    left = 0.39 * (1 / 0.98 - 1)  # the error a 2 % low Doppler leaves at 0.39 m/s, before any scale is learnt
+    along = np.array([1.0, 0.0, 0.0])
+    ekf.state.time_ns = now_ns - 2_500_000_000
+    feedback.apply_measurements(ekf, [LookVelocityMeasurement(now_ns - 5 * 10**9, 1.5, along, left, 0.00229,
+                                                              ("left_front",), 2)])
+    first_scale = feedback.doppler_scale
+    assert first_scale == pytest.approx(1 / 0.98, abs=0.001)
+    ekf.state.time_ns = now_ns
+    feedback.apply_measurements(ekf, [LookVelocityMeasurement(now_ns - 4 * 10**9, 1.5, along, left, 0.00211,
+                                                              ("left_front",), 2)])
+    second = feedback.updates[-1]
+    assert second.accepted, second.line()
+    assert second.speed_mps < 0.1  # 0.07, plus the first update's change
+    assert second.corrected_by_scale_mps == pytest.approx(0.39 * (1 - 1 / first_scale), rel=1e-6)
+    assert abs(second.residual_mps) < 0.001, second.line()
+    assert feedback.doppler_scale == pytest.approx(1 / 0.98, abs=0.001), second.line()
+
+
 def test_a_span_begun_while_the_filter_settles_from_a_start_is_not_taken():
     """Every live run's first tile (a span begun 0.5 s after the robot started) read -11.1 to -11.9 mm/s and
     taught the scale +26.9k to +28.8k ppm (truth +20.4k, sigma 11.5k), which the spans straddling that update
