@@ -50,6 +50,12 @@ def test_the_live_map_s_velocity_errors_reach_the_odometry_s_filter(drive, tmp_p
         # thinned at load averages of 20-26 on 2 cores, 3 at 8): the map thinned its frames too, and tiles
         # refocused over part of their aperture read no velocity error. Not this test's subject.
         pytest.skip(f"the machine is too loaded to run the daemon in real time: {counters}")
+    map_counters = run["map_counters"]
+    if map_counters.get("frames_thinned", 0) > 0.2 * max(map_counters.get("frames_imaged", 0), 1):
+        # The same from the map's side: at load 10-12 the map thinned 140 of 176 frames and its few tiles, read
+        # late and over thinned apertures, all began in the filter's settling (none taken). A quiet run thins
+        # 0-4 of about 290.
+        pytest.skip(f"the machine is too loaded for the map to keep up in real time: {map_counters}")
     # What the filter made of each map measurement (its residual, sigma, the scale around it), for a failure.
     # The recording's /events hold every one the odometry met (rio.map_feedback.MapUpdate); the health counters
     # are the last report's, which an update arriving in the run's last half second is not in yet.
