@@ -197,8 +197,21 @@ def cfar_2d(power: np.ndarray, config: PointCloudConfig) -> tuple[np.ndarray, np
     else:
         raise ValueError(f"unknown CFAR {config.cfar!r} (ca, os)")
     threshold = noise * 10 ** (config.threshold_db / 10)
-    local_max = power == scipy.ndimage.maximum_filter(power, size=3, mode=("wrap", "nearest"))
-    return (power > threshold) & local_max, noise
+    hits = power > threshold
+    # A detection is also the largest of its 3 x 3 neighbourhood (Doppler wraps, the range's edge cell is its
+    # own neighbour), tested at the cells over the threshold only (some hundreds of the map's 16 k): a
+    # maximum filter over the whole map cost a third of the CFAR, for the same mask.
+    d, r = np.nonzero(hits)
+    peak = power[d, r]
+    largest = np.ones(d.size, bool)
+    n_dop, n_range = power.shape
+    for step_d in (-1, 0, 1):
+        rows = (d + step_d) % n_dop
+        for step_r in (-1, 0, 1):
+            if step_d or step_r:
+                largest &= power[rows, np.clip(r + step_r, 0, n_range - 1)] <= peak
+    hits[d[~largest], r[~largest]] = False
+    return hits, noise
 
 
 def _parabolic_v(y_m1: np.ndarray, y0: np.ndarray, y_p1: np.ndarray) -> np.ndarray:
