@@ -11,7 +11,9 @@ of 20 samples (the IMU driver's 0.05 s) and every radar frame as int16 I/Q, each
 a bus with no subscriber); its warm-up is run before and not counted. Every frame's receive time is "now", so
 the worker never falls behind and thins nothing: both versions make every second frame of each radar into
 a scan (``scan_rate_hz`` 10) and run the same filter. The bus's receive and decoding are left out (the same
-code in both).
+code in both). As in the worker's run loop, the C heap's free pages go back to the system once a second of
+the drive (``release_free_heap``): whether an array of a few MB is served from the heap or mapped and faulted
+in anew changes what a scan costs (acquisition/processes.py), and the baseline made several a scan.
 
 The baseline's ``acquisition/workers/odometry.py``, ``rio/pointcloud.py`` and ``imaging/io/trajectory_file.py``
 are loaded from git (``git show COMMIT:PATH``) as modules of their own beside the checkout's, and put in
@@ -19,8 +21,11 @@ are loaded from git (``git show COMMIT:PATH``) as modules of their own beside th
 methods); everything else is the checkout's. Rounds alternate which version goes first, so the machine's
 load falls on both alike. CPU is the main thread's (``time.thread_time``): ZeroMQ's I/O thread is left out.
 Figures: the median over rounds of the CPU per scan and per frame received, and the ratio baseline / now per
-round. The two trajectory files are compared (positions, orientations, velocities) and the point clouds of
-every radar's first 24 frames.
+round. Beside them, each round, ``detect`` alone (the baseline's on the complex frame, as its worker called it,
+and the checkout's detector on the I/Q) on every radar's first 12 frames; and once, each version's worker under
+cProfile: the shares of its time in the point clouds, their FFTs, the filter and the poses' publishing. The two
+trajectory files are compared (positions, orientations, velocities) and the point clouds of every radar's first
+24 frames.
 
 Writes docs/results/odometry_cpu_per_scan.json.
 """
@@ -48,6 +53,7 @@ import imaging.io.trajectory_file as trajectory_now  # noqa: E402
 import rio.pointcloud as pointcloud_now  # noqa: E402
 from acquisition.bus import BusPublisher  # noqa: E402
 from acquisition.messages import ImuBatch, RadarFrameMessage  # noqa: E402
+from acquisition.processes import release_free_heap  # noqa: E402
 from drivers.radar.stream import RadarFrame  # noqa: E402
 from imaging.core.rig import Rig  # noqa: E402
 from imaging.core.samples import iq_to_complex  # noqa: E402
@@ -112,10 +118,14 @@ def run_worker(module, rig: Rig, events: list, trajectory_path: Path) -> dict:
         worker = module.OdometryWorker(module.OdometryWorkerConfig(rig, None, str(trajectory_path)), pub)
         worker.warm_up()
         cpu, wall = time.thread_time(), time.perf_counter()
+        batches = 0
         for kind, data in events:
             if kind == "imu":
                 t, gyro, accel = data
                 message = ImuBatch(t, gyro, accel, np.zeros(t.size, np.uint32), t)
+                batches += 1
+                if batches % 20 == 0:  # a second of the drive: the run loop gives the free heap back as often
+                    release_free_heap()
             else:
                 name, counter, frame_time_ns, iq = data
                 message = RadarFrameMessage(name, RadarFrame(counter, frame_time_ns, time.time_ns(), True, 0, iq))
@@ -141,6 +151,50 @@ def compare_trajectories(a: Path, b: Path) -> dict:
         for field in ("position_m", "orientation_xyzw", "velocity_mps"):
             out[f"max_abs_difference_{field}"] = float(np.max(np.abs(getattr(ta, field) - getattr(tb, field))))
     return out
+
+
+def radar_frames(rig: Rig, events: list, per_radar: int) -> list:
+    """(radar, int16 I/Q) of each radar's first ``per_radar`` frames, in bus order."""
+    taken, out = {}, []
+    for kind, data in events:
+        if kind == "radar" and taken.get(data[0], 0) < per_radar:
+            taken[data[0]] = taken.get(data[0], 0) + 1
+            out.append((rig.radar(data[0]), data[3]))
+    return out
+
+
+def time_detect(pointcloud_base, frames: list) -> dict:
+    """CPU per point cloud (``time.thread_time``, ms) of the baseline's ``detect`` on the complex frame (as its
+    worker called it) and of the checkout's detector on the I/Q, on the same frames."""
+    detectors = {r.name: pointcloud_now.PointCloudDetector(r, r.waveform.tdm_tx_order()) for r, _ in frames}
+    cpu = time.thread_time()
+    for radar, iq in frames:
+        pointcloud_base.detect(iq_to_complex(iq), radar, np.asarray(radar.waveform.tdm_tx_order()))
+    base = (time.thread_time() - cpu) / len(frames) * 1e3
+    cpu = time.thread_time()
+    for radar, iq in frames:
+        detectors[radar.name].detect(iq)
+    return {"baseline": base, "now": (time.thread_time() - cpu) / len(frames) * 1e3}
+
+
+def profile_shares(module, rig: Rig, events: list, trajectory_path: Path) -> dict:
+    """One pass under cProfile: the share of the worker's time (cumulative, of ``handle`` and ``finish``) in
+    the point clouds, their FFTs, the filter's IMU and scan paths and the publishing of poses."""
+    import cProfile
+    import pstats
+
+    profile = cProfile.Profile()
+    profile.enable()
+    run_worker(module, rig, events, trajectory_path)
+    profile.disable()
+    cumulative: dict[str, float] = {}
+    for (path, _, function), row in pstats.Stats(profile).stats.items():
+        key = {"detect": "point_clouds", "c2c": "ffts", "add_imu": "filter_imu_batches", "add_scan": "filter_scans",
+               "_publish": "publishing_poses", "handle": "handle", "finish": "finish"}.get(function)
+        if key and (key == "ffts" or "pointcloud" in path or "streaming" in path or "odometry" in path):
+            cumulative[key] = cumulative.get(key, 0.0) + row[3]
+    total = cumulative.get("handle", 0.0) + cumulative.get("finish", 0.0)
+    return {k: v / total for k, v in cumulative.items() if k not in ("handle", "finish")}
 
 
 def compare_point_clouds(pointcloud_base, rig: Rig, events: list, per_radar: int = 24) -> dict:
@@ -189,7 +243,8 @@ def main() -> int:
         started_load = load_average()
         probe_machine()
         runs = {v: [] for v in versions}
-        ratios = []
+        ratios, detect_ms = [], []
+        frames = radar_frames(rig, events, 12)
         for k in range(args.rounds):
             order = list(versions) if k % 2 == 0 else list(versions)[::-1]
             this = {}
@@ -199,8 +254,12 @@ def main() -> int:
                     this[v] = run_worker(module, rig, events, tmp / f"trajectory_{v}.h5")
                 runs[v].append(this[v])
             ratios.append(this["baseline"]["cpu_s"] / this["now"]["cpu_s"])
+            detect_ms.append(time_detect(base["rio.pointcloud"], frames))
             print(f"round {k}: " + ", ".join(f"{v} {this[v]['cpu_s'] / this[v]['scans'] * 1e3:.2f} ms CPU/scan"
                                               for v in versions) + f", baseline/now {ratios[-1]:.2f}", flush=True)
+        with modules_in_place(base):
+            shares = {"baseline": profile_shares(worker_base, rig, events, tmp / "trajectory_profiled.h5")}
+        shares["now"] = profile_shares(worker_now, rig, events, tmp / "trajectory_profiled.h5")
         trajectories = compare_trajectories(tmp / "trajectory_baseline.h5", tmp / "trajectory_now.h5")
         point_clouds = compare_point_clouds(base["rio.pointcloud"], rig, events)
     figures = {}
@@ -221,6 +280,9 @@ def main() -> int:
         "ratio_baseline_over_now_per_round": ratios,
         "ratio_baseline_over_now_median": statistics.median(ratios),
         "core_pct_at_1x_four_radars": {v: figures[v]["cpu_ms_per_frame_received"] * frames_per_s / 10 for v in figures},
+        "detect_alone_cpu_ms": {v: statistics.median(d[v] for d in detect_ms) for v in ("baseline", "now")},
+        "detect_alone_ratio_per_round": [d["baseline"] / d["now"] for d in detect_ms],
+        "profile_shares_of_worker_time": shares,
         "trajectories": trajectories,
         "point_clouds": point_clouds,
         "note": "CPU of the worker's thread only (thread_time), bus receive and decoding left out; the machine "

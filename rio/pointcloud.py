@@ -91,10 +91,11 @@ class PointCloudDetector:
         self.config = config
         self._layout: _Layout | None = None
         self._buffer: np.ndarray | None = None
+        self._magnitude: np.ndarray | None = None
 
     def layout(self, shape: tuple[int, int, int]) -> _Layout:
         """The layout for frames [chirps, n_rx, samples] of ``shape`` (made on the first, or a new shape)."""
-        if self._layout is not None and self._buffer.shape[:2] == shape[:2] and self._layout.range_window.size == shape[2]:
+        if self._layout is not None and (*self._buffer.shape[:2], self._layout.range_window.size) == tuple(shape):
             return self._layout
         wf, n_c, n_r, n_s = self.radar.waveform, *shape
         n_range = 1 << int(np.ceil(np.log2(n_s)))
@@ -140,7 +141,8 @@ class PointCloudDetector:
         if iq:
             # I and Q side by side, as complex64 lays them out: the window repeated for each (a contiguous
             # inner loop, where a window broadcast over the last axis of 2 would make numpy loop 2 at a time).
-            np.multiply(frame.reshape(n_c, n_r, 2 * n_s), layout.range_window_iq, out=cube.view(np.float32)[..., : 2 * n_s])
+            np.multiply(frame.reshape(n_c, n_r, 2 * n_s), layout.range_window_iq,
+                        out=cube.view(np.float32)[..., : 2 * n_s])
         else:
             np.multiply(frame, layout.range_window, out=cube[..., :n_s])
         cube[..., n_s:] = 0
@@ -162,7 +164,12 @@ class PointCloudDetector:
     def detect(self, frame: np.ndarray) -> "PointCloud":
         """Point cloud of one frame: complex [chirps, n_rx, samples] or int16 I/Q [chirps, n_rx, samples, 2]."""
         cube, layout = self.cube(frame)
-        return _points(cube, layout, self.radar, self.config)
+        # |cube|^2 in a buffer of the detector's own (1 MB a scan not allocated, nor faulted in after a trim).
+        magnitude = self._magnitude
+        if magnitude is None or magnitude.shape != cube.shape:
+            magnitude = self._magnitude = np.empty(cube.shape, np.float32)
+        np.square(np.abs(cube, out=magnitude), out=magnitude)
+        return _points(cube, layout, self.radar, self.config, np.sum(magnitude, axis=1))
 
 
 def _chirps_of_each_tx(tx_order, n_tx: int, n_chirps: int) -> np.ndarray:
@@ -228,12 +235,13 @@ def detect(frame: np.ndarray, radar: RadarConfig, tx_order, config: PointCloudCo
     return PointCloudDetector(radar, tx_order, config).detect(frame)
 
 
-def _points(cube: np.ndarray, layout: _Layout, radar: RadarConfig, config: PointCloudConfig) -> PointCloud:
-    """Detections of a range-Doppler cube (``PointCloudDetector.cube``): CFAR, refinement, angle of arrival."""
+def _points(cube: np.ndarray, layout: _Layout, radar: RadarConfig, config: PointCloudConfig,
+            power: np.ndarray) -> PointCloud:
+    """Detections of a range-Doppler cube (``PointCloudDetector.cube``) and its ``power`` summed over the
+    virtual channels (non-coherently) [Doppler, range]: CFAR, refinement, angle of arrival."""
     wf = radar.waveform
     positions, tx_of_channel, n_range = layout.positions_m, layout.tx_of_channel, layout.n_range
     n_dop = cube.shape[0]
-    power = np.sum(np.abs(cube) ** 2, axis=1)  # non-coherent over the virtual channels
     range_bin_m = 0.5 * SPEED_OF_LIGHT_MPS * wf.sample_rate_hz / (n_range * wf.slope_hz_per_s)  # one-way
     hits, noise = cfar_2d(power, config)
     hits[:, : int(np.ceil(config.min_range_m / range_bin_m))] = False
