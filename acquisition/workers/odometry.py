@@ -30,12 +30,12 @@ log = logging.getLogger(f"sarbot.{__name__}")
 @dataclasses.dataclass
 class OdometryWorkerConfig:
     """``radars`` None: all of the rig's. Point clouds are made from at most ``scan_rate_hz`` frames per radar
-    (ego velocity needs no more, and each costs about 10 ms). A worker that falls behind (a busy machine,
-    the backlog of its warm-up) catches up in time order: more than ``max_lag_s`` late it takes only every
-    k-th scan of each radar (k grows with the lag, at most ``max_thinning``), counted in health and as
-    events. It never leaves out every scan: the filter would drift on the IMU alone. The IMU is never left
-    out. The filter waits for each radar (``StreamingRio.radar_seen``) unless no frame of it has come for
-    ``radar_silence_s``."""
+    (ego velocity needs no more, and each costs 3-5 ms of CPU: docs/results/odometry_cpu_per_scan.json). A
+    worker that falls behind (a busy machine, the backlog of its warm-up) catches up in time order: more than
+    ``max_lag_s`` late it takes only every k-th scan of each radar (k grows with the lag, at most
+    ``max_thinning``), counted in health and as events. It never leaves out every scan: the filter would
+    drift on the IMU alone. The IMU is never left out. The filter waits for each radar
+    (``StreamingRio.radar_seen``) unless no frame of it has come for ``radar_silence_s``."""
 
     rig: Rig
     radars: list[str] | None
@@ -85,7 +85,8 @@ class OdometryWorker(Worker):
         self.rio = StreamingRio(options, imu_rate_hz=rig.imu.rate_hz)
         self.pc_config = PointCloudConfig()
         # One detector per radar: its windows and cube buffer are made once, not on every scan.
-        self.detectors = {name: PointCloudDetector(r, self.orders[name], self.pc_config) for name, r in self.radars.items()}
+        self.detectors = {name: PointCloudDetector(r, self.orders[name], self.pc_config)
+                          for name, r in self.radars.items()}
         self.trajectory = None  # a TrajectoryWriter once the first poses come: poses go to disk, not memory
         self.poses_written = 0
         self.last_flush = time.monotonic()
