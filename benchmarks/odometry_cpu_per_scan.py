@@ -1,7 +1,7 @@
 """The odometry worker's CPU per radar scan: a baseline commit's code against the checkout's, interleaved in one
 process, fed the same messages.
 
-    python benchmarks/odometry_cpu_per_scan.py [--baseline COMMIT] [--rounds 6] [--recording PATH]
+    python benchmarks/odometry_cpu_per_scan.py [--baseline COMMIT] [--rounds 6] [--recording PATH] [--quick]
 
 The drive is the demo's (``acquisition.studies.demo.demo_scene``: four radars, 10 s, 192 frames each at
 19.2 Hz, the IMU at 400 Hz), simulated once into a temporary folder (``--recording``: a simulated recording
@@ -27,7 +27,7 @@ cProfile: the shares of its time in the point clouds, their FFTs, the filter and
 trajectory files are compared (positions, orientations, velocities) and the point clouds of every radar's first
 24 frames.
 
-Writes docs/results/odometry_cpu_per_scan.json.
+Writes docs/results/odometry_cpu_per_scan.json (``--quick``: 2 rounds, to odometry_cpu_per_scan_quick.json).
 """
 
 from __future__ import annotations
@@ -221,7 +221,10 @@ def main() -> int:
     ap.add_argument("--baseline", default=BASELINE)
     ap.add_argument("--rounds", type=int, default=6)
     ap.add_argument("--recording", type=Path, help="the demo drive simulated earlier (else simulated here)")
+    ap.add_argument("--quick", action="store_true", help="a smoke run: 2 rounds, to odometry_cpu_per_scan_quick.json")
     args = ap.parse_args()
+    if args.quick:
+        args.rounds = 2
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         recording = args.recording
@@ -288,7 +291,8 @@ def main() -> int:
         "note": "CPU of the worker's thread only (thread_time), bus receive and decoding left out; the machine "
                 "was shared (load in the provenance): the ratios taken in the same rounds are the figures.",
     }
-    path = write_results("odometry_cpu_per_scan", result, started_load=started_load)
+    name = "odometry_cpu_per_scan" + ("_quick" if args.quick else "")
+    path = write_results(name, result, started_load=started_load)
     print(f"baseline/now {result['ratio_baseline_over_now_median']:.2f}; trajectories {trajectories}; "
           f"point clouds {point_clouds}; wrote {path}")
     return 0
