@@ -408,6 +408,15 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                              "the machine was shared (load in the provenance), so the ratios taken in the same rounds "
                              "are the figures, not the milliseconds.",
                              ".venv/bin/python benchmarks/driver_cpu_per_frame.py"),
+    "odometry_cpu_per_scan": ("The odometry worker's CPU per radar scan",
+                              "The odometry worker's code (the worker, the point clouds, the trajectory writer) at "
+                              "main before wave 3k (baseline) against now, interleaved in one process on the demo "
+                              "drive (four radars, 10 s, the IMU at 400 Hz): every message through "
+                              "OdometryWorker.handle, the trajectory file written; CPU of the worker's thread per "
+                              "scan made into a point cloud (every second frame). The trajectories and point "
+                              "clouds of the two are compared; the machine was shared (load in the provenance), "
+                              "so the ratios taken in the same rounds are the figures, not the milliseconds.",
+                              ".venv/bin/python benchmarks/odometry_cpu_per_scan.py"),
     "soak_direct_2m": ("Soak: 2 m aperture, direct kernel",
                        "The live map at a 2 m aperture with the direct kernel.",
                        ".venv/bin/python benchmarks/soak.py --minutes 3 --map-args \"--map-aperture 2\" --name direct_2m"),

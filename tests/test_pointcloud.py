@@ -215,3 +215,59 @@ def test_iq_to_complex_is_i_plus_j_q():
         np.testing.assert_array_equal(got, pairs[..., 0].astype(np.float64) + 1j * pairs[..., 1].astype(np.float64))
     with pytest.raises(ValueError, match="last axis of 2"):
         iq_to_complex(iq[..., :1])
+
+
+def _frames_iq(n, seed=3):
+    """``n`` frames of the default radar as the wire carries them (int16 I/Q): targets moving, in noise."""
+    from imaging.core.samples import complex_to_iq
+
+    return [complex_to_iq(frame_of(0.3 * k, snr_db=10.0, seed=seed + k)[0], 50.0) for k in range(n)]
+
+
+def test_the_detector_on_int16_iq_gives_detect_on_complex_frames_bit_for_bit_scan_after_scan():
+    """The live odometry's PointCloudDetector (windows made once, one cube buffer reused, filled straight from
+    the I/Q) makes the point cloud the plain ``detect`` makes of the complex frame, scan after scan: the
+    buffer carries nothing from one scan into the next."""
+    from imaging.core.samples import iq_to_complex
+    from rio.pointcloud import PointCloudDetector
+
+    frames = _frames_iq(3)
+    order = RADAR.waveform.tdm_tx_order()
+    detector = PointCloudDetector(RADAR, order)
+    for iq in [*frames, frames[0]]:
+        want = detect(iq_to_complex(iq), RADAR, order)
+        got = detector.detect(iq)
+        assert want.xyz_m.shape[0] >= len(TARGETS)
+        for field in ("xyz_m", "doppler_mps", "snr_db", "range_m", "azimuth_rad"):
+            np.testing.assert_array_equal(getattr(got, field), getattr(want, field), err_msg=field)
+        np.testing.assert_array_equal(detector.detect(iq_to_complex(iq)).xyz_m, want.xyz_m)  # complex in too
+
+
+@pytest.mark.parametrize("kind", ["ca", "os"])
+def test_cfar_keeps_only_the_largest_cell_of_each_3x3_neighbourhood_as_a_maximum_filter_does(kind):
+    """The local-maximum test at the cells over the threshold is the whole map's maximum filter (Doppler
+    wrapping, the range's edges repeated), ties and edges included."""
+    import scipy.ndimage
+
+    rng = np.random.default_rng(4)
+    power = rng.exponential(1.0, (64, 128)).astype(np.float32)
+    for d, r in ((0, 40), (63, 41), (30, 0), (31, 127), (10, 60), (10, 61), (50, 90), (51, 91)):
+        power[d, r] = 300.0  # on the Doppler wrap, at the range edges, ties side by side and diagonal
+    power[20:23, 100:103] = 250.0  # a plateau
+    hits, noise = cfar_2d(power, PointCloudConfig(cfar=kind))
+    threshold = noise * 10 ** (PointCloudConfig().threshold_db / 10)
+    local_max = power == scipy.ndimage.maximum_filter(power, size=3, mode=("wrap", "nearest"))
+    want = (power > threshold) & local_max
+    np.testing.assert_array_equal(hits, want)
+    assert want[0, 40] and want[63, 41] and want[30, 0] and want[31, 127] and want[10, 60] and want[21, 101]
+
+
+def test_the_detector_refuses_a_frame_of_the_wrong_form():
+    from rio.pointcloud import PointCloudDetector
+
+    detector = PointCloudDetector(RADAR, RADAR.waveform.tdm_tx_order())
+    wf = RADAR.waveform
+    with pytest.raises(ValueError, match="last axis of 2"):
+        detector.detect(np.zeros((wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp, 3), np.int16))
+    with pytest.raises(ValueError, match=r"\[chirps, rx, samples\]"):
+        detector.detect(np.zeros((wf.n_rx, wf.samples_per_chirp), np.complex64))

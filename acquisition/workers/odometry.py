@@ -12,7 +12,6 @@ import time
 import numpy as np
 
 from imaging.core.rig import Rig
-from imaging.core.samples import iq_to_complex
 
 from ..messages import (
     Event,
@@ -31,12 +30,12 @@ log = logging.getLogger(f"sarbot.{__name__}")
 @dataclasses.dataclass
 class OdometryWorkerConfig:
     """``radars`` None: all of the rig's. Point clouds are made from at most ``scan_rate_hz`` frames per radar
-    (ego velocity needs no more, and each costs about 10 ms). A worker that falls behind (a busy machine,
-    the backlog of its warm-up) catches up in time order: more than ``max_lag_s`` late it takes only every
-    k-th scan of each radar (k grows with the lag, at most ``max_thinning``), counted in health and as
-    events. It never leaves out every scan: the filter would drift on the IMU alone. The IMU is never left
-    out. The filter waits for each radar (``StreamingRio.radar_seen``) unless no frame of it has come for
-    ``radar_silence_s``."""
+    (ego velocity needs no more, and each costs 3-5 ms of CPU: docs/results/odometry_cpu_per_scan.json). A
+    worker that falls behind (a busy machine, the backlog of its warm-up) catches up in time order: more than
+    ``max_lag_s`` late it takes only every k-th scan of each radar (k grows with the lag, at most
+    ``max_thinning``), counted in health and as events. It never leaves out every scan: the filter would
+    drift on the IMU alone. The IMU is never left out. The filter waits for each radar
+    (``StreamingRio.radar_seen``) unless no frame of it has come for ``radar_silence_s``."""
 
     rig: Rig
     radars: list[str] | None
@@ -61,7 +60,7 @@ class OdometryWorker(Worker):
 
     def __init__(self, config: OdometryWorkerConfig, pub):
         from rio.odometry import RioOptions
-        from rio.pointcloud import PointCloudConfig
+        from rio.pointcloud import PointCloudConfig, PointCloudDetector
         from rio.streaming import StreamingRio
 
         self.config = config
@@ -85,6 +84,9 @@ class OdometryWorker(Worker):
                              calibration_priors={n: p for n, p in rig.calibration_priors().items() if n in use})
         self.rio = StreamingRio(options, imu_rate_hz=rig.imu.rate_hz)
         self.pc_config = PointCloudConfig()
+        # One detector per radar: its windows and cube buffer are made once, not on every scan.
+        self.detectors = {name: PointCloudDetector(r, self.orders[name], self.pc_config)
+                          for name, r in self.radars.items()}
         self.trajectory = None  # a TrajectoryWriter once the first poses come: poses go to disk, not memory
         self.poses_written = 0
         self.last_flush = time.monotonic()
@@ -101,7 +103,6 @@ class OdometryWorker(Worker):
         noise frame of every radar, a standstill for the filter's start, then scans standing and moving (the
         zero-velocity and the RANSAC paths). A throwaway filter: nothing reaches the bus."""
         from rio.odometry import RadarScan, RioOptions
-        from rio.pointcloud import detect
         from rio.streaming import StreamingRio
 
         rng = np.random.default_rng(0)
@@ -115,8 +116,8 @@ class OdometryWorker(Worker):
         for k, (name, radar) in enumerate(self.radars.items()):
             wf = radar.waveform
             shape = (wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)
-            noise = (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)).astype(np.complex64)
-            pc = detect(noise, radar, self.orders[name], self.pc_config)
+            noise = rng.integers(-300, 300, (*shape, 2), dtype=np.int16)  # I/Q as the wire carries them
+            pc = self.detectors[name].detect(noise)
             xyz = np.column_stack([rng.uniform(1.0, 5.0, 40), rng.uniform(-2.0, 2.0, 40), rng.uniform(-0.5, 0.5, 40)])
             unit = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
             for j, velocity in enumerate((np.zeros(3), np.array([-0.3, 0.1, 0.0]))):
@@ -144,7 +145,6 @@ class OdometryWorker(Worker):
 
     def handle(self, message, live: bool) -> None:
         from rio.odometry import RadarScan
-        from rio.pointcloud import detect
 
         now = time.monotonic()
         if self.started_monotonic is None:
@@ -172,7 +172,7 @@ class OdometryWorker(Worker):
             return
         self.lag_ms = int(lag_s * 1e3)
         radar = self.radars[name]
-        pc = detect(iq_to_complex(frame.iq), radar, self.orders[name], self.pc_config)
+        pc = self.detectors[name].detect(frame.iq)  # straight from the int16 I/Q: no complex copy
         if self.config.publish_points:
             self.pub.send(PointCloudMessage(name, t_scan, pc.xyz_m, pc.doppler_mps))
         scan = RadarScan(t_scan, name, radar.mount, pc.xyz_m, pc.doppler_mps)

@@ -60,8 +60,9 @@ class TrajectoryWriter:
             return
         g = self._f["trajectory"]
         for name in self._pending[0]:
-            value = np.concatenate([np.reshape(p[name], (-1, *g[name].shape[1:])) for p in self._pending])
-            ds = g[name]
+            ds = g[name]  # once per field: an HDF5 lookup costs as much as the copy of a few hundred appends
+            tail = ds.shape[1:]
+            value = np.concatenate([np.reshape(p[name], (-1, *tail)) for p in self._pending])
             ds.resize(self.n, axis=0)
             ds[self._written:] = value
         self._written = self.n
