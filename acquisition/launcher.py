@@ -83,15 +83,17 @@ def main(argv: list[str] | None = None) -> int:
     """``sarbot``: run the command line; an ImportError that another distribution's package explains ends
     in that one line (exit 2), any other goes on as it is."""
     try:
-        from acquisition.cli import main as cli_main
+        from acquisition.cli import end_process, main as cli_main
 
-        return cli_main(argv)
+        code = cli_main(argv)
     except ImportError:
         found = foreign_packages()
         if not found:
             raise
         print(explain(found), file=sys.stderr)
         return EXIT_USAGE
+    # Run as the process's command (the ``sarbot`` script): it may end here at once (acquisition.cli.end_process).
+    return end_process(code) if argv is None else code
 
 
 if __name__ == "__main__":

@@ -125,6 +125,11 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                             "parts: the command's own stage times and 8 images in one process; on whatever load the "
                             "JSON records (11-13 on 2 cores when committed: its fractions are the load's).",
                             ".venv/bin/python benchmarks/image_command.py --quick --no-baseline"),
+    "command_end": ("How a `sarbot image` process ends",
+                    "The command ended at once after its files are closed (exit handlers, streams flushed, os._exit) "
+                    "against the interpreter's usual teardown, alternating, each a new process on the benchmark case: "
+                    "the process's time outside the command's own stages, its wall and CPU time, the images compared.",
+                    ".venv/bin/python benchmarks/command_end.py"),
     "range_window": ("Range compression of the bins an image needs",
                      "Only the range bins between the grid's nearest and farthest pixel (a chirp-z transform) against "
                      "every bin (the zero-padded FFT), alternated on the command's blocks: the window, the CPU time, "

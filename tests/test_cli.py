@@ -135,6 +135,49 @@ def test_image_imports_neither_matplotlib_nor_scipy_rotations(recording, tmp_pat
         np.testing.assert_array_equal(a["image"][()], b["image"][()])
 
 
+#: A process that ran a command and ends by acquisition.cli.end_process (argv[1]: "closed" if the command said it
+#: left nothing to close, "thread" if a thread still runs then).
+END_PROCESS = """
+import atexit, sys, threading
+from acquisition import cli
+atexit.register(lambda: print("exit handler ran"))
+print("buffered", end="")  # stdout is a pipe here: block-buffered, not yet written
+if "closed" in sys.argv[1:]:
+    cli.nothing_left_to_close()
+if "thread" in sys.argv[1:]:
+    stop = threading.Event()
+    threading.Thread(target=stop.wait, args=(0.5,)).start()
+code = cli.end_process(3)
+print(f" end_process returned {code}", end="")
+sys.exit(code)
+"""
+
+
+@pytest.mark.parametrize("state, stdout", [
+    (["closed"], "bufferedexit handler ran\n"),  # at once: handlers, streams flushed, nothing after
+    ([], "buffered end_process returned 3exit handler ran\n"),  # the usual end
+    (["closed", "thread"], "buffered end_process returned 3exit handler ran\n"),  # a thread runs: the usual end
+])
+def test_a_command_that_closed_everything_ends_its_process_at_once(state, stdout):
+    res = subprocess.run([sys.executable, "-c", END_PROCESS, *state], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 3, res.stderr
+    assert res.stdout == stdout
+
+
+def test_image_ends_its_process_at_once_with_its_output_written(recording, tmp_path):
+    """``sarbot image`` ends without the interpreter's teardown: exit code 0, its line printed, both files
+    whole (the image the same as the library's, as test_simulate_image_analyze checks), the -v stage line
+    logged."""
+    res = sarbot("-v", "image", recording, "-o", tmp_path / "a.h5", "--grid", "-0.1:0.1:0.01,1.9:2.1:0.01",
+                 "--frames", "0:4")
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == f"wrote {tmp_path / 'a.h5'} and {tmp_path / 'a.png'}"
+    assert "stage seconds: " in res.stderr
+    with h5py.File(tmp_path / "a.h5") as f:
+        assert f["image"].shape == (21, 21) and np.isfinite(f["image"][()]).all()
+    assert (tmp_path / "a.png").read_bytes()[-8:] == b"IEND\xaeB`\x82"  # the PNG's last chunk, flushed
+
+
 def test_image_with_ffbp_equals_the_direct_image(recording, tmp_path):
     """``--algorithm ffbp``: the same image as the direct kernel within -40 dB (all channels, the whole
     pass), the plan's error figures in the file; a volume grid is a one-line error."""

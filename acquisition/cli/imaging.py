@@ -16,7 +16,7 @@ from imaging.core import strict_json
 from imaging.core.errors import SarbotError
 
 from . import options as opt
-from . import STARTED
+from . import STARTED, nothing_left_to_close
 from .exit_codes import EXIT_OK, EXIT_USAGE
 from .start_up import collector_paused
 
@@ -190,6 +190,7 @@ def cmd_image(args) -> int:
     # function's stages; form_image's own are inside "image_recording", its range-compression thread's
     # ("compress_thread.*") overlap them.
     log.debug("stage seconds: %s", strict_json.dumps(clock.seconds))
+    nothing_left_to_close()  # the files are closed, the threads joined: the process may end at once
     return EXIT_OK
 
 
