@@ -79,16 +79,8 @@ def _window_gather(lanes: int):
             umin = _declare(module, f"llvm.vector.reduce.umin.v{lanes}i32", i32, [vni])
             if lanes == 16:
                 permute2 = _declare(module, "llvm.x86.avx512.vpermi2var.ps.512", vnf, [vnf, vni, vnf])
-
-                def pick(w0, k, w1):
-                    return builder.call(permute2, [w0, k, w1])
             else:
                 permute1 = _declare(module, "llvm.x86.avx2.permps", vnf, [vnf, vni])
-
-                def pick(w0, k, w1):
-                    # vpermps reads k's low three bits: float k of the window is float k & 7 of w0 or of w1
-                    in_w1 = builder.icmp_unsigned(">=", k, ir.Constant(vni, [lanes] * lanes))
-                    return builder.select(in_w1, builder.call(permute1, [w1, k]), builder.call(permute1, [w0, k]))
 
             start = context.cast(builder, i0_v, signature.args[2], types.intp)
             lane_idx = builder.load(builder.bitcast(builder.gep(idx_a.data, [start]), vni.as_pointer()), align=4)
@@ -116,9 +108,23 @@ def _window_gather(lanes: int):
                 w0 = builder.load(builder.bitcast(floats, vnf.as_pointer()), align=4)
                 w1 = builder.load(builder.bitcast(builder.gep(floats, [ir.Constant(i64, lanes)]), vnf.as_pointer()),
                                   align=4)
-                twice = builder.add(rel, rel)  # a's real part is float 2 rel of the window, its imaginary 2 rel + 1
+                if lanes == 16:
+                    twice = builder.add(rel, rel)  # a's real part is float 2 rel of the window, its imaginary 2 rel + 1
+
+                    def planar_row(n):
+                        return builder.call(permute2, [w0, builder.add(twice, ir.Constant(vni, [n] * lanes)), w1])
+                else:
+                    # The window's 8 bins split once into their real and imaginary parts (two shuffles), so
+                    # that each planar row is one permute of one register by the bin itself (a: rel, b: rel
+                    # + 1, at most 7): no blend between two registers, and no mask to make for one.
+                    re = builder.shuffle_vector(w0, w1, ir.Constant(vni, [2 * m for m in range(lanes)]))
+                    im = builder.shuffle_vector(w0, w1, ir.Constant(vni, [2 * m + 1 for m in range(lanes)]))
+                    nxt = builder.add(rel, ir.Constant(vni, [1] * lanes))
+
+                    def planar_row(n):
+                        return builder.call(permute1, [(re, im)[n % 2], (rel, nxt)[n // 2]])
                 for n in range(4):
-                    lanes_out = pick(w0, builder.add(twice, ir.Constant(vni, [n] * lanes)), w1)
+                    lanes_out = planar_row(n)
                     at = builder.add(builder.mul(ir.Constant(i64, n), n_cols), start)
                     builder.store(lanes_out, builder.bitcast(builder.gep(out_a.data, [at]), vnf.as_pointer()), align=4)
 
