@@ -105,10 +105,10 @@ def _window_gather(lanes: int):
 
             def permute_window(base, rel):
                 floats = builder.bitcast(builder.gep(row_a.data, [builder.zext(base, i64)]), f32.as_pointer())
-                w0 = builder.load(builder.bitcast(floats, vnf.as_pointer()), align=4)
-                w1 = builder.load(builder.bitcast(builder.gep(floats, [ir.Constant(i64, lanes)]), vnf.as_pointer()),
-                                  align=4)
                 if lanes == 16:
+                    w0 = builder.load(builder.bitcast(floats, vnf.as_pointer()), align=4)
+                    w1 = builder.load(builder.bitcast(builder.gep(floats, [ir.Constant(i64, lanes)]),
+                                                      vnf.as_pointer()), align=4)
                     twice = builder.add(rel, rel)  # a's real part is float 2 rel of the window, its imaginary 2 rel + 1
 
                     def planar_row(n):
@@ -117,8 +117,16 @@ def _window_gather(lanes: int):
                     # The window's 8 bins split once into their real and imaginary parts (two shuffles), so
                     # that each planar row is one permute of one register by the bin itself (a: rel, b: rel
                     # + 1, at most 7): no blend between two registers, and no mask to make for one.
-                    re = builder.shuffle_vector(w0, w1, ir.Constant(vni, [2 * m for m in range(lanes)]))
-                    im = builder.shuffle_vector(w0, w1, ir.Constant(vni, [2 * m + 1 for m in range(lanes)]))
+                    # Loaded as bins 0, 1, 4, 5 and 2, 3, 6, 7 (128 bits each), an in-lane shuffle of the two
+                    # gives each part in the bins' order, without a lane-crossing fix-up after it.
+                    v4f = ir.VectorType(f32, 4)
+                    quarters = [builder.load(builder.bitcast(builder.gep(floats, [ir.Constant(i64, 4 * q)]),
+                                                             v4f.as_pointer()), align=4) for q in range(4)]
+                    lo = builder.shuffle_vector(quarters[0], quarters[2], ir.Constant(vni, list(range(8))))
+                    hi = builder.shuffle_vector(quarters[1], quarters[3], ir.Constant(vni, list(range(8))))
+                    pairs = [0, 2, 8, 10, 4, 6, 12, 14]  # vshufps's in-lane pattern: a lane's evens of lo, then of hi
+                    re = builder.shuffle_vector(lo, hi, ir.Constant(vni, pairs))
+                    im = builder.shuffle_vector(lo, hi, ir.Constant(vni, [m + 1 for m in pairs]))
                     nxt = builder.add(rel, ir.Constant(vni, [1] * lanes))
 
                     def planar_row(n):
