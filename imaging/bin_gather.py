@@ -8,9 +8,11 @@ LANES - 2 is gathered out of the LANES complex64 bins from a window start on (tw
 which hold every pixel's bin a and the next one, b: four permutes take each lane's a.re, a.im, b.re and
 b.im out of them, already de-interleaved, into four planar float32 rows. With AVX-512, 16 lanes, each a
 two-register permute (``vpermi2ps``, LLVM's ``llvm.x86.avx512.vpermi2var.ps.512``: LLVM's ``shufflevector``
-takes no variable mask); with AVX2 only, 8 lanes, each a one-register permute of either register
-(``vpermps``, ``llvm.x86.avx2.permps``, which reads an index's low three bits) and a blend on the index's
-fourth. The scalar gather does two 8-byte loads and four 4-byte stores per pixel instead; a group whose bins
+takes no variable mask); with AVX2 only, 8 lanes: the window's bins first split into a register of their
+real parts and one of their imaginary parts (loaded as 128-bit quarters, two in-lane ``vshufps``), then each
+row is one one-register permute (``vpermps``, ``llvm.x86.avx2.permps``) of one of them by the bin itself, a by
+the lane's bin and b by the next (it replaced a permute of each window register and a blend per row, whose
+masks took three compares). The scalar gather does two 8-byte loads and four 4-byte stores per pixel instead; a group whose bins
 span more (or a CPU without AVX2) takes it. AVX2's hardware gathers (``vgatherdpd`` of the 8-byte pairs with
 two shuffles per row, or ``vgatherdps`` of each planar row) made the kernel slower than the scalar gather on
 Zen 3 (docs/benchmark-notes.md).
