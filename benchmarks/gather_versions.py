@@ -4,9 +4,8 @@ The kernel's comparison (``kernel_versions.py``) times whole backprojections, in
 third of the cycles on a CPU without AVX-512; on a shared machine its rounds scatter by more than a change to
 the gather alone is worth. This times only ``gather_planar`` (imaging/bin_gather.py): the current module and
 COMMIT's (``git show COMMIT:imaging/bin_gather.py``, loaded under another name beside it), each inside a
-numba loop over the same profiles, one call per (block, profile) as in the kernel (few blocks and profiles, repeated, so that bins and rows stay in
-cache as in the kernel), on one thread, A B A B ...,
-with each call's thread CPU time beside its wall time. The pixels' bins are those of 16 x 16-pixel blocks
+numba loop over the same profiles, one call per (block, profile) as in the kernel (few blocks and profiles,
+repeated, so that bins and rows stay in cache as in the kernel), on one thread, A B A B ..., with each call's thread CPU time beside its wall time. The pixels' bins are those of 16 x 16-pixel blocks
 walked in 4 x 4 squares (``imaging.patches.patch_order``) with a range gradient drawn per (block, profile) so
 that a 4 x 4 square's bins span up to 7, as on the benchmark grid (its 4 x 2 halves up to 4); both versions
 must give the same planar rows bit for bit.

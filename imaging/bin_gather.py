@@ -12,12 +12,12 @@ takes no variable mask); with AVX2 only, 8 lanes: the window's bins first split 
 real parts and one of their imaginary parts (loaded as 128-bit quarters, two in-lane ``vshufps``), then each
 row is one one-register permute (``vpermps``, ``llvm.x86.avx2.permps``) of one of them by the bin itself, a by
 the lane's bin and b by the next (it replaced a permute of each window register and a blend per row, whose
-masks took three compares). The scalar gather does two 8-byte loads and four 4-byte stores per pixel instead; a group whose bins
-span more (or a CPU without AVX2) takes it. AVX2's hardware gathers (``vgatherdpd`` of the 8-byte pairs with
+masks took three compares). The scalar gather does two 8-byte loads and four 4-byte stores per pixel
+instead; a group whose bins span more (or a CPU without AVX2) takes it. AVX2's hardware gathers (``vgatherdpd`` of the 8-byte pairs with
 two shuffles per row, or ``vgatherdps`` of each planar row) made the kernel slower than the scalar gather on
 Zen 3 (docs/benchmark-notes.md).
 
-The values are the same bit for bit either way: only loads, permutes and blends, no arithmetic on them.
+The values are the same bit for bit either way: only loads, shuffles and permutes, no arithmetic on them.
 """
 
 from __future__ import annotations
