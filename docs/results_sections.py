@@ -81,6 +81,11 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                                  "alternating in one run, loaded (the load is in the JSON).",
                                  ".venv/bin/python benchmarks/kernel_versions.py --quick --whole-package --baseline "
                                  "0e7a3c5 --rounds 6 --name kernel_avx2_split_gather"),
+    "kernel_avx2_split_gather_full": ("Backprojection kernel: the AVX2 gather without blends, full benchmark case",
+                                      "The same comparison as kernel_avx2_split_gather on the full benchmark case (16 "
+                                      "frames, 16 channels, 256 x 256 pixels), 3 rounds, loaded (the load is in the JSON).",
+                                      ".venv/bin/python benchmarks/kernel_versions.py --whole-package --baseline 0e7a3c5 "
+                                      "--rounds 3 --cases benchmark --name kernel_avx2_split_gather_full"),
     "gather_avx2_split": ("The AVX2 permute gather alone, without blends (AMD Zen 3)",
                           "gather_planar of the current imaging/bin_gather.py against 0e7a3c5's, each in a numba loop "
                           "over the same bins (16 x 16 blocks in 4 x 4 squares, bins spanning up to 7 per square), "
