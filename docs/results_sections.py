@@ -74,6 +74,24 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                            "load is in the JSON).",
                            ".venv/bin/python benchmarks/kernel_versions.py --baseline dc9bbff --whole-package --rounds 3 "
                            "--name kernel_avx2_gather"),
+    "kernel_avx2_split_gather": ("Backprojection kernel: the AVX2 gather without blends (AMD Zen 3)",
+                                 "The kernel whose AVX2 permute gather splits the window into real and imaginary "
+                                 "registers once and permutes each planar row out of one of them (no blends; "
+                                 "imaging/bin_gather.py) against main's (0e7a3c5), whole imaging packages, quick cases, "
+                                 "alternating in one run, loaded (the load is in the JSON).",
+                                 ".venv/bin/python benchmarks/kernel_versions.py --quick --whole-package --baseline "
+                                 "0e7a3c5 --rounds 6 --name kernel_avx2_split_gather"),
+    "kernel_avx2_split_gather_full": ("Backprojection kernel: the AVX2 gather without blends, full benchmark case",
+                                      "The same comparison as kernel_avx2_split_gather on the full benchmark case (16 "
+                                      "frames, 16 channels, 256 x 256 pixels), 3 rounds, loaded (the load is in the JSON).",
+                                      ".venv/bin/python benchmarks/kernel_versions.py --whole-package --baseline 0e7a3c5 "
+                                      "--rounds 3 --cases benchmark --name kernel_avx2_split_gather_full"),
+    "gather_avx2_split": ("The AVX2 permute gather alone, without blends (AMD Zen 3)",
+                          "gather_planar of the current imaging/bin_gather.py against 0e7a3c5's, each in a numba loop "
+                          "over the same bins (16 x 16 blocks in 4 x 4 squares, bins spanning up to 7 per square), "
+                          "alternating on one thread, thread CPU time; loaded (the load is in the JSON).",
+                          ".venv/bin/python benchmarks/gather_versions.py --baseline 0e7a3c5 --rounds 15 "
+                          "--name gather_avx2_split"),
     "kernel_avx2_no_masked_stores": ("Backprojection kernel: no masked stores left (AVX2, AMD Zen 3)", "fce53eb's kernel "
                                      "(no masked stores) against 4da3eec's, whole imaging packages, alternating in one "
                                      "run, loaded (the load is in the JSON).", ".venv/bin/python benchmarks/kernel_versions.py "

@@ -8,14 +8,16 @@ LANES - 2 is gathered out of the LANES complex64 bins from a window start on (tw
 which hold every pixel's bin a and the next one, b: four permutes take each lane's a.re, a.im, b.re and
 b.im out of them, already de-interleaved, into four planar float32 rows. With AVX-512, 16 lanes, each a
 two-register permute (``vpermi2ps``, LLVM's ``llvm.x86.avx512.vpermi2var.ps.512``: LLVM's ``shufflevector``
-takes no variable mask); with AVX2 only, 8 lanes, each a one-register permute of either register
-(``vpermps``, ``llvm.x86.avx2.permps``, which reads an index's low three bits) and a blend on the index's
-fourth. The scalar gather does two 8-byte loads and four 4-byte stores per pixel instead; a group whose bins
-span more (or a CPU without AVX2) takes it. AVX2's hardware gathers (``vgatherdpd`` of the 8-byte pairs with
+takes no variable mask); with AVX2 only, 8 lanes: the window's bins first split into a register of their
+real parts and one of their imaginary parts (loaded as 128-bit quarters, two in-lane ``vshufps``), then each
+row is one one-register permute (``vpermps``, ``llvm.x86.avx2.permps``) of one of them by the bin itself, a by
+the lane's bin and b by the next (it replaced a permute of each window register and a blend per row, whose
+masks took three compares). The scalar gather does two 8-byte loads and four 4-byte stores per pixel
+instead; a group whose bins span more (or a CPU without AVX2) takes it. AVX2's hardware gathers (``vgatherdpd`` of the 8-byte pairs with
 two shuffles per row, or ``vgatherdps`` of each planar row) made the kernel slower than the scalar gather on
 Zen 3 (docs/benchmark-notes.md).
 
-The values are the same bit for bit either way: only loads, permutes and blends, no arithmetic on them.
+The values are the same bit for bit either way: only loads, shuffles and permutes, no arithmetic on them.
 """
 
 from __future__ import annotations
@@ -79,16 +81,8 @@ def _window_gather(lanes: int):
             umin = _declare(module, f"llvm.vector.reduce.umin.v{lanes}i32", i32, [vni])
             if lanes == 16:
                 permute2 = _declare(module, "llvm.x86.avx512.vpermi2var.ps.512", vnf, [vnf, vni, vnf])
-
-                def pick(w0, k, w1):
-                    return builder.call(permute2, [w0, k, w1])
             else:
                 permute1 = _declare(module, "llvm.x86.avx2.permps", vnf, [vnf, vni])
-
-                def pick(w0, k, w1):
-                    # vpermps reads k's low three bits: float k of the window is float k & 7 of w0 or of w1
-                    in_w1 = builder.icmp_unsigned(">=", k, ir.Constant(vni, [lanes] * lanes))
-                    return builder.select(in_w1, builder.call(permute1, [w1, k]), builder.call(permute1, [w0, k]))
 
             start = context.cast(builder, i0_v, signature.args[2], types.intp)
             lane_idx = builder.load(builder.bitcast(builder.gep(idx_a.data, [start]), vni.as_pointer()), align=4)
@@ -113,12 +107,34 @@ def _window_gather(lanes: int):
 
             def permute_window(base, rel):
                 floats = builder.bitcast(builder.gep(row_a.data, [builder.zext(base, i64)]), f32.as_pointer())
-                w0 = builder.load(builder.bitcast(floats, vnf.as_pointer()), align=4)
-                w1 = builder.load(builder.bitcast(builder.gep(floats, [ir.Constant(i64, lanes)]), vnf.as_pointer()),
-                                  align=4)
-                twice = builder.add(rel, rel)  # a's real part is float 2 rel of the window, its imaginary 2 rel + 1
+                if lanes == 16:
+                    w0 = builder.load(builder.bitcast(floats, vnf.as_pointer()), align=4)
+                    w1 = builder.load(builder.bitcast(builder.gep(floats, [ir.Constant(i64, lanes)]),
+                                                      vnf.as_pointer()), align=4)
+                    twice = builder.add(rel, rel)  # a's real part is float 2 rel of the window, its imaginary 2 rel + 1
+
+                    def planar_row(n):
+                        return builder.call(permute2, [w0, builder.add(twice, ir.Constant(vni, [n] * lanes)), w1])
+                else:
+                    # The window's 8 bins split once into their real and imaginary parts (two shuffles), so
+                    # that each planar row is one permute of one register by the bin itself (a: rel, b: rel
+                    # + 1, at most 7): no blend between two registers, and no mask to make for one.
+                    # Loaded as bins 0, 1, 4, 5 and 2, 3, 6, 7 (128 bits each), an in-lane shuffle of the two
+                    # gives each part in the bins' order, without a lane-crossing fix-up after it.
+                    v4f = ir.VectorType(f32, 4)
+                    quarters = [builder.load(builder.bitcast(builder.gep(floats, [ir.Constant(i64, 4 * q)]),
+                                                             v4f.as_pointer()), align=4) for q in range(4)]
+                    lo = builder.shuffle_vector(quarters[0], quarters[2], ir.Constant(vni, list(range(8))))
+                    hi = builder.shuffle_vector(quarters[1], quarters[3], ir.Constant(vni, list(range(8))))
+                    pairs = [0, 2, 8, 10, 4, 6, 12, 14]  # vshufps's in-lane pattern: a lane's evens of lo, then of hi
+                    re = builder.shuffle_vector(lo, hi, ir.Constant(vni, pairs))
+                    im = builder.shuffle_vector(lo, hi, ir.Constant(vni, [m + 1 for m in pairs]))
+                    nxt = builder.add(rel, ir.Constant(vni, [1] * lanes))
+
+                    def planar_row(n):
+                        return builder.call(permute1, [(re, im)[n % 2], (rel, nxt)[n // 2]])
                 for n in range(4):
-                    lanes_out = pick(w0, builder.add(twice, ir.Constant(vni, [n] * lanes)), w1)
+                    lanes_out = planar_row(n)
                     at = builder.add(builder.mul(ir.Constant(i64, n), n_cols), start)
                     builder.store(lanes_out, builder.bitcast(builder.gep(out_a.data, [at]), vnf.as_pointer()), align=4)
 
