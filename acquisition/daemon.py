@@ -33,13 +33,18 @@ from .messages import ClockState, Health, Latency, LoggedEvent, WorkerState
 from .processes import ProcessSpec, bus_endpoint, release_free_heap
 from .ptp import PtpMonitor, PtpPoller
 from .recorder import DiskFullError, Recorder
-from .sdnotify import notify, watchdog_interval_s
+from .sdnotify import UNIT_STOP_TIMEOUT_ENV, notify, unit_stop_timeout_s, watchdog_interval_s
 from .workers import WorkerSpec, stop_needs_s, worker_process
 
 log = logging.getLogger(f"sarbot.{__name__}")
 
 #: A process that dies sooner than this after its start is restarted with a growing delay.
 MIN_UPTIME_S = 10.0
+#: After the stop, how long the recorder takes in what the drivers flush on their way out, s (within the
+#: workers' ``worker_stop_timeout_s``, which counts from the same moment).
+DRIVER_DRAIN_S = 3.0
+#: How long a killed worker is waited for before the recording is closed, s.
+KILL_WAIT_S = 5.0
 
 
 @dataclasses.dataclass
@@ -178,9 +183,18 @@ def open_health_publisher(endpoint: str | None) -> BusPublisher:
         raise SarbotError(f"--health-endpoint {endpoint}: cannot publish there ({exc.strerror})") from None
 
 
+def stop_lasts_s(setup: Setup) -> float:
+    """The longest the daemon's stop lasts with workers, s: the drivers' drain or the workers' stop timeout
+    (both count from the stop), their hurry timeout, and the wait for a killed worker; the recording is closed
+    right after."""
+    return max(DRIVER_DRAIN_S, setup.worker_stop_timeout_s) + setup.worker_hurry_timeout_s + KILL_WAIT_S
+
+
 def check_stop_timeouts(setup: Setup) -> None:
     """SarbotError for a negative stop timeout; a warning for each worker whose own stop budgets (draining,
-    finishing, writing) do not fit in ``worker_stop_timeout_s``: they are cut to fit, and more is left out."""
+    finishing, writing) do not fit in ``worker_stop_timeout_s``: they are cut to fit, and more is left out; and
+    one where the whole stop (``stop_lasts_s``) does not fit in the unit's ``TimeoutStopSec``, when the daemon is
+    told it (``sdnotify.unit_stop_timeout_s``): systemd would kill what still runs, the recorder included."""
     for name in ("worker_stop_timeout_s", "worker_hurry_timeout_s"):
         if not getattr(setup, name) >= 0:
             raise SarbotError(f"{name}: must be 0 s or more, got {getattr(setup, name)}")
@@ -190,6 +204,19 @@ def check_stop_timeouts(setup: Setup) -> None:
             log.warning("%s: its stop takes up to %.0f s (draining %.0f s, finishing %.0f s, writing %.0f s), more than "
                         "worker_stop_timeout_s (%.0f s): draining and finishing are cut to fit", w.role, needs,
                         w.worker.drain_max_s, w.worker.finish_max_s, w.worker.write_reserve_s, setup.worker_stop_timeout_s)
+    if not setup.workers:  # the stop is the drivers' drain alone
+        return
+    try:
+        unit_s = unit_stop_timeout_s()
+    except ValueError as exc:
+        log.warning("%s; the stop's fit in the unit's TimeoutStopSec is not checked", exc)
+        return
+    if unit_s is not None and stop_lasts_s(setup) > unit_s:
+        log.warning("the stop may last %.0f s (worker_stop_timeout_s %g s + worker_hurry_timeout_s %g s + %g s for a "
+                    "killed worker), more than the unit's TimeoutStopSec (%g s): systemd would kill what still runs, "
+                    "the recorder included; raise TimeoutStopSec (and %s) or lower --worker-stop-timeout or "
+                    "--worker-hurry-timeout", stop_lasts_s(setup), setup.worker_stop_timeout_s,
+                    setup.worker_hurry_timeout_s, KILL_WAIT_S, unit_s, UNIT_STOP_TIMEOUT_ENV)
 
 
 def stop_processes(procs: dict, specs: dict, setup: Setup, stopped_at: float, record_event) -> None:
@@ -230,7 +257,7 @@ def stop_processes(procs: dict, specs: dict, setup: Setup, stopped_at: float, re
                 log.error("%s", message)
                 record_event(time.time_ns(), role, "error", message)
                 proc.kill()
-                proc.join(5)
+                proc.join(KILL_WAIT_S)
                 del workers[role], hurried[role]
         next(iter(alive.values())).join(0.05)
 
@@ -442,7 +469,7 @@ def record(setup: Setup, out_dir: Path, duration_s: float | None = None, on_heal
             devices.stop(recorder.record_event)  # the radars stop sending before their drivers stop listening
             stop.set()
             stopped_at = time.monotonic()
-            deadline = time.monotonic() + 3.0
+            deadline = time.monotonic() + DRIVER_DRAIN_S
             while time.monotonic() < deadline:  # drain what the drivers flush on the way out
                 recorder.step(timeout_ms=100)
                 if not any(p.is_alive() for p in procs.values()):

@@ -172,7 +172,9 @@ def trajectory_info(path: str | Path) -> dict[str, Any]:
                    for name, c in read_calibration(path).items()}
     out = {"file": str(path), "kind": "trajectory", "source": traj.source, "poses": int(t.size),
            "rate_hz": _rate_hz(t), "duration_s": float((t[-1] - t[0]) * 1e-9) if t.size else 0.0,
-           "path_length_m": float(steps.sum())}
+           "path_length_m": float(steps.sum()),
+           # 1: the live odometry was hurried at the stop, its last poses left out; None: the file does not say.
+           "stop_cut_short": traj.stop_cut_short}
     if calibration:
         out["calibration"] = calibration
     return out
@@ -263,6 +265,8 @@ def format_info(d: dict[str, Any]) -> str:
     elif d["kind"] == "trajectory":
         lines.append(f"  {d['source']}: {d['poses']} poses at {d['rate_hz'] or 0:.1f} Hz over {d['duration_s']:.1f} s, "
                      f"path {d['path_length_m']:.2f} m")
+        if d.get("stop_cut_short"):
+            lines.append("  cut short: the odometry was hurried at the stop, its last scans left out (stop_cut_short)")
         for name, c in d.get("calibration", {}).items():
             sigma = np.asarray(c["sigma"])
             yaw = float(np.degrees(np.arctan2(*np.asarray(_rotation_matrix(c["mount_rotation_xyzw"]))[[1, 0], 0])))

@@ -1,4 +1,5 @@
-"""systemd's notification protocol (sd_notify) without libsystemd: a datagram to $NOTIFY_SOCKET."""
+"""systemd's notification protocol (sd_notify) without libsystemd: a datagram to $NOTIFY_SOCKET; and what
+else the daemon learns of its unit from its environment."""
 
 from __future__ import annotations
 
@@ -28,3 +29,24 @@ def watchdog_interval_s() -> float | None:
     if not usec or (pid and int(pid) != os.getpid()):
         return None
     return int(usec) / 2e6
+
+
+#: The unit's ``TimeoutStopSec`` in seconds, as the unit passes it on (systemd itself tells a service nothing of
+#: its stop timeout): ``systemd/sarbot-record.service`` sets it beside ``TimeoutStopSec``.
+UNIT_STOP_TIMEOUT_ENV = "SARBOT_TIMEOUT_STOP_S"
+
+
+def unit_stop_timeout_s() -> float | None:
+    """How long the unit gives the daemon to stop before systemd kills it (``SARBOT_TIMEOUT_STOP_S``, s; "infinity"
+    as systemd spells it), or None where the daemon is not told (not under the unit). ValueError naming the
+    variable for a value that is no positive number of seconds."""
+    text = os.environ.get(UNIT_STOP_TIMEOUT_ENV, "").strip()
+    if not text:
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{UNIT_STOP_TIMEOUT_ENV}={text!r}: not a number of seconds") from None
+    if not value > 0:
+        raise ValueError(f"{UNIT_STOP_TIMEOUT_ENV}={text!r}: not a positive number of seconds")
+    return value

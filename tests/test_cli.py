@@ -493,3 +493,60 @@ def test_the_installed_command_goes_through_the_launcher():
 
     (script,) = [e for e in entry_points(group="console_scripts") if e.name == "sarbot"]
     assert script.value == "acquisition.launcher:main"
+
+
+def test_the_worker_stop_options_parse_reach_the_setup_and_their_help_says_the_daemons_defaults(tmp_path):
+    """``run`` and ``demo`` take --worker-stop-timeout and --worker-hurry-timeout (``record`` starts no worker);
+    given, they become the daemon's Setup fields, not given the Setup's own defaults stand, which the help
+    says, as it says the unit's TimeoutStopSec that their sum must fit in."""
+    import dataclasses
+    import re
+    from pathlib import Path
+
+    from acquisition.cli import build_parser
+    from acquisition.cli.daemon import record_setup
+    from acquisition.cli.options import worker_stop_settings
+    from acquisition.daemon import Setup
+
+    rig = tmp_path / "rig.toml"
+    rig.write_text("[imu]\nrate_hz = 400.0\n[radar.left]\nmount_yaw_deg = 90.0\n")
+    parser = build_parser()
+    run = ["run", "--config", str(rig), "-o", str(tmp_path / "out"), "--radar", "left=50001"]
+    given = ["--worker-stop-timeout", "120", "--worker-hurry-timeout", "7.5"]
+    setup = record_setup(parser.parse_args([*run, *given]))
+    assert (setup.worker_stop_timeout_s, setup.worker_hurry_timeout_s) == (120.0, 7.5)
+    assert worker_stop_settings(parser.parse_args(["demo", *given])) == {"worker_stop_timeout_s": 120.0,
+                                                                         "worker_hurry_timeout_s": 7.5}
+    defaults = {f.name: f.default for f in dataclasses.fields(Setup)}
+    setup = record_setup(parser.parse_args(run))
+    assert setup.worker_stop_timeout_s == defaults["worker_stop_timeout_s"] == 60.0
+    assert setup.worker_hurry_timeout_s == defaults["worker_hurry_timeout_s"] == 15.0
+    unit = (Path(__file__).resolve().parents[1] / "systemd/sarbot-record.service").read_text()
+    stop_sec = re.search(r"^TimeoutStopSec=(\d+)$", unit, re.M).group(1)
+    assert re.search(rf"^Environment=SARBOT_TIMEOUT_STOP_S={stop_sec}$", unit, re.M)  # the daemon is told it
+    for command in ("run", "demo"):
+        text = " ".join(_subparser(parser, command).format_help().split())
+        assert "--worker-stop-timeout SECONDS" in text and "--worker-hurry-timeout SECONDS" in text
+        assert f"(default {defaults['worker_stop_timeout_s']:g};" in text
+        assert f"(default {defaults['worker_hurry_timeout_s']:g})" in text and f"TimeoutStopSec ({stop_sec};" in text
+    assert "--worker-stop-timeout" not in _subparser(parser, "record").format_help()
+
+
+@pytest.mark.parametrize("command", ["run", "demo"])
+@pytest.mark.parametrize("option, value", [("--worker-stop-timeout", "0"), ("--worker-stop-timeout", "-5"),
+                                           ("--worker-hurry-timeout", "nan"), ("--worker-hurry-timeout", "inf")])
+def test_a_worker_stop_timeout_that_is_no_positive_number_is_one_line_naming_the_option(tmp_path, command, option,
+                                                                                       value):
+    rig = tmp_path / "rig.toml"
+    rig.write_text("[imu]\nrate_hz = 400.0\n[radar.left]\nmount_yaw_deg = 90.0\n")
+    args = (["run", "--config", rig, "-o", tmp_path / "out", "--radar", "left=50001"] if command == "run"
+            else ["demo", "-o", tmp_path / "out"])
+    res = sarbot(*args, option, value, "--duration", "1") if command == "run" else sarbot(*args, option, value)
+    assert_user_error(res, f"{option} {float(value)}: must be a positive number of seconds")
+    assert not (tmp_path / "out").exists()  # refused before anything started
+
+
+def test_a_worker_stop_timeout_that_is_no_number_names_the_option():
+    res = sarbot("demo", "--worker-hurry-timeout", "soon")
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    assert "argument --worker-hurry-timeout: invalid float value: 'soon'" in res.stderr

@@ -135,6 +135,38 @@ def test_trajectory_writer_gathers_appends_and_writes_them_all(tmp_path):
         np.testing.assert_array_equal(f["trajectory/covariance_diag"][()], cov)
 
 
+def test_the_trajectory_file_says_whether_the_stop_cut_it_short_and_old_files_read_as_not_known(tmp_path):
+    """``stop_cut_short``: 1 from a writer closed hurried, 0 from one closed whole (and from write_trajectory);
+    a file without it (older, or whose writer never closed it) reads as None, and so does one left by an
+    error: neither says where its poses end."""
+    from imaging.io.trajectory_file import TrajectoryWriter
+
+    truth = StraightLine(speed_mps=0.4, t0_ns=1_700_000_000_000_000_000)
+    traj = SampledTrajectory.from_trajectory(truth, truth.t0_ns + np.arange(20, dtype=np.int64) * 10_000_000)
+    poses = (traj.time_ns, traj.position_m, traj.orientation_xyzw, traj.velocity_mps)
+    for cut_short in (True, False):
+        w = TrajectoryWriter(tmp_path / f"{cut_short}.h5", "rio")
+        w.append(*poses)
+        w.close(stop_cut_short=cut_short)
+        back = read_trajectory(tmp_path / f"{cut_short}.h5")
+        assert back.stop_cut_short == int(cut_short) and back.time_ns.size == 20
+        with h5py.File(tmp_path / f"{cut_short}.h5") as f:
+            assert f.attrs["stop_cut_short"] == int(cut_short)
+    assert read_trajectory(write_trajectory(tmp_path / "offline.h5", traj)).stop_cut_short == 0
+    # A hurried trajectory written again still says so.
+    again = read_trajectory(write_trajectory(tmp_path / "again.h5", read_trajectory(tmp_path / "True.h5")))
+    assert again.stop_cut_short == 1
+    # An old file: version 1 without the attribute.
+    with h5py.File(tmp_path / "False.h5", "a") as f:
+        del f.attrs["stop_cut_short"]
+    old = read_trajectory(tmp_path / "False.h5")
+    assert old.stop_cut_short is None and old.time_ns.size == 20
+    with pytest.raises(RuntimeError, match="boom"), TrajectoryWriter(tmp_path / "error.h5", "rio") as w:
+        w.append(*poses)
+        raise RuntimeError("boom")
+    assert read_trajectory(tmp_path / "error.h5").stop_cut_short is None
+
+
 def test_sampled_trajectory_interpolates_a_turn():
     truth = PathWithTurns(segments=[("straight", 0.5), ("arc", 0.5, 180.0), ("straight", 0.5)], speed_mps=0.5)
     times = np.arange(0, 5_000_000_000, 1_000_000)

@@ -74,6 +74,7 @@ def test_info_on_a_trajectory_and_its_tum_export(tmp_path):
     assert res.returncode == 0, res.stderr
     d = json.loads(res.stdout)
     assert d["poses"] == 101 and abs(d["rate_hz"] - 100.0) < 1e-9 and abs(d["path_length_m"] - 0.5) < 1e-9
+    assert d["stop_cut_short"] == 0  # written whole (docs/formats/trajectory.md)
     rows = np.loadtxt(tmp_path / "traj.txt")
     assert rows.shape == (101, 8)
     np.testing.assert_allclose(rows[:, 1], x, atol=1e-9)

@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 
 from acquisition.bus import BusPublisher, BusSubscriber
-from acquisition.messages import Event, ImuBatch, RadarFrameMessage, decode
+from acquisition.messages import Event, ImuBatch, PoseBatch, RadarFrameMessage, decode
 from acquisition.workers.odometry import OdometryWorker, OdometryWorkerConfig
 from drivers.radar.stream import RadarFrame
 from imaging.core.rig import Rig, default_rig
+from imaging.io.trajectory_file import read_trajectory
 
 T0 = 1_700_000_000_000_000_000
 
@@ -105,3 +106,22 @@ def test_no_radar_at_all_releases_the_odometry_after_the_silence(worker_and_bus)
     assert worker.rio.radar_watermark_ns is None
     events = [m.message for m in _received(sub) if isinstance(m, Event)]
     assert len(events) == 1 and "IMU alone" in events[0]
+
+
+@pytest.mark.parametrize("hurried, expected", [("never", 0), ("before finish", 1), ("after finish", 0),
+                                               ("instead of finish", 1)])
+def test_the_trajectory_file_says_whether_the_hurry_left_scans_out(worker_and_bus, hurried, expected):
+    """Hurried before ``finish`` (the daemon's SIGTERM after its stop timeout), the filter's last scans are left
+    out and the file's ``stop_cut_short`` is 1; so it is when finish never ran (hurried while warming up, then
+    an error). Hurried once finish is done (while writing), nothing was left out: 0, as without a hurry."""
+    worker, sub, rig = worker_and_bus
+    n = 30
+    t = T0 + np.arange(n, dtype=np.int64) * 10_000_000
+    worker._publish(PoseBatch(t, np.zeros((n, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)), np.zeros((n, 3))))
+    worker.hurried = hurried == "before finish"
+    if hurried != "instead of finish":
+        worker.finish()
+    worker.hurried = hurried != "never"
+    worker.write_products()
+    back = read_trajectory(worker.config.trajectory_path)
+    assert back.stop_cut_short == expected and back.time_ns.size == n

@@ -182,6 +182,30 @@ def test_a_bad_map_setting_names_the_option(tmp_path, options, says):
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())  # nothing started
 
 
+def test_the_worker_stop_options_reach_the_running_daemon(tmp_path):
+    """`sarbot run` as a real process, told by its unit a TimeoutStopSec (SARBOT_TIMEOUT_STOP_S) that its stop
+    does not fit in: the running daemon's warnings at the start carry the stop and hurry timeouts given on the
+    command line, its workers' budgets cut to the stop timeout; the run ends as asked."""
+    import os
+    import socket
+
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG_TOML)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    res = subprocess.run([sys.executable, "-m", "acquisition.cli", "run", "--config", str(rig), "-o", str(tmp_path / "out"),
+                          "--radar", f"left={port}", "--imu-port", str(tmp_path / "imu"), "--worker-stop-timeout", "20",
+                          "--worker-hurry-timeout", "12", "--duration", "1"], capture_output=True, text=True, timeout=600,
+                         env={**os.environ, "SARBOT_TIMEOUT_STOP_S": "30"})
+    assert res.returncode == 0, res.stderr
+    assert ("the stop may last 37 s (worker_stop_timeout_s 20 s + worker_hurry_timeout_s 12 s + 5 s for a killed worker), "
+            "more than the unit's TimeoutStopSec (30 s)") in res.stderr, res.stderr
+    assert "rio: its stop takes up to 32 s (draining 30 s, finishing 0 s, writing 2 s), more than worker_stop_timeout_s (20 s)" \
+        in res.stderr, res.stderr
+    assert "stripmap: its stop takes up to 45 s" in res.stderr and "more than worker_stop_timeout_s (20 s)" in res.stderr
+
+
 def test_record_bad_config_is_one_line(tmp_path):
     bad = tmp_path / "rig.toml"
     bad.write_text("[radar.left]\nwaveform = { n_tx = 0 }\n")

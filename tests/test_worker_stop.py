@@ -2,7 +2,8 @@
 workers as processes, ZeroMQ between them) fed by emulated hardware replaying a short simulated drive, its
 map made late by real work (a per-frame cost of about a second of CPU, eight frames a call, no catch-up) and
 given a stop timeout shorter than one call. The daemon hurries it with SIGTERM; it leaves its queue, writes
-the map with what its tiles hold, and exits before the second grace runs out: nothing is killed."""
+the map with what its tiles hold, and exits before the second grace runs out: nothing is killed. The odometry
+is late too (its last scans held until the hurry); its trajectory file says it was cut short."""
 
 import dataclasses
 import logging
@@ -13,6 +14,7 @@ import time
 import pytest
 from conftest import send_frame_and_poses
 
+from acquisition.workers.odometry import OdometryWorker
 from imaging.core.rig import default_rig
 from imaging.sim.scene import scene_from_dict
 from imaging.stripmap import StripMapConfig
@@ -24,6 +26,17 @@ MAP = StripMapConfig(pixel_m=0.0035, aperture_m=1.0, range_max_m=4.0, presum=1, 
 STOP_TIMEOUT_S = 6.0
 #: The second grace: long enough for the call in progress on a loaded machine (the hurry waits for it).
 HURRY_TIMEOUT_S = 90.0
+
+
+class LateOdometryWorker(OdometryWorker):
+    """The odometry with a filter whose last scans outlast the daemon's stop timeout: its ``finish`` holds them
+    until the hurry (SIGTERM) comes, then goes on as the real one does, hurried: the scans left out."""
+
+    def finish(self) -> None:
+        until = time.monotonic() + STOP_TIMEOUT_S + HURRY_TIMEOUT_S  # the daemon kills it by then anyway
+        while not self.hurried and time.monotonic() < until:
+            time.sleep(0.01)
+        super().finish()
 
 
 def short_drive(path):
@@ -51,11 +64,12 @@ def test_a_map_worker_late_at_the_stop_is_hurried_and_writes_its_map_with_every_
     from acquisition.daemon import Setup, record
     from acquisition.replay import DevicesHeld
     from acquisition.workers import WorkerSpec
-    from acquisition.workers.odometry import OdometryWorker, OdometryWorkerConfig
+    from acquisition.workers.odometry import OdometryWorkerConfig
     from acquisition.workers.stripmap import StripMapWorker, StripMapWorkerConfig
     from drivers.radar.link import RadarLink
     from imaging.io.image_file import read_image
     from imaging.io.recording import Recording
+    from imaging.io.trajectory_file import read_trajectory
 
     sim_path = tmp_path / "drive.h5"
     short_drive(sim_path)
@@ -63,8 +77,8 @@ def test_a_map_worker_late_at_the_stop_is_hurried_and_writes_its_map_with_every_
     ctx = mp.get_context("spawn")
     bound = {RADAR: ctx.Value("i", 0)}
     imu_link = tmp_path / "imu_tty"
-    rio = WorkerSpec("rio", OdometryWorker, OdometryWorkerConfig(rig, [RADAR], str(tmp_path / "trajectory.h5")),
-                     upstream=True)
+    trajectory_path = tmp_path / "trajectory.h5"
+    rio = WorkerSpec("rio", LateOdometryWorker, OdometryWorkerConfig(rig, [RADAR], str(trajectory_path)), upstream=True)
     map_path = tmp_path / "stripmap.h5"
     # No catch-up (no more pre-summing, no RX sums, no thinning): every frame costs what the map's config says.
     stripmap = WorkerSpec("stripmap", StripMapWorker, StripMapWorkerConfig(
@@ -104,6 +118,7 @@ def test_a_map_worker_late_at_the_stop_is_hurried_and_writes_its_map_with_every_
     # The daemon said what happened, in its log and in the recording's /events: hurried, stopped, not killed.
     assert "stripmap still running" in log and "SIGTERM: it writes what it has" in log, log
     assert "stripmap stopped" in log and "killed" not in log, log
+    assert "rio still running" in log and "rio stopped" in log, log
     assert "stripmap: its stop takes up to 45 s" in log  # its budgets cut to fit the 6 s
     with Recording(recording_path) as rec:
         events = [(source, level, message) for _, source, level, message in rec.events()]
@@ -123,7 +138,10 @@ def test_a_map_worker_late_at_the_stop_is_hurried_and_writes_its_map_with_every_
                                       "frames_dropped_behind", "frames_lost_on_bus", "frames_beyond_odometry",
                                       "frames_off_map", "frames_thinned"))
     assert counted == n_recorded, dict(a)
-    print(f"stop and write {stop_s:.1f} s after the start; map {dict(a)}")
+    # The odometry's trajectory is there, with the poses it had, and says it was cut short.
+    traj = read_trajectory(trajectory_path)
+    assert traj.stop_cut_short == 1 and traj.time_ns.size > 50, traj.time_ns.size
+    print(f"stop and write {stop_s:.1f} s after the start; map {dict(a)}; {traj.time_ns.size} poses")
 
 
 def test_sigterm_without_a_stop_makes_a_worker_write_its_map_and_exit(tmp_path):
@@ -224,3 +242,43 @@ def test_the_daemon_kills_a_worker_only_after_sigterm_and_its_grace_and_says_eac
     assert took >= 1.5  # a lower bound (load only makes it later): no kill before the stop timeout and the grace
     with pytest.raises(SarbotError, match="worker_hurry_timeout_s"):
         check_stop_timeouts(dataclasses.replace(setup, worker_hurry_timeout_s=-1.0))
+
+
+def test_a_stop_longer_than_the_units_timeout_stop_sec_is_warned_of_at_the_start(monkeypatch, caplog):
+    """``check_stop_timeouts`` with the unit's TimeoutStopSec as the unit passes it on (SARBOT_TIMEOUT_STOP_S):
+    the defaults (60 s + 15 s + 5 s for a kill) fit in the unit's 90 s; a longer stop is one warning naming both
+    timeouts and the unit's; without the variable, or without workers, nothing is said of the unit; a value
+    that is no number of seconds is said, and the rest of the check still runs."""
+    from acquisition.daemon import Setup, check_stop_timeouts, stop_lasts_s
+    from acquisition.workers import WorkerSpec
+    from acquisition.workers.odometry import OdometryWorkerConfig
+
+    rio = WorkerSpec("rio", OdometryWorker, OdometryWorkerConfig(default_rig(), None, "t.h5"), endpoint="ipc:///x")
+    setup = Setup(default_rig(), [], workers=[rio])
+    assert stop_lasts_s(setup) == 80.0
+
+    def said(unit: str | None, **fields) -> list[str]:
+        if unit is None:
+            monkeypatch.delenv("SARBOT_TIMEOUT_STOP_S", raising=False)
+        else:
+            monkeypatch.setenv("SARBOT_TIMEOUT_STOP_S", unit)
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="sarbot"):
+            check_stop_timeouts(dataclasses.replace(setup, **fields))
+        return [r.getMessage() for r in caplog.records]
+
+    assert said("90") == [] and said("80") == [] and said("infinity", worker_stop_timeout_s=1e6) == []
+    warned = said("90", worker_stop_timeout_s=75.0)
+    assert len(warned) == 1 and warned[0].startswith("the stop may last 95 s (worker_stop_timeout_s 75 s + "
+                                                     "worker_hurry_timeout_s 15 s + 5 s for a killed worker), more "
+                                                     "than the unit's TimeoutStopSec (90 s)"), warned
+    assert said("79") and said("90", worker_hurry_timeout_s=30.0)
+    assert said(None, worker_stop_timeout_s=600.0) == [] and said("10", workers=[]) == []
+    # A short stop timeout: the worker's budgets are cut (said as before), and the unit's limit is checked too.
+    warned = said("10", worker_stop_timeout_s=20.0, worker_hurry_timeout_s=12.0)
+    assert [w.split(":")[0] for w in warned] == ["rio", "the stop may last 37 s (worker_stop_timeout_s 20 s + "
+                                                 "worker_hurry_timeout_s 12 s + 5 s for a killed worker), more than "
+                                                 "the unit's TimeoutStopSec (10 s)"], warned
+    warned = said("ninety")
+    assert warned == ["SARBOT_TIMEOUT_STOP_S='ninety': not a number of seconds; the stop's fit in the unit's "
+                      "TimeoutStopSec is not checked"], warned

@@ -62,6 +62,7 @@ def register(sub) -> None:
     s.add_argument("--rio-map-feedback", action="store_true",
                    help="the odometry takes the velocity errors the map's refocused tiles read (map/velocity_error; "
                         "needs --map-refocus) and learns the radars' Doppler scale from them")
+    opt.worker_stop_options(s)
     opt.view_option(s)
     s.set_defaults(func=cmd_run)
 
@@ -86,6 +87,7 @@ def register(sub) -> None:
     s.add_argument("--speed", type=float, default=0.5,
                    help="replay speed, a multiple of real time (default 0.5: the emulated hardware shares the two "
                         "cores with the daemon; on its own the daemon keeps up at 1x)")
+    opt.worker_stop_options(s)
     opt.view_option(s)
     s.set_defaults(func=cmd_demo)
 
@@ -135,7 +137,7 @@ def record_setup(args):
                              opt.can_config(args), device_options, split_bytes=opt.size_bytes(args.split_size),
                              split_s=args.split_time, min_free_bytes=opt.size_bytes(args.min_free, "--min-free"),
                              health_endpoint=opt.bus_endpoint(args.health_endpoint), ptp4l_socket=getattr(args, "ptp4l", None),
-                             phc2sys_log=getattr(args, "phc2sys_log", None))
+                             phc2sys_log=getattr(args, "phc2sys_log", None), **opt.worker_stop_settings(args))
 
 
 def _record(setup, out: Path, duration_s: float | None, extra_paths=(), **kwargs) -> int:
@@ -257,4 +259,5 @@ def cmd_demo(args) -> int:
 
     if not (math.isfinite(args.speed) and args.speed > 0):
         raise SarbotError(f"--speed {args.speed}: must be positive")
-    return run_demo(Path(args.output), speed=args.speed, view=opt.view_address(args.view))
+    return run_demo(Path(args.output), speed=args.speed, view=opt.view_address(args.view),
+                    stop_settings=opt.worker_stop_settings(args))

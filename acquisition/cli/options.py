@@ -188,6 +188,37 @@ def acquisition_options(s: argparse.ArgumentParser) -> None:
                    help="with --ptp4l: a file phc2sys's -m output goes to; its offset joins health and /ptp")
 
 
+def worker_stop_options(s: argparse.ArgumentParser) -> None:
+    """How long the workers may take at the stop: what ``run`` and ``demo`` share (``record`` starts no worker).
+    No defaults here: they are the daemon's (``acquisition.daemon.Setup``), whose module is not imported for
+    every command; the help says them, and tests/test_cli.py checks that it says them right."""
+    s.add_argument("--worker-stop-timeout", type=float, metavar="SECONDS",
+                   help="after the stop, how long the workers (odometry, strip map) may take to drain, finish and "
+                        "write the trajectory and the map (default 60; their own budgets are cut to fit); one still "
+                        "running then gets SIGTERM and writes what it has, its files saying stop_cut_short = 1")
+    s.add_argument("--worker-hurry-timeout", type=float, metavar="SECONDS",
+                   help="how long a worker sent SIGTERM at the stop may take to write what it has before it is "
+                        "killed, its files lost (default 15). Under systemd the two and 5 s more must fit in the "
+                        "unit's TimeoutStopSec (90; warned at the start where they do not)")
+
+
+#: ``worker_stop_options`` and the daemon's fields they set (``acquisition.daemon.Setup``).
+WORKER_STOP_OPTIONS = {"--worker-stop-timeout": "worker_stop_timeout_s",
+                       "--worker-hurry-timeout": "worker_hurry_timeout_s"}
+
+
+def worker_stop_settings(args) -> dict[str, float]:
+    """The ``worker_stop_options`` given, as the daemon's Setup fields (those not given keep the daemon's
+    defaults); SarbotError naming the option for a value that is not a positive number of seconds."""
+    settings = {}
+    for option, field in WORKER_STOP_OPTIONS.items():
+        value = getattr(args, option.lstrip("-").replace("-", "_"), None)
+        if value is not None:
+            check_duration(value, option)
+            settings[field] = value
+    return settings
+
+
 #: The device-control options of ``acquisition_options``, as the wire formats name them (``control_options``).
 CONTROL_OPTIONS = ("--dca1000-arm", "--radar-cli")
 

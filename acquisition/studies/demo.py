@@ -83,7 +83,10 @@ def _wait_for_link(link: Path, emulator, timeout_s: float = 60.0) -> None:
         time.sleep(0.05)
 
 
-def run_demo(out_dir: Path, speed: float = 0.5, view: tuple[str, int] | None = None) -> int:
+def run_demo(out_dir: Path, speed: float = 0.5, view: tuple[str, int] | None = None,
+             stop_settings: dict[str, float] | None = None) -> int:
+    """``sarbot demo``. ``stop_settings``: the daemon's worker stop and hurry timeouts (``Setup`` fields,
+    ``--worker-stop-timeout`` and ``--worker-hurry-timeout``) where not its defaults."""
     from drivers.can_driver import CanConfig
     from drivers.radar.link import RadarLink
 
@@ -110,7 +113,7 @@ def run_demo(out_dir: Path, speed: float = 0.5, view: tuple[str, int] | None = N
     # port of its own per run keeps two demos on one machine apart.
     can = CanConfig("udp_multicast", "239.74.163.2", options={"port": random.randint(49152, 65535)})
     imu_link = out_dir / "imu_tty"
-    setup = Setup(rig, links, str(imu_link), can, health_interval_s=1.0, bound_ports=bound_ports)
+    setup = Setup(rig, links, str(imu_link), can, health_interval_s=1.0, bound_ports=bound_ports, **(stop_settings or {}))
     config = StripMapConfig(aperture_m=APERTURE_M, range_min_m=1.0, range_max_m=4.0, z_m=0.3)
     # The map images all four radars, both sides of the drive, into one world-frame map; so does the odometry.
     traj_path, map_path, config = add_pipeline_workers(setup, out_dir, "demo", config, max_speed_mps=0.5, view=view)

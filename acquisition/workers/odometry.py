@@ -97,6 +97,9 @@ class OdometryWorker(Worker):
         self.silent: set[str] = set()  # radars said to be silent (the filter does not wait for them)
         self.lag_ms = 0  # of the last scan turned into a point cloud: its last datagram to now
         self.last_lag_event = 0.0
+        #: Set by ``finish``: whether the hurry left the filter's last scans out (the trajectory file's
+        #: ``stop_cut_short``); None while finish has not run.
+        self.stop_cut_short: bool | None = None
 
     def warm_up(self) -> None:
         """Run the whole chain once on made-up data of the live shapes and dtypes: point clouds from a
@@ -246,7 +249,9 @@ class OdometryWorker(Worker):
     def finish(self) -> None:
         """The filter's last poses out, then ``PoseEnd``. Hurried (SIGTERM: the daemon's stop timeout passed),
         the scans the filter still holds are left (its poses so far are in the trajectory file), said in a
-        warning."""
+        warning. The trajectory file says so (``stop_cut_short``); a hurry that comes once the filter is done
+        leaves nothing out, and does not."""
+        self.stop_cut_short = self.hurried
         if self.hurried:
             log.warning("RIO: hurried at the stop; the filter's last scans left out, %d poses written",
                         self.poses_written)
@@ -257,10 +262,13 @@ class OdometryWorker(Worker):
     def write_products(self) -> None:
         if self.trajectory is None:
             return
-        self.trajectory.close()
+        # Hurried before finish ran (SIGTERM while warming up or live): its scans were left out too.
+        cut_short = self.hurried if self.stop_cut_short is None else self.stop_cut_short
+        self.trajectory.close(stop_cut_short=cut_short)
         calibration = self.calibration()
         if calibration:
             from imaging.io.trajectory_file import write_calibration
 
             write_calibration(self.config.trajectory_path, calibration)
-        log.info("RIO: %d poses, %s; wrote %s", self.poses_written, dict(self.rio.stats), self.config.trajectory_path)
+        log.info("RIO: %d poses, %s; wrote %s%s", self.poses_written, dict(self.rio.stats), self.config.trajectory_path,
+                 " (stop_cut_short: hurried at the stop)" if cut_short else "")

@@ -275,9 +275,14 @@ def _quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
 
 
 class SampledTrajectory(Trajectory):
-    """A trajectory known at discrete times, interpolated in between (and held constant outside)."""
+    """A trajectory known at discrete times, interpolated in between (and held constant outside).
 
-    def __init__(self, time_ns, position_m, orientation_xyzw, velocity_mps=None, source: str = "sampled"):
+    ``stop_cut_short``: as its trajectory file says (``imaging.io.trajectory_file``): 1 when the live odometry
+    was hurried at the daemon's stop and left its last poses out, 0 when not, None when not known (a
+    trajectory not read from a file, or a file that does not say)."""
+
+    def __init__(self, time_ns, position_m, orientation_xyzw, velocity_mps=None, source: str = "sampled",
+                 stop_cut_short: int | None = None):
         self.time_ns = np.asarray(time_ns, dtype=np.int64)
         self.position_m = np.asarray(position_m, dtype=np.float64)
         self.orientation_xyzw = np.asarray(orientation_xyzw, dtype=np.float64)
@@ -301,6 +306,7 @@ class SampledTrajectory(Trajectory):
         self._step_rotvec = quaternion.to_rotvec(quaternion.compose(quaternion.inverse(self._quat[:-1]), self._quat[1:]))
         self._omega_body = self._step_rotvec / self._dt[:, None]
         self.source = source
+        self.stop_cut_short = stop_cut_short
 
     @classmethod
     def from_batches(cls, batches, source: str = "rio") -> SampledTrajectory:

@@ -1,4 +1,9 @@
-"""Trajectory files: HDF5 schema "sarbot.trajectory" version 1, and TUM text for evo and other tools."""
+"""Trajectory files: HDF5 schema "sarbot.trajectory" version 1, and TUM text for evo and other tools.
+
+The root attribute ``stop_cut_short`` (optional, added within version 1) says whether the writer was hurried
+at the daemon's stop and left poses out: 1 then, 0 for a file written to its end. It is written at ``close``,
+so a file whose writer never closed it (killed) lacks it, as do files older than it: ``read_trajectory``
+gives None for those (not known), never 0, since such a file may well be cut short."""
 
 from __future__ import annotations
 
@@ -27,7 +32,10 @@ class TrajectoryWriter:
     """A trajectory file written as the poses come (appendable datasets, flushed on request): a long run's
     poses live on disk, not in memory. Appends are gathered and written a chunk at a time, at ``flush`` and
     at ``close``: the live odometry appends every few milliseconds, and eight HDF5 calls per append cost it an
-    eighth of its CPU; what a crash would lose is what it loses anyway before a flush."""
+    eighth of its CPU; what a crash would lose is what it loses anyway before a flush.
+
+    ``close(stop_cut_short=...)`` says in the file whether its poses end where they should (module docstring);
+    left by an exception (``with``), the file does not say it: its end is not known."""
 
     def __init__(self, path: str | Path, source: str, covariance_width: int | None = None):
         self.path = Path(path)
@@ -72,33 +80,43 @@ class TrajectoryWriter:
         self._write()
         self._f.flush()
 
-    def close(self) -> None:
+    def close(self, stop_cut_short: bool | None = False) -> None:
+        """Write what is gathered and close. ``stop_cut_short``: True when the writer was hurried at the
+        daemon's stop and left poses out (the attribute 1), False when the poses go to the end (0), None to
+        leave the attribute out (not known: an error cut the writing short)."""
         if self._f.id.valid:
             self._write()
+            if stop_cut_short is not None:
+                self._f.attrs["stop_cut_short"] = int(bool(stop_cut_short))
             self._f.close()
 
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc):
-        self.close()
+    def __exit__(self, exc_type, *exc):
+        self.close(stop_cut_short=None if exc_type is not None else False)
 
 
 def write_trajectory(path: str | Path, traj: SampledTrajectory, covariance_diag: np.ndarray | None = None) -> Path:
     width = None if covariance_diag is None else np.asarray(covariance_diag).shape[1]
     with TrajectoryWriter(path, traj.source, width) as w:
         w.append(traj.time_ns, traj.position_m, traj.orientation_xyzw, traj.velocity_mps, covariance_diag)
+        # A trajectory read from a hurried file and written again still says so; any other is whole.
+        w.close(stop_cut_short=bool(traj.stop_cut_short))
     return Path(path)
 
 
 def read_trajectory(path: str | Path) -> SampledTrajectory:
+    """The trajectory file at ``path``; its ``stop_cut_short`` (1, 0, or None where the file does not say:
+    older files and files never closed) on the trajectory's attribute of that name."""
     path = Path(path)
     with open_checked(path, SCHEMA, SCHEMA_VERSION, "trajectory") as f:
         g = f["trajectory"]
         try:
+            cut_short = int(f.attrs["stop_cut_short"]) if "stop_cut_short" in f.attrs else None
             return SampledTrajectory(read(g["time_ns"]), read(g["position_m"]), read(g["orientation_xyzw"]),
                                      read(g["velocity_mps"]) if "velocity_mps" in g else None,
-                                     source=str(f.attrs.get("source", path.name)))
+                                     source=str(f.attrs.get("source", path.name)), stop_cut_short=cut_short)
         except (KeyError, ValueError) as exc:
             raise FileFormatError(f"{path}: {exc}") from None
 
