@@ -406,6 +406,22 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                                               "the same command, the machine otherwise quiet.",
                                               ".venv/bin/python benchmarks/soak.py --minutes 5 --radars left_front,left_rear,"
                                               "right_front,right_rear --emulator-nice 19 --name 4radars_5min_amd_cheaper_drivers"),
+    "soak_4radars_5min_amd_riocpu": ("Soak: four radars, 5 minutes, on the AMD EPYC VM with the cheaper odometry "
+                                     "(issue 34 item 5)",
+                                     "The previous section's run again on the same VM after the odometry worker's CPU per "
+                                     "scan was cut (benchmarks/odometry_cpu_per_scan.py): the same command, the machine "
+                                     "otherwise quiet.",
+                                     ".venv/bin/python benchmarks/soak.py --minutes 5 --radars left_front,left_rear,"
+                                     "right_front,right_rear --emulator-nice 19 --name 4radars_5min_amd_riocpu"),
+    "soak_4radars_5min_amd_catch_up_0.6": ("Soak: four radars, 5 minutes, the map's catch-up starting at 0.6 s "
+                                           "(tried, not kept)",
+                                           "The previous section's run with `CATCH_UP_START_S` set to 0.6 s in "
+                                           "acquisition/workers/stripmap.py (0.3 s on main) for this run only, "
+                                           "started right after it: the map's lag rose to the new start and it "
+                                           "pre-summed as many frames (see docs/benchmark-notes.md).",
+                                           "edit CATCH_UP_START_S = 0.6, then .venv/bin/python benchmarks/soak.py "
+                                           "--minutes 5 --radars left_front,left_rear,right_front,right_rear "
+                                           "--emulator-nice 19 --name 4radars_5min_amd_catch_up_0.6"),
     "soak_4radars_5min_emulator_nice19": ("Soak: four radars, 5 minutes, the emulator niced (issue 34 item 5)",
                                           "The four radars at 1x for 5 minutes with the cheaper emulated hardware at "
                                           "nice 19, to be run on the otherwise quiet machine: frames pre-summed beyond "
