@@ -35,10 +35,8 @@ Writes docs/results/driver_cpu_per_frame.json.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import statistics
 import shutil
-import subprocess
 import sys
 import tempfile
 import threading
@@ -58,24 +56,11 @@ import drivers.radar.udp as udp_now  # noqa: E402
 from acquisition.bus import BusPublisher, BusSubscriber  # noqa: E402
 from acquisition.messages import RadarFrameMessage  # noqa: E402
 from imaging.core.waveform import Waveform  # noqa: E402
+from git_baseline import baseline_module  # noqa: E402
 from results_file import load_average, probe_machine, write_results  # noqa: E402
 
 #: The commit before the driver's CPU was cut (main at the start of wave 3j).
 BASELINE = "4da3eec"
-
-
-def baseline_module(commit: str, path: str, name: str):
-    """``path`` (a module of this repository) as it was at ``commit``, loaded as ``name`` in the package the
-    path names (its relative imports are the checkout's modules)."""
-    source = subprocess.run(["git", "show", f"{commit}:{path}"], cwd=ROOT, check=True, capture_output=True,
-                            text=True).stdout
-    package = path.rsplit("/", 1)[0].replace("/", ".")
-    spec = importlib.util.spec_from_loader(f"{package}.{name}", loader=None)
-    module = importlib.util.module_from_spec(spec)
-    module.__package__ = package
-    sys.modules[spec.name] = module
-    exec(compile(source, f"{commit}:{path}", "exec"), module.__dict__)
-    return module
 
 
 def frames_datagrams(n_frames: int, waveform: Waveform, seed: int = 0) -> tuple[list, list]:

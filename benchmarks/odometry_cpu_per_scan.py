@@ -34,9 +34,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib.util
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -58,25 +56,12 @@ from drivers.radar.stream import RadarFrame  # noqa: E402
 from imaging.core.rig import Rig  # noqa: E402
 from imaging.core.samples import iq_to_complex  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
+from git_baseline import baseline_module  # noqa: E402
 from results_file import load_average, probe_machine, write_results  # noqa: E402
 
 #: main before the odometry worker's CPU was cut (wave 3k).
 BASELINE = "0e7a3c5"
 IMU_BATCH = 20  # samples: the IMU driver's 0.05 s at 400 Hz
-
-
-def baseline_module(commit: str, path: str, name: str):
-    """``path`` (a module of this repository) as it was at ``commit``, loaded as ``name`` in the package the
-    path names (its relative imports are the checkout's modules)."""
-    source = subprocess.run(["git", "show", f"{commit}:{path}"], cwd=ROOT, check=True, capture_output=True,
-                            text=True).stdout
-    package = path.rsplit("/", 1)[0].replace("/", ".")
-    spec = importlib.util.spec_from_loader(f"{package}.{name}", loader=None)
-    module = importlib.util.module_from_spec(spec)
-    module.__package__ = package
-    sys.modules[spec.name] = module
-    exec(compile(source, f"{commit}:{path}", "exec"), module.__dict__)
-    return module
 
 
 @contextlib.contextmanager
