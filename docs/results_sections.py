@@ -338,14 +338,16 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                                 "measurement with its truth (before the wild gate: see the next section).",
                                 ".venv/bin/python benchmarks/map_feedback_live_drive.py"),
     "map_feedback_wild": ("Wild tiles on the live test's drive, and the scale learnt without and with the wild gate",
-                          "The live test's drive with three noise seeds, offline as the live workers run it (as "
+                          "The live test's drive with eight noise seeds, offline as the live workers run it (as "
                           "above): every map measurement against its truth (wild: erring by more than 4 of its sigmas "
                           "and 20 mm/s), with what the live worker can tell it by (its residual's chi2 against the "
                           "filter's velocity sigma, its own sigma and the Doppler scale's at the span's speed: "
                           "rio.map_feedback's wild_gate_chi2) and its tiles' refocus figures (groups, coverage, "
-                          "entropy drop: none tells a wild tile); the scale learnt with the wild gate and "
-                          "scale_settle_s 1.5, the defaults (--runs 1 2 add the wild gate alone and the old defaults).",
-                          ".venv/bin/python benchmarks/map_feedback_wild.py --runs 0"),
+                          "entropy drop: none tells a wild tile); the scale learnt (rio.doppler_scale: the readings' "
+                          "weighted mean, widened where they disagree) with the defaults (the wild gate, "
+                          "scale_settle_s 1.5, single_tile_settle_s 3) and with single tiles settling as long as "
+                          "several (--runs 2 3 add the wild gate alone and the old defaults).",
+                          ".venv/bin/python benchmarks/map_feedback_wild.py --runs 0 1"),
     "pointcloud": ("Point clouds from raw frames",
                    "What each live odometry scan costs before the filter sees it, stage by stage.",
                    ".venv/bin/python benchmarks/pointcloud.py"),
