@@ -11,7 +11,7 @@ import numpy as np
 from imaging.backprojection import backproject
 from imaging.core.geometry import antenna_track
 from imaging.core.rig import RadarConfig
-from imaging.core.trajectory import Trajectory
+from imaging.core.trajectory import SampledTrajectory, Trajectory
 from imaging.io.image_file import SarImage
 from imaging.profiles import chirp_profiles
 from imaging.stripmap.config import StripMapConfig
@@ -19,6 +19,7 @@ from imaging.stripmap.footprint import (FrameFootprint, TilesTaken, footprint_ma
                                         footprint_outline, footprint_tiles, merged_footprints)
 from imaging.stripmap.polar import (beams_at_masked, beams_at_points, frame_axes, frame_beams, frame_beams_over,
                                     masked_extent)
+from imaging.stripmap.placement import place_profiles
 from imaging.stripmap.presum import presum_chirps
 from imaging.stripmap.refocus import TileRefocus
 from imaging.numba_target import prefer_full_width_vectors
@@ -115,6 +116,9 @@ class StripMap:
         if weight != 1.0:
             samples *= np.float32(weight)  # the sums are this call's own arrays; compression is linear
         chirp_times, tx_index = np.concatenate(chirp_times), np.concatenate(tx_index)
+        if not compress and isinstance(trajectory, SampledTrajectory):  # the live map's: placed in one kernel call
+            tx_m, rx_m, look = place_profiles(radar, trajectory, chirp_times, tx_index, sum_rx)
+            return samples.reshape(-1, samples.shape[-1]), tx_m, rx_m, look, np.repeat(chirp_times, samples.shape[1])
         if not compress:  # "polar": the frame's beams are formed from the samples (imaging.stripmap.polar)
             track = antenna_track(radar, trajectory, chirp_times, tx_index)
             rx_m = track.rx_m.mean(axis=1, keepdims=True) if sum_rx else track.rx_m
