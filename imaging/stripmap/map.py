@@ -20,7 +20,7 @@ from imaging.stripmap.footprint import (FrameFootprint, TilesTaken, footprint_ma
 from imaging.stripmap.polar import (beams_at_masked, beams_at_points, frame_axes, frame_beams, frame_beams_over,
                                     masked_extent)
 from imaging.stripmap.placement import place_profiles
-from imaging.stripmap.presum import presum_chirps
+from imaging.stripmap.presum import group_offsets_ns, presum_chirps
 from imaging.stripmap.refocus import TileRefocus
 from imaging.numba_target import prefer_full_width_vectors
 
@@ -101,14 +101,13 @@ class StripMap:
         cfg = self.config
         presum = presum or cfg.presum
         wf = radar.waveform
-        offsets_ns = np.round(np.arange(wf.chirps_per_frame) * wf.chirp_interval_s * 1e9).astype(np.int64)
         samples, chirp_times, tx_index = [], [], []
         for adc, frame_time_ns in zip(adcs, frame_times_ns):
             # a sum, not a mean, keeps the image scale of presum 1
             sums, groups, tx = presum_chirps(adc, tx_order, wf.n_tx, presum)
             samples.append(sums)
             # offsets averaged apart from the frame time: float64 has 256 ns steps at 1e18 ns of PTP time
-            chirp_times.append(int(frame_time_ns) + offsets_ns[groups].mean(axis=1).round().astype(np.int64))
+            chirp_times.append(int(frame_time_ns) + group_offsets_ns(groups, wf.chirps_per_frame, wf.chirp_interval_s))
             tx_index.append(tx)
         samples = samples[0] if len(samples) == 1 else np.concatenate(samples)
         if sum_rx:
@@ -329,10 +328,10 @@ class StripMap:
         (``_polar_takers`` for one frame, without the list of points)."""
         wf, cfg = radar.waveform, self.config
         masks = taken.masks[:, 0]
-        centre, axis, _ = frame_axes(tx_m, rx_m, look_xy)
-        extent = masked_extent(centre, axis, taken.x_m, taken.y_m, cfg.z_m, masks)
+        axes = frame_axes(tx_m, rx_m, look_xy)
+        extent = masked_extent(axes[0], axes[1], taken.x_m, taken.y_m, cfg.z_m, masks)
         beams = frame_beams_over(samples, tx_m, rx_m, extent, cfg.z_m, wf.f0_hz, wf.frequency_step_hz, cfg.window,
-                                 cfg.oversample, look_xy)
+                                 cfg.oversample, look_xy, axes)
         return beams_at_masked(beams, taken.x_m, taken.y_m, cfg.z_m, masks)
 
     def _backproject_takers(self, profiles, tx_m, rx_m, pts: np.ndarray, takers: np.ndarray, per: int) -> np.ndarray:

@@ -106,11 +106,13 @@ def frame_axes(tx_m: np.ndarray, rx_m: np.ndarray, look_xy: np.ndarray) -> tuple
 
 
 def frame_beams_over(samples: np.ndarray, tx_m: np.ndarray, rx_m: np.ndarray, extent: tuple, z_m: float, f0_hz: float,
-                     frequency_step_hz: float, window: str, oversample: int, look_xy: np.ndarray) -> FrameBeams:
+                     frequency_step_hz: float, window: str, oversample: int, look_xy: np.ndarray,
+                     axes: tuple | None = None) -> FrameBeams:
     """As :func:`frame_beams`, for pixels on the plane ``z_m`` within ``extent`` (nearest and farthest range,
-    smallest and largest alpha: ``_extent``'s, or ``masked_extent``'s)."""
+    smallest and largest alpha: ``_extent``'s, or ``masked_extent``'s); ``axes``: ``frame_axes`` of the same
+    antennas and look, where the caller has them."""
     n = samples.shape[1]
-    centre, axis, normal = frame_axes(tx_m, rx_m, look_xy)
+    centre, axis, normal = axes if axes is not None else frame_axes(tx_m, rx_m, look_xy)
     m = (n - 1) // 2  # range_compress's centring: the carrier is the middle sample's frequency
     carrier_hz = f0_hz + m * frequency_step_hz
     k_c = 2 * math.pi * carrier_hz / SPEED_OF_LIGHT_MPS

@@ -103,6 +103,20 @@ def chirp_groups(tx_order: bytes, n_tx: int, presum: int) -> tuple[np.ndarray, n
     return groups, tx_index
 
 
+def group_offsets_ns(groups: np.ndarray, chirps_per_frame: int, chirp_interval_s: float) -> np.ndarray:
+    """Each group's time from its frame's start, int64 ns [G]: the mean of its chirps' start offsets, rounded.
+    Made once per ``chirp_groups`` result and waveform (read-only, shared)."""
+    return _group_offsets_ns(groups.tobytes(), groups.shape[1], chirps_per_frame, chirp_interval_s)
+
+
+@functools.lru_cache(maxsize=64)
+def _group_offsets_ns(groups: bytes, presum: int, chirps_per_frame: int, chirp_interval_s: float) -> np.ndarray:
+    offsets_ns = np.round(np.arange(chirps_per_frame) * chirp_interval_s * 1e9).astype(np.int64)
+    out = offsets_ns[np.frombuffer(groups, np.int64).reshape(-1, presum)].mean(axis=1).round().astype(np.int64)
+    out.flags.writeable = False
+    return out
+
+
 @numba.njit(cache=True, nogil=True)
 def _sum_pairs(out, adc, groups):
     """out[g] = the sum of adc[c] over the chirps c of group g (rows flattened: rx x samples x I/Q)."""
