@@ -253,8 +253,12 @@ def _weights(out, shift, shift_slope, tx, rx, c, u, nrm, z, alpha, r_near, r_far
             g1 = c[1] + alpha[a] * r * u[1] + b * nrm[1]
             g2 = c[2] + h
             one = 2.0 * math.sqrt((g0 - c[0]) ** 2 + (g1 - c[1]) ** 2 + h * h)
+            d_tx = 0.0
             for p in range(p_n):
-                d = (math.sqrt((g0 - tx[p, 0]) ** 2 + (g1 - tx[p, 1]) ** 2 + (g2 - tx[p, 2]) ** 2)
+                # a TX's distance once for the RX channels after it (a frame's rows: each chirp group's RXs)
+                if p == 0 or tx[p, 0] != tx[p - 1, 0] or tx[p, 1] != tx[p - 1, 1] or tx[p, 2] != tx[p - 1, 2]:
+                    d_tx = math.sqrt((g0 - tx[p, 0]) ** 2 + (g1 - tx[p, 1]) ** 2 + (g2 - tx[p, 2]) ** 2)
+                d = (d_tx
                      + math.sqrt((g0 - rx[p, 0]) ** 2 + (g1 - rx[p, 1]) ** 2 + (g2 - rx[p, 2]) ** 2) - one)
                 if which == 0:
                     base[p, a] = d
