@@ -199,6 +199,12 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                           "this issue's cuts and before its last round against now, interleaved; what a refocusing "
                           "map costs apart.",
                           ".venv/bin/python benchmarks/stripmap_capacity.py"),
+    "stripmap_presum": ("The live map's CPU per frame at the configured pre-summing, main against the checkout",
+                        "The daemon's strip-map worker on the soak's four radars (stripmap_capacity's scene and messages), "
+                        "a baseline commit's map modules (map.py, polar.py, loaded from git) against the checkout's, two "
+                        "workers taking every message in turn in one process: the main thread's CPU per frame, the "
+                        "ratio per round, and the largest difference between the two maps below the peak.",
+                        ".venv/bin/python benchmarks/stripmap_presum.py --rounds 4"),
     "stripmap_thinning": ("What the live map's catch-up costs",
                           "Pre-summing, RX sums and thinning: CPU saved against image error.",
                           ".venv/bin/python benchmarks/stripmap_thinning.py"),
@@ -424,6 +430,18 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                                            "edit CATCH_UP_START_S = 0.6, then .venv/bin/python benchmarks/soak.py "
                                            "--minutes 5 --radars left_front,left_rear,right_front,right_rear "
                                            "--emulator-nice 19 --name 4radars_5min_amd_catch_up_0.6"),
+    "soak_4radars_5min_amd_presum": ("Soak: four radars, 5 minutes, on the AMD EPYC VM with the cheaper map frame "
+                                     "(issue 34 item 5; loaded)",
+                                     "The same command after the map's CPU per frame was cut (stripmap_presum), run by "
+                                     "the engineer while other work filled the machine (load 5.3 at the start, 10.8 at "
+                                     "the end; `cpu_accounting`: 73 % of the 2 cores to other processes, 0 % idle, the "
+                                     "map 6 % of a core): the emulated IMU at nice 19 fell behind (the replay 72 s "
+                                     "behind 1x, the IMU up to 30 s late in the file), so the map waited for poses "
+                                     "(up to 57 s) and dropped what it could not place. It says nothing of the map's "
+                                     "CPU; kept as the run it was. The lead re-runs it quiet.",
+                                     ".venv/bin/python benchmarks/soak.py --minutes 5 "
+                                     "--radars left_front,left_rear,right_front,right_rear --emulator-nice 19 "
+                                     "--name 4radars_5min_amd_presum"),
     "soak_4radars_5min_emulator_nice19": ("Soak: four radars, 5 minutes, the emulator niced (issue 34 item 5)",
                                           "The four radars at 1x for 5 minutes with the cheaper emulated hardware at "
                                           "nice 19, to be run on the otherwise quiet machine: frames pre-summed beyond "

@@ -11,7 +11,7 @@ import numpy as np
 from imaging.backprojection import backproject
 from imaging.core.geometry import antenna_track
 from imaging.core.rig import RadarConfig
-from imaging.core.trajectory import Trajectory
+from imaging.core.trajectory import SampledTrajectory, Trajectory
 from imaging.io.image_file import SarImage
 from imaging.profiles import chirp_profiles
 from imaging.stripmap.config import StripMapConfig
@@ -19,7 +19,8 @@ from imaging.stripmap.footprint import (FrameFootprint, TilesTaken, footprint_ma
                                         footprint_outline, footprint_tiles, merged_footprints)
 from imaging.stripmap.polar import (beams_at_masked, beams_at_points, frame_axes, frame_beams, frame_beams_over,
                                     masked_extent)
-from imaging.stripmap.presum import presum_chirps
+from imaging.stripmap.placement import place_profiles
+from imaging.stripmap.presum import group_offsets_ns, presum_chirps
 from imaging.stripmap.refocus import TileRefocus
 from imaging.numba_target import prefer_full_width_vectors
 
@@ -100,14 +101,13 @@ class StripMap:
         cfg = self.config
         presum = presum or cfg.presum
         wf = radar.waveform
-        offsets_ns = np.round(np.arange(wf.chirps_per_frame) * wf.chirp_interval_s * 1e9).astype(np.int64)
         samples, chirp_times, tx_index = [], [], []
         for adc, frame_time_ns in zip(adcs, frame_times_ns):
             # a sum, not a mean, keeps the image scale of presum 1
             sums, groups, tx = presum_chirps(adc, tx_order, wf.n_tx, presum)
             samples.append(sums)
             # offsets averaged apart from the frame time: float64 has 256 ns steps at 1e18 ns of PTP time
-            chirp_times.append(int(frame_time_ns) + offsets_ns[groups].mean(axis=1).round().astype(np.int64))
+            chirp_times.append(int(frame_time_ns) + group_offsets_ns(groups, wf.chirps_per_frame, wf.chirp_interval_s))
             tx_index.append(tx)
         samples = samples[0] if len(samples) == 1 else np.concatenate(samples)
         if sum_rx:
@@ -115,6 +115,9 @@ class StripMap:
         if weight != 1.0:
             samples *= np.float32(weight)  # the sums are this call's own arrays; compression is linear
         chirp_times, tx_index = np.concatenate(chirp_times), np.concatenate(tx_index)
+        if not compress and isinstance(trajectory, SampledTrajectory):  # the live map's: placed in one kernel call
+            tx_m, rx_m, look = place_profiles(radar, trajectory, chirp_times, tx_index, sum_rx)
+            return samples.reshape(-1, samples.shape[-1]), tx_m, rx_m, look, np.repeat(chirp_times, samples.shape[1])
         if not compress:  # "polar": the frame's beams are formed from the samples (imaging.stripmap.polar)
             track = antenna_track(radar, trajectory, chirp_times, tx_index)
             rx_m = track.rx_m.mean(axis=1, keepdims=True) if sum_rx else track.rx_m
@@ -325,10 +328,10 @@ class StripMap:
         (``_polar_takers`` for one frame, without the list of points)."""
         wf, cfg = radar.waveform, self.config
         masks = taken.masks[:, 0]
-        centre, axis, _ = frame_axes(tx_m, rx_m, look_xy)
-        extent = masked_extent(centre, axis, taken.x_m, taken.y_m, cfg.z_m, masks)
+        axes = frame_axes(tx_m, rx_m, look_xy)
+        extent = masked_extent(axes[0], axes[1], taken.x_m, taken.y_m, cfg.z_m, masks)
         beams = frame_beams_over(samples, tx_m, rx_m, extent, cfg.z_m, wf.f0_hz, wf.frequency_step_hz, cfg.window,
-                                 cfg.oversample, look_xy)
+                                 cfg.oversample, look_xy, axes)
         return beams_at_masked(beams, taken.x_m, taken.y_m, cfg.z_m, masks)
 
     def _backproject_takers(self, profiles, tx_m, rx_m, pts: np.ndarray, takers: np.ndarray, per: int) -> np.ndarray:

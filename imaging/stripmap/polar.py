@@ -106,11 +106,13 @@ def frame_axes(tx_m: np.ndarray, rx_m: np.ndarray, look_xy: np.ndarray) -> tuple
 
 
 def frame_beams_over(samples: np.ndarray, tx_m: np.ndarray, rx_m: np.ndarray, extent: tuple, z_m: float, f0_hz: float,
-                     frequency_step_hz: float, window: str, oversample: int, look_xy: np.ndarray) -> FrameBeams:
+                     frequency_step_hz: float, window: str, oversample: int, look_xy: np.ndarray,
+                     axes: tuple | None = None) -> FrameBeams:
     """As :func:`frame_beams`, for pixels on the plane ``z_m`` within ``extent`` (nearest and farthest range,
-    smallest and largest alpha: ``_extent``'s, or ``masked_extent``'s)."""
+    smallest and largest alpha: ``_extent``'s, or ``masked_extent``'s); ``axes``: ``frame_axes`` of the same
+    antennas and look, where the caller has them."""
     n = samples.shape[1]
-    centre, axis, normal = frame_axes(tx_m, rx_m, look_xy)
+    centre, axis, normal = axes if axes is not None else frame_axes(tx_m, rx_m, look_xy)
     m = (n - 1) // 2  # range_compress's centring: the carrier is the middle sample's frequency
     carrier_hz = f0_hz + m * frequency_step_hz
     k_c = 2 * math.pi * carrier_hz / SPEED_OF_LIGHT_MPS
@@ -129,14 +131,14 @@ def frame_beams_over(samples: np.ndarray, tx_m: np.ndarray, rx_m: np.ndarray, ex
     _weights(weights, shift, shift_slope, np.ascontiguousarray(tx_m, np.float64), np.ascontiguousarray(rx_m, np.float64),
              centre, axis, normal, z_m, alpha_a, r_near, r_far, inv_mid, k_c)
     with one_blas_thread():  # OpenBLAS's own threads cost 15x the CPU of one on this small product
-        z = samples.T @ weights  # [n, 3 beams]: the one product over the frame's chirps
-    dk = (2 * math.pi * frequency_step_hz / SPEED_OF_LIGHT_MPS * (np.arange(n) - m)).astype(np.float32)[:, None]
-    b = beams
+        # [3 beams, n]: the one product over the frame's chirps, a beam's weights a row, as the compression
+        # takes them (samples.T @ weights, its transpose, cost 10 % more and a transposing copy after it)
+        z = weights.T @ samples
+    dk = (2 * math.pi * frequency_step_hz / SPEED_OF_LIGHT_MPS * (np.arange(n) - m)).astype(np.float32)
     # each beam's mean range shift as its phase exp(-j k shift), here once per beam, not per pixel and tap
     turn = np.exp(-1j * k_c * shift).astype(np.complex64)
-    main = (z[:, :b] - 1j * dk * z[:, b:2 * b]) * turn
-    slope_sig = (1 + dk / np.float32(k_c)) * z[:, 2 * b:] * turn  # k_n / k_c: the slope's phase is k_n s eps
-    both = np.ascontiguousarray(np.concatenate([main, slope_sig], axis=1).T)
+    both = np.empty((2 * beams, n), np.complex64)
+    _beam_signals(both, z, dk, turn, np.float32(k_c))
     prof = range_compress(both, f0_hz, frequency_step_hz, window=window, oversample=oversample, keep_samples=False)
     return FrameBeams(centre, axis, float(lo), float(dalpha), inv_mid, k_c, prof.range_step_m, prof.data, shift,
                       shift_slope)
@@ -251,8 +253,12 @@ def _weights(out, shift, shift_slope, tx, rx, c, u, nrm, z, alpha, r_near, r_far
             g1 = c[1] + alpha[a] * r * u[1] + b * nrm[1]
             g2 = c[2] + h
             one = 2.0 * math.sqrt((g0 - c[0]) ** 2 + (g1 - c[1]) ** 2 + h * h)
+            d_tx = 0.0
             for p in range(p_n):
-                d = (math.sqrt((g0 - tx[p, 0]) ** 2 + (g1 - tx[p, 1]) ** 2 + (g2 - tx[p, 2]) ** 2)
+                # a TX's distance once for the RX channels after it (a frame's rows: each chirp group's RXs)
+                if p == 0 or tx[p, 0] != tx[p - 1, 0] or tx[p, 1] != tx[p - 1, 1] or tx[p, 2] != tx[p - 1, 2]:
+                    d_tx = math.sqrt((g0 - tx[p, 0]) ** 2 + (g1 - tx[p, 1]) ** 2 + (g2 - tx[p, 2]) ** 2)
+                d = (d_tx
                      + math.sqrt((g0 - rx[p, 0]) ** 2 + (g1 - rx[p, 1]) ** 2 + (g2 - rx[p, 2]) ** 2) - one)
                 if which == 0:
                     base[p, a] = d
@@ -271,6 +277,23 @@ def _weights(out, shift, shift_slope, tx, rx, c, u, nrm, z, alpha, r_near, r_far
             out[p, a] = e
             out[p, nb + a] = e * d
             out[p, 2 * nb + a] = e * s
+
+
+@numba.njit(cache=True, nogil=True)
+def _beam_signals(out, z, dk, turn, k_c):
+    """The beams' main and slope signals [2 x beams, n] from the product z [3 x beams, n] (main, d and s
+    weights' rows; see the module's docstring), as numpy's complex64 arithmetic gave them to float32 rounding,
+    in one pass instead of six numpy temporaries and a transposing copy: main = (z_1 - j dk z_d) turn, slope = (1 +
+    dk / k_c) z_s turn (k_n / k_c: the slope's phase is k_n s eps)."""
+    nb, n = turn.size, z.shape[1]
+    for a in range(nb):
+        t = turn[a]
+        for i in range(n):
+            d = dk[i]
+            zd = z[nb + a, i]
+            main = complex(z[a, i].real + d * zd.imag, z[a, i].imag - d * zd.real)
+            out[a, i] = main * t
+            out[nb + a, i] = (np.float32(1.0) + d / k_c) * z[2 * nb + a, i] * t
 
 
 def _table() -> np.ndarray:

@@ -4,6 +4,7 @@ and the phase spread the antenna's motion between them costs at the widest squin
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numba
@@ -61,16 +62,8 @@ def presum_chirps(adc: np.ndarray, tx_order: np.ndarray, n_tx: int, presum: int)
     tx_index : ndarray, shape (G,), int
     """
     tx_order = np.asarray(tx_order)
-    groups, tx_index = [], []
-    for tx in range(n_tx):
-        k = np.flatnonzero(tx_order == tx)
-        n = k.size // presum * presum
-        if n:
-            groups.append(k[:n].reshape(-1, presum))
-            tx_index.append(np.full(n // presum, tx))
-    if not groups:
-        raise ValueError(f"presum {presum}: more chirps than any TX sends in a frame")
-    groups, tx_index = np.concatenate(groups), np.concatenate(tx_index)
+    # the same for every frame of a radar: made once (a live frame's pre-summing was half this bookkeeping)
+    groups, tx_index = chirp_groups(tx_order.astype(np.int64).tobytes(), n_tx, presum)
     pairs = not np.iscomplexobj(adc)
     if pairs and adc.shape[-1:] != (2,):
         raise ValueError(f"a frame is complex [chirps, rx, samples] or I/Q pairs [..., 2]; got {adc.dtype} {adc.shape}")
@@ -89,6 +82,39 @@ def presum_chirps(adc: np.ndarray, tx_order: np.ndarray, n_tx: int, presum: int)
     else:
         sums = adc[groups].sum(axis=1)
     return sums, groups, tx_index
+
+
+@functools.lru_cache(maxsize=64)
+def chirp_groups(tx_order: bytes, n_tx: int, presum: int) -> tuple[np.ndarray, np.ndarray]:
+    """``presum_chirps``' groups [G, presum] and their TX [G] for the TX order (int64 bytes); read-only arrays,
+    shared by every call with the same arguments."""
+    order = np.frombuffer(tx_order, np.int64)
+    groups, tx_index = [], []
+    for tx in range(n_tx):
+        k = np.flatnonzero(order == tx)
+        n = k.size // presum * presum
+        if n:
+            groups.append(k[:n].reshape(-1, presum))
+            tx_index.append(np.full(n // presum, tx))
+    if not groups:
+        raise ValueError(f"presum {presum}: more chirps than any TX sends in a frame")
+    groups, tx_index = np.concatenate(groups), np.concatenate(tx_index)
+    groups.flags.writeable = tx_index.flags.writeable = False
+    return groups, tx_index
+
+
+def group_offsets_ns(groups: np.ndarray, chirps_per_frame: int, chirp_interval_s: float) -> np.ndarray:
+    """Each group's time from its frame's start, int64 ns [G]: the mean of its chirps' start offsets, rounded.
+    Made once per ``chirp_groups`` result and waveform (read-only, shared)."""
+    return _group_offsets_ns(groups.tobytes(), groups.shape[1], chirps_per_frame, chirp_interval_s)
+
+
+@functools.lru_cache(maxsize=64)
+def _group_offsets_ns(groups: bytes, presum: int, chirps_per_frame: int, chirp_interval_s: float) -> np.ndarray:
+    offsets_ns = np.round(np.arange(chirps_per_frame) * chirp_interval_s * 1e9).astype(np.int64)
+    out = offsets_ns[np.frombuffer(groups, np.int64).reshape(-1, presum)].mean(axis=1).round().astype(np.int64)
+    out.flags.writeable = False
+    return out
 
 
 @numba.njit(cache=True, nogil=True)
