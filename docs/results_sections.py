@@ -431,14 +431,12 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                                            "--minutes 5 --radars left_front,left_rear,right_front,right_rear "
                                            "--emulator-nice 19 --name 4radars_5min_amd_catch_up_0.6"),
     "soak_4radars_5min_amd_presum": ("Soak: four radars, 5 minutes, on the AMD EPYC VM with the cheaper map frame "
-                                     "(issue 34 item 5; loaded)",
-                                     "The same command after the map's CPU per frame was cut (stripmap_presum), run by "
-                                     "the engineer while other work filled the machine (load 5.3 at the start, 10.8 at "
-                                     "the end; `cpu_accounting`: 73 % of the 2 cores to other processes, 0 % idle, the "
-                                     "map 6 % of a core): the emulated IMU at nice 19 fell behind (the replay 72 s "
-                                     "behind 1x, the IMU up to 30 s late in the file), so the map waited for poses "
-                                     "(up to 57 s) and dropped what it could not place. It says nothing of the map's "
-                                     "CPU; kept as the run it was. The lead re-runs it quiet.",
+                                     "(issue 34 item 5; quiet)",
+                                     "The same command after the map's CPU per frame was cut (stripmap_presum), the "
+                                     "lead's re-run with nothing else running: nothing lost, and half the frames "
+                                     "pre-summed beyond the factor; every process took 13-14 % more CPU a frame than "
+                                     "in the riocpu soak (the VM's hour), the map's cut aside (see "
+                                     "docs/benchmark-notes.md).",
                                      ".venv/bin/python benchmarks/soak.py --minutes 5 "
                                      "--radars left_front,left_rear,right_front,right_rear --emulator-nice 19 "
                                      "--name 4radars_5min_amd_presum"),
