@@ -388,10 +388,7 @@ class MapFeedback:
         self.settling_not_taken = 0
         #: measurements not offered to the filter as wild (``MapFeedbackConfig.wild_gate_chi2``)
         self.wild_not_taken = 0
-        #: the radars' Doppler is multiplied by this (``correct_scan``), learnt from the map's measurements
-        self.doppler_scale = 1.0
-        #: variance of ``doppler_scale`` (relative, squared)
-        self.scale_variance = config.scale_prior_sigma ** 2
+        #: the Doppler scale learnt from the map's measurements (``doppler_scale``, ``scale_variance``)
         self.scale_estimator = DopplerScaleEstimator(config.scale_prior_sigma)
         self.scale_log: list[tuple[int, float]] = []  # (filter time ns, scale from then on)
         #: every measurement met, accepted or refused, with what the filter made of it
@@ -449,6 +446,16 @@ class MapFeedback:
             return None
         v = np.array([np.interp(time_ns, t, self._velocities[:, i]) for i in range(3)])
         return float(v @ np.asarray(direction, float))
+
+    @property
+    def doppler_scale(self) -> float:
+        """The radars' Doppler is multiplied by this (``correct_scan``), learnt from the map's measurements."""
+        return self.scale_estimator.scale
+
+    @property
+    def scale_variance(self) -> float:
+        """The variance of ``doppler_scale`` (relative, squared)."""
+        return self.scale_estimator.variance
 
     @property
     def scale_sigma(self) -> float:
@@ -583,5 +590,4 @@ class MapFeedback:
         scale_then = self.scale_at(m.time_ns)
         relative_sigma = max(m.sigma_mps / abs(span_speed_mps), self.config.scale_min_sigma)
         self.scale_estimator.add(scale_then * (1.0 + m.velocity_error_mps / span_speed_mps), scale_then * relative_sigma)
-        self.doppler_scale, self.scale_variance = self.scale_estimator.scale, self.scale_estimator.variance
         return True
