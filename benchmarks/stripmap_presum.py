@@ -187,10 +187,6 @@ def main(argv: list[str]) -> int:
     out = {
         "scene": "soak_loop", "seconds": args.seconds, "radars": capacity.RADARS, "presum": map_config.presum,
         "algorithm": map_config.algorithm, "baseline": args.baseline, "baseline_modules": loaded,
-        "commit": subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
-                                 text=True).stdout.strip(),
-        "dirty": bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
-                                     capture_output=True, text=True).stdout.strip()),
         "rounds": args.rounds, "frames_per_round": last["now"]["frames"],
         "frames_presummed_more": {v: last[v]["presummed_more"] for v in classes},
         "thread_cpu_ms_per_frame": per, "process_cpu_ms_per_frame": per_process,
