@@ -64,7 +64,8 @@ def feed_segments(stream: RadarStream, buffer: memoryview, segment_bytes: int, r
         The radar's stream. One that has its own ``feed_segments(buffer, segment_bytes, receive_ns) ->
         list[RadarFrame]`` gets the whole batch in one call; that method must return exactly what feeding
         each segment through ``feed`` in order would (same frames, same counters). Otherwise each segment
-        goes through ``feed`` as ``bytes``.
+        goes through ``feed`` as ``bytes``. A stream's own method is called only with a non-empty ``buffer``
+        and ``segment_bytes > 0`` (an empty datagram goes through ``feed``).
     buffer : memoryview
         The batch: datagrams of ``segment_bytes`` bytes each, back to back, the last possibly shorter
         (1 to ``segment_bytes`` bytes). It is the receiver's own buffer, overwritten by its next receive:
@@ -81,11 +82,13 @@ def feed_segments(stream: RadarStream, buffer: memoryview, segment_bytes: int, r
     list[RadarFrame]
         The frames the batch completed, in order (usually none: a frame spans hundreds of datagrams).
     """
+    if not len(buffer):  # an empty datagram: the stream counts it as it always did
+        return stream.feed(b"", receive_ns)
+    if segment_bytes <= 0:
+        raise ValueError(f"segment_bytes must be positive, got {segment_bytes}")
     own = getattr(stream, "feed_segments", None)
     if own is not None:
         return own(buffer, segment_bytes, receive_ns)
-    if segment_bytes <= 0:
-        raise ValueError(f"segment_bytes must be positive, got {segment_bytes}")
     frames: list[RadarFrame] = []
     for offset in range(0, len(buffer), segment_bytes):
         if done := stream.feed(bytes(buffer[offset:offset + segment_bytes]), receive_ns):
