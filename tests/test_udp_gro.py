@@ -19,7 +19,14 @@ def _gro_receiver(**kwargs) -> UdpReceiver:
     if not rx.gro:  # Linux before 5.0: nothing to test here (the fallback is every other test's receiver)
         rx.close()
         pytest.skip("this kernel refuses UDP_GRO")
+    _stamps_on()
     return rx
+
+
+def _stamps_on() -> None:
+    """Let receive stamps take effect: the first socket on the machine to ask for them switches the kernel's
+    stamping on a moment later (a deferred static key), and datagrams before that come unstamped."""
+    time.sleep(0.05)
 
 
 def _numbered(count: int, size: int, last: int) -> list[bytes]:
@@ -202,3 +209,25 @@ def test_kernel_drops_of_batches_are_reported_by_the_driver_loop():
     dropped = [e for e in events if e.startswith("kernel dropped")]
     assert dropped and all("receive(s) (UDP GRO" in e for e in dropped)
     assert rx.kernel_drops >= 30  # of 40 batches of 64 kB, a 64 kB buffer holds one or two
+
+
+def test_over_loopback_a_socket_without_gro_stamps_a_segmented_sends_datagrams_alike_so_batches_change_no_stamp():
+    """What the docs' "exact over loopback" rests on: the kernel stamps a segmented send once, and a socket
+    without GRO sees that stamp on every datagram cut from it (64, 64, 22 of a 150-datagram frame), the very
+    grouping a GRO socket gets as batches."""
+    rx = UdpReceiver("127.0.0.1", 0, coalesce_s=0, gro=False)
+    assert not rx.gro
+    _stamps_on()
+    tx = UdpSender()
+    for _ in range(2):
+        tx.send(PackedDatagrams(np.zeros(150 * 1000, np.uint8), 1000), rx.address)
+        time.sleep(0.01)
+    stamps = []
+    deadline = time.monotonic() + 5
+    while len(stamps) < 300 and time.monotonic() < deadline:
+        if (got := rx.receive_segments()) is not None:
+            assert got[1] == len(got[0]) == 1000  # no GRO: batches of one
+            stamps.append(got[2])
+    rx.close(), tx.close()
+    runs = [stamps.count(s) for s in dict.fromkeys(stamps)]
+    assert runs == [64, 64, 22, 64, 64, 22] and 0 not in stamps

@@ -61,7 +61,7 @@ class UdpReceiver:
                  accept_from: str | None = None, coalesce_s: float = 0.002, receive_stamps: str = "auto",
                  gro: bool = True):
         """``accept_from``: the only source address whose datagrams are taken; others are counted
-        (``foreign_source``) and dropped. None takes every sender (loopback, a single radar).
+        (``foreign_source``, per receive: a GRO batch is one flow, so one source) and dropped. None takes every sender (loopback, a single radar).
         ``coalesce_s``: how long an empty socket is left before it is looked at again (0: at once).
         ``receive_stamps``: "auto", "hardware" or "software" (``timestamping.choose_receive_stamps``; "hardware"
         where the interface cannot is a SarbotError naming it and what it lacks); the choice is ``stamps``.
