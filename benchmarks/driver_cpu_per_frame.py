@@ -10,8 +10,12 @@ falls on both alike):
 - ``assembly``: ``Srf1Stream.feed`` alone (parsing, CRC32C, putting each chunk in its frame), every datagram
   of ``--frames`` frames fed from memory; CPU from ``time.process_time``. The frames that come out are
   compared byte for byte between the two.
-- ``receive_per_frame``: ``UdpReceiver.receive`` alone (``recvmsg`` and its kernel stamp) on 3 frames'
-  datagrams waiting in the socket, CPU per datagram (``time.thread_time``) times the datagrams of a frame.
+- ``receive_per_frame``: the receiver alone on 3 frames' datagrams waiting in the socket (sent segmented, as
+  replay sends), CPU per frame (``time.thread_time``): the baseline's ``UdpReceiver.receive`` (one
+  ``recvmsg`` and its kernel stamp a datagram) against what the checkout's driver loop calls,
+  ``receive_segments`` (with UDP GRO a batch of up to 64 datagrams a call); the checkout's ``receive`` (the
+  batch handed out a datagram at a time, for its other callers) is recorded beside them
+  (``now_receive_one_by_one``).
 - ``recorder``: ``Recorder`` storing ``--recorder-frames`` frames of one radar as they come off the bus
   (decoded, checked, appended to the HDF5 file) with a flush every 10 frames (its 0.5 s), closing included;
   CPU from ``time.process_time`` (its background fsync thread included). The two files are compared column
@@ -29,7 +33,7 @@ loaded from git (``git show COMMIT:PATH``) as modules of their own beside the ch
 import is the checkout's. Figures are medians over rounds of the CPU per frame, and the ratio baseline /
 now per round. The machine is shared: the load average and the VM's speed probe are recorded.
 
-Writes docs/results/driver_cpu_per_frame.json.
+Writes docs/results/driver_cpu_per_frame.json (``--name``: another stem).
 """
 
 from __future__ import annotations
@@ -59,7 +63,8 @@ from imaging.core.waveform import Waveform  # noqa: E402
 from git_baseline import baseline_module  # noqa: E402
 from results_file import load_average, probe_machine, write_results  # noqa: E402
 
-#: The commit before the driver's CPU was cut (main at the start of wave 3j).
+#: The commit before the driver's CPU was cut (main at the start of wave 3j). UDP GRO's run (wave 3m) took
+#: ``--baseline aa20a74 --name driver_cpu_per_frame_gro``.
 BASELINE = "4da3eec"
 
 
@@ -88,22 +93,28 @@ def assembly_cpu_per_frame(srf1, shape, datagrams: list[list[bytes]]) -> tuple[f
     return cpu / len(datagrams), out
 
 
-def receive_cpu_per_datagram(udp, packed: list) -> tuple[float, int]:
-    """CPU seconds per datagram of ``UdpReceiver.receive`` (``udp``: a version's module) taking ``packed``'s
-    datagrams, all waiting in the socket (so no wait is timed), and how many it took."""
+def receive_cpu_per_frame(udp, packed: list, call: str = "receive") -> tuple[float, int]:
+    """CPU seconds per frame of a version's ``UdpReceiver`` (``udp``: its module) taking ``packed``'s datagrams,
+    all waiting in the socket (so no wait is timed), by ``call`` ("receive": a datagram a call;
+    "receive_segments": a batch a call), and how many datagrams it took."""
     receiver = udp.UdpReceiver("127.0.0.1", 0, coalesce_s=0, timeout_s=0)
     sender = udp_now.UdpSender()
     for datagrams in packed:
         sender.send(datagrams, receiver.address)
     time.sleep(0.05)  # loopback delivers
     n = 0
+    receive = getattr(receiver, call)
     t0 = time.thread_time()
-    while receiver.receive() is not None:
-        n += 1
+    if call == "receive_segments":
+        while (got := receive()) is not None:
+            n += -(-len(got[0]) // got[1])
+    else:
+        while receive() is not None:
+            n += 1
     cpu = time.thread_time() - t0
     sender.close()
     receiver.close()
-    return cpu / max(n, 1), n
+    return cpu / len(packed), n
 
 
 def recorder_cpu_per_frame(recorder_module, folder: Path, iqs: list, n_frames: int, flush_every: int = 10) -> tuple[float, Path]:
@@ -217,7 +228,11 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=20, help="frames per pass")
     parser.add_argument("--recorder-frames", type=int, default=60, help="frames the recorder stores per pass")
     parser.add_argument("--speed", type=float, default=1.0, help="x the radar's frame rate (19.2 Hz)")
+    parser.add_argument("--name", default="driver_cpu_per_frame", help="the results file's stem")
     args = parser.parse_args()
+    probe = udp_now.UdpReceiver("127.0.0.1", 0)
+    gro = probe.gro  # whether this kernel gave the checkout's receiver UDP GRO
+    probe.close()
 
     started_load = load_average()
     probe_machine()  # the VM's speed before; write_results probes after
@@ -248,10 +263,12 @@ def main() -> None:
         for v in order:
             cpu, out[v] = assembly_cpu_per_frame(versions[v]["srf1"], shape, datagrams)
             assembly[v].append(cpu)
-        for v in order:  # 3 frames: what the socket's buffer (4 MB here, net.core.rmem_max) holds
-            cpu, n = receive_cpu_per_datagram(versions[v]["udp"], packed[:3])
-            receive[v].append(cpu)
-            received[v].append(n)
+        for v in order + ["now_receive_one_by_one"]:  # 3 frames: what the socket's buffer (4 MB here) holds
+            udp, call = (udp_now, "receive") if v == "now_receive_one_by_one" else \
+                (versions[v]["udp"], "receive_segments" if v == "now" else "receive")
+            cpu, n = receive_cpu_per_frame(udp, packed[:3], call)
+            receive.setdefault(v, []).append(cpu)
+            received.setdefault(v, []).append(n)
         same_frames &= all(a.frame_counter == b.frame_counter and a.valid and b.valid and a.iq.tobytes() == b.iq.tobytes()
                            for a, b in zip(out["baseline"], out["now"], strict=True))
         files = {}
@@ -263,8 +280,8 @@ def main() -> None:
             loop[v].append(driver_loop_cpu_per_frame(versions[v]["loops"], versions[v]["udp"], versions[v]["srf1"],
                                                      shape, packed, interval_s, iqs))
         print(f"round {r + 1}: assembly ms/frame baseline {assembly['baseline'][-1] * 1e3:.3f} now "
-              f"{assembly['now'][-1] * 1e3:.3f}; receive us/datagram baseline {receive['baseline'][-1] * 1e6:.2f} now "
-              f"{receive['now'][-1] * 1e6:.2f}; driver loop baseline {loop['baseline'][-1]['cpu_s_per_frame'] * 1e3:.3f} "
+              f"{assembly['now'][-1] * 1e3:.3f}; receive ms/frame baseline {receive['baseline'][-1] * 1e3:.3f} now "
+              f"{receive['now'][-1] * 1e3:.3f}; driver loop baseline {loop['baseline'][-1]['cpu_s_per_frame'] * 1e3:.3f} "
               f"now {loop['now'][-1]['cpu_s_per_frame'] * 1e3:.3f}; recorder baseline {recorder['baseline'][-1] * 1e3:.3f} "
               f"now {recorder['now'][-1] * 1e3:.3f}", flush=True)
 
@@ -279,8 +296,12 @@ def main() -> None:
         "baseline_commit": args.baseline, "rounds": args.rounds, "frames_per_pass": args.frames, "speed": args.speed,
         "frame_bytes": int(np.prod(shape)) * 4, "datagrams_per_frame": len(datagrams[0]),
         "assembly": {**summary(assembly), "frames_identical": same_frames},
-        "receive_per_frame": {**summary({v: [x * len(datagrams[0]) for x in xs] for v, xs in receive.items()}),
-                              "datagrams_taken_per_pass": received},
+        "receive_per_frame": {**summary({v: receive[v] for v in versions}),
+                              "baseline_call": "receive", "now_call": "receive_segments",
+                              "now_receive_one_by_one_cpu_ms_per_frame": [x * 1e3 for x in receive["now_receive_one_by_one"]],
+                              "now_receive_one_by_one_median_ratio": statistics.median(
+                                  b / n for b, n in zip(receive["baseline"], receive["now_receive_one_by_one"])),
+                              "datagrams_taken_per_pass": received, "datagrams_sent_per_pass": 3 * len(datagrams[0])},
         "driver_loop": {**summary(loop_cpu),
                         "passes": loop,
                         "every_frame_whole": all(p["frames_received_whole"] == p["frames_sent"] for ps in loop.values()
@@ -288,10 +309,12 @@ def main() -> None:
         "recorder": {**summary(recorder), "frames_per_pass": args.recorder_frames, "flush_every_frames": 10,
                      "files_identical": same_files},
         "load_average_end": load_average(),
+        "udp_gro": gro,
     }
     shutil.rmtree(folder, ignore_errors=True)
-    path = write_results("driver_cpu_per_frame", result, started_load=started_load)
-    print(f"assembly: {result['assembly']['median_ratio']:.2f}x, driver loop: {result['driver_loop']['median_ratio']:.2f}x "
+    path = write_results(args.name, result, started_load=started_load)
+    print(f"assembly: {result['assembly']['median_ratio']:.2f}x, receive: {result['receive_per_frame']['median_ratio']:.2f}x, "
+          f"driver loop: {result['driver_loop']['median_ratio']:.2f}x "
           f"(baseline / now, median of {args.rounds} rounds) -> {path}")
 
 

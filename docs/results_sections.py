@@ -465,6 +465,17 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                              "the machine was shared (load in the provenance), so the ratios taken in the same rounds "
                              "are the figures, not the milliseconds.",
                              ".venv/bin/python benchmarks/driver_cpu_per_frame.py"),
+    "driver_cpu_per_frame_gro": ("A radar driver's CPU per frame with UDP GRO",
+                                 "The radar driver's code at main before wave 3m (aa20a74, one recvmsg and one feed a "
+                                 "datagram) against now (UDP GRO: a batch of up to 64 datagrams a receive, fed with "
+                                 "feed_segments), interleaved in one process on the same datagrams of the reference "
+                                 "waveform sent segmented as replay sends them: the receive alone (the baseline's "
+                                 "receive against receive_segments), the driver loop (receive, assemble, publish to a "
+                                 "subscriber) at 1x in a thread of its own; the assembly and the recorder, the same code "
+                                 "in both, as controls. CPU per frame; the machine was shared (load in the provenance), "
+                                 "so the ratios taken in the same rounds are the figures, not the milliseconds.",
+                                 ".venv/bin/python benchmarks/driver_cpu_per_frame.py --baseline aa20a74 --rounds 8 "
+                                 "--frames 20 --name driver_cpu_per_frame_gro"),
     "odometry_cpu_per_scan": ("The odometry worker's CPU per radar scan",
                               "The odometry worker's code (the worker, the point clouds, the trajectory writer) at "
                               "main before wave 3k (baseline) against now, interleaved in one process on the demo "

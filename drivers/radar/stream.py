@@ -54,6 +54,48 @@ class RadarStream(Protocol):
     def flush(self) -> list[RadarFrame]: ...
 
 
+def feed_segments(stream: RadarStream, buffer: memoryview, segment_bytes: int, receive_ns: int) -> list[RadarFrame]:
+    """Feed ``stream`` one batch of datagrams received together (UDP GRO: ``UdpReceiver.receive_segments``)
+    and return the frames they complete, in order.
+
+    Parameters
+    ----------
+    stream : RadarStream
+        The radar's stream. One that has its own ``feed_segments(buffer, segment_bytes, receive_ns) ->
+        list[RadarFrame]`` gets the whole batch in one call; that method must return exactly what feeding
+        each segment through ``feed`` in order would (same frames, same counters). Otherwise each segment
+        goes through ``feed`` as ``bytes``. A stream's own method is called only with a non-empty ``buffer``
+        and ``segment_bytes > 0`` (an empty datagram goes through ``feed``).
+    buffer : memoryview
+        The batch: datagrams of ``segment_bytes`` bytes each, back to back, the last possibly shorter
+        (1 to ``segment_bytes`` bytes). It is the receiver's own buffer, overwritten by its next receive:
+        neither this function nor the stream may keep the view (copy what must outlive the call).
+    segment_bytes : int
+        The size of every datagram in the batch but the last (bytes, > 0). A plain datagram is a batch of
+        one: ``segment_bytes == len(buffer)``.
+    receive_ns : int
+        The kernel's receive stamp of the batch (host clock, ns): every datagram of the batch gets it (the
+        kernel stamps a batch once, at its first datagram).
+
+    Returns
+    -------
+    list[RadarFrame]
+        The frames the batch completed, in order (usually none: a frame spans hundreds of datagrams).
+    """
+    if not len(buffer):  # an empty datagram: the stream counts it as it always did
+        return stream.feed(b"", receive_ns)
+    if segment_bytes <= 0:
+        raise ValueError(f"segment_bytes must be positive, got {segment_bytes}")
+    own = getattr(stream, "feed_segments", None)
+    if own is not None:
+        return own(buffer, segment_bytes, receive_ns)
+    frames: list[RadarFrame] = []
+    for offset in range(0, len(buffer), segment_bytes):
+        if done := stream.feed(bytes(buffer[offset:offset + segment_bytes]), receive_ns):
+            frames += done
+    return frames
+
+
 def trouble(counters) -> dict[str, int]:
     """The trouble counters of a stream as a dict (for events and health)."""
     return {k: v for k, v in vars(counters).items() if k in TROUBLE_COUNTERS}
