@@ -1,5 +1,7 @@
 """Point clouds from raw simulated frames: positions, Doppler and the ego velocity they give."""
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -273,6 +275,7 @@ def test_the_detector_refuses_a_frame_of_the_wrong_form():
         detector.detect(np.zeros((wf.n_rx, wf.samples_per_chirp), np.complex64))
 
 
+@functools.lru_cache(maxsize=1)  # one simulated frame for the twelve cases
 def _cfar_maps():
     """Power maps for the numba CFAR: noise with targets on the Doppler wrap, at the range edges, ties side
     by side and a plateau; a simulated frame's (the detector's own map); and shapes other than the radar's."""
