@@ -21,11 +21,11 @@ are loaded from git (``git show COMMIT:PATH``) as modules of their own beside th
 methods); everything else is the checkout's. Rounds alternate which version goes first, so the machine's
 load falls on both alike. CPU is the main thread's (``time.thread_time``): ZeroMQ's I/O thread is left out.
 Figures: the median over rounds of the CPU per scan and per frame received, and the ratio baseline / now per
-round. Beside them, each round, ``detect`` alone (the baseline's on the complex frame, as its worker called it,
-and the checkout's detector on the I/Q) on every radar's first 12 frames; and once, each version's worker under
-cProfile: the shares of its time in the point clouds, their FFTs, the filter and the poses' publishing. The two
-trajectory files are compared (positions, orientations, velocities) and the point clouds of every radar's first
-24 frames.
+round. Beside them, each round, ``detect`` alone (each version's ``PointCloudDetector`` on the I/Q, frame by
+frame in turn; a baseline before the detector: its ``detect`` on the complex frame, as its worker called it) on
+every radar's first 12 frames; and once, each version's worker under cProfile: the shares of its time in the
+point clouds, their FFTs, their CFAR, the filter and the poses' publishing. The two trajectory files are
+compared (positions, orientations, velocities) and the point clouds of every radar's first 24 frames.
 
 Writes docs/results/odometry_cpu_per_scan.json (``--quick``: 2 rounds, to odometry_cpu_per_scan_quick.json).
 """
@@ -59,8 +59,14 @@ from imaging.io.recording import Recording  # noqa: E402
 from git_baseline import baseline_module  # noqa: E402
 from results_file import load_average, probe_machine, write_results  # noqa: E402
 
-#: main before the odometry worker's CPU was cut (wave 3k).
-BASELINE = "0e7a3c5"
+#: main before the point clouds' CFAR went into one numba pass (wave 3m); wave 3k's baseline was 0e7a3c5.
+BASELINE = "aa20a74"
+#: Wave 3k's figures against its baseline 0e7a3c5 (the file this run replaces; docs/benchmark-notes.md).
+EARLIER_BASELINE = {
+    "baseline_commit": "0e7a3c5", "commit": "6036b0b",
+    "cpu_ms_per_scan": {"baseline": 7.37, "now": 5.93}, "ratio_baseline_over_now_median": 1.30,
+    "detect_alone_cpu_ms": {"baseline": 6.31, "now": 4.87}, "load": "5.2 at the start, 4.7 at the end",
+}
 IMU_BATCH = 20  # samples: the IMU driver's 0.05 s at 400 Hz
 
 
@@ -148,18 +154,32 @@ def radar_frames(rig: Rig, events: list, per_radar: int) -> list:
     return out
 
 
-def time_detect(pointcloud_base, frames: list) -> dict:
-    """CPU per point cloud (``time.thread_time``, ms) of the baseline's ``detect`` on the complex frame (as its
-    worker called it) and of the checkout's detector on the I/Q, on the same frames."""
-    detectors = {r.name: pointcloud_now.PointCloudDetector(r, r.waveform.tdm_tx_order()) for r, _ in frames}
-    cpu = time.thread_time()
+def point_cloud_makers(pointcloud_base, rig: Rig) -> dict:
+    """Per version, radar name -> a function of the int16 I/Q giving its point cloud as that version's worker
+    makes it: a ``PointCloudDetector`` per radar, or (a baseline before it) ``detect`` on the complex frame."""
+    makers = {}
+    for version, module in (("baseline", pointcloud_base), ("now", pointcloud_now)):
+        makers[version] = {}
+        for r in rig.radars:
+            order = np.asarray(r.waveform.tdm_tx_order())
+            if hasattr(module, "PointCloudDetector"):
+                makers[version][r.name] = module.PointCloudDetector(r, order).detect
+            else:
+                makers[version][r.name] = (lambda iq, r=r, order=order, m=module: m.detect(iq_to_complex(iq), r, order))
+    return makers
+
+
+def time_detect(makers: dict, frames: list, first: str) -> dict:
+    """CPU per point cloud (``time.thread_time``, ms) of each version's point clouds on the same frames,
+    frame by frame in turn (``first`` first), so that the machine's load falls on both alike."""
+    cpu = {"baseline": 0.0, "now": 0.0}
+    order = [first, "now" if first == "baseline" else "baseline"]
     for radar, iq in frames:
-        pointcloud_base.detect(iq_to_complex(iq), radar, np.asarray(radar.waveform.tdm_tx_order()))
-    base = (time.thread_time() - cpu) / len(frames) * 1e3
-    cpu = time.thread_time()
-    for radar, iq in frames:
-        detectors[radar.name].detect(iq)
-    return {"baseline": base, "now": (time.thread_time() - cpu) / len(frames) * 1e3}
+        for version in order:
+            t = time.thread_time()
+            makers[version][radar.name](iq)
+            cpu[version] += time.thread_time() - t
+    return {v: c / len(frames) * 1e3 for v, c in cpu.items()}
 
 
 def profile_shares(module, rig: Rig, events: list, trajectory_path: Path) -> dict:
@@ -174,27 +194,25 @@ def profile_shares(module, rig: Rig, events: list, trajectory_path: Path) -> dic
     profile.disable()
     cumulative: dict[str, float] = {}
     for (path, _, function), row in pstats.Stats(profile).stats.items():
-        key = {"detect": "point_clouds", "c2c": "ffts", "add_imu": "filter_imu_batches", "add_scan": "filter_scans",
-               "_publish": "publishing_poses", "handle": "handle", "finish": "finish"}.get(function)
+        key = {"detect": "point_clouds", "c2c": "ffts", "cfar_2d": "cfar", "_cfar": "cfar", "add_imu":
+               "filter_imu_batches", "add_scan": "filter_scans", "_publish": "publishing_poses", "handle": "handle",
+               "finish": "finish"}.get(function)
         if key and (key == "ffts" or "pointcloud" in path or "streaming" in path or "odometry" in path):
             cumulative[key] = cumulative.get(key, 0.0) + row[3]
     total = cumulative.get("handle", 0.0) + cumulative.get("finish", 0.0)
     return {k: v / total for k, v in cumulative.items() if k not in ("handle", "finish")}
 
 
-def compare_point_clouds(pointcloud_base, rig: Rig, events: list, per_radar: int = 24) -> dict:
-    """Detections of the baseline's ``detect`` (complex frame) and the checkout's detector (int16 I/Q) on each
-    radar's first ``per_radar`` frames: whether every array is equal, and how many detections there were."""
-    detectors = {r.name: pointcloud_now.PointCloudDetector(r, r.waveform.tdm_tx_order()) for r in rig.radars}
+def compare_point_clouds(makers: dict, events: list, per_radar: int = 24) -> dict:
+    """Detections of the baseline's point clouds and the checkout's (``point_cloud_makers``) on each radar's
+    first ``per_radar`` frames: whether every array is equal, and how many detections there were."""
     taken, equal, detections = {}, True, 0
     for kind, data in events:
         if kind != "radar" or taken.get(data[0], 0) >= per_radar:
             continue
         name, iq = data[0], data[3]
         taken[name] = taken.get(name, 0) + 1
-        radar = rig.radar(name)
-        old = pointcloud_base.detect(iq_to_complex(iq), radar, np.asarray(radar.waveform.tdm_tx_order()))
-        new = detectors[name].detect(iq)
+        old, new = makers["baseline"][name](iq), makers["now"][name](iq)
         detections += old.xyz_m.shape[0]
         equal &= all(np.array_equal(getattr(old, f), getattr(new, f))
                      for f in ("xyz_m", "doppler_mps", "snr_db", "range_m", "azimuth_rad"))
@@ -233,6 +251,7 @@ def main() -> int:
         runs = {v: [] for v in versions}
         ratios, detect_ms = [], []
         frames = radar_frames(rig, events, 12)
+        makers = point_cloud_makers(base["rio.pointcloud"], rig)
         for k in range(args.rounds):
             order = list(versions) if k % 2 == 0 else list(versions)[::-1]
             this = {}
@@ -242,14 +261,14 @@ def main() -> int:
                     this[v] = run_worker(module, rig, events, tmp / f"trajectory_{v}.h5")
                 runs[v].append(this[v])
             ratios.append(this["baseline"]["cpu_s"] / this["now"]["cpu_s"])
-            detect_ms.append(time_detect(base["rio.pointcloud"], frames))
+            detect_ms.append(time_detect(makers, frames, order[0]))
             print(f"round {k}: " + ", ".join(f"{v} {this[v]['cpu_s'] / this[v]['scans'] * 1e3:.2f} ms CPU/scan"
                                               for v in versions) + f", baseline/now {ratios[-1]:.2f}", flush=True)
         with modules_in_place(base):
             shares = {"baseline": profile_shares(worker_base, rig, events, tmp / "trajectory_profiled.h5")}
         shares["now"] = profile_shares(worker_now, rig, events, tmp / "trajectory_profiled.h5")
         trajectories = compare_trajectories(tmp / "trajectory_baseline.h5", tmp / "trajectory_now.h5")
-        point_clouds = compare_point_clouds(base["rio.pointcloud"], rig, events)
+        point_clouds = compare_point_clouds(makers, events)
     figures = {}
     for v, rs in runs.items():
         figures[v] = {
@@ -273,6 +292,7 @@ def main() -> int:
         "profile_shares_of_worker_time": shares,
         "trajectories": trajectories,
         "point_clouds": point_clouds,
+        **({"earlier_baseline": EARLIER_BASELINE} if args.baseline == BASELINE else {}),
         "note": "CPU of the worker's thread only (thread_time), bus receive and decoding left out; the machine "
                 "was shared (load in the provenance): the ratios taken in the same rounds are the figures.",
     }

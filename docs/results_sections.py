@@ -478,7 +478,7 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                                  "--frames 20 --name driver_cpu_per_frame_gro"),
     "odometry_cpu_per_scan": ("The odometry worker's CPU per radar scan",
                               "The odometry worker's code (the worker, the point clouds, the trajectory writer) at "
-                              "main before wave 3k (baseline) against now, interleaved in one process on the demo "
+                              "main before wave 3m's numba CFAR (aa20a74, baseline) against now, interleaved in one process on the demo "
                               "drive (four radars, 10 s, the IMU at 400 Hz): every message through "
                               "OdometryWorker.handle, the trajectory file written; CPU of the worker's thread per "
                               "scan made into a point cloud (every second frame). The trajectories and point "

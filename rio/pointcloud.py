@@ -92,6 +92,7 @@ class PointCloudDetector:
         self._layout: _Layout | None = None
         self._buffer: np.ndarray | None = None
         self._magnitude: np.ndarray | None = None
+        self._cfar_buffers: tuple | None = None  # ca_cfar_peaks' noise map and work buffers
 
     def layout(self, shape: tuple[int, int, int]) -> _Layout:
         """The layout for frames [chirps, n_rx, samples] of ``shape`` (made on the first, or a new shape)."""
@@ -169,7 +170,28 @@ class PointCloudDetector:
         if magnitude is None or magnitude.shape != cube.shape:
             magnitude = self._magnitude = np.empty(cube.shape, np.float32)
         np.square(np.abs(cube, out=magnitude), out=magnitude)
-        return _points(cube, layout, self.radar, self.config, np.sum(magnitude, axis=1))
+        power = np.sum(magnitude, axis=1)
+        return _points(cube, layout, self.radar, self.config, power, self._cfar(power))
+
+    def _cfar(self, power: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``cfar_2d``'s detections as Doppler and range bins (row-major) and its noise map: the CA-CFAR in one
+        numba pass with buffers of the detector's own (rio.pointcloud_kernels, the same numbers to the bit), an
+        ordered-statistic CFAR by ``cfar_2d``."""
+        config = self.config
+        if config.cfar != "ca":
+            hits, noise = cfar_2d(power, config)
+            return *np.nonzero(hits), noise
+        from rio.pointcloud_kernels import ca_cfar_peaks
+
+        if self._cfar_buffers is None or self._cfar_buffers[0].shape != power.shape:
+            work = [np.empty(power.shape, np.float32) for _ in range(3)]
+            self._cfar_buffers = (np.empty(power.shape), *work, np.empty(power.shape[1]))
+        (gd, gr), (td, tr) = config.guard_cells, config.training_cells
+        outer, inner = (2 * (gd + td) + 1, 2 * (gr + tr) + 1), (2 * gd + 1, 2 * gr + 1)
+        noise = self._cfar_buffers[0]
+        d, r = ca_cfar_peaks(np.ascontiguousarray(power, np.float32), outer, inner,
+                             10 ** (config.threshold_db / 10), *self._cfar_buffers)
+        return d, r, noise
 
 
 def _chirps_of_each_tx(tx_order, n_tx: int, n_chirps: int) -> np.ndarray:
@@ -236,16 +258,18 @@ def detect(frame: np.ndarray, radar: RadarConfig, tx_order, config: PointCloudCo
 
 
 def _points(cube: np.ndarray, layout: _Layout, radar: RadarConfig, config: PointCloudConfig,
-            power: np.ndarray) -> PointCloud:
+            power: np.ndarray, cfar: tuple[np.ndarray, np.ndarray, np.ndarray]) -> PointCloud:
     """Detections of a range-Doppler cube (``PointCloudDetector.cube``) and its ``power`` summed over the
-    virtual channels (non-coherently) [Doppler, range]: CFAR, refinement, angle of arrival."""
+    virtual channels (non-coherently) [Doppler, range], with ``cfar`` (its CFAR's Doppler bins, range bins
+    in row-major order, and noise map: ``PointCloudDetector._cfar``): refinement, angle of arrival."""
     wf = radar.waveform
     positions, tx_of_channel, n_range = layout.positions_m, layout.tx_of_channel, layout.n_range
     n_dop = cube.shape[0]
     range_bin_m = 0.5 * SPEED_OF_LIGHT_MPS * wf.sample_rate_hz / (n_range * wf.slope_hz_per_s)  # one-way
-    hits, noise = cfar_2d(power, config)
-    hits[:, : int(np.ceil(config.min_range_m / range_bin_m))] = False
-    dop_idx, rng_idx = np.nonzero(hits)
+    dop_idx, rng_idx, noise = cfar
+    near = rng_idx < int(np.ceil(config.min_range_m / range_bin_m))
+    if near.any():
+        dop_idx, rng_idx = dop_idx[~near], rng_idx[~near]
     if dop_idx.size > config.max_detections:
         keep = np.argsort(power[dop_idx, rng_idx])[::-1][: config.max_detections]
         dop_idx, rng_idx = dop_idx[keep], rng_idx[keep]
@@ -268,14 +292,18 @@ def _points(cube: np.ndarray, layout: _Layout, radar: RadarConfig, config: Point
     v = (d + dd - n_dop // 2) * v_bin
     # TDM motion: TX i fired i chirp intervals after TX 0; remove the phase the motion added.
     f_d = 2 * v / wf.wavelength_m
-    snaps = cube[d, :, r] * np.exp(-2j * np.pi * f_d[:, None] * tx_of_channel[None, :] * wf.chirp_interval_s)
+    # The phase of each TX, not of each channel: the channels of one TX share it (the same numbers, computed
+    # n_rx times fewer), gathered to the channels after the exponential.
+    tx_phase = np.exp(-2j * np.pi * f_d[:, None] * np.arange(wf.n_tx)[None, :] * wf.chirp_interval_s)
+    snaps = cube[d, :, r] * tx_phase[:, tx_of_channel]
     spec = (np.abs(scipy.fft.fft(snaps, n_ang, axis=1)) ** 2)[:, layout.angle_shift]  # [D, n_ang], fftshifted
     q = np.argmax(spec, axis=1)
-    lq = 10 * np.log10(spec + 1e-30)
     rows = np.arange(q.size)
     inner_q = (q > 0) & (q < n_ang - 1)
-    dq = np.where(inner_q, _parabolic_v(lq[rows, np.maximum(q - 1, 0)], lq[rows, q],
-                                        lq[rows, np.minimum(q + 1, n_ang - 1)]), 0.0)
+    # dB only at the peak and its two neighbours (3 of each row's n_ang bins are read).
+    lq = 10 * np.log10(spec[rows[:, None], np.stack([np.maximum(q - 1, 0), q, np.minimum(q + 1, n_ang - 1)], axis=1)]
+                       + 1e-30)
+    dq = np.where(inner_q, _parabolic_v(lq[:, 0], lq[:, 1], lq[:, 2]), 0.0)
     # Element phase -2 pi / lambda * y * sin(az): the spectrum peaks at q/n = -y_step sin(az) / lambda.
     s_az = -(q + dq - n_ang // 2) / n_ang * wf.wavelength_m / spacing
     ok = np.abs(s_az) <= 1

@@ -1,5 +1,7 @@
 """Point clouds from raw simulated frames: positions, Doppler and the ego velocity they give."""
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -271,3 +273,65 @@ def test_the_detector_refuses_a_frame_of_the_wrong_form():
         detector.detect(np.zeros((wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp, 3), np.int16))
     with pytest.raises(ValueError, match=r"\[chirps, rx, samples\]"):
         detector.detect(np.zeros((wf.n_rx, wf.samples_per_chirp), np.complex64))
+
+
+@functools.lru_cache(maxsize=1)  # one simulated frame for the twelve cases
+def _cfar_maps():
+    """Power maps for the numba CFAR: noise with targets on the Doppler wrap, at the range edges, ties side
+    by side and a plateau; a simulated frame's (the detector's own map); and shapes other than the radar's."""
+    from rio.pointcloud import PointCloudDetector
+
+    rng = np.random.default_rng(7)
+    edges = rng.exponential(1.0, (64, 128)).astype(np.float32)
+    for d, r in ((0, 40), (63, 41), (30, 0), (31, 127), (10, 60), (10, 61), (50, 90), (51, 91)):
+        edges[d, r] = 300.0
+    edges[20:23, 100:103] = 250.0
+    detector = PointCloudDetector(RADAR, RADAR.waveform.tdm_tx_order())
+    cube, _ = detector.cube(_frames_iq(1)[0])
+    radar_map = np.sum(np.abs(cube) ** 2, axis=1)
+    small = (rng.exponential(1.0, (8, 16)) * 1e6).astype(np.float32)  # windows longer than the map's sides
+    small[3, 5] = 1e9
+    odd = rng.exponential(1.0, (63, 101)).astype(np.float32)
+    odd[::9, ::7] *= 100.0  # many detections, close together
+    return {"edges": edges, "radar": radar_map, "small": small, "odd": odd}
+
+
+@pytest.mark.parametrize("name", ["edges", "radar", "small", "odd"])
+@pytest.mark.parametrize("cells", [((2, 2), (4, 8)), ((1, 0), (3, 5)), ((0, 3), (1, 2))])
+def test_the_numba_ca_cfar_gives_cfar_2ds_detections_and_noise_to_the_bit(name, cells):
+    """rio.pointcloud_kernels.ca_cfar_peaks against the numpy and scipy reference ``cfar_2d``: the same
+    detections in the same (row-major) order and the same noise map, every bit, for guard and training
+    boxes of several sizes."""
+    from rio.pointcloud import PointCloudDetector
+
+    power = _cfar_maps()[name]
+    config = PointCloudConfig(guard_cells=cells[0], training_cells=cells[1])
+    hits, noise = cfar_2d(power, config)
+    d, r, got_noise = PointCloudDetector(RADAR, RADAR.waveform.tdm_tx_order(), config)._cfar(power)
+    want_d, want_r = np.nonzero(hits)
+    assert want_d.size > 0
+    np.testing.assert_array_equal(d, want_d)
+    np.testing.assert_array_equal(r, want_r)
+    assert got_noise.dtype == noise.dtype
+    np.testing.assert_array_equal(got_noise.view(np.uint64), noise.view(np.uint64))
+
+
+@pytest.mark.parametrize("cfar", ["ca", "os"])
+def test_the_detector_gives_the_plain_reference_point_clouds_to_the_bit(cfar):
+    """The detector's point clouds (numba CFAR, the TDM phase per TX, dB at the angle peak only) are those
+    of the plain reference (tests/reference_pointcloud.reference_points: cfar_2d, the phase per channel, dB
+    over the whole angle spectrum), every field to the bit, scan after scan; with an ordered-statistic CFAR
+    as well; and with few detections allowed (their ranking by power)."""
+    from reference_pointcloud import reference_points
+    from rio.pointcloud import PointCloudDetector
+
+    order = RADAR.waveform.tdm_tx_order()
+    for config in (PointCloudConfig(cfar=cfar), PointCloudConfig(cfar=cfar, max_detections=4, min_range_m=1.0)):
+        detector = PointCloudDetector(RADAR, order, config)
+        for iq in _frames_iq(3, seed=11):
+            got = detector.detect(iq)
+            cube, layout = detector.cube(iq)
+            want = reference_points(cube, layout, RADAR, config, np.sum(np.abs(cube) ** 2, axis=1))
+            assert want.xyz_m.shape[0] >= (4 if config.max_detections == 4 else len(TARGETS))
+            for field in ("xyz_m", "doppler_mps", "snr_db", "range_m", "azimuth_rad"):
+                np.testing.assert_array_equal(getattr(got, field), getattr(want, field), err_msg=field)
