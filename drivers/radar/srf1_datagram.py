@@ -221,3 +221,46 @@ def parse(datagram: bytes) -> tuple[Srf1Header, memoryview]:
         raise Srf1Error(f"chunk at offset {offset} with {len(payload)} bytes overruns the {frame_bytes}-byte frame")
     return Srf1Header(version, flags, radar_id, counter, t_ns, frame_bytes, offset), payload
 
+
+
+# Batches of datagrams received back to back (UDP GRO): their headers read and their CRCs checked at once.
+
+def header_words(buffer, segment_bytes: int, first: int, count: int) -> np.ndarray:
+    """u32 [count, 8] over ``buffer`` (no copy): the first 32 bytes of ``count`` datagrams of ``segment_bytes``
+    bytes each, packed back to back, from the ``first``-th on. Words 0-6 are the header up to ``offset``
+    (magic; version, flags and radar_id; counter; frame time low and high; frame_bytes; offset), word 7 version
+    2's CRC (a version 1 datagram's first payload bytes). ``segment_bytes`` must be at least 32."""
+    return np.ndarray((count, 8), "<u4", buffer, first * segment_bytes, (segment_bytes, 4))
+
+
+def chunk_header_words(fields: bytes, chunk_bytes: int, n_chunks: int) -> np.ndarray:
+    """u32 [n_chunks, 7]: words 0-6 of ``header_words`` for chunks 0 .. n_chunks - 1 of ``chunk_bytes`` each
+    of the frame whose header ``fields`` (the 28 bytes, any offset) are: what a frame's datagrams in order
+    must hold."""
+    words = np.tile(np.frombuffer(fields, "<u4"), (n_chunks, 1))
+    words[:, 6] = np.arange(n_chunks, dtype=np.uint32) * chunk_bytes
+    return words
+
+
+def _offset_tables() -> np.ndarray:
+    """u32 [4, 256]: M(d) for 4 bytes ``d`` that are zero but byte k, ``table[k, byte]``. CRC32C carried on
+    from a running value ``v`` over 4 bytes ``d`` is crc32c(0000, v) xor M(d) with M linear and the same for
+    every ``v`` (``d`` is xored into the state, which then goes through four linear steps), so M(d) is the
+    xor of ``table[k, d_k]`` over k."""
+    zeros = crc32c.crc32c(bytes(4))
+    return np.array([[crc32c.crc32c(bytes(k) + bytes([b]) + bytes(3 - k)) ^ zeros for b in range(256)]
+                     for k in range(4)], np.uint32)
+
+
+_OFFSET_TABLES = _offset_tables()
+
+
+def payload_seeds(fields: bytes, offsets: np.ndarray) -> np.ndarray:
+    """CRC32C of each header ``fields`` (the 28 bytes before the CRC) with its ``offset`` set to each of
+    ``offsets`` (u32), without a call per offset: the running CRC32C its payload is to be checked from
+    (``crc32c(payload, seed)`` is then version 2's CRC). The offset is the last of the 28 bytes, so every seed
+    is the CRC of the 24 bytes before it carried on over the 4 offset bytes."""
+    carried = crc32c.crc32c(bytes(4), crc32c.crc32c(fields[:_OFFSET_AT]))
+    o = offsets.astype(np.uint32)
+    t = _OFFSET_TABLES
+    return carried ^ t[0][o & 0xFF] ^ t[1][(o >> 8) & 0xFF] ^ t[2][(o >> 16) & 0xFF] ^ t[3][o >> 24]
