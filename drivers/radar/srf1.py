@@ -53,8 +53,9 @@ from .stream import RadarFrame
 
 #: The fewest datagrams ``FrameAssembler.feed_segments`` takes as one run; fewer go through ``feed``. A run
 #: costs ~20 us of numpy calls besides ~1 us a datagram, ``feed``'s in-order path ~4 us a datagram
-#: (benchmarks/stream_segments.py: batches of 8 break even, of 4 cost 1.5x more).
-_MIN_RUN = 8
+#: (benchmarks/stream_segments.py, loaded: runs of 8 were 0.63-1.06x feed's CPU, of 4 1.5x more, of 16 1.7x
+#: less).
+_MIN_RUN = 12
 
 @dataclasses.dataclass
 class Srf1Counters:
