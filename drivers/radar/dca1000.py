@@ -182,7 +182,8 @@ class Dca1000Assembler:
                 if taken:
                     i += taken
                     continue
-            out += self.feed(bytes(view[i * segment_bytes:(i + 1) * segment_bytes]), recv_ns)
+            # A view, not a copy: ``feed`` copies what it keeps (the tests overwrite the buffer after each batch).
+            out += self.feed(view[i * segment_bytes:(i + 1) * segment_bytes], recv_ns)
             i += 1
         return out
 

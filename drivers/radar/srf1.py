@@ -247,7 +247,8 @@ class FrameAssembler:
                 if taken:
                     i += taken
                     continue
-            done = self.feed(bytes(view[i * segment_bytes:(i + 1) * segment_bytes]), recv_ns)
+            # A view, not a copy: ``feed`` copies what it keeps (the tests overwrite the buffer after each batch).
+            done = self.feed(view[i * segment_bytes:(i + 1) * segment_bytes], recv_ns)
             if done:
                 out += done
             i += 1
