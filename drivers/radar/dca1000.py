@@ -155,6 +155,9 @@ class Dca1000Assembler:
         """``feed`` of every datagram of a batch received in one go (UDP GRO), with the same result: the same
         frames, bytes and counters as feeding them one by one in order.
 
+        Runs of datagrams that carry on the stream where it stands (``_contiguous_run``) are taken at once;
+        any other datagram goes through ``feed``, after which the next run is tried.
+
         Parameters
         ----------
         buffer : bytes-like
@@ -165,8 +168,10 @@ class Dca1000Assembler:
         recv_ns : int
             The batch's receive time (host clock, ns), every datagram's.
 
-        Runs of datagrams that carry on the stream where it stands (``_contiguous_run``) are taken at once;
-        any other datagram goes through ``feed``, after which the next run is tried.
+        Returns
+        -------
+        list[RawFrame]
+            The frames the batch completes or gives up, in order.
         """
         if segment_bytes <= 0:
             raise ValueError(f"segment_bytes must be positive, got {segment_bytes}")

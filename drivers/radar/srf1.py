@@ -218,6 +218,10 @@ class FrameAssembler:
         """``feed`` of every datagram of a batch received in one go (UDP GRO), with the same result: the same
         frames, bytes and counters as feeding them one by one in order.
 
+        Runs of the frame being filled in order (``_in_order``'s datagrams) are taken at once by
+        ``_in_order_run``; any other datagram (a frame's first or last, a gap, a bad CRC, ...) goes through
+        ``feed``, after which the next run is tried.
+
         Parameters
         ----------
         buffer : bytes-like
@@ -228,9 +232,10 @@ class FrameAssembler:
         recv_ns : int
             The batch's receive time (host clock, ns), every datagram's.
 
-        Runs of the frame being filled in order (``_in_order``'s datagrams) are taken at once by
-        ``_in_order_run``; any other datagram (a frame's first or last, a gap, a bad CRC, ...) goes through
-        ``feed``, after which the next run is tried.
+        Returns
+        -------
+        list[Frame]
+            The frames the batch completes or gives up, in order.
         """
         if segment_bytes <= 0:
             raise ValueError(f"segment_bytes must be positive, got {segment_bytes}")
