@@ -476,6 +476,15 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                                  "so the ratios taken in the same rounds are the figures, not the milliseconds.",
                                  ".venv/bin/python benchmarks/driver_cpu_per_frame.py --baseline aa20a74 --rounds 8 "
                                  "--frames 20 --name driver_cpu_per_frame_gro"),
+    "stream_segments": ("Frame assembly from GRO batches of datagrams",
+                        "The radar streams' frame assembly fed one datagram at a time (feed) against batches of "
+                        "datagrams received back to back (feed_segments, as UDP GRO hands them over: 64 and 8 at a "
+                        "time), interleaved in one process on the same datagrams: SRF1 on the reference waveform "
+                        "(716,800-byte frames, 498 version 2 datagrams), DCA1000 on 524,288-byte frames in 1,466-byte "
+                        "datagrams. CPU per frame; the frames are compared byte for byte with what was sent. The "
+                        "machine was shared (load in the provenance), so the ratios taken in the same rounds are the "
+                        "figures, not the milliseconds.",
+                        ".venv/bin/python benchmarks/stream_segments.py"),
     "odometry_cpu_per_scan": ("The odometry worker's CPU per radar scan",
                               "The odometry worker's code (the worker, the point clouds, the trajectory writer) at "
                               "main before wave 3m's numba CFAR (aa20a74, baseline) against now, interleaved in one process on the demo "

@@ -30,6 +30,9 @@ from .ti_cfg import TiRadarConfig, load_ti_cfg
 DATA_PORT = 4098
 CONFIG_PORT = 4096
 HEADER_BYTES = 10
+#: The fewest datagrams ``Dca1000Assembler.feed_segments`` takes as one run; fewer go through ``feed``, whose
+#: ``have`` checks cost ~20 us a datagram (benchmarks/stream_segments.py: batches of 3 already pay, of 2 not).
+_MIN_RUN = 3
 
 
 class Dca1000Error(ValueError):
@@ -148,6 +151,89 @@ class Dca1000Assembler:
         self._max_end = max(self._max_end, end)
         return out + self._emit()
 
+    def feed_segments(self, buffer, segment_bytes: int, recv_ns: int = 0) -> list[RawFrame]:
+        """``feed`` of every datagram of a batch received in one go (UDP GRO), with the same result: the same
+        frames, bytes and counters as feeding them one by one in order.
+
+        Runs of datagrams that carry on the stream where it stands (``_contiguous_run``) are taken at once;
+        any other datagram goes through ``feed``, after which the next run is tried.
+
+        Parameters
+        ----------
+        buffer : bytes-like
+            The datagrams back to back, each ``segment_bytes`` long but the last (1 to ``segment_bytes``
+            bytes). Not kept: the receiver reuses it.
+        segment_bytes : int
+            Bytes of every datagram but the last (> 0).
+        recv_ns : int
+            The batch's receive time (host clock, ns), every datagram's.
+
+        Returns
+        -------
+        list[RawFrame]
+            The frames the batch completes or gives up, in order.
+        """
+        if segment_bytes <= 0:
+            raise ValueError(f"segment_bytes must be positive, got {segment_bytes}")
+        view = memoryview(buffer).cast("B")
+        full = len(view) // segment_bytes  # datagrams of the full size
+        count = -(-len(view) // segment_bytes)
+        out: list[RawFrame] = []
+        i = 0
+        while i < count:
+            if self._last_seq is not None and full - i >= _MIN_RUN:
+                taken, done = self._contiguous_run(view, segment_bytes, i, full - i, recv_ns)
+                out += done
+                if taken:
+                    i += taken
+                    continue
+            # A view, not a copy: ``feed`` copies what it keeps (the tests overwrite the buffer after each batch).
+            out += self.feed(view[i * segment_bytes:(i + 1) * segment_bytes], recv_ns)
+            i += 1
+        return out
+
+    def _contiguous_run(self, view: memoryview, segment_bytes: int, first: int, available: int,
+                        recv_ns: int) -> tuple[int, list[RawFrame]]:
+        """How many of the ``available`` full-size datagrams from the ``first``-th on carry on the stream
+        where it stands, each as ``feed`` would take it, taken at once; and the frames that go. Stops
+        before the first that does not (``feed`` takes that one).
+
+        A datagram is taken if its sequence number is the next and its byte count the stream's end so far
+        (``_max_end``): no gap, duplicate, reordering or jump, and its bytes new (nothing at or past
+        ``_max_end`` has been received). Its frames are filled one copy and one ``have`` mark a frame, and
+        frames are passed on once, after the run: what goes after each datagram goes after the last, in
+        the same order, as nothing the run does can hold a frame back."""
+        size = segment_bytes - HEADER_BYTES
+        start = self._max_end
+        if size <= 0 or size % 2 or start < self._next_emit * self.frame_bytes:
+            return 0, []
+        at = first * segment_bytes
+        steps = np.arange(available, dtype=np.int64)
+        counts = start + size * steps
+        same = ((np.ndarray(available, "<u4", view, at, (segment_bytes,)) == self._last_seq + 1 + steps)
+                & (np.ndarray(available, "<u4", view, at + 4, (segment_bytes,)) == counts & 0xFFFFFFFF)
+                & (np.ndarray(available, "<u2", view, at + 8, (segment_bytes,)) == counts >> 32))
+        take = available if same.all() else int(np.argmin(same))
+        if not take:
+            return 0, []
+        rows = np.ndarray((take, size), np.uint8, view, at + HEADER_BYTES, (segment_bytes, 1))
+        end = start + take * size
+        pos = start
+        while pos < end:
+            k = pos // self.frame_bytes
+            lo = pos - k * self.frame_bytes
+            n = min(end - pos, self.frame_bytes - lo)
+            buf, have, first_ns = self._frames.get(k) or (bytearray(self.frame_bytes), np.zeros(self.frame_bytes, bool),
+                                                          recv_ns)
+            _copy_rows(rows, pos - start, np.frombuffer(buf, np.uint8)[lo:lo + n])
+            have[lo:lo + n] = True
+            self._frames[k] = (buf, have, first_ns)
+            pos += n
+        self.counters.datagrams += take
+        self._last_seq += take
+        self._max_end = end
+        return take, self._emit()
+
     def _emit(self) -> list[RawFrame]:
         out = []
         while True:
@@ -180,6 +266,26 @@ class Dca1000Assembler:
         while self._frames:
             out.append(self._pop_next())
         return out
+
+
+def _copy_rows(rows: np.ndarray, start: int, out: np.ndarray) -> None:
+    """``out`` (u8, contiguous) gets ``out.size`` bytes of ``rows`` (u8 [n, size], one datagram's payload a
+    row) read as one stream from byte ``start`` on: a partial row, whole rows in one strided copy, a partial
+    row."""
+    size = rows.shape[1]
+    row, col = divmod(start, size)
+    done = 0
+    if col:
+        done = min(size - col, out.size)
+        out[:done] = rows[row, col:col + done]
+        row += 1
+    whole = (out.size - done) // size
+    if whole:
+        out[done:done + whole * size].reshape(whole, size)[...] = rows[row:row + whole]
+        done += whole * size
+        row += whole
+    if done < out.size:
+        out[done:] = rows[row, :out.size - done]
 
 
 def complex_1x_to_iq(frame: bytes | np.ndarray, chirps: int, n_rx: int, samples: int, iq_swap: bool = True) -> np.ndarray:
@@ -222,6 +328,11 @@ class Dca1000Stream:
 
     def feed(self, datagram: bytes, receive_ns: int) -> list[RadarFrame]:
         return self._frames(self._asm.feed(datagram, receive_ns))
+
+    def feed_segments(self, buffer, segment_bytes: int, receive_ns: int) -> list[RadarFrame]:
+        """``feed`` of every datagram of a batch (``Dca1000Assembler.feed_segments``): the datagrams back to
+        back in ``buffer``, each ``segment_bytes`` long but the last, all received at ``receive_ns``."""
+        return self._frames(self._asm.feed_segments(buffer, segment_bytes, receive_ns))
 
     def flush(self) -> list[RadarFrame]:
         return self._frames(self._asm.flush())

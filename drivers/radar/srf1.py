@@ -1,18 +1,12 @@
-"""SRF1, the PTP-stamped frame protocol of the reference radar: encoding and frame reassembly.
+"""SRF1, the PTP-stamped frame protocol of the reference radar: frame reassembly. The datagrams themselves
+(layout, encoder, parser) are ``drivers.radar.srf1_datagram``'s, importable from here too.
 
-One UDP datagram per chunk, little-endian::
-
-    magic "SRF1" | u8 version | u8 flags (bit0: PTP locked) | u16 radar_id | u32 frame_counter
-    | u64 frame_time_ns | u32 frame_bytes | u32 offset | [u32 crc32c, version 2] | payload
-
-The payload is int16 I,Q interleaved, ordered ``[chirp][rx][sample]``; ``offset`` is the chunk's byte offset
-within the frame. Version 2 adds a CRC32C (Castagnoli) over the 28 header bytes before it and the
-payload, so a flipped bit is caught; version 1 (no CRC) stays readable. The assembler puts chunks in place
-by offset, so reordering is harmless; bytes already received are never overwritten, and a chunk that
-contradicts them (other bytes, another frame time) makes the frame invalid. Duplicates, gaps, truncated,
-malformed and corrupt datagrams are counted; a frame touched by loss is zero-filled and marked invalid,
-never passed on as if complete; a jump in the frame counter (a restart, a forged or corrupt counter)
-larger than ``resync_jump`` resynchronises instead of filling the gap with placeholder frames.
+The assembler puts chunks in place by offset, so reordering is harmless; bytes already received are never
+overwritten, and a chunk that contradicts them (other bytes, another frame time) makes the frame invalid.
+Duplicates, gaps, truncated, malformed and corrupt datagrams are counted; a frame touched by loss is
+zero-filled and marked invalid, never passed on as if complete; a jump in the frame counter (a restart, a
+forged or corrupt counter) larger than ``resync_jump`` resynchronises instead of filling the gap with
+placeholder frames.
 
 A datagram of a frame already passed on (a late duplicate or a chunk delayed on the way) is counted as
 ``late_datagrams`` and dropped: it never touches a frame, and no counter is passed on twice. A sender
@@ -25,217 +19,43 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import struct
-import typing
 
 import crc32c
 import numpy as np
 
 from imaging.core.waveform import Waveform
 
-from .registry import PackedDatagrams, WireFormat
+from .registry import PackedDatagrams, WireFormat  # noqa: F401 - PackedDatagrams re-exported
+from .srf1_datagram import (  # noqa: F401 - the datagram's names, re-exported: they were this module's
+    CRC,
+    FLAG_PTP_LOCKED,
+    HEADER,
+    HEADER_V2,
+    MAGIC,
+    MAX_PAYLOAD,
+    VERSION,
+    VERSIONS,
+    PackedEncoder,
+    Srf1CrcError,
+    Srf1Error,
+    Srf1Header,
+    _crc,
+    encode_frame,
+    encode_frame_packed,
+    chunk_header_words,
+    header_words,
+    header_size,
+    parse,
+    payload_seeds,
+    restamp,
+)
 from .stream import RadarFrame
 
-MAGIC = b"SRF1"
-VERSION = 2
-VERSIONS = (1, 2)
-HEADER = struct.Struct("<4sBBHIQII")  # the fields of both versions
-CRC = struct.Struct("<I")  # version 2: after the fields
-HEADER_V2 = struct.Struct("<4sBBHIQIII")  # version 2's fields and its CRC, unpacked in one call
-FLAG_PTP_LOCKED = 0x01
-_OFFSET_AT = struct.calcsize("<4sBBHIQI")  # where the header's ``offset`` field starts
-#: Payload bytes per datagram so that IP (20) + UDP (8) + SRF1 header (v2) fit a 1500-byte MTU, multiple of 4.
-MAX_PAYLOAD = (1500 - 20 - 8 - HEADER.size - CRC.size) // 4 * 4
-
-
-def header_size(version: int) -> int:
-    return HEADER.size + (CRC.size if version >= 2 else 0)
-
-
-def _crc(fields, payload) -> int:
-    """Version 2's CRC32C: over the header's fields (the bytes before the CRC), then the payload."""
-    return crc32c.crc32c(payload, crc32c.crc32c(fields))
-
-
-class Srf1Error(ValueError):
-    """A datagram that is not SRF1 or contradicts itself."""
-
-
-class Srf1CrcError(Srf1Error):
-    """A version 2 datagram whose CRC32C does not match: bits changed on the way."""
-
-
-class Srf1Header(typing.NamedTuple):
-    """One datagram's header (a named tuple: one is made per datagram, 10,000 a second per radar)."""
-
-    version: int
-    flags: int
-    radar_id: int
-    frame_counter: int
-    frame_time_ns: int
-    frame_bytes: int
-    offset: int
-
-    @property
-    def ptp_locked(self) -> bool:
-        return bool(self.flags & FLAG_PTP_LOCKED)
-
-
-def encode_frame(radar_id: int, frame_counter: int, frame_time_ns: int, iq: np.ndarray, ptp_locked: bool = True,
-                 payload_bytes: int = MAX_PAYLOAD, version: int = VERSION) -> list[bytes]:
-    """Datagrams of one frame; ``iq`` int16 [chirps, rx, samples, 2] (or any int16 array in wire order)."""
-    return encode_frame_packed(radar_id, frame_counter, frame_time_ns, iq, ptp_locked, payload_bytes, version).split()
-
-
-def encode_frame_packed(radar_id: int, frame_counter: int, frame_time_ns: int, iq: np.ndarray, ptp_locked: bool = True,
-                        payload_bytes: int = MAX_PAYLOAD, version: int = VERSION) -> PackedDatagrams:
-    """``encode_frame``'s datagrams back to back in one buffer (``PackedDatagrams``), built with whole-array
-    copies: one header packed and copied to every datagram with its offset patched in, the payload copied
-    in one strided step. What is left per datagram is its CRC32C (version 2). A ``PackedEncoder`` of its own,
-    so the buffer is the caller's."""
-    return PackedEncoder(radar_id, ptp_locked, payload_bytes, version)(frame_counter, frame_time_ns, iq)
-
-
-class PackedEncoder:
-    """Replay's SRF1 encoder: ``encode_frame_packed``'s datagrams, into one buffer kept from call to call (a
-    frame's datagrams hold until the next call), and for a frame sent before without a CRC32C computed per
-    datagram.
-
-    A looped replay sends the same frames lap after lap with another counter and time. CRC32C is linear: the
-    CRC of (header', payload) is that of (header, payload) xor one term that depends only on header xor
-    header' and the payload's length. So the first time a frame is sent (``frame_key``: which frame it is)
-    its datagrams' CRCs are kept (4 bytes a datagram); when it comes again, with the same bytes (its CRC32C
-    over the whole frame, one pass, says so), they are updated by that term, one per frame, instead of
-    computed again over every datagram's header and payload: the per-datagram Python work that cost more
-    than the copies and the sending. A frame with other bytes under a known key is encoded afresh."""
-
-    def __init__(self, radar_id: int, ptp_locked: bool = True, payload_bytes: int = MAX_PAYLOAD, version: int = VERSION):
-        self.radar_id, self.ptp_locked, self.payload_bytes, self.version = radar_id, ptp_locked, payload_bytes, version
-        self._buffer = np.empty(0, np.uint8)
-        self._known: dict = {}  # frame_key -> (the frame's CRC32C, its header at offset 0, its datagrams' CRCs)
-        self._zeros_crc: dict[int, int] = {}  # CRC32C of as many zero bytes as a header and a payload of a length
-
-    def __call__(self, frame_counter: int, frame_time_ns: int, iq: np.ndarray, frame_key=None) -> PackedDatagrams:
-        data = _wire_bytes(iq)
-        size = _packed_size(data.size, self.payload_bytes, header_size(self.version))
-        if self._buffer.size != size:
-            self._buffer = np.empty(size, np.uint8)
-        out = self._buffer
-        head = _header(self.radar_id, frame_counter, frame_time_ns, data.size, self.ptp_locked, self.version)
-        _lay_out(out, data, head, self.payload_bytes, self.version)
-        if self.version >= 2:
-            column = _crc_column(out, self.payload_bytes, self.version)
-            frame_crc = crc32c.crc32c(data) if frame_key is not None else None
-            known = self._known.get(frame_key)
-            if known is not None and known[0] == frame_crc:
-                column[:] = known[2] ^ self._crc_change(known[1], head, data.size)
-            else:
-                column[:] = _datagram_crcs(out, head, self.payload_bytes)
-                if frame_key is not None:
-                    self._known[frame_key] = (frame_crc, head, column.copy())
-        return PackedDatagrams(out, header_size(self.version) + self.payload_bytes)
-
-    def _crc_change(self, head_before: bytes, head: bytes, frame_bytes: int) -> np.ndarray:
-        """What turns each datagram's CRC under ``head_before`` into its CRC under ``head`` (headers at offset
-        0; the offsets are the same in both): crc(d xor 0..0) for d = the headers' difference followed by as
-        many zeros as the datagram's payload, that is crc(d) xor crc(zeros), per payload length."""
-        delta = bytes(a ^ b for a, b in zip(head_before, head))
-        n_full, rest = divmod(frame_bytes, self.payload_bytes)
-        change = np.empty(n_full + (rest > 0), "<u4")
-        for rows, length in ((slice(0, n_full), self.payload_bytes), (slice(n_full, None), rest)):
-            if length:
-                zeros = self._zeros_crc.get(length)
-                if zeros is None:
-                    zeros = self._zeros_crc[length] = crc32c.crc32c(bytes(HEADER.size + length))
-                change[rows] = crc32c.crc32c(bytes(length), crc32c.crc32c(delta)) ^ zeros
-        return change
-
-
-def _wire_bytes(iq: np.ndarray) -> np.ndarray:
-    """The frame's bytes as they go on the wire (int16 little-endian), uint8, without a copy where it can."""
-    return np.ascontiguousarray(iq, dtype="<i2").reshape(-1).view(np.uint8)
-
-
-def _header(radar_id: int, frame_counter: int, frame_time_ns: int, frame_bytes: int, ptp_locked: bool,
-            version: int) -> bytes:
-    """The 28 header bytes before the CRC, at offset 0."""
-    return HEADER.pack(MAGIC, version, FLAG_PTP_LOCKED if ptp_locked else 0, radar_id, frame_counter & 0xFFFFFFFF,
-                       frame_time_ns, frame_bytes, 0)
-
-
-def _packed_size(frame_bytes: int, payload_bytes: int, head_size: int) -> int:
-    n_full, rest = divmod(frame_bytes, payload_bytes)
-    return n_full * (head_size + payload_bytes) + (head_size + rest if rest else 0)
-
-
-def _lay_out(out: np.ndarray, data: np.ndarray, head: bytes, payload_bytes: int, version: int) -> None:
-    """Headers (``head`` with each datagram's offset) and payloads into ``out``, by whole-array copies; the
-    CRC field is left as it was."""
-    head_size = header_size(version)
-    stride = head_size + payload_bytes
-    n_full, rest = divmod(data.size, payload_bytes)
-    full = out[:n_full * stride].reshape(n_full, stride)
-    head_bytes = np.frombuffer(head, np.uint8)
-    full[:, :HEADER.size] = head_bytes
-    full[:, _OFFSET_AT:HEADER.size] = (np.arange(n_full, dtype="<u4") * payload_bytes).view(np.uint8).reshape(n_full, 4)
-    full[:, head_size:] = data[:n_full * payload_bytes].reshape(n_full, payload_bytes)
-    if rest:
-        last = out[n_full * stride:]
-        last[:HEADER.size] = head_bytes
-        last[_OFFSET_AT:HEADER.size] = np.array([n_full * payload_bytes], "<u4").view(np.uint8)
-        last[head_size:] = data[n_full * payload_bytes:]
-
-
-def _crc_column(out: np.ndarray, payload_bytes: int, version: int) -> np.ndarray:
-    """The CRC fields of the datagrams packed in ``out`` (version 2), as a little-endian u32 array view."""
-    stride = header_size(version) + payload_bytes
-    count = -(-out.size // stride)
-    return np.lib.stride_tricks.as_strided(out[HEADER.size:], (count, CRC.size), (stride, 1)).view("<u4")[:, 0]
-
-
-def _datagram_crcs(out: np.ndarray, head: bytes, payload_bytes: int) -> np.ndarray:
-    """Every datagram's CRC32C (over its header's fields, then its payload), one at a time."""
-    head_size = header_size(2)
-    stride = head_size + payload_bytes
-    view = memoryview(out)
-    crc = crc32c.crc32c
-    return np.array([crc(view[o + head_size:o + stride], crc(view[o:o + HEADER.size])) for o in range(0, out.size, stride)],
-                    np.uint32)
-
-
-def restamp(datagram: bytearray, frame_counter: int, frame_time_ns: int) -> None:
-    """Give an encoded datagram another frame counter and time, in place, and (version 2) its CRC anew: for
-    a player that sends the same frames again and again."""
-    magic, version, flags, radar_id, _, _, frame_bytes, offset = HEADER.unpack_from(datagram)
-    HEADER.pack_into(datagram, 0, magic, version, flags, radar_id, frame_counter & 0xFFFFFFFF, frame_time_ns,
-                     frame_bytes, offset)
-    if version >= 2:
-        view = memoryview(datagram)
-        CRC.pack_into(datagram, HEADER.size, _crc(view[:HEADER.size], view[header_size(version):]))
-
-
-def parse(datagram: bytes) -> tuple[Srf1Header, memoryview]:
-    """Header and payload of one datagram; Srf1Error names what is wrong."""
-    if len(datagram) < HEADER.size:
-        raise Srf1Error(f"datagram of {len(datagram)} bytes is shorter than the {HEADER.size}-byte header")
-    magic, version, flags, radar_id, counter, t_ns, frame_bytes, offset = HEADER.unpack_from(datagram)
-    if magic != MAGIC:
-        raise Srf1Error(f"magic {magic!r} is not {MAGIC!r}")
-    if version not in VERSIONS:
-        raise Srf1Error(f"version {version} is not supported")
-    size = header_size(version)
-    if len(datagram) < size:
-        raise Srf1Error(f"datagram of {len(datagram)} bytes is shorter than the {size}-byte version {version} header")
-    payload = memoryview(datagram)[size:]
-    if version >= 2:
-        (want,) = CRC.unpack_from(datagram, HEADER.size)
-        got = _crc(memoryview(datagram)[:HEADER.size], payload)
-        if got != want:
-            raise Srf1CrcError(f"CRC32C 0x{got:08x} is not the datagram's 0x{want:08x}")
-    if offset + len(payload) > frame_bytes:
-        raise Srf1Error(f"chunk at offset {offset} with {len(payload)} bytes overruns the {frame_bytes}-byte frame")
-    return Srf1Header(version, flags, radar_id, counter, t_ns, frame_bytes, offset), payload
-
+#: The fewest datagrams ``FrameAssembler.feed_segments`` takes as one run; fewer go through ``feed``. A run
+#: costs ~20 us of numpy calls besides ~1 us a datagram, ``feed``'s in-order path ~4 us a datagram
+#: (benchmarks/stream_segments.py, loaded: runs of 8 were 0.63-1.06x feed's CPU, of 4 1.5x more, of 16 1.7x
+#: less).
+_MIN_RUN = 12
 
 @dataclasses.dataclass
 class Srf1Counters:
@@ -285,6 +105,9 @@ class _Partial:
         self.last_offset = -1
         self.last_recv = recv_ns
         self.contradicted = False  # a chunk disagreed with bytes already received, or with the frame time
+        # Once a batch of its datagrams comes (``FrameAssembler._in_order_run``): (chunk size, the headers its
+        # chunks must have as u32 words [chunks, 7], their CRC32C seeds or None (version 1), ``data`` as numpy).
+        self.runs: tuple | None = None
 
 
 class FrameAssembler:
@@ -390,6 +213,103 @@ class FrameAssembler:
             self._filling = None
             return self._emit_ready(newest=n)
         return []
+
+    def feed_segments(self, buffer, segment_bytes: int, recv_ns: int = 0) -> list[Frame]:
+        """``feed`` of every datagram of a batch received in one go (UDP GRO), with the same result: the same
+        frames, bytes and counters as feeding them one by one in order.
+
+        Runs of the frame being filled in order (``_in_order``'s datagrams) are taken at once by
+        ``_in_order_run``; any other datagram (a frame's first or last, a gap, a bad CRC, ...) goes through
+        ``feed``, after which the next run is tried.
+
+        Parameters
+        ----------
+        buffer : bytes-like
+            The datagrams back to back, each ``segment_bytes`` long but the last (1 to ``segment_bytes``
+            bytes). Not kept: the receiver reuses it.
+        segment_bytes : int
+            Bytes of every datagram but the last (> 0).
+        recv_ns : int
+            The batch's receive time (host clock, ns), every datagram's.
+
+        Returns
+        -------
+        list[Frame]
+            The frames the batch completes or gives up, in order.
+        """
+        if segment_bytes <= 0:
+            raise ValueError(f"segment_bytes must be positive, got {segment_bytes}")
+        view = memoryview(buffer).cast("B")
+        full = len(view) // segment_bytes  # datagrams of the full size
+        count = -(-len(view) // segment_bytes)
+        out: list[Frame] = []
+        i = 0
+        while i < count:
+            if self._filling is not None and full - i >= _MIN_RUN:
+                taken, done = self._in_order_run(view, segment_bytes, i, full - i, recv_ns)
+                if done:
+                    out += done
+                if taken:
+                    i += taken
+                    continue
+            # A view, not a copy: ``feed`` copies what it keeps (the tests overwrite the buffer after each batch).
+            done = self.feed(view[i * segment_bytes:(i + 1) * segment_bytes], recv_ns)
+            if done:
+                out += done
+            i += 1
+        return out
+
+    def _in_order_run(self, view: memoryview, segment_bytes: int, first: int, available: int,
+                      recv_ns: int) -> tuple[int, list[Frame]]:
+        """How many of the ``available`` full-size datagrams from the ``first``-th on are the next chunks
+        of the frame being filled in order, each as ``feed`` would take it, taken at once; and the frames
+        that go. Stops before the first that is not (``feed`` takes that one).
+
+        A datagram is taken if its header is the frame's (magic, version, flags, radar, counter, time,
+        frame size) with the next offset in order, its payload as long as the sender's chunks and inside
+        the frame, and (version 2) its CRC32C right: stricter than ``_in_order`` (the flags too), so every
+        datagram taken is one ``feed`` takes the same way. What the frame's chunks must hold is made once
+        a frame (``_Partial.runs``); per batch the headers are compared as one array, the CRC32C is one call
+        a datagram, and the payloads go into the frame in one strided copy."""
+        wire_counter, n, part, time_ns, radar_id = self._filling
+        head = part.header
+        size = segment_bytes - header_size(head.version)
+        if part.have is not None or size != self._chunk or segment_bytes < HEADER_V2.size or part.prefix % size:
+            return 0, []
+        runs = part.runs
+        if runs is None or runs[0] != size:
+            fields = HEADER.pack(MAGIC, head.version, head.flags, radar_id, wire_counter, time_ns, self.frame_bytes, 0)
+            expected = chunk_header_words(fields, size, self.frame_bytes // size)  # the chunks inside the frame
+            seeds = payload_seeds(fields, expected[:, 6]).tolist() if head.version >= 2 else None
+            runs = part.runs = (size, expected, seeds, np.frombuffer(part.data, np.uint8))
+        _, expected, seeds, data = runs
+        j = part.prefix // size
+        count = min(available, len(expected) - j)
+        if count <= 0:
+            return 0, []
+        words = header_words(view, segment_bytes, first, count)
+        same = words[:, :7] == expected[j:j + count]
+        take = count if same.all() else int(np.argmin(same.all(axis=1)))
+        if take and seeds is not None:
+            payloads = np.ndarray((take, size), np.uint8, view, first * segment_bytes + segment_bytes - size,
+                                  (segment_bytes, 1))
+            wrong = np.fromiter(map(crc32c.crc32c, payloads, seeds[j:j + take]), np.uint32, take) != words[:take, 7]
+            if wrong.any():
+                take = int(np.argmax(wrong))
+        if not take:
+            return 0, []
+        lo, hi = part.prefix, part.prefix + take * size
+        data[lo:hi].reshape(take, size)[...] = np.ndarray((take, size), np.uint8, view,
+                                                          first * segment_bytes + segment_bytes - size, (segment_bytes, 1))
+        self.counters.datagrams += take
+        self._newest_recv_ns = max(self._newest_recv_ns, recv_ns)
+        part.received += hi - lo
+        part.prefix, part.last_offset, part.last_recv = hi, hi - size, recv_ns
+        if part.received >= self.frame_bytes:  # its last byte: it and any complete ones behind it go
+            if seeds is not None:  # as ``_in_order`` leaves it; ``_feed`` (version 1) leaves it to ``_finish``
+                self._filling = None
+            return take, self._emit_ready(newest=n)
+        return take, []
 
     def _feed(self, datagram: bytes, recv_ns: int) -> list[Frame]:
         """``feed`` with every check: any datagram."""
@@ -578,6 +498,12 @@ class Srf1Stream:
 
     def feed(self, datagram: bytes, receive_ns: int) -> list[RadarFrame]:
         frames = self._asm.feed(datagram, receive_ns)
+        return self._frames(frames) if frames else frames
+
+    def feed_segments(self, buffer, segment_bytes: int, receive_ns: int) -> list[RadarFrame]:
+        """``feed`` of every datagram of a batch (``FrameAssembler.feed_segments``): the datagrams back to back
+        in ``buffer``, each ``segment_bytes`` long but the last, all received at ``receive_ns``."""
+        frames = self._asm.feed_segments(buffer, segment_bytes, receive_ns)
         return self._frames(frames) if frames else frames
 
     def flush(self) -> list[RadarFrame]:
