@@ -354,7 +354,8 @@ class Recorder:
         """Append the frames stored since the last flush, each radar's in one append per column."""
         for radar, frames in self._pending_frames.items():
             if frames:
-                self.writer.append_frames(radar, np.stack([f.iq for f in frames]), [f.frame_time_ns for f in frames],
+                # The frames as received (views on the bus messages), not stacked: each is one chunk of the file.
+                self.writer.append_frames(radar, [f.iq for f in frames], [f.frame_time_ns for f in frames],
                                           [f.frame_counter for f in frames], [f.receive_ns for f in frames],
                                           [1 if f.valid else 0 for f in frames])
                 self.writer.append_frame_clock(radar, [f.ptp_locked for f in frames],

@@ -21,6 +21,7 @@ from imaging.core.rig import AntennaArray, CalibrationPrior, ImuConfig, Mount, R
 from imaging.core.samples import complex_to_iq, iq_to_complex
 from imaging.core.trajectory import SampledTrajectory, TrajectorySample
 from imaging.core.waveform import Waveform
+from imaging.io.fletcher32 import checksummed_chunk
 from imaging.io.schema import checksummed, open_checked, read
 
 SCHEMA = "sarbot.recording"
@@ -65,6 +66,8 @@ class _Column:
         self.rows = ds.shape[0]
         self.row_shape = ds.shape[1:]
         self._object = ds.dtype.kind == "O"
+        self._row_per_chunk: bool | None = None
+        self._chunk: np.ndarray | None = None  # one stored chunk (row and checksum), reused: append_rows
 
     @property
     def shape(self) -> tuple[int, ...]:
@@ -75,6 +78,40 @@ class _Column:
         n = self.rows + values.shape[0]
         self.ds.resize(n, axis=0)
         self.ds[self.rows:n] = values
+        self.rows = n
+
+    @property
+    def row_per_chunk(self) -> bool:
+        """Whether each row is a chunk of its own whose only filter is Fletcher-32 (a radar's ``adc``): such
+        rows are written as whole stored chunks (``append_rows``)."""
+        if self._row_per_chunk is None:
+            dcpl = self.ds.id.get_create_plist()
+            self._row_per_chunk = (not self._object and self.ds.chunks == (1, *self.row_shape)
+                                   and dcpl.get_nfilters() == 1 and dcpl.get_filter(0)[0] == h5py.h5z.FILTER_FLETCHER32)
+        return self._row_per_chunk
+
+    def append_rows(self, rows) -> None:
+        """Append rows given one by one (each ``row_shape``), without stacking them first.
+
+        Where each row is a chunk with only the Fletcher-32 filter, each goes to the file as the chunk HDF5
+        would store (its bytes and checksum, ``write_direct_chunk``): no copy into the chunk cache, none into
+        the filter's buffer, HDF5's word-at-a-time checksum replaced by a vectorised one of the same value."""
+        rows = list(rows)
+        for row in rows:
+            if np.shape(row) != self.row_shape:
+                raise ValueError(f"{self.ds.name}: a row of shape {np.shape(row)} does not fit {self.row_shape}")
+        if not self.row_per_chunk:
+            if rows:
+                self.append(np.stack([np.asarray(r, self.dtype) for r in rows]))
+            return
+        n = self.rows + len(rows)
+        self.ds.resize(n, axis=0)
+        if self._chunk is None:
+            self._chunk = np.empty(int(np.prod(self.row_shape)) * self.dtype.itemsize + 4, np.uint8)
+        zeros = (0,) * len(self.row_shape)
+        for k, row in enumerate(rows):
+            chunk = checksummed_chunk(np.asarray(row).astype(self.dtype, copy=False), self._chunk)
+            self.ds.id.write_direct_chunk((self.rows + k, *zeros), chunk)
         self.rows = n
 
 
@@ -234,13 +271,16 @@ class RecordingWriter:
         return self._columns[f"radar/{radar}"]["adc"].row_shape
 
     def append_frames(self, radar: str, adc, frame_time_ns, frame_counter, host_time_ns, valid=None) -> None:
-        """Append F frames of one radar; ``adc`` complex [F, chirps, rx, samples] (or int16 with trailing 2)."""
+        """Append F frames of one radar; ``adc`` complex [F, chirps, rx, samples] (or int16 with trailing 2),
+        or a list of F such frames (not stacked: each is written as it is)."""
         g = self._columns[f"radar/{radar}"]
-        adc = np.asarray(adc)
+        frames = list(adc) if isinstance(adc, (list, tuple)) else np.asarray(adc)
         frame_time_ns = np.atleast_1d(np.asarray(frame_time_ns, np.int64))
-        if adc.shape[1:] != g["adc"].shape[1:] or adc.shape[0] != frame_time_ns.size:
-            raise ValueError(f"radar {radar}: adc shape {adc.shape} does not fit {g['adc'].shape[1:]} x {frame_time_ns.size} frames")
-        g["adc"].append(adc.astype(g["adc"].dtype, copy=False))
+        shapes = {np.shape(f) for f in frames}
+        if len(frames) != frame_time_ns.size or shapes - {g["adc"].row_shape}:
+            raise ValueError(f"radar {radar}: adc frames of shape {', '.join(map(str, sorted(shapes))) or 'none'} "
+                             f"do not fit {g['adc'].row_shape} x {frame_time_ns.size} frames")
+        g["adc"].append_rows(frames)
         g["frame_time_ns"].append(frame_time_ns)
         g["frame_counter"].append(np.atleast_1d(frame_counter).astype(np.uint32))
         g["host_time_ns"].append(np.atleast_1d(np.asarray(host_time_ns, np.int64)))
