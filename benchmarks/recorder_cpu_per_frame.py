@@ -167,6 +167,12 @@ def compare_files(a: Path, b: Path) -> dict:
     return {"identical": not different, "differences": different[:10], "adc_chunks_compared": chunks}
 
 
+def _ticks_end(messages: list[Message], ticks: int) -> int:
+    """How many of ``messages`` make their first ``ticks`` ticks (each ends with its IMU batch)."""
+    ends = [k + 1 for k, m in enumerate(messages) if m.topic == "imu"]
+    return ends[ticks - 1]
+
+
 def rss_mb() -> float:
     for line in Path("/proc/self/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
@@ -199,7 +205,7 @@ def rss_run(version: str, commit: str, n_ticks: int) -> dict:
         sequence numbers it checks are the subscriber's, not used here)."""
         for k in range((n_ticks + lap_ticks - 1) // lap_ticks):
             shift = k * lap_ticks * TICK_NS
-            for m in lap:
+            for m in lap[:None if (k + 1) * lap_ticks <= n_ticks else _ticks_end(lap, n_ticks - k * lap_ticks)]:
                 yield Message(m.topic, m.seq, m.sensor_time_ns + shift, m.host_time_ns + shift,
                               {**m.header, **({"frame_time_ns": m.header["frame_time_ns"] + shift,
                                                "receive_ns": m.header["receive_ns"] + shift}
