@@ -15,7 +15,8 @@ ticks (0.52 s, the recorder's 0.5 s), its fsync thread included; closing include
   (values), attribute by attribute (``created_utc`` aside), and every ADC chunk as stored (data and checksum).
 - ``rss``: each version alone in a fresh process (so neither's heap is the other's), ``--rss-ticks`` ticks as
   fast as it stores them, a new part every 1154 ticks (``--split-time 60`` at 1x) with each finished part
-  deleted (as the soak's checker does), RSS read every 50 ticks; rise from the first part's end to the end.
+  deleted (as the soak's checker does), RSS read after the first tick (nothing written yet) and every 50
+  ticks; the rise from the first part's end to the end (a leak), and the level (HDF5's chunk caches, numba).
 
 The baseline's ``acquisition/recorder.py``, ``imaging/io/recording.py`` (its ``RecordingWriter``) and
 ``acquisition/ptp.py`` (its ``ReceiveDelay``) are loaded from git (``benchmarks/git_baseline.py``) beside the
@@ -197,7 +198,7 @@ def rss_run(version: str, commit: str, n_ticks: int) -> dict:
         if now - last_trim[0] >= 1.0:  # as the daemon's loop does
             release_free_heap()
             last_trim[0] = now
-        if tick % 50 == 0:
+        if tick % 50 == 0 or tick == 1:  # tick 1: before the first flush (nothing written yet)
             samples.append((tick, round(rss_mb(), 1)))
 
     def laps():
@@ -218,7 +219,7 @@ def rss_run(version: str, commit: str, n_ticks: int) -> dict:
     return {"version": version, "ticks": n_ticks, "frames": 4 * n_ticks, "wall_s": time.monotonic() - started,
             "rss_mb_every_50_ticks": samples,
             "rss_rise_after_first_part_mb": (after_first_part[-1] - after_first_part[0]) if after_first_part else None,
-            "rss_max_mb": max(r for _, r in samples)}
+            "rss_first_tick_mb": samples[0][1], "rss_max_mb": max(r for _, r in samples)}
 
 
 def main() -> None:

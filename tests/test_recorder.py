@@ -289,10 +289,10 @@ def test_rows_of_a_dataset_not_one_chunk_each_are_stacked_and_appended():
     import h5py
     import pytest
 
-    from imaging.io.recording import _Column
+    from imaging.io.columns import Column
 
     with h5py.File("rows.h5", "w", driver="core", backing_store=False) as f:
-        col = _Column(f.create_dataset("x", (0, 3), np.int32, maxshape=(None, 3), chunks=(4, 3), fletcher32=True))
+        col = Column(f.create_dataset("x", (0, 3), np.int32, maxshape=(None, 3), chunks=(4, 3), fletcher32=True))
         assert not col.row_per_chunk
         col.append_rows([np.arange(3), np.arange(3, 6)])
         col.append_rows([])
@@ -300,6 +300,6 @@ def test_rows_of_a_dataset_not_one_chunk_each_are_stacked_and_appended():
         assert col.rows == 2
         with pytest.raises(ValueError, match=r"row of shape \(2,\) does not fit \(3,\)"):
             col.append_rows([np.arange(2)])
-        one = _Column(f.create_dataset("y", (0, 3), np.int32, maxshape=(None, 3), chunks=(1, 3), fletcher32=True))
-        plain = _Column(f.create_dataset("z", (0, 3), np.int32, maxshape=(None, 3), chunks=(1, 3)))
+        one = Column(f.create_dataset("y", (0, 3), np.int32, maxshape=(None, 3), chunks=(1, 3), fletcher32=True))
+        plain = Column(f.create_dataset("z", (0, 3), np.int32, maxshape=(None, 3), chunks=(1, 3)))
         assert one.row_per_chunk and not plain.row_per_chunk
