@@ -303,3 +303,23 @@ def test_rows_of_a_dataset_not_one_chunk_each_are_stacked_and_appended():
         one = Column(f.create_dataset("y", (0, 3), np.int32, maxshape=(None, 3), chunks=(1, 3), fletcher32=True))
         plain = Column(f.create_dataset("z", (0, 3), np.int32, maxshape=(None, 3), chunks=(1, 3)))
         assert one.row_per_chunk and not plain.row_per_chunk
+
+
+def test_a_closed_writer_lets_go_of_its_chunk_buffers_without_the_garbage_collector(tmp_path):
+    """Each part of a split recording has its own writer: closing one frees its columns' chunk buffers at
+    once, not whenever the garbage collector next runs (each part kept 2.9 MB of four radars' until then)."""
+    import gc
+    import weakref
+
+    from imaging.io.recording import RecordingWriter
+
+    w = RecordingWriter(tmp_path / "w.h5", RIG.radars, adc_dtype="int16")
+    w.append_frames("left", [np.ones(SHAPE, np.int16)], [1], [1], [1])
+    buffer = weakref.ref(w._columns["radar/left/adc"]._chunk)
+    gc.disable()
+    try:
+        w.close()
+        del w
+        assert buffer() is None
+    finally:
+        gc.enable()
