@@ -110,6 +110,8 @@ class Recorder:
         # (resize and write) a frame were most of the recorder's CPU per frame. What a flush writes is what a
         # killed recorder leaves, as before: data was only ever safe from the flush on.
         self._pending_frames: dict[str, list[RadarFrame]] = {}
+        # The IMU's batches (20 a second) likewise: five appends a batch were a sixth of the supervisor's CPU.
+        self._pending_imu: list[ImuBatch] = []
         self.writer = self._open_part()
         self._handlers = {RadarFrameMessage: self._store_frame, ImuBatch: self._store_imu, CanBatch: self._store_can,
                           Trigger: self._store_trigger, Event: self._store_event, WorkerState: self._note_worker,
@@ -273,7 +275,8 @@ class Recorder:
 
     def _store_imu(self, m: ImuBatch) -> None:
         self._check_imu_continuity(m.TOPIC, m)
-        self.writer.append_imu(m.time_ns, m.gyro_radps, m.accel_mps2, m.counter, m.host_time_ns)
+        if len(m):
+            self._pending_imu.append(m)  # written at the flush, as the frames are
         self.imu_samples += len(m)
         if m.clock_drift_ppm is not None:
             self.imu_drift_ppm = float(m.clock_drift_ppm)
@@ -351,15 +354,23 @@ class Recorder:
             self._reported_missed[topic] = st.missed
 
     def _write_frames(self) -> None:
-        """Append the frames stored since the last flush, each radar's in one append per column."""
+        """Append the frames and IMU batches stored since the last flush, each radar's frames and the IMU's
+        samples in one append per column."""
         for radar, frames in self._pending_frames.items():
             if frames:
-                self.writer.append_frames(radar, np.stack([f.iq for f in frames]), [f.frame_time_ns for f in frames],
+                # The frames as received (views on the bus messages), not stacked: each is one chunk of the file.
+                self.writer.append_frames(radar, [f.iq for f in frames], [f.frame_time_ns for f in frames],
                                           [f.frame_counter for f in frames], [f.receive_ns for f in frames],
                                           [1 if f.valid else 0 for f in frames])
                 self.writer.append_frame_clock(radar, [f.ptp_locked for f in frames],
                                                [f.nic_receive_ns for f in frames])
         self._pending_frames = {}
+        if self._pending_imu:
+            b = self._pending_imu
+            self.writer.append_imu(np.concatenate([m.time_ns for m in b]), np.concatenate([m.gyro_radps for m in b]),
+                                   np.concatenate([m.accel_mps2 for m in b]), np.concatenate([m.counter for m in b]),
+                                   np.concatenate([m.host_time_ns for m in b]))
+            self._pending_imu = []
 
     def flush(self) -> None:
         try:

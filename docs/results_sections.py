@@ -485,6 +485,15 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                         "machine was shared (load in the provenance), so the ratios taken in the same rounds are the "
                         "figures, not the milliseconds.",
                         ".venv/bin/python benchmarks/stream_segments.py"),
+    "recorder_cpu_per_frame": ("The supervisor's recorder: CPU per frame on the four-radar soak's mix, and its RSS",
+                               "The recorder's code (with its RecordingWriter and ReceiveDelay) at main before wave 3m "
+                               "(aa20a74, baseline) against now, interleaved in one process on the soak's mix: four "
+                               "radars' 716,800-byte frames every 52 ms, IMU batches at 400 Hz, an event every 2 s, a "
+                               "flush every 10 ticks; CPU per radar frame, fsync thread included. The files are "
+                               "compared dataset, attribute and stored ADC chunk. RSS: each version alone over 5800 "
+                               "ticks (5 minutes of data) with a part every 60 s. The machine was shared (load in "
+                               "the provenance), so the ratios taken in the same rounds are the figures.",
+                               ".venv/bin/python benchmarks/recorder_cpu_per_frame.py"),
     "odometry_cpu_per_scan": ("The odometry worker's CPU per radar scan",
                               "The odometry worker's code (the worker, the point clouds, the trajectory writer) at "
                               "main before wave 3m's numba CFAR (aa20a74, baseline) against now, interleaved in one process on the demo "

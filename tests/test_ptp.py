@@ -528,3 +528,31 @@ def test_poller_takes_phc2sys_offsets_from_its_log_file(tmp_path):
         assert monitor.status.phc2sys_offset_ns == 7.0
     finally:
         poller.stop()
+
+
+def test_the_receive_delay_line_is_polyfits_within_a_stated_bound_and_keeps_the_last_window_in_order():
+    """The line is fitted in closed form over the recent frames kept in arrays (not np.polyfit over a deque):
+    the last ``window`` frames are the ones held, oldest first, however often the arrays wrap; the expected
+    delay and scatter are np.polyfit's to 1e-9 ms plus 4e-15 of the largest delay (a few units in the last
+    place of the delays themselves: 0.007 ms for a replay's 1.7e12 ms offset at 0.5x, 0.0004 ms for 1e11)."""
+    rng = np.random.default_rng(7)
+    for offset_ms, rate in ((1.5, 1.0), (1.5, 1.0 + 200e-6), (1.5, 0.5), (9.6e10, 1.0)):
+        rd = ReceiveDelay(window=50, jump_ms=1e9)  # no jump: every frame is kept
+        frame_end = 1_700_000_000_000_000_000 + np.arange(333) * 52_000_000
+        host = frame_end / rate + offset_ms * 1e6 + rng.normal(0, 0.3e6, frame_end.size)
+        for k, (t, h) in enumerate(zip(frame_end, host)):
+            assert rd.add(int(h), int(t)) is None
+            if k < 10 or k % 17:
+                continue
+            t_s, d_ms = rd._t_s[rd._start:rd._end], rd._d_ms[rd._start:rd._end]
+            first = max(0, k + 1 - 50)
+            np.testing.assert_array_equal(t_s, frame_end[first:k + 1] * 1e-9)
+            np.testing.assert_array_equal(d_ms, (host[first:k + 1].astype(np.int64) - frame_end[first:k + 1]) * 1e-6)
+            at = (frame_end[k] + 52_000_000) * 1e-9
+            slope, intercept = np.polyfit(t_s - t_s[0], d_ms, 1)
+            residual = d_ms - (intercept + slope * (t_s - t_s[0]))
+            expected, scatter = rd._line(at)
+            bound_ms = 1e-9 + 4e-15 * np.max(np.abs(d_ms))
+            assert abs(expected - (intercept + slope * (at - t_s[0]))) <= bound_ms
+            assert abs(scatter - 1.4826 * np.median(np.abs(residual))) <= bound_ms
+        assert rd.stats().frames == 50

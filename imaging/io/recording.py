@@ -21,6 +21,7 @@ from imaging.core.rig import AntennaArray, CalibrationPrior, ImuConfig, Mount, R
 from imaging.core.samples import complex_to_iq, iq_to_complex
 from imaging.core.trajectory import SampledTrajectory, TrajectorySample
 from imaging.core.waveform import Waveform
+from imaging.io.columns import Columns
 from imaging.io.schema import checksummed, open_checked, read
 
 SCHEMA = "sarbot.recording"
@@ -52,45 +53,6 @@ def _create_imu_group(g: h5py.Group, imu: ImuConfig) -> None:
                               ("accel_mps2", np.float64, (3,)), ("counter", np.uint32, ()),
                               ("host_time_ns", np.int64, ())):
         g.create_dataset(name, (0, *tail), dtype, maxshape=(None, *tail), chunks=(4096, *tail), **checksummed(dtype))
-
-
-class _Column:
-    """An appendable dataset with its length, dtype and row shape kept here: asking h5py for them, and
-    finding the dataset by its path, on every append was most of the recorder's time per frame (four radars
-    and the IMU: about 700 appends a second)."""
-
-    def __init__(self, ds: h5py.Dataset):
-        self.ds = ds
-        self.dtype = ds.dtype
-        self.rows = ds.shape[0]
-        self.row_shape = ds.shape[1:]
-        self._object = ds.dtype.kind == "O"
-
-    @property
-    def shape(self) -> tuple[int, ...]:
-        return (self.rows, *self.row_shape)
-
-    def append(self, values) -> None:
-        values = np.asarray(values, dtype=object) if self._object else np.asarray(values)
-        n = self.rows + values.shape[0]
-        self.ds.resize(n, axis=0)
-        self.ds[self.rows:n] = values
-        self.rows = n
-
-
-class _Columns:
-    """The writer's datasets by path (``"imu"`` gives a view of the group: ``["time_ns"]``), each looked up once."""
-
-    def __init__(self, f: h5py.File, prefix: str = "", cache: dict | None = None):
-        self._f, self._prefix, self._cache = f, prefix, {} if cache is None else cache
-
-    def __getitem__(self, path: str):
-        path = self._prefix + path
-        if path not in self._cache:
-            node = self._f[path]
-            self._cache[path] = _Column(node) if isinstance(node, h5py.Dataset) else \
-                _Columns(self._f, path + "/", self._cache)
-        return self._cache[path]
 
 
 class RecordingWriter:
@@ -148,7 +110,7 @@ class RecordingWriter:
             raise FileFormatError(f"{self.path}: exists already (refusing to overwrite a recording)")
         self.radars = {r.name: r for r in radars}
         self._f = h5py.File(self.path, "w", libver="latest")
-        self._columns = _Columns(self._f)
+        self._columns = Columns(self._f)
         f = self._f
         f.attrs["schema"] = SCHEMA
         f.attrs["schema_version"] = SCHEMA_VERSION
@@ -234,13 +196,16 @@ class RecordingWriter:
         return self._columns[f"radar/{radar}"]["adc"].row_shape
 
     def append_frames(self, radar: str, adc, frame_time_ns, frame_counter, host_time_ns, valid=None) -> None:
-        """Append F frames of one radar; ``adc`` complex [F, chirps, rx, samples] (or int16 with trailing 2)."""
+        """Append F frames of one radar; ``adc`` complex [F, chirps, rx, samples] (or int16 with trailing 2),
+        or a list of F such frames (not stacked: each is written as it is)."""
         g = self._columns[f"radar/{radar}"]
-        adc = np.asarray(adc)
+        frames = list(adc) if isinstance(adc, (list, tuple)) else np.asarray(adc)
         frame_time_ns = np.atleast_1d(np.asarray(frame_time_ns, np.int64))
-        if adc.shape[1:] != g["adc"].shape[1:] or adc.shape[0] != frame_time_ns.size:
-            raise ValueError(f"radar {radar}: adc shape {adc.shape} does not fit {g['adc'].shape[1:]} x {frame_time_ns.size} frames")
-        g["adc"].append(adc.astype(g["adc"].dtype, copy=False))
+        shapes = {np.shape(f) for f in frames}
+        if len(frames) != frame_time_ns.size or shapes - {g["adc"].row_shape}:
+            raise ValueError(f"radar {radar}: adc frames of shape {', '.join(map(str, sorted(shapes))) or 'none'} "
+                             f"do not fit {g['adc'].row_shape} x {frame_time_ns.size} frames")
+        g["adc"].append_rows(frames)
         g["frame_time_ns"].append(frame_time_ns)
         g["frame_counter"].append(np.atleast_1d(frame_counter).astype(np.uint32))
         g["host_time_ns"].append(np.atleast_1d(np.asarray(host_time_ns, np.int64)))
@@ -352,6 +317,9 @@ class RecordingWriter:
         if self._f.id.valid:
             self._f.flush()
             self._f.close()
+        # The columns refer to each other through their cache (a cycle the garbage collector frees only when it
+        # runs): let go of them and their chunk buffers now, or each part of a split recording keeps its own.
+        self._columns.clear()
 
     def __enter__(self):
         return self
