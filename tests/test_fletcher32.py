@@ -1,6 +1,8 @@
 """HDF5's Fletcher-32 chunk checksum computed by sarbot (imaging.io.fletcher32): the kernel against a plain
 word-by-word reference, and both against the chunks HDF5 itself stores."""
 
+from pathlib import Path
+
 import h5py
 import numpy as np
 import pytest
@@ -47,3 +49,16 @@ def test_a_checksummed_chunk_is_the_chunk_hdf5_stores(tmp_path, dtype, shape):
 def test_a_chunk_buffer_of_the_wrong_size_is_refused():
     with pytest.raises(ValueError, match="chunk buffer of 10 bytes"):
         checksummed_chunk(np.zeros(8, np.int16), np.empty(10, np.uint8))
+
+
+def test_reading_a_recording_does_not_import_numba():
+    """The checksum kernel is loaded where frames are written only: a reader (``sarbot image``, ``info``, the
+    viewer) would otherwise pay numba's import (0.27 s, ~45 MB) on its main thread before anything else."""
+    import subprocess
+    import sys
+
+    code = ("import sys, imaging.io.recording, imaging.io.columns; "
+            "print(sorted(m for m in sys.modules if m == 'numba' or m == 'imaging.io.fletcher32'))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parents[1])
+    assert out.stdout.strip() == "[]"
