@@ -116,6 +116,10 @@ class Recorder:
         self._handlers = {RadarFrameMessage: self._store_frame, ImuBatch: self._store_imu, CanBatch: self._store_can,
                           Trigger: self._store_trigger, Event: self._store_event, WorkerState: self._note_worker,
                           RadarImuBatch: self._store_radar_imu}
+        if rig.radars:  # the frames' checksum kernel loaded (in a fresh checkout compiled) before a driver is let
+            from imaging.io.fletcher32 import fletcher32  # go, not at the first flush, holding up the bus as long
+
+            fletcher32(b"\0\0")
         # RECORDER_LISTENING last: a driver that sees it knows the subscriptions before it have arrived too.
         # The drivers wait for it, so their sensor data is counted from its first message (none goes unseen).
         self.sub = BusSubscriber(endpoints, topics=[*(cls.TOPIC for cls in self._handlers), RECORDER_LISTENING],
