@@ -23,7 +23,7 @@ from imaging.core.samples import iq_to_complex
 from imaging.core.waveform import Waveform
 
 from .registry import WireFormat
-from .stream import RadarFrame
+from .stream import RadarFrame, feed_in_runs
 from .ti_capture import capture_to_iq, iq_to_capture
 from .ti_cfg import TiRadarConfig, load_ti_cfg
 
@@ -173,24 +173,7 @@ class Dca1000Assembler:
         list[RawFrame]
             The frames the batch completes or gives up, in order.
         """
-        if segment_bytes <= 0:
-            raise ValueError(f"segment_bytes must be positive, got {segment_bytes}")
-        view = memoryview(buffer).cast("B")
-        full = len(view) // segment_bytes  # datagrams of the full size
-        count = -(-len(view) // segment_bytes)
-        out: list[RawFrame] = []
-        i = 0
-        while i < count:
-            if self._last_seq is not None and full - i >= _MIN_RUN:
-                taken, done = self._contiguous_run(view, segment_bytes, i, full - i, recv_ns)
-                out += done
-                if taken:
-                    i += taken
-                    continue
-            # A view, not a copy: ``feed`` copies what it keeps (the tests overwrite the buffer after each batch).
-            out += self.feed(view[i * segment_bytes:(i + 1) * segment_bytes], recv_ns)
-            i += 1
-        return out
+        return feed_in_runs(buffer, segment_bytes, recv_ns, self.feed, self._contiguous_run, _MIN_RUN)
 
     def _contiguous_run(self, view: memoryview, segment_bytes: int, first: int, available: int,
                         recv_ns: int) -> tuple[int, list[RawFrame]]:
@@ -203,6 +186,8 @@ class Dca1000Assembler:
         ``_max_end`` has been received). Its frames are filled one copy and one ``have`` mark a frame, and
         frames are passed on once, after the run: what goes after each datagram goes after the last, in
         the same order, as nothing the run does can hold a frame back."""
+        if self._last_seq is None:  # no stream to carry on yet: ``feed`` takes the next
+            return 0, []
         size = segment_bytes - HEADER_BYTES
         start = self._max_end
         if size <= 0 or size % 2 or start < self._next_emit * self.frame_bytes:

@@ -49,7 +49,7 @@ from .srf1_datagram import (  # noqa: F401 - the datagram's names, re-exported: 
     payload_seeds,
     restamp,
 )
-from .stream import RadarFrame
+from .stream import RadarFrame, feed_in_runs
 
 #: The fewest datagrams ``FrameAssembler.feed_segments`` takes as one run; fewer go through ``feed``. A run
 #: costs ~20 us of numpy calls besides ~1 us a datagram, ``feed``'s in-order path ~4 us a datagram
@@ -237,27 +237,7 @@ class FrameAssembler:
         list[Frame]
             The frames the batch completes or gives up, in order.
         """
-        if segment_bytes <= 0:
-            raise ValueError(f"segment_bytes must be positive, got {segment_bytes}")
-        view = memoryview(buffer).cast("B")
-        full = len(view) // segment_bytes  # datagrams of the full size
-        count = -(-len(view) // segment_bytes)
-        out: list[Frame] = []
-        i = 0
-        while i < count:
-            if self._filling is not None and full - i >= _MIN_RUN:
-                taken, done = self._in_order_run(view, segment_bytes, i, full - i, recv_ns)
-                if done:
-                    out += done
-                if taken:
-                    i += taken
-                    continue
-            # A view, not a copy: ``feed`` copies what it keeps (the tests overwrite the buffer after each batch).
-            done = self.feed(view[i * segment_bytes:(i + 1) * segment_bytes], recv_ns)
-            if done:
-                out += done
-            i += 1
-        return out
+        return feed_in_runs(buffer, segment_bytes, recv_ns, self.feed, self._in_order_run, _MIN_RUN)
 
     def _in_order_run(self, view: memoryview, segment_bytes: int, first: int, available: int,
                       recv_ns: int) -> tuple[int, list[Frame]]:
@@ -271,6 +251,8 @@ class FrameAssembler:
         datagram taken is one ``feed`` takes the same way. What the frame's chunks must hold is made once
         a frame (``_Partial.runs``); per batch the headers are compared as one array, the CRC32C is one call
         a datagram, and the payloads go into the frame in one strided copy."""
+        if self._filling is None:  # no frame being filled in order: ``feed`` takes the next
+            return 0, []
         wire_counter, n, part, time_ns, radar_id = self._filling
         head = part.header
         size = segment_bytes - header_size(head.version)

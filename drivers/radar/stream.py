@@ -96,6 +96,51 @@ def feed_segments(stream: RadarStream, buffer: memoryview, segment_bytes: int, r
     return frames
 
 
+def feed_in_runs(buffer, segment_bytes: int, receive_ns: int, feed, take_run, min_run: int) -> list:
+    """The loop of a stream's own ``feed_segments``: runs of datagrams taken at once, the rest one by one.
+
+    Parameters
+    ----------
+    buffer : bytes-like
+        The batch: datagrams of ``segment_bytes`` bytes back to back, the last possibly shorter. Not kept.
+    segment_bytes : int
+        Bytes of every datagram but the last (> 0).
+    receive_ns : int
+        The batch's receive stamp (host clock, ns), every datagram's.
+    feed : callable
+        The stream's (or assembler's) ``feed(datagram, receive_ns) -> list``; given a view of one datagram (it
+        copies what it keeps).
+    take_run : callable
+        ``take_run(view, segment_bytes, first, available, receive_ns) -> (taken, frames)``: how many of the
+        ``available`` full-size datagrams from the ``first``-th on it took at once (0: none, ``feed`` takes the
+        next), and the frames that went. It must leave the stream exactly as ``feed`` of each would.
+    min_run : int
+        Fewest full-size datagrams left for ``take_run`` to be tried (shorter runs cost more than they save).
+
+    Returns
+    -------
+    list
+        The frames the batch completed, in order.
+    """
+    if segment_bytes <= 0:
+        raise ValueError(f"segment_bytes must be positive, got {segment_bytes}")
+    view = memoryview(buffer).cast("B")
+    full = len(view) // segment_bytes  # datagrams of the full size
+    count = -(-len(view) // segment_bytes)
+    out: list = []
+    i = 0
+    while i < count:
+        if full - i >= min_run:
+            taken, done = take_run(view, segment_bytes, i, full - i, receive_ns)
+            out += done
+            if taken:
+                i += taken
+                continue
+        out += feed(view[i * segment_bytes:(i + 1) * segment_bytes], receive_ns)
+        i += 1
+    return out
+
+
 def trouble(counters) -> dict[str, int]:
     """The trouble counters of a stream as a dict (for events and health)."""
     return {k: v for k, v in vars(counters).items() if k in TROUBLE_COUNTERS}
