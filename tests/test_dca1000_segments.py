@@ -15,6 +15,8 @@ from hypothesis import strategies as st
 
 from drivers.radar.dca1000 import Dca1000Assembler, Dca1000Stream, _copy_rows, encode_data_packets
 from drivers.radar.ti_cfg import load_ti_cfg
+from segments_harness import batches_cut_anywhere, gro_batches
+from segments_harness import one_by_one_and_batched as compare
 
 FRAME_BYTES = 4 * 4 * 64 * 4  # 4,096: frames are not a whole number of datagrams
 
@@ -58,22 +60,6 @@ def troubled_stream(rnd: random.Random, n_bytes: int = 9 * FRAME_BYTES) -> list[
     return out
 
 
-def batches(rnd: random.Random, stream: list[bytes], most: int) -> list[tuple[bytes, int]]:
-    """As GRO makes them: consecutive datagrams of one size, at most 1 to ``most``, a shorter one last."""
-    out = []
-    i = 0
-    while i < len(stream):
-        size, limit = len(stream[i]), rnd.randint(1, most)
-        j = i + 1
-        while j < len(stream) and j - i < limit and len(stream[j]) <= size:
-            j += 1
-            if len(stream[j - 1]) < size:
-                break
-        out.append((b"".join(stream[i:j]), size))
-        i = j
-    return out
-
-
 def state(asm: Dca1000Assembler):
     """What an assembler holds between datagrams: counters, where the stream stands, the frames pending."""
     pending = {k: (bytes(buf), have.tobytes(), first) for k, (buf, have, first) in asm._frames.items()}
@@ -85,29 +71,9 @@ def record(f):
 
 
 def one_by_one_and_batched(cut: list[tuple[bytes, int]], flush_every: int = 0):
-    """Feed the batches' datagrams one at a time (each with its batch's time) to one assembler and the
-    batches whole (through a buffer overwritten after each call, as the receiver's is) to another; after
-    every batch the frames that came out of it and the assemblers' states must be the same. A ``flush``
-    every ``flush_every`` batches (0: at the end only). The frames of each."""
+    """``segments_harness.one_by_one_and_batched`` for two DCA1000 assemblers."""
     single, batched = Dca1000Assembler(FRAME_BYTES), Dca1000Assembler(FRAME_BYTES)
-    a, b = [], []
-    buffer = bytearray(max((len(data) for data, _ in cut), default=0))
-    for k, (data, size) in enumerate(cut):
-        recv_ns = 9_000 + 3 * k
-        got_a = [f for o in range(0, len(data), size) for f in single.feed(data[o:o + size], recv_ns)]
-        buffer[:len(data)] = data
-        got_b = batched.feed_segments(memoryview(buffer)[:len(data)], size, recv_ns)
-        buffer[:] = b"\x5a" * len(buffer)
-        if flush_every and k % flush_every == flush_every - 1:
-            got_a += single.flush()
-            got_b += batched.flush()
-        a += [record(f) for f in got_a]
-        b += [record(f) for f in got_b]
-        assert b == a and state(batched) == state(single), f"after batch {k}"
-    a += [record(f) for f in single.flush()]
-    b += [record(f) for f in batched.flush()]
-    assert b == a and state(batched) == state(single)
-    return a, single.counters
+    return compare(single, batched, cut, record, state, flush_every, 9_000, 3, b"\x5a")
 
 
 @settings(max_examples=150, deadline=None)
@@ -115,7 +81,7 @@ def one_by_one_and_batched(cut: list[tuple[bytes, int]], flush_every: int = 0):
 def test_batches_give_exactly_the_frames_and_counters_of_one_datagram_at_a_time(seed, most):
     rnd = random.Random(seed)
     stream = troubled_stream(rnd)
-    frames, counters = one_by_one_and_batched(batches(rnd, stream, most), rnd.choice((0, 0, 7)))
+    frames, counters = one_by_one_and_batched(gro_batches(rnd, stream, most), rnd.choice((0, 0, 7)))
     assert counters.datagrams == len(stream) and frames
 
 
@@ -124,13 +90,7 @@ def test_batches_give_exactly_the_frames_and_counters_of_one_datagram_at_a_time(
 def test_batches_cut_anywhere_even_against_gro_give_the_same_frames(seed):
     rnd = random.Random(seed)
     stream = troubled_stream(rnd, 5 * FRAME_BYTES)
-    cut = []
-    i = 0
-    while i < len(stream):
-        j = min(len(stream), i + rnd.randint(1, 64))
-        size = rnd.choice((len(stream[i]), rnd.randint(1, 1500)))
-        cut.append((b"".join(stream[i:j]), size))
-        i = j
+    cut = batches_cut_anywhere(rnd, stream, 1500)
     frames, counters = one_by_one_and_batched(cut)
     assert counters.datagrams == sum(-(-len(data) // size) for data, size in cut)
 

@@ -13,6 +13,8 @@ from hypothesis import strategies as st
 
 from drivers.radar.srf1 import HEADER, MAGIC, FrameAssembler, Srf1Stream, encode_frame, parse
 from drivers.radar.srf1_datagram import CRC, _crc, payload_seeds
+from segments_harness import batches_cut_anywhere, gro_batches
+from segments_harness import one_by_one_and_batched as compare
 
 SHAPE = (16, 4, 64, 2)
 FRAME_BYTES = int(np.prod(SHAPE)) * 2  # 16,384
@@ -69,24 +71,6 @@ def troubled_stream(rnd: random.Random, n_frames: int = 7) -> list[bytes]:
     return stream
 
 
-def batches(rnd: random.Random, stream: list[bytes], most: int) -> list[tuple[bytes, int]]:
-    """``stream`` cut into batches as GRO makes them: consecutive datagrams of one size, at most ``most``
-    (each batch's own limit drawn from 1 to ``most``), a shorter datagram ending its batch. (buffer,
-    segment_bytes) each."""
-    out = []
-    i = 0
-    while i < len(stream):
-        size, limit = len(stream[i]), rnd.randint(1, most)
-        j = i + 1
-        while j < len(stream) and j - i < limit and len(stream[j]) <= size:
-            j += 1
-            if len(stream[j - 1]) < size:
-                break
-        out.append((b"".join(stream[i:j]), max(size, 1)))
-        i = j
-    return out
-
-
 def frame_record(f):
     return (f.frame_counter, f.frame_time_ns, bytes(f.data), f.valid, f.bytes_missing, f.ptp_locked, f.last_receive_ns)
 
@@ -101,31 +85,9 @@ def state(asm: FrameAssembler):
 
 
 def one_by_one_and_batched(cut: list[tuple[bytes, int]], flush_every: int = 0, radar_id=7):
-    """Feed the batches' datagrams one at a time (each with its batch's time) to one assembler and the
-    batches whole (through a buffer overwritten after each call, as the receiver's is) to another; after
-    every batch the frames that came out of it and the assemblers' states must be the same. ``expire`` after
-    each batch, a ``flush`` every ``flush_every`` batches (0: at the end only). The frames and counters."""
+    """``segments_harness.one_by_one_and_batched`` for two SRF1 assemblers, ``expire`` after each batch."""
     single, batched = FrameAssembler(FRAME_BYTES, radar_id=radar_id), FrameAssembler(FRAME_BYTES, radar_id=radar_id)
-    a, b = [], []
-    buffer = bytearray(max((len(data) for data, _ in cut), default=0))
-    for k, (data, size) in enumerate(cut):
-        recv_ns = 5_000 + 7 * k
-        got_a = [f for o in range(0, len(data), size) for f in single.feed(data[o:o + size], recv_ns)]
-        buffer[:len(data)] = data
-        got_b = batched.feed_segments(memoryview(buffer)[:len(data)], size, recv_ns)
-        buffer[:] = b"\xa5" * len(buffer)  # the receiver's next batch: nothing kept may point here
-        got_a += single.expire(recv_ns + 100_000_000)
-        got_b += batched.expire(recv_ns + 100_000_000)
-        if flush_every and k % flush_every == flush_every - 1:
-            got_a += single.flush()
-            got_b += batched.flush()
-        a += [frame_record(f) for f in got_a]
-        b += [frame_record(f) for f in got_b]
-        assert b == a and state(batched) == state(single), f"after batch {k}"
-    a += [frame_record(f) for f in single.flush()]
-    b += [frame_record(f) for f in batched.flush()]
-    assert b == a and state(batched) == state(single)
-    return a, single.counters
+    return compare(single, batched, cut, frame_record, state, flush_every, 5_000, 7, b"\xa5", 100_000_000)
 
 
 @settings(max_examples=150, deadline=None)
@@ -133,7 +95,7 @@ def one_by_one_and_batched(cut: list[tuple[bytes, int]], flush_every: int = 0, r
 def test_batches_give_exactly_the_frames_and_counters_of_one_datagram_at_a_time(seed, most):
     rnd = random.Random(seed)
     stream = troubled_stream(rnd)
-    frames, counters = one_by_one_and_batched(batches(rnd, stream, most), rnd.choice((0, 0, 9)))
+    frames, counters = one_by_one_and_batched(gro_batches(rnd, stream, most), rnd.choice((0, 0, 9)))
     assert counters.datagrams == len(stream) and frames
 
 
@@ -144,13 +106,7 @@ def test_batches_cut_anywhere_even_against_gro_give_the_same_frames(seed):
     datagram's (the buffer re-cut at it) is still fed as those segments would be one by one."""
     rnd = random.Random(seed)
     stream = troubled_stream(rnd, 5)
-    cut = []
-    i = 0
-    while i < len(stream):
-        j = min(len(stream), i + rnd.randint(1, 64))
-        size = rnd.choice((len(stream[i]), rnd.randint(1, 400)))
-        cut.append((b"".join(stream[i:j]), size))
-        i = j
+    cut = batches_cut_anywhere(rnd, stream, 400)
     _, counters = one_by_one_and_batched(cut)
     assert counters.datagrams == sum(-(-len(data) // size) for data, size in cut)
 
