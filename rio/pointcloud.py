@@ -186,8 +186,7 @@ class PointCloudDetector:
         if self._cfar_buffers is None or self._cfar_buffers[0].shape != power.shape:
             work = [np.empty(power.shape, np.float32) for _ in range(3)]
             self._cfar_buffers = (np.empty(power.shape), *work, np.empty(power.shape[1]))
-        (gd, gr), (td, tr) = config.guard_cells, config.training_cells
-        outer, inner = (2 * (gd + td) + 1, 2 * (gr + tr) + 1), (2 * gd + 1, 2 * gr + 1)
+        outer, inner = _cfar_boxes(config)
         noise = self._cfar_buffers[0]
         d, r = ca_cfar_peaks(np.ascontiguousarray(power, np.float32), outer, inner,
                              10 ** (config.threshold_db / 10), *self._cfar_buffers)
@@ -207,12 +206,15 @@ def _chirps_of_each_tx(tx_order, n_tx: int, n_chirps: int) -> np.ndarray:
     return np.stack(per_tx, axis=1)
 
 
+def _cfar_boxes(config: PointCloudConfig) -> tuple[tuple[int, int], tuple[int, int]]:
+    """The CFAR's boxes (Doppler, range) in cells: the training ring's outer edge and the guard within it."""
+    (gd, gr), (td, tr) = config.guard_cells, config.training_cells
+    return (2 * (gd + td) + 1, 2 * (gr + tr) + 1), (2 * gd + 1, 2 * gr + 1)
+
+
 def cfar_2d(power: np.ndarray, config: PointCloudConfig) -> tuple[np.ndarray, np.ndarray]:
     """Detections (boolean mask) and the noise estimate of a range-Doppler power map [Doppler, range]."""
-    gd, gr = config.guard_cells
-    td, tr = config.training_cells
-    outer = (2 * (gd + td) + 1, 2 * (gr + tr) + 1)
-    inner = (2 * gd + 1, 2 * gr + 1)
+    outer, inner = _cfar_boxes(config)
     if config.cfar == "ca":
         # Mean of the training ring: (sum over the outer box - sum over the guard box) / cells in the ring.
         # Doppler wraps around; range does not.
@@ -220,6 +222,7 @@ def cfar_2d(power: np.ndarray, config: PointCloudConfig) -> tuple[np.ndarray, np
         s_in = scipy.ndimage.uniform_filter(power, inner, mode=("wrap", "nearest")) * np.prod(inner)
         noise = (s_out - s_in) / (np.prod(outer) - np.prod(inner))
     elif config.cfar == "os":
+        td, tr = config.training_cells
         footprint = np.ones(outer, bool)
         footprint[td:td + inner[0], tr:tr + inner[1]] = False
         noise = scipy.ndimage.percentile_filter(power, 100 * config.os_rank, footprint=footprint, mode="wrap")
