@@ -38,7 +38,8 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from drivers.radar.dca1000 import Dca1000Assembler, encode_data_packets  # noqa: E402
-from drivers.radar.srf1 import PackedEncoder, Srf1Stream  # noqa: E402
+from driver_cpu_per_frame import frames_datagrams  # noqa: E402
+from drivers.radar.srf1 import Srf1Stream  # noqa: E402
 from imaging.core.waveform import Waveform  # noqa: E402
 from results_file import load_average, probe_machine, write_results  # noqa: E402
 
@@ -46,17 +47,10 @@ DCA_FRAME_BYTES = 128 * 4 * 256 * 4
 
 
 def srf1_frames(n_frames: int, waveform: Waveform) -> tuple[list[bytes], list[tuple[np.ndarray, int]]]:
-    """The wire bytes of ``n_frames`` distinct frames and each frame's datagrams packed: (buffer, size)."""
-    shape = (waveform.chirps_per_frame, waveform.n_rx, waveform.samples_per_chirp, 2)
-    rng = np.random.default_rng(0)
-    encoder = PackedEncoder(1)
-    wire, packed = [], []
-    for k in range(n_frames):
-        iq = rng.integers(-2048, 2048, shape, dtype=np.int16)
-        p = encoder(k, 1_700_000_000_000_000_000 + k * 52_000_000, iq)
-        wire.append(iq.tobytes())
-        packed.append((p.data.copy(), p.size))  # the encoder's buffer holds until its next call
-    return wire, packed
+    """The wire bytes of ``n_frames`` distinct frames and each frame's datagrams packed: (buffer, size); the
+    frames of ``driver_cpu_per_frame.frames_datagrams``."""
+    iqs, packed = frames_datagrams(n_frames, waveform)
+    return [iq.tobytes() for iq in iqs], [(p.data, p.size) for p in packed]
 
 
 def srf1_batches(packed: tuple[np.ndarray, int], most: int) -> list[tuple[memoryview, int]]:
