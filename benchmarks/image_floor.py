@@ -189,7 +189,7 @@ class Case:
                              "--grid", grid_text, "--overwrite"]
         self.size = {"profiles": int(self.profiles[0].data.shape[0]), "grid_points": int(self.points.size // 3),
                      "grid": grid_text}
-        self.kernel()  # compiled or loaded
+        self._bp(*self.profiles, self.points[:2, :2])  # compiled or loaded
         if warm_command:  # numba's cache, sarbot's byte code, the page cache (once per recording)
             self.command()
 
