@@ -143,6 +143,13 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                             "parts: the command's own stage times and 8 images in one process; on whatever load the "
                             "JSON records (11-13 on 2 cores when committed: its fractions are the load's).",
                             ".venv/bin/python benchmarks/image_command.py --quick --no-baseline"),
+    "image_floor": ("How close any new process can get to the kernel",
+                    "New processes that each do strictly less than `sarbot image` and no backprojection (the interpreter; "
+                    "numpy; h5py and the frames read; their range compression as form_image does it; numba's kernel "
+                    "loaded), the command and the kernel alone, interleaved: the bound on the command's fraction of "
+                    "the kernel for any backprojector that range-compresses in its own process, and the kernel time "
+                    "at which 85 % becomes possible; on whatever load the JSON records.",
+                    ".venv/bin/python benchmarks/image_floor.py"),
     "command_end": ("How a `sarbot image` process ends",
                     "The command ended at once after its files are closed (exit handlers, streams flushed, os._exit) "
                     "against the interpreter's usual teardown, alternating, each a new process on the benchmark case: "
