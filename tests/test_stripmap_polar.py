@@ -15,6 +15,7 @@ from imaging.stripmap import StripMap, StripMapConfig
 from imaging.stripmap.polar import (
     TAPS,
     FrameBeams,
+    _cis,
     _extent,
     _table,
     _weights,
@@ -46,6 +47,25 @@ def test_extent_is_numpys():
     d = pts - c
     r = np.linalg.norm(d, axis=1)
     assert np.allclose(_extent(pts, c, u), (r.min(), r.max(), (d @ u / r).min(), (d @ u / r).max()))
+
+
+def test_cis_is_numpys_exp():
+    """The kernels' exp(j x) against numpy's to 1e-15 over a pixel's phases (up to 1e5 rad), small ones, and
+    every quadrant's edges (multiples of pi / 4 either side of a rounding)."""
+    import numba
+
+    @numba.njit
+    def each(x):
+        out = np.empty(x.size, np.complex128)
+        for i in range(x.size):
+            out[i] = _cis(x[i])
+        return out
+
+    rng = np.random.default_rng(5)
+    edges = np.arange(-4000, 4001) * (np.pi / 4)
+    x = np.concatenate([rng.uniform(-1e5, 1e5, 100_000), rng.uniform(-4, 4, 10_000), edges,
+                        np.nextafter(edges, np.inf), np.nextafter(edges, -np.inf), [0.0, -0.0]])
+    np.testing.assert_allclose(each(x), np.exp(1j * x), rtol=0, atol=1e-15)
 
 
 def test_weights_are_numpys():
