@@ -65,7 +65,9 @@ class FrameBeams:
     ``signals`` [2 x beams, bins], the beams' main signals then their slope signals, are range-compressed
     (two-way range ``range_step_m`` per bin) and carry each beam's exp(-j k ``shift_m``); a pixel at range
     r, angle alpha from ``centre_m`` reads them at 2 r + ``shift_m`` + ``shift_slope_m`` x eps, eps = 1/r -
-    ``inv_r_mid``, takes main - j k eps slope and restores exp(-j k (2 r + ``shift_slope_m`` eps))."""
+    ``inv_r_mid``, takes main - j k eps slope and restores exp(-j k (2 r + ``shift_slope_m`` eps)). Beam a
+    lies at angle ``alpha0`` + a ``dalpha``; only those from ``first_beam`` on are held (row a -
+    ``first_beam``): the ones below it no pixel reads."""
 
     centre_m: np.ndarray  # [3]
     axis: np.ndarray  # [3], horizontal, across the look
@@ -77,6 +79,7 @@ class FrameBeams:
     signals: np.ndarray  # complex64 [2 x beams, bins]
     shift_m: np.ndarray  # float64 [beams]
     shift_slope_m: np.ndarray  # float64 [beams]
+    first_beam: int = 0
 
 
 def plane_points(centre: np.ndarray, axis: np.ndarray, normal: np.ndarray, r: np.ndarray, alpha: np.ndarray,
@@ -132,9 +135,17 @@ def frame_beams_over(samples: np.ndarray, tx_m: np.ndarray, rx_m: np.ndarray, ex
     # The angular band: the phase of profile p changes with alpha by k (its two antennas' offset along u).
     reach = np.abs(((tx_m - centre) + (rx_m - centre)) @ axis).max()
     dalpha = math.pi / (k_max * max(reach, 1e-4) * OVERSAMPLE_ANGLE)
-    lo = a_min - (TAPS // 2 + 1) * dalpha
-    beams = int(math.ceil((a_max + (TAPS // 2 + 1) * dalpha - lo) / dalpha)) + 1
-    alpha_a = np.clip(lo + dalpha * np.arange(beams), -0.999, 0.999)
+    margin = TAPS // 2 + 1
+    lo = a_min - margin * dalpha
+    beams = int(math.ceil((a_max + margin * dalpha - lo) / dalpha)) + 1
+    # Only the beams a pixel reads: a pixel at fa = (alpha - lo) / dalpha reads floor(fa) - TAPS // 2 + 1 to
+    # floor(fa) + TAPS // 2, and fa runs from ``margin`` to (a_max - lo) / dalpha, each end a rounding either
+    # way (the kernels' fastmath); the grid's margin kept a beam below and one or two above that nobody read
+    # (3 of the soak's 20 beams: their weights, product rows and range compressions).
+    first = margin - TAPS // 2
+    last = min(beams, int(math.floor((a_max - lo) / dalpha)) + TAPS // 2 + 2)
+    alpha_a = np.clip(lo + dalpha * np.arange(beams), -0.999, 0.999)[first:last]
+    beams = alpha_a.size
     r_far = max(r_far, r_near + 1e-3)
     inv_mid = 0.5 * (1 / r_near + 1 / r_far)
     weights = np.empty((samples.shape[0], 3 * beams), np.complex64)
@@ -152,7 +163,7 @@ def frame_beams_over(samples: np.ndarray, tx_m: np.ndarray, rx_m: np.ndarray, ex
     _beam_signals(both, z, dk, turn, np.float32(k_c))
     prof = range_compress(both, f0_hz, frequency_step_hz, window=window, oversample=oversample, keep_samples=False)
     return FrameBeams(centre, axis, float(lo), float(dalpha), inv_mid, k_c, prof.range_step_m, prof.data, shift,
-                      shift_slope)
+                      shift_slope, first)
 
 
 @contextlib.contextmanager
@@ -202,7 +213,7 @@ def beams_at_masked(beams: FrameBeams, x: np.ndarray, y: np.ndarray, z_m: float,
     out = np.zeros(int(np.count_nonzero(masks)), np.complex128)
     _beams_at_masked(out, np.ascontiguousarray(x, np.float64), np.ascontiguousarray(y, np.float64), float(z_m), masks,
                      beams.centre_m, beams.axis, beams.alpha0, beams.dalpha, beams.inv_r_mid, beams.k_rad_per_m,
-                     beams.range_step_m, beams.signals, beams.shift_m, beams.shift_slope_m, _table())
+                     beams.range_step_m, beams.signals, beams.shift_m, beams.shift_slope_m, beams.first_beam, _table())
     return out
 
 
@@ -211,7 +222,7 @@ def beams_at_points(beams: FrameBeams, pts: np.ndarray) -> np.ndarray:
     out = np.zeros(pts.shape[0], np.complex128)
     _beams_at_points(out, np.ascontiguousarray(pts, np.float64), beams.centre_m, beams.axis, beams.alpha0,
                      beams.dalpha, beams.inv_r_mid, beams.k_rad_per_m, beams.range_step_m, beams.signals, beams.shift_m,
-                     beams.shift_slope_m, _table())
+                     beams.shift_slope_m, beams.first_beam, _table())
     return out
 
 
@@ -314,7 +325,7 @@ def _table() -> np.ndarray:
 
 
 @numba.njit(fastmath=True, cache=True, nogil=True)
-def _beams_at_points(out, pts, c, u, alpha0, dalpha, inv_r_mid, k, step, signals, shift, shift_slope, table):
+def _beams_at_points(out, pts, c, u, alpha0, dalpha, inv_r_mid, k, step, signals, shift, shift_slope, first, table):
     """Each pixel: ``TAPS`` beams around its angle, each read linearly at the pixel's range (its own shift),
     the phase exp(-j k (2 r + shift_slope eps)) restored once (the beams' exp(-j k shift) is in ``signals``;
     shift_slope changes by about a milliradian of phase across the taps, so the middle tap's stands for all)."""
@@ -322,11 +333,12 @@ def _beams_at_points(out, pts, c, u, alpha0, dalpha, inv_r_mid, k, step, signals
     shift_bins, slope_bins = shift * inv_step, shift_slope * inv_step
     for i in range(pts.shape[0]):
         out[i] = _beam_pixel(pts[i, 0], pts[i, 1], pts[i, 2], c, u, alpha0, dalpha, inv_r_mid, k, inv_step, signals,
-                             shift_bins, slope_bins, shift_slope, table)
+                             shift_bins, slope_bins, shift_slope, first, table)
 
 
 @numba.njit(fastmath=True, cache=True, nogil=True)
-def _beams_at_masked(out, x, y, z, masks, c, u, alpha0, dalpha, inv_r_mid, k, step, signals, shift, shift_slope, table):
+def _beams_at_masked(out, x, y, z, masks, c, u, alpha0, dalpha, inv_r_mid, k, step, signals, shift, shift_slope, first,
+                     table):
     """``_beams_at_points`` over the masked pixels of tiles, in their pixel list's order."""
     inv_step = 1.0 / step
     shift_bins, slope_bins = shift * inv_step, shift_slope * inv_step
@@ -336,14 +348,14 @@ def _beams_at_masked(out, x, y, z, masks, c, u, alpha0, dalpha, inv_r_mid, k, st
             for j in range(masks.shape[2]):
                 if masks[t, i, j]:
                     out[n] = _beam_pixel(x[t, j], y[t, i], z, c, u, alpha0, dalpha, inv_r_mid, k, inv_step, signals,
-                                         shift_bins, slope_bins, shift_slope, table)
+                                         shift_bins, slope_bins, shift_slope, first, table)
                     n += 1
 
 
 @numba.njit(fastmath=True, cache=True, nogil=True, inline="always")
 def _beam_pixel(px, py, pz, c, u, alpha0, dalpha, inv_r_mid, k, inv_step, signals, shift_bins, slope_bins, shift_slope,
-                table):
-    """One pixel's value (0 outside the beams)."""
+                first, table):
+    """One pixel's value (0 outside the beams held: beam a is row a - ``first``)."""
     taps = table.shape[1]
     nf = table.shape[0] - 1
     nb, bins = signals.shape[0] // 2, signals.shape[1]
@@ -351,7 +363,8 @@ def _beam_pixel(px, py, pz, c, u, alpha0, dalpha, inv_r_mid, k, inv_step, signal
     r = math.sqrt(dx * dx + dy * dy + dz * dz)
     fa = ((dx * u[0] + dy * u[1] + dz * u[2]) / r - alpha0) / dalpha
     ia = math.floor(fa)
-    j0 = int(ia) - taps // 2 + 1
+    mid = int(ia) - first
+    j0 = mid - taps // 2 + 1
     if j0 < 0 or j0 + taps > nb:
         return 0j
     w = table[int((fa - ia) * nf + 0.5)]
@@ -373,7 +386,7 @@ def _beam_pixel(px, py, pz, c, u, alpha0, dalpha, inv_r_mid, k, inv_step, signal
         re += wt * (m.real - gain * s.imag)
         im += wt * (m.imag + gain * s.real)
     main = complex(re, im)
-    return main * _cis(-k * (2.0 * r + shift_slope[int(ia)] * eps))
+    return main * _cis(-k * (2.0 * r + shift_slope[mid] * eps))
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
