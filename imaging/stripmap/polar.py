@@ -36,7 +36,9 @@ import numpy as np
 
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.ffbp_interpolation import interpolation_table
-from imaging.range_compression import range_compress
+from imaging.core.windows import get_window
+from imaging.pocketfft import fft_in_place
+from imaging.range_compression import range_bin_spacing_m
 from imaging.numba_target import prefer_full_width_vectors
 
 prefer_full_width_vectors()  # before this module's first numba function (imaging/numba_target.py)
@@ -159,11 +161,23 @@ def frame_beams_over(samples: np.ndarray, tx_m: np.ndarray, rx_m: np.ndarray, ex
     dk = (2 * math.pi * frequency_step_hz / SPEED_OF_LIGHT_MPS * (np.arange(n) - m)).astype(np.float32)
     # each beam's mean range shift as its phase exp(-j k shift), here once per beam, not per pixel and tap
     turn = np.exp(-1j * k_c * shift).astype(np.complex64)
-    both = np.empty((2 * beams, n), np.complex64)
-    _beam_signals(both, z, dk, turn, np.float32(k_c))
-    prof = range_compress(both, f0_hz, frequency_step_hz, window=window, oversample=oversample, keep_samples=False)
-    return FrameBeams(centre, axis, float(lo), float(dalpha), inv_mid, k_c, prof.range_step_m, prof.data, shift,
-                      shift_slope, first)
+    # Range compression as ``range_compress`` does it (window, zero padding to oversample x n, centred on sample
+    # m, the FFT in place), the same numbers; the beam signals written windowed straight into the padded rows.
+    n_fft = oversample * n
+    rows = np.zeros((2 * beams, n_fft), np.complex64)
+    _beam_signals(rows, z, dk, turn, np.float32(k_c), _window(window, n), m)
+    fft_in_place(rows)
+    return FrameBeams(centre, axis, float(lo), float(dalpha), inv_mid, k_c, range_bin_spacing_m(n_fft, frequency_step_hz),
+                      rows, shift, shift_slope, first)
+
+
+@functools.lru_cache(maxsize=8)
+def _window(name: str, n: int) -> np.ndarray:
+    """``range_compress``'s window: normalised to unit sum, float32 (read-only, shared)."""
+    w = get_window(name, n)
+    w = (w / w.sum()).astype(np.float32)
+    w.flags.writeable = False
+    return w
 
 
 @contextlib.contextmanager
@@ -302,20 +316,26 @@ def _weights(out, shift, shift_slope, tx, rx, c, u, nrm, z, alpha, r_near, r_far
 
 
 @numba.njit(cache=True, nogil=True)
-def _beam_signals(out, z, dk, turn, k_c):
-    """The beams' main and slope signals [2 x beams, n] from the product z [3 x beams, n] (main, d and s
-    weights' rows; see the module's docstring), as numpy's complex64 arithmetic gave them to float32 rounding,
-    in one pass instead of six numpy temporaries and a transposing copy: main = (z_1 - j dk z_d) turn, slope = (1 +
-    dk / k_c) z_s turn (k_n / k_c: the slope's phase is k_n s eps)."""
+def _beam_signals(out, z, dk, turn, k_c, w, m):
+    """The beams' main and slope signals from the product z [3 x beams, n] (main, d and s weights' rows; see
+    the module's docstring), as numpy's complex64 arithmetic gave them to float32 rounding, in one pass instead
+    of six numpy temporaries and a transposing copy: main = (z_1 - j dk z_d) turn, slope = (1 + dk / k_c) z_s
+    turn (k_n / k_c: the slope's phase is k_n s eps). Each sample i is written times the window w[i] into
+    ``out`` [2 x beams, n_fft] (zeros elsewhere) at i - m modulo n_fft, where ``range_compress`` puts it: its
+    centring, and its product with the window, float32 by float32 as numpy's complex64 by float32."""
     nb, n = turn.size, z.shape[1]
+    n_fft = out.shape[1]
     for a in range(nb):
         t = turn[a]
         for i in range(n):
             d = dk[i]
             zd = z[nb + a, i]
             main = complex(z[a, i].real + d * zd.imag, z[a, i].imag - d * zd.real)
-            out[a, i] = main * t
-            out[nb + a, i] = (np.float32(1.0) + d / k_c) * z[2 * nb + a, i] * t
+            v = np.complex64(main * t)
+            e = np.complex64((np.float32(1.0) + d / k_c) * z[2 * nb + a, i] * t)
+            j = i - m if i >= m else n_fft - m + i
+            out[a, j] = complex(v.real * w[i], v.imag * w[i])
+            out[nb + a, j] = complex(e.real * w[i], e.imag * w[i])
 
 
 def _table() -> np.ndarray:
