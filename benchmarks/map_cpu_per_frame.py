@@ -139,44 +139,53 @@ def compare_maps(base, now) -> dict:
 
 
 def range_window_of_beams(rec, rig, map_config, reps: int = 200) -> dict:
-    """A live frame's beams (left_front's frame 100): how many of their bins the pixels need, and the beams'
-    range compression over only those (chirp-z) against every bin (the FFT), CPU per frame."""
-    from imaging.core.windows import get_window
-    from imaging.range_compression import range_bin_spacing_m, range_compress
+    """A live frame's beams (left_front's, 4 s into the lap): how many of their bins the pixels need, and their
+    range compression over only those (a chirp-z transform) against every bin (the zero-padded FFT, as
+    ``frame_beams_over`` does it), CPU per frame; the windowed beam signals taken as the FFT gets them."""
+    from imaging.pocketfft import fft_in_place
+    from imaging.range_compression import range_bin_spacing_m
     from imaging.range_window import needed_bins, worth_it, zoom_spectrum
     from imaging.stripmap import StripMap
 
     captured = {}
-    original = polar_now.range_compress
+    original = polar_now.fft_in_place
 
-    def spy(both, *args, **kwargs):
-        captured.setdefault("both", both.copy())
-        return original(both, *args, **kwargs)
+    def spy(rows, *args, **kwargs):
+        captured.setdefault("rows", rows.copy())
+        return original(rows, *args, **kwargs)
 
     radar = rig.radar("left_front")
     truth = rec.truth()
     sm = StripMap(map_config)
-    polar_now.range_compress = spy
+    polar_now.fft_in_place = spy
     try:
         k = int(np.searchsorted(rec.frame_time_ns("left_front"), truth.time_ns[0] + int(4e9)))
         sm.add_frames(radar, radar.waveform.tdm_tx_order(), [rec.adc_iq("left_front", slice(k, k + 1))[0]],
                       [int(rec.frame_time_ns("left_front")[k])], truth)
     finally:
-        polar_now.range_compress = original
-    both = captured["both"]
+        polar_now.fft_in_place = original
+    rows = captured["rows"]
     wf = radar.waveform
-    n = both.shape[1]
-    n_fft = map_config.oversample * n
+    n = wf.samples_per_chirp
+    n_fft = rows.shape[1]
+    m = (n - 1) // 2
+    pos = (np.arange(n) - m) % n_fft
+    windowed = np.ascontiguousarray(rows[:, pos])  # sample i sits at i - m modulo n_fft
     step = range_bin_spacing_m(n_fft, wf.frequency_step_hz)
-    # the footprint's two-way ranges: 2 x (range_min .. range_max and the aperture's half-width across)
+    # the footprint's two-way ranges: 2 x (range_min .. range_max with the aperture's half-width across)
     k0, k1 = needed_bins(2 * map_config.range_min_m, 2 * np.hypot(map_config.range_max_m, map_config.aperture_m / 2),
                          step, n_fft)
-    w = get_window(map_config.window, n)
-    w = (w / w.sum()).astype(np.float32)
-    out = np.empty((both.shape[0], k1 - k0), np.complex64)
-    full = lambda: range_compress(both, wf.f0_hz, wf.frequency_step_hz, window=map_config.window,  # noqa: E731
-                                  oversample=map_config.oversample, keep_samples=False)
-    window = lambda: zoom_spectrum(both, w, (n - 1) // 2, n_fft, k0, out)  # noqa: E731
+    ones = np.ones(n, np.float32)  # the window is in the samples already
+    out = np.empty((rows.shape[0], k1 - k0), np.complex64)
+
+    def full():
+        padded = np.zeros_like(rows)
+        padded[:, pos] = windowed
+        return fft_in_place(padded)
+
+    def window():
+        return zoom_spectrum(windowed, ones, m, n_fft, k0, out)
+
     cpu = {"full FFT": [], "chirp-z window": []}
     for _ in range(3):
         for name, f in (("full FFT", full), ("chirp-z window", window)):
@@ -185,10 +194,10 @@ def range_window_of_beams(rec, rig, map_config, reps: int = 200) -> dict:
             for _ in range(reps):
                 f()
             cpu[name].append((time.process_time() - t0) / reps * 1e3)
-    ref = full().data[:, k0:k1]
+    ref = full()[:, k0:k1]
     got = window()
     ser = float(10 * np.log10(np.sum(np.abs(ref) ** 2) / np.sum(np.abs(got - ref) ** 2)))
-    return {"beam_rows": int(both.shape[0]), "samples": int(n), "n_fft": int(n_fft), "bins_needed": [int(k0), int(k1)],
+    return {"beam_rows": int(rows.shape[0]), "samples": int(n), "n_fft": int(n_fft), "bins_needed": [int(k0), int(k1)],
             "fraction_of_bins": (k1 - k0) / n_fft, "worth_it": bool(worth_it(n, n_fft, k1 - k0)),
             "cpu_ms_per_frame": {k: float(np.median(v)) for k, v in cpu.items()},
             "cpu_ms_per_frame_each": cpu, "window_ser_db_against_full": ser}
@@ -199,11 +208,13 @@ def main(argv: list[str]) -> int:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--baseline", default=BASELINE, help=f"the commit to compare with (default {BASELINE})")
-    ap.add_argument("--rounds", type=int, default=4, help="rounds per case (default 4)")
+    ap.add_argument("--rounds", type=int, default=4, help="rounds per case (default 4, at least 1)")
     ap.add_argument("--seconds", type=float, default=12.0, help="of the soak's lap simulated (default 12)")
     ap.add_argument("--work", help="folder for the simulated scene, kept for later runs (default: a new temporary one)")
     ap.add_argument("--name", default="map_cpu_per_frame", help="the results file's stem")
     args = ap.parse_args(argv)
+    if args.rounds < 1:
+        ap.error(f"--rounds {args.rounds}: at least 1")
     started_load = load_average()
     probe_machine()
     numba.set_num_threads(1)  # the worker's kernel threads (--map-threads 1)
@@ -221,6 +232,8 @@ def main(argv: list[str]) -> int:
                                            text=True).stdout.split(),
            "cases": {}}
     with Recording(path) as rec:
+        out["range_window_of_beams"] = range_window_of_beams(rec, rig, map_config)
+        print("range window of the beams:", out["range_window_of_beams"], flush=True)
         for case, radars in (("one radar", ["left_front"]), ("four radars", capacity.RADARS)):
             rows = []
             for r in range(args.rounds):
@@ -253,8 +266,6 @@ def main(argv: list[str]) -> int:
                 "maps_bit_for_bit": all(row["maps"]["bit_for_bit"] for row in rows),
                 "maps_worst_ser_db": min((row["maps"]["ser_db"] for row in rows if row["maps"]["ser_db"] is not None),
                                          default=None)}
-        out["range_window_of_beams"] = range_window_of_beams(rec, rig, map_config)
-        print("range window of the beams:", out["range_window_of_beams"], flush=True)
     out["commit"] = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
                                    text=True).stdout.strip()
     out.update(cpu_count=os.cpu_count(), numba_threads=1)
