@@ -128,7 +128,7 @@ TIMED = [
     (stripmap_map, "antenna_track", "antenna placement"),
     (imaging.profiles, "antenna_track", "antenna placement"),
     (stripmap_map, "chirp_profiles", "range compression (direct: profiles)"),
-    (stripmap_polar, "range_compress", "range compression (polar: beam signals)"),
+    (stripmap_polar, "fft_in_place", "range compression (polar: beam signals' FFT)"),
     (stripmap_polar, "_weights", "polar beams: weights"),
     (stripmap_polar, "_extent", "polar beams: pixel extent"),
     (stripmap_map, "masked_extent", "polar beams: pixel extent"),

@@ -212,6 +212,14 @@ SECTIONS: dict[str, tuple[str, str, str]] = {
                         "workers taking every message in turn in one process: the main thread's CPU per frame, the "
                         "ratio per round, and the largest difference between the two maps below the peak.",
                         ".venv/bin/python benchmarks/stripmap_presum.py --rounds 4"),
+    "map_cpu_per_frame": ("The live map worker's CPU per frame, one radar and four, a baseline commit against the checkout",
+                          "The daemon's strip-map worker on the soak's frames (stripmap_capacity's scene and messages), "
+                          "the baseline's imaging/stripmap/polar.py and map.py (loaded from git) against the checkout's, "
+                          "two workers taking every message in turn in one process: process and thread CPU beside wall "
+                          "time per frame, the ratio per round, for one radar and for the four-radar mix; the maps bit "
+                          "for bit or their SER; and the beams' range compression over only the bins their pixels need "
+                          "(chirp-z) against the full FFT. Loaded (the load is in the JSON).",
+                          ".venv/bin/python benchmarks/map_cpu_per_frame.py --rounds 5"),
     "stripmap_thinning": ("What the live map's catch-up costs",
                           "Pre-summing, RX sums and thinning: CPU saved against image error.",
                           ".venv/bin/python benchmarks/stripmap_thinning.py"),

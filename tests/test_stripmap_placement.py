@@ -14,6 +14,8 @@ from imaging.core.geometry import antenna_track
 from imaging.core.rig import CalibrationPrior, default_rig
 from imaging.core.trajectory import PathWithTurns, SampledTrajectory, Trajectory
 from imaging.io.recording import Recording
+from imaging.pocketfft import fft_in_place
+from imaging.range_compression import range_compress
 from imaging.sim.simulator import simulate_recording
 from imaging.stripmap import StripMap, StripMapConfig
 from imaging.stripmap.placement import place_profiles
@@ -65,17 +67,31 @@ def beam_signals_numpy(z: np.ndarray, dk: np.ndarray, turn: np.ndarray, k_c: flo
     return np.ascontiguousarray(np.concatenate([main, slope], axis=1).T)
 
 
+def padded(signals, w, m, n_fft):
+    """Signals [rows, n] windowed and placed as range_compress places them: sample i at i - m modulo n_fft."""
+    out = np.zeros((signals.shape[0], n_fft), np.complex64)
+    out[:, (np.arange(signals.shape[1]) - m) % n_fft] = signals * w
+    return out
+
+
 def test_beam_signals_are_numpys():
+    """The kernel's signals as numpy makes them, windowed and centred in the zero-padded rows; and those rows'
+    FFT is range_compress's profiles of the unwindowed signals, bit for bit."""
     rng = np.random.default_rng(5)
-    beams, n = 7, 33
+    beams, n, oversample = 7, 33, 8
     z = (rng.normal(size=(3 * beams, n)) + 1j * rng.normal(size=(3 * beams, n))).astype(np.complex64)
     dk = (0.1 * (np.arange(n) - n // 2)).astype(np.float32)
     turn = np.exp(-1j * rng.uniform(0, 6, beams)).astype(np.complex64)
-    out = np.empty((2 * beams, n), np.complex64)
-    polar._beam_signals(out, z, dk, turn, np.float32(1600.0))
+    w, m = polar._window("hann", n), (n - 1) // 2
+    out = np.zeros((2 * beams, oversample * n), np.complex64)
+    polar._beam_signals(out, z, dk, turn, np.float32(1600.0), w, m)
     want = beam_signals_numpy(z, dk, turn, 1600.0)
-    np.testing.assert_allclose(out, want, rtol=0, atol=1e-6 * np.abs(want).max())
+    np.testing.assert_allclose(out, padded(want, w, m, oversample * n), rtol=0, atol=1e-6 * np.abs(want).max())
     assert np.abs(want[beams:]).max() > 0 and np.abs(want[:beams] - want[beams:]).max() > 0.1
+    plain = np.zeros((2 * beams, n), np.complex64)  # no window, no centring: the signals alone
+    polar._beam_signals(plain, z, dk, turn, np.float32(1600.0), np.ones(n, np.float32), 0)
+    profiles = range_compress(plain, 77e9, 1e7, window="hann", oversample=oversample, keep_samples=False)
+    assert np.array_equal(fft_in_place(out), profiles.data)
 
 
 class Unsampled(Trajectory):
@@ -119,9 +135,9 @@ def test_the_map_is_mains_to_rounding(drive, monkeypatch):
 
     new = {b: image(truth, b) for b in (1, 4)}
 
-    def signals_as_before(out, z, dk, turn, k_c):
+    def signals_as_before(out, z, dk, turn, k_c, w, m):
         # main's product was samples.T @ weights, z here its transpose: the same sums to float32 rounding
-        out[...] = beam_signals_numpy(z, dk, turn, float(k_c))
+        out[...] = padded(beam_signals_numpy(z, dk, turn, float(k_c)), w, m, out.shape[1])
 
     monkeypatch.setattr(polar, "_beam_signals", signals_as_before)
     monkeypatch.setattr(stripmap_map, "place_profiles", None)  # must not be reached through Unsampled

@@ -15,6 +15,7 @@ from imaging.stripmap import StripMap, StripMapConfig
 from imaging.stripmap.polar import (
     TAPS,
     FrameBeams,
+    _cis,
     _extent,
     _table,
     _weights,
@@ -46,6 +47,25 @@ def test_extent_is_numpys():
     d = pts - c
     r = np.linalg.norm(d, axis=1)
     assert np.allclose(_extent(pts, c, u), (r.min(), r.max(), (d @ u / r).min(), (d @ u / r).max()))
+
+
+def test_cis_is_numpys_exp():
+    """The kernels' exp(j x) against numpy's to 1e-15 over a pixel's phases (up to 1e5 rad), small ones, and
+    every quadrant's edges (multiples of pi / 4 either side of a rounding)."""
+    import numba
+
+    @numba.njit
+    def each(x):
+        out = np.empty(x.size, np.complex128)
+        for i in range(x.size):
+            out[i] = _cis(x[i])
+        return out
+
+    rng = np.random.default_rng(5)
+    edges = np.arange(-4000, 4001) * (np.pi / 4)
+    x = np.concatenate([rng.uniform(-1e5, 1e5, 100_000), rng.uniform(-4, 4, 10_000), edges,
+                        np.nextafter(edges, np.inf), np.nextafter(edges, -np.inf), [0.0, -0.0]])
+    np.testing.assert_allclose(each(x), np.exp(1j * x), rtol=0, atol=1e-15)
 
 
 def test_weights_are_numpys():
@@ -139,6 +159,36 @@ def test_a_frames_beams_give_the_direct_kernels_frame_image(drive):
     wf = radar.waveform
     beams = frame_beams(samples, tx, rx, pts, wf.f0_hz, wf.frequency_step_hz, config.window, config.oversample, lk)
     assert error_db(beams_at_points(beams, pts), direct) < -45
+
+
+def test_a_frame_holds_the_beams_its_pixels_read_and_no_more(drive):
+    """The beams a frame forms are those its pixels' taps reach (each end with a beam's room for rounding), and
+    reading them from ``first_beam`` gives the numbers the same beams held from beam 0 give, bit for bit."""
+    rec, radar, truth, order = drive
+    config = StripMapConfig(aperture_m=0.3, range_min_m=1.0, range_max_m=3.0, presum=4)
+    sm = StripMap(config)
+    adc, t = rec.adc(RADAR, slice(30, 31))[0], int(rec.frame_time_ns(RADAR)[30])
+    samples, tx, rx, look, _ = sm.frames_profiles(radar, order, [adc], [t], truth, compress=False)
+    c, lk = (0.5 * (tx + rx))[:, :2].mean(axis=0), look.mean(axis=0)
+    lk /= np.linalg.norm(lk)
+    gx, gy = np.meshgrid(np.arange(-0.15, 0.15, 0.01) + c[0], np.arange(1.0, 3.0, 0.01) + c[1])
+    pts = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, config.z_m)], axis=1)
+    wf = radar.waveform
+    beams = frame_beams(samples, tx, rx, pts, wf.f0_hz, wf.frequency_step_hz, config.window, config.oversample, lk)
+    held = beams.signals.shape[0] // 2
+    d = pts - beams.centre_m
+    fa = np.floor((d @ beams.axis / np.linalg.norm(d, axis=1) - beams.alpha0) / beams.dalpha)
+    lowest, highest = int(fa.min()) - TAPS // 2 + 1, int(fa.max()) + TAPS // 2
+    assert beams.first_beam >= 1  # the grid's margin below, never read, is not formed
+    assert 0 <= lowest - beams.first_beam <= 1 and 0 <= beams.first_beam + held - 1 - highest <= 1
+    values = beams_at_points(beams, pts)
+    assert np.count_nonzero(values) == pts.shape[0]
+    f = beams.first_beam
+    pad = np.zeros((f, beams.signals.shape[1]), np.complex64)
+    from_zero = dataclasses.replace(
+        beams, first_beam=0, signals=np.concatenate([pad, beams.signals[:held], pad, beams.signals[held:]]),
+        shift_m=np.concatenate([np.zeros(f), beams.shift_m]), shift_slope_m=np.concatenate([np.zeros(f), beams.shift_slope_m]))
+    assert np.array_equal(beams_at_points(from_zero, pts), values)
 
 
 def test_the_polar_map_is_the_direct_map_within_its_error(drive):

@@ -36,10 +36,23 @@ import numpy as np
 
 from imaging.core.constants import SPEED_OF_LIGHT_MPS
 from imaging.ffbp_interpolation import interpolation_table
-from imaging.range_compression import range_compress
+from imaging.core.windows import get_window
+from imaging.pocketfft import fft_in_place
+from imaging.range_compression import range_bin_spacing_m
 from imaging.numba_target import prefer_full_width_vectors
 
 prefer_full_width_vectors()  # before this module's first numba function (imaging/numba_target.py)
+
+#: exp(j x) by ``_cis``: x reduced to |y| <= pi / 4 by the nearest multiple of pi / 2 (pi / 2 in two parts,
+#: Cody and Waite's, so q pi / 2 is exact for |q| < 2^20), then fdlibm's polynomials for sin and cos there
+#: (``__kernel_sin``, ``__kernel_cos``: under 1e-16 on that interval).
+_TWO_OVER_PI = 0.63661977236758134308
+_PIO2_HI = 1.57079632673412561417e+00  # pi / 2's first 33 bits
+_PIO2_LO = 6.07710050650619224932e-11  # pi / 2 less _PIO2_HI
+_S1, _S2, _S3 = -1.66666666666666324348e-01, 8.33333333332248946124e-03, -1.98412698298579493134e-04
+_S4, _S5, _S6 = 2.75573137070700676789e-06, -2.50507602534068634195e-08, 1.58969099521155010221e-10
+_C1, _C2, _C3 = 4.16666666666666019037e-02, -1.38888888888741095749e-03, 2.48015872894767294178e-05
+_C4, _C5, _C6 = -2.75573143513906633035e-07, 2.08757232129817482790e-09, -1.13596475577881948265e-11
 
 #: Beams per Nyquist interval of the frame's angular band, and interpolation taps across them: the
 #: least-squares kernel's worst error for a tone in that band is -48 dB (``interpolation_error(6, 2)``).
@@ -54,7 +67,9 @@ class FrameBeams:
     ``signals`` [2 x beams, bins], the beams' main signals then their slope signals, are range-compressed
     (two-way range ``range_step_m`` per bin) and carry each beam's exp(-j k ``shift_m``); a pixel at range
     r, angle alpha from ``centre_m`` reads them at 2 r + ``shift_m`` + ``shift_slope_m`` x eps, eps = 1/r -
-    ``inv_r_mid``, takes main - j k eps slope and restores exp(-j k (2 r + ``shift_slope_m`` eps))."""
+    ``inv_r_mid``, takes main - j k eps slope and restores exp(-j k (2 r + ``shift_slope_m`` eps)). Beam a
+    lies at angle ``alpha0`` + a ``dalpha``; only those from ``first_beam`` on are held (row a -
+    ``first_beam``): the ones below it no pixel reads."""
 
     centre_m: np.ndarray  # [3]
     axis: np.ndarray  # [3], horizontal, across the look
@@ -66,6 +81,7 @@ class FrameBeams:
     signals: np.ndarray  # complex64 [2 x beams, bins]
     shift_m: np.ndarray  # float64 [beams]
     shift_slope_m: np.ndarray  # float64 [beams]
+    first_beam: int = 0
 
 
 def plane_points(centre: np.ndarray, axis: np.ndarray, normal: np.ndarray, r: np.ndarray, alpha: np.ndarray,
@@ -121,9 +137,17 @@ def frame_beams_over(samples: np.ndarray, tx_m: np.ndarray, rx_m: np.ndarray, ex
     # The angular band: the phase of profile p changes with alpha by k (its two antennas' offset along u).
     reach = np.abs(((tx_m - centre) + (rx_m - centre)) @ axis).max()
     dalpha = math.pi / (k_max * max(reach, 1e-4) * OVERSAMPLE_ANGLE)
-    lo = a_min - (TAPS // 2 + 1) * dalpha
-    beams = int(math.ceil((a_max + (TAPS // 2 + 1) * dalpha - lo) / dalpha)) + 1
-    alpha_a = np.clip(lo + dalpha * np.arange(beams), -0.999, 0.999)
+    margin = TAPS // 2 + 1
+    lo = a_min - margin * dalpha
+    beams = int(math.ceil((a_max + margin * dalpha - lo) / dalpha)) + 1
+    # Only the beams a pixel reads: a pixel at fa = (alpha - lo) / dalpha reads floor(fa) - TAPS // 2 + 1 to
+    # floor(fa) + TAPS // 2, and fa runs from ``margin`` to (a_max - lo) / dalpha, each end a rounding either
+    # way (the kernels' fastmath); the grid's margin kept a beam below and one or two above that nobody read
+    # (3 of the soak's 20 beams: their weights, product rows and range compressions).
+    first = margin - TAPS // 2
+    last = min(beams, int(math.floor((a_max - lo) / dalpha)) + TAPS // 2 + 2)
+    alpha_a = np.clip(lo + dalpha * np.arange(beams), -0.999, 0.999)[first:last]
+    beams = alpha_a.size
     r_far = max(r_far, r_near + 1e-3)
     inv_mid = 0.5 * (1 / r_near + 1 / r_far)
     weights = np.empty((samples.shape[0], 3 * beams), np.complex64)
@@ -137,11 +161,23 @@ def frame_beams_over(samples: np.ndarray, tx_m: np.ndarray, rx_m: np.ndarray, ex
     dk = (2 * math.pi * frequency_step_hz / SPEED_OF_LIGHT_MPS * (np.arange(n) - m)).astype(np.float32)
     # each beam's mean range shift as its phase exp(-j k shift), here once per beam, not per pixel and tap
     turn = np.exp(-1j * k_c * shift).astype(np.complex64)
-    both = np.empty((2 * beams, n), np.complex64)
-    _beam_signals(both, z, dk, turn, np.float32(k_c))
-    prof = range_compress(both, f0_hz, frequency_step_hz, window=window, oversample=oversample, keep_samples=False)
-    return FrameBeams(centre, axis, float(lo), float(dalpha), inv_mid, k_c, prof.range_step_m, prof.data, shift,
-                      shift_slope)
+    # Range compression as ``range_compress`` does it (window, zero padding to oversample x n, centred on sample
+    # m, the FFT in place), the same numbers; the beam signals written windowed straight into the padded rows.
+    n_fft = oversample * n
+    rows = np.zeros((2 * beams, n_fft), np.complex64)
+    _beam_signals(rows, z, dk, turn, np.float32(k_c), _window(window, n), m)
+    fft_in_place(rows)
+    return FrameBeams(centre, axis, float(lo), float(dalpha), inv_mid, k_c, range_bin_spacing_m(n_fft, frequency_step_hz),
+                      rows, shift, shift_slope, first)
+
+
+@functools.lru_cache(maxsize=8)
+def _window(name: str, n: int) -> np.ndarray:
+    """``range_compress``'s window: normalised to unit sum, float32 (read-only, shared)."""
+    w = get_window(name, n)
+    w = (w / w.sum()).astype(np.float32)
+    w.flags.writeable = False
+    return w
 
 
 @contextlib.contextmanager
@@ -191,7 +227,7 @@ def beams_at_masked(beams: FrameBeams, x: np.ndarray, y: np.ndarray, z_m: float,
     out = np.zeros(int(np.count_nonzero(masks)), np.complex128)
     _beams_at_masked(out, np.ascontiguousarray(x, np.float64), np.ascontiguousarray(y, np.float64), float(z_m), masks,
                      beams.centre_m, beams.axis, beams.alpha0, beams.dalpha, beams.inv_r_mid, beams.k_rad_per_m,
-                     beams.range_step_m, beams.signals, beams.shift_m, beams.shift_slope_m, _table())
+                     beams.range_step_m, beams.signals, beams.shift_m, beams.shift_slope_m, beams.first_beam, _table())
     return out
 
 
@@ -200,7 +236,7 @@ def beams_at_points(beams: FrameBeams, pts: np.ndarray) -> np.ndarray:
     out = np.zeros(pts.shape[0], np.complex128)
     _beams_at_points(out, np.ascontiguousarray(pts, np.float64), beams.centre_m, beams.axis, beams.alpha0,
                      beams.dalpha, beams.inv_r_mid, beams.k_rad_per_m, beams.range_step_m, beams.signals, beams.shift_m,
-                     beams.shift_slope_m, _table())
+                     beams.shift_slope_m, beams.first_beam, _table())
     return out
 
 
@@ -273,27 +309,33 @@ def _weights(out, shift, shift_slope, tx, rx, c, u, nrm, z, alpha, r_near, r_far
         for p in range(p_n):
             d = base[p, a] - shift[a]
             s = slope[p, a] - shift_slope[a]
-            e = complex(math.cos(k * d), -math.sin(k * d))
+            e = _cis(-k * d)
             out[p, a] = e
             out[p, nb + a] = e * d
             out[p, 2 * nb + a] = e * s
 
 
 @numba.njit(cache=True, nogil=True)
-def _beam_signals(out, z, dk, turn, k_c):
-    """The beams' main and slope signals [2 x beams, n] from the product z [3 x beams, n] (main, d and s
-    weights' rows; see the module's docstring), as numpy's complex64 arithmetic gave them to float32 rounding,
-    in one pass instead of six numpy temporaries and a transposing copy: main = (z_1 - j dk z_d) turn, slope = (1 +
-    dk / k_c) z_s turn (k_n / k_c: the slope's phase is k_n s eps)."""
+def _beam_signals(out, z, dk, turn, k_c, w, m):
+    """The beams' main and slope signals from the product z [3 x beams, n] (main, d and s weights' rows; see
+    the module's docstring), as numpy's complex64 arithmetic gave them to float32 rounding, in one pass instead
+    of six numpy temporaries and a transposing copy: main = (z_1 - j dk z_d) turn, slope = (1 + dk / k_c) z_s
+    turn (k_n / k_c: the slope's phase is k_n s eps). Each sample i is written times the window w[i] into
+    ``out`` [2 x beams, n_fft] (zeros elsewhere) at i - m modulo n_fft, where ``range_compress`` puts it: its
+    centring, and its product with the window, float32 by float32 as numpy's complex64 by float32."""
     nb, n = turn.size, z.shape[1]
+    n_fft = out.shape[1]
     for a in range(nb):
         t = turn[a]
         for i in range(n):
             d = dk[i]
             zd = z[nb + a, i]
             main = complex(z[a, i].real + d * zd.imag, z[a, i].imag - d * zd.real)
-            out[a, i] = main * t
-            out[nb + a, i] = (np.float32(1.0) + d / k_c) * z[2 * nb + a, i] * t
+            v = np.complex64(main * t)
+            e = np.complex64((np.float32(1.0) + d / k_c) * z[2 * nb + a, i] * t)
+            j = i - m if i >= m else n_fft - m + i
+            out[a, j] = complex(v.real * w[i], v.imag * w[i])
+            out[nb + a, j] = complex(e.real * w[i], e.imag * w[i])
 
 
 def _table() -> np.ndarray:
@@ -303,7 +345,7 @@ def _table() -> np.ndarray:
 
 
 @numba.njit(fastmath=True, cache=True, nogil=True)
-def _beams_at_points(out, pts, c, u, alpha0, dalpha, inv_r_mid, k, step, signals, shift, shift_slope, table):
+def _beams_at_points(out, pts, c, u, alpha0, dalpha, inv_r_mid, k, step, signals, shift, shift_slope, first, table):
     """Each pixel: ``TAPS`` beams around its angle, each read linearly at the pixel's range (its own shift),
     the phase exp(-j k (2 r + shift_slope eps)) restored once (the beams' exp(-j k shift) is in ``signals``;
     shift_slope changes by about a milliradian of phase across the taps, so the middle tap's stands for all)."""
@@ -311,11 +353,12 @@ def _beams_at_points(out, pts, c, u, alpha0, dalpha, inv_r_mid, k, step, signals
     shift_bins, slope_bins = shift * inv_step, shift_slope * inv_step
     for i in range(pts.shape[0]):
         out[i] = _beam_pixel(pts[i, 0], pts[i, 1], pts[i, 2], c, u, alpha0, dalpha, inv_r_mid, k, inv_step, signals,
-                             shift_bins, slope_bins, shift_slope, table)
+                             shift_bins, slope_bins, shift_slope, first, table)
 
 
 @numba.njit(fastmath=True, cache=True, nogil=True)
-def _beams_at_masked(out, x, y, z, masks, c, u, alpha0, dalpha, inv_r_mid, k, step, signals, shift, shift_slope, table):
+def _beams_at_masked(out, x, y, z, masks, c, u, alpha0, dalpha, inv_r_mid, k, step, signals, shift, shift_slope, first,
+                     table):
     """``_beams_at_points`` over the masked pixels of tiles, in their pixel list's order."""
     inv_step = 1.0 / step
     shift_bins, slope_bins = shift * inv_step, shift_slope * inv_step
@@ -325,14 +368,14 @@ def _beams_at_masked(out, x, y, z, masks, c, u, alpha0, dalpha, inv_r_mid, k, st
             for j in range(masks.shape[2]):
                 if masks[t, i, j]:
                     out[n] = _beam_pixel(x[t, j], y[t, i], z, c, u, alpha0, dalpha, inv_r_mid, k, inv_step, signals,
-                                         shift_bins, slope_bins, shift_slope, table)
+                                         shift_bins, slope_bins, shift_slope, first, table)
                     n += 1
 
 
 @numba.njit(fastmath=True, cache=True, nogil=True, inline="always")
 def _beam_pixel(px, py, pz, c, u, alpha0, dalpha, inv_r_mid, k, inv_step, signals, shift_bins, slope_bins, shift_slope,
-                table):
-    """One pixel's value (0 outside the beams)."""
+                first, table):
+    """One pixel's value (0 outside the beams held: beam a is row a - ``first``)."""
     taps = table.shape[1]
     nf = table.shape[0] - 1
     nb, bins = signals.shape[0] // 2, signals.shape[1]
@@ -340,7 +383,8 @@ def _beam_pixel(px, py, pz, c, u, alpha0, dalpha, inv_r_mid, k, inv_step, signal
     r = math.sqrt(dx * dx + dy * dy + dz * dz)
     fa = ((dx * u[0] + dy * u[1] + dz * u[2]) / r - alpha0) / dalpha
     ia = math.floor(fa)
-    j0 = int(ia) - taps // 2 + 1
+    mid = int(ia) - first
+    j0 = mid - taps // 2 + 1
     if j0 < 0 or j0 + taps > nb:
         return 0j
     w = table[int((fa - ia) * nf + 0.5)]
@@ -362,5 +406,24 @@ def _beam_pixel(px, py, pz, c, u, alpha0, dalpha, inv_r_mid, k, inv_step, signal
         re += wt * (m.real - gain * s.imag)
         im += wt * (m.imag + gain * s.real)
     main = complex(re, im)
-    ph = -k * (2.0 * r + shift_slope[int(ia)] * eps)
-    return main * complex(math.cos(ph), math.sin(ph))
+    return main * _cis(-k * (2.0 * r + shift_slope[mid] * eps))
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cis(x):
+    """exp(j x) = cos x + j sin x, complex128, within 3e-16 of numpy's for |x| < 1e5 (tested; a pixel's phase is
+    about 1.7e4 rad at 8 m of two-way range); inlined into a fastmath kernel, the compiler may fold the two-part
+    reduction, about 1e-12 rad at such a phase. Half the pixels' CPU was libm's cos and sin, each with its own
+    reduction of the argument; here one reduction serves both, and the quadrant is chosen without a branch
+    (the pixels' quadrants are as good as random)."""
+    q = math.floor(x * _TWO_OVER_PI + 0.5)
+    y = (x - q * _PIO2_HI) - q * _PIO2_LO
+    z = y * y
+    s = y + y * z * (_S1 + z * (_S2 + z * (_S3 + z * (_S4 + z * (_S5 + z * _S6)))))
+    c = 1.0 - 0.5 * z + z * z * (_C1 + z * (_C2 + z * (_C3 + z * (_C4 + z * (_C5 + z * _C6)))))
+    n = int(q) & 3
+    # quadrant n: (cos, sin) of x is (c, s), (-s, c), (-c, -s), (s, -c)
+    cos_x = -s if n & 1 else c
+    sin_x = c if n & 1 else s
+    sign = 1.0 - (n & 2)
+    return complex(sign * cos_x, sign * sin_x)
