@@ -67,7 +67,7 @@ class ImagingOptions:
 
 def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajectory, tx_order, options: ImagingOptions,
                    time_window_ns: tuple[int, int] | None = None, track_error=None, row_buffers=None,
-                   image_box_m=None, fft_workers: int = -1):
+                   image_box_m=None):
     """Range profiles and bistatic antenna positions of a block of frames.
 
     Parameters
@@ -85,9 +85,6 @@ def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajector
     image_box_m : (lo, hi), optional
         A box holding every pixel the profiles will be backprojected onto (metres, 3 each): only the range
         bins it needs are made (``imaging.profiles.chirp_profiles``).
-    fft_workers : int
-        Threads of the range FFTs (scipy.fft's ``workers``; -1: one per core). The numbers are the same for
-        any count: each row is transformed alone.
 
     Returns
     -------
@@ -100,7 +97,7 @@ def frame_profiles(adc, frame_time_ns, radar: RadarConfig, trajectory: Trajector
     samples = adc.reshape(adc.shape[0] * wf.chirps_per_frame, wf.n_rx, wf.samples_per_chirp)[keep][:, rx_sel, :]
     return chirp_profiles(samples, times[keep], tx_index[keep], radar, trajectory, window=options.window,
                           oversample=options.oversample, keep_samples=options.mode == "exact", rx=rx_sel,
-                          track_error=track_error, workers=fft_workers, rows_out=None if row_buffers is None else row_buffers.take,
+                          track_error=track_error, workers=-1, rows_out=None if row_buffers is None else row_buffers.take,
                           image_box_m=image_box_m)
 
 
@@ -174,9 +171,9 @@ class _BlockReader:
 
     def __init__(self, recording: Recording, radar_name: str, trajectory: Trajectory | None, frames: slice,
                  options: ImagingOptions, time_window_ns, track_error, clock: StageClock | None = None,
-                 row_buffers: RowBuffers | None = None, fft_workers: int = -1) -> None:
+                 row_buffers: RowBuffers | None = None) -> None:
         self.recording, self.radar_name, self.options, self.clock = recording, radar_name, options, clock
-        self.row_buffers, self.fft_workers = row_buffers, fft_workers
+        self.row_buffers = row_buffers
         self.image_box_m = None  # a box holding every pixel to be imaged (form_image's direct kernel), or None
         self.time_window_ns, self.track_error = time_window_ns, track_error
         self.radar = recording.radar(radar_name)
@@ -224,8 +221,7 @@ class _BlockReader:
         keep = np.isin(np.arange(block.start, block.stop), idx)
         with timed(self.clock, "compress_thread.range_compress_and_place"):
             result = frame_profiles(adc[keep], ftimes[keep], self.radar, self.trajectory, self.tx_order, self.options,
-                                    self.time_window_ns, self.track_error, self.row_buffers, self.image_box_m,
-                                    fft_workers=self.fft_workers)
+                                    self.time_window_ns, self.track_error, self.row_buffers, self.image_box_m)
         if self.taper is not None:
             profiles, tx_m, rx_m = result[:3]
             self.taper.apply(profiles, 0.5 * (tx_m + rx_m))
@@ -270,11 +266,8 @@ def form_image(
     ffbp = options.algorithm == "ffbp"
     row_buffers = None if ffbp else RowBuffers()  # FFBP holds every block's profiles to the end
     with timed(clock, "open_frames"):
-        # One FFT thread where range compression overlaps the kernel, whose threads have every core: a second
-        # one only took turns with them (and, while numba is imported, with the import's thread); FFBP
-        # backprojects after every block is compressed, so its compression has the cores to itself.
         reader = _BlockReader(recording, radar_name, trajectory, frames, options, time_window_ns, track_error, clock,
-                              row_buffers, fft_workers=-1 if ffbp else 1)
+                              row_buffers)
     sel, frame_indices, trajectory, wf = reader.sel, reader.frame_indices, reader.trajectory, reader.radar.waveform
     if not ffbp:  # only the bins the grid needs (imaging.range_window); FFBP's grids reach beyond it
         reader.image_box_m = (np.array([grid.x_m.min(), grid.y_m.min(), grid.z_m.min()]),

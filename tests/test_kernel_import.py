@@ -59,31 +59,6 @@ def test_form_image_compresses_ahead_while_the_kernels_are_made_ready(pass_recor
     assert all(s >= 0.0 for s in clock.seconds.values())
 
 
-def test_form_image_range_compresses_beside_the_kernel_on_one_fft_thread(pass_recordings, monkeypatch):
-    """The direct algorithm's blocks are range-compressed with one FFT thread (the kernel's threads have every
-    core), FFBP's with one per core; the image is the one formed with one per core, bit for bit."""
-    import imaging.image_formation as imf
-
-    make = imf.frame_profiles
-    asked = []
-
-    def recorded(*args, fft_workers=-1, **kwargs):
-        asked.append(fft_workers)
-        return make(*args, fft_workers=forced[0] or fft_workers, **kwargs)
-
-    monkeypatch.setattr(imf, "frame_profiles", recorded)
-    forced = [None]
-    with Recording(pass_recordings[0.4]) as rec:
-        img = form_image(rec, RADAR, _grid(), options=SMALL_BLOCKS).image
-        assert len(asked) > 2 and set(asked) == {1}
-        forced[0] = -1
-        np.testing.assert_array_equal(form_image(rec, RADAR, _grid(), options=SMALL_BLOCKS).image, img)
-        asked.clear()
-        forced[0] = None
-        form_image(rec, RADAR, _grid(), options=ImagingOptions(tx=(0,), rx=(0,), frames_per_block=2, algorithm="ffbp"))
-    assert asked and set(asked) == {-1}
-
-
 def test_no_background_preparation_is_not_in_progress(monkeypatch):
     monkeypatch.setattr(kernel_import, "_ready", None)
     assert not kernel_import.in_progress()

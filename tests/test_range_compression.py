@@ -140,9 +140,9 @@ def test_one_range_bin_spacing_for_the_whole_profile_and_a_window_of_it():
 
 @pytest.mark.parametrize("bins", [None, (600, 1000)])
 def test_the_ffts_thread_count_leaves_the_profiles_bit_for_bit(bins):
-    """form_image range-compresses with one FFT thread beside the kernel (``fft_workers``), other callers with
-    one per core: every row is transformed alone, so the rows are the same bit for bit, whole profiles and
-    windows of bins (the chirp-z transform's two FFTs) alike."""
+    """Every row is transformed alone, so the FFT's thread count (``workers``: form_image asks for one per core)
+    leaves the rows the same bit for bit, whole profiles and windows of bins (the chirp-z transform's two FFTs)
+    alike."""
     rng = np.random.default_rng(11)
     x = (rng.standard_normal((300, 175)) + 1j * rng.standard_normal((300, 175))).astype(np.complex64)
     one = range_compress(x, F0, FSTEP, guarded=True, bins=bins, workers=1)
