@@ -21,9 +21,10 @@ The cases:
 - ``readme_case``: the README's command: ``sarbot simulate paper_pass_0.4`` then ``sarbot image --radar
   left_front --frames 30:60 --grid -0.5:0.5:0.002,1.8:2.2:0.004`` (30 frames on 501 x 101 pixels).
 
-    python benchmarks/command_versions.py [--baseline COMMIT] [--rounds N] [--quick]
+    python benchmarks/command_versions.py [--baseline COMMIT] [--rounds N] [--quick] [--cases NAME,...]
 
-Updates ``baseline_comparison`` in docs/results/image_command.json (image_command.py runs it too).
+Updates ``baseline_comparison`` in docs/results/image_command.json (image_command.py runs it too); with
+``--cases`` (some of the cases alone) it is written as ``baseline_comparison_<commit>_<cases>`` beside it.
 """
 
 from __future__ import annotations
@@ -211,18 +212,30 @@ def main() -> int:
     ap.add_argument("--baseline", default=BASELINE, help=f"the earlier commit (default {BASELINE}, issue 34's)")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--cases", help="only these cases, comma-separated")
     args = ap.parse_args()
+    if args.rounds < 1:
+        ap.error(f"--rounds must be at least 1, got {args.rounds}")
+    cases = QUICK_CASES if args.quick else CASES
+    if args.cases is not None:
+        chosen = [c.strip() for c in args.cases.split(",") if c.strip()]
+        unknown = [c for c in chosen if c not in cases]
+        if unknown or not chosen:
+            ap.error(f"--cases: unknown case(s) {', '.join(unknown) or '(none given)'}; known: {', '.join(cases)}")
+        cases = {name: cases[name] for name in chosen}
     started_load = load_average()
     probe_machine()  # the VM's speed before; write_results probes after
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
-        result = compare(args.baseline, QUICK_CASES if args.quick else CASES, args.rounds, Path(tmp))
+        result = compare(args.baseline, cases, args.rounds, Path(tmp))
     result["load_average"] = {"before": load_before, "after": os.getloadavg()}
     if args.quick:
         print(json.dumps(result, indent=2))
         return 0
-    path = write_results("image_command", result, started_load=started_load, part="baseline_comparison")
-    print(f"wrote baseline_comparison into {path}")
+    part = "baseline_comparison" if args.cases is None else \
+        f"baseline_comparison_{result['baseline_commit']}_{'_'.join(cases)}"
+    path = write_results("image_command", result, started_load=started_load, part=part)
+    print(f"wrote {part} into {path}")
     return 0
 
 

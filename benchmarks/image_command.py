@@ -24,9 +24,16 @@ cases the issue's figure could have come from (benchmarks/command_versions.py, w
 the same question per image of a batch: 8 benchmark-case images formed one after another in one new
 process, as a resident ``sarbot batch`` worker forms them (acquisition.batch.run_job), against the kernel.
 
-    python benchmarks/image_command.py [--quick] [--baseline COMMIT | --no-baseline]
+The figure is the fraction per interleaved round (the command as a new process, then at once the kernel in
+this process with numba's threads as many as the command's and the same threading layer: command, kernel,
+command, kernel ...; ``command_fraction_of_kernel``: the median over rounds, ``..._per_round``: median, min,
+max, ``rounds``: both seconds of every round, wall and CPU). ``command_fraction_of_kernel_best_times`` is the
+earlier figure, the best command over the best kernel, timed at different moments of a VM whose speed moves.
 
-Writes docs/results/image_command.json.
+    python benchmarks/image_command.py [--quick] [--baseline COMMIT | --no-baseline] [--cases NAME,...] [--rounds N]
+
+Writes docs/results/image_command.json; with ``--cases`` only those cases, each into its own key of the
+file (the other keys kept as they were), and nothing else (no batch, start-up steps or baseline).
 """
 
 from __future__ import annotations
@@ -191,8 +198,37 @@ def range_fft() -> dict:
     return json.loads(out.splitlines()[-1])
 
 
-def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int) -> dict:
-    """The kernel, form_image, the files and the command as a new process (alternating with the kernel)."""
+#: What the command's numba runs its kernels with: its threading layer and thread count, read in a new
+#: process with the command's environment (the benchmark's kernel must run with the same).
+NUMBA_THREADS = r"""
+import json, numba
+import numpy as np
+@numba.njit(parallel=True)
+def touch(a):
+    for i in numba.prange(a.size):
+        a[i] += 1
+touch(np.zeros(4))
+print(json.dumps({"threading_layer": numba.threading_layer(), "threads": numba.get_num_threads()}))
+"""
+
+
+def numba_threads_of_the_command() -> dict:
+    """``NUMBA_THREADS`` in a new process with the command's environment."""
+    out = subprocess.run([sys.executable, "-c", NUMBA_THREADS], check=True, cwd=ROOT, env=COMMAND_ENV,
+                         capture_output=True, text=True).stdout
+    return json.loads(out.splitlines()[-1])
+
+
+def kernel_threads_here() -> dict:
+    """The threading layer and thread count the kernel runs with in this process (after its first call)."""
+    import numba
+
+    return {"threading_layer": numba.threading_layer(), "threads": numba.get_num_threads()}
+
+
+def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int, rounds_n: int) -> dict:
+    """The kernel, form_image, the files (best of ``repeats`` each) and the command as a new process
+    alternating with the kernel in ``rounds_n`` rounds."""
     grid_text = f"-0.5:0.5:{1.0 / n_px},1.5:2.5:{1.0 / n_px},0.3"
     rec_path = tmp / f"{name}.h5"
     make_recording(rec_path, n_frames)
@@ -211,6 +247,9 @@ def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int) -
         profiles, tx_m, rx_m, _, _ = compress()
         n_p = profiles.data.shape[0]
         backproject(profiles, tx_m, rx_m, points[:2, :2])  # compile
+        threads = {"command": numba_threads_of_the_command(), "kernel": kernel_threads_here()}
+        if threads["command"] != threads["kernel"]:
+            raise SystemExit(f"the kernel would run with other threads than the command's: {threads}")
         t_kernel = best_time(lambda: backproject(profiles, tx_m, rx_m, points), repeats)
         t_compress = best_time(compress, repeats)
         image = backproject(profiles, tx_m, rx_m, points)
@@ -241,7 +280,7 @@ def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int) -
     # time and in CPU time (the command's process and its threads; the kernel's threads), which others' load
     # moves less.
     rounds, cpu_rounds = [], []
-    for _ in range(repeats):
+    for _ in range(rounds_n):
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         t_cmd = command()
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -256,9 +295,13 @@ def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int) -
     work = n_p * points.reshape(-1, 3).shape[0]
     result = {
         "case": {"frames": n, "profiles": n_p, "grid_points": int(points.size // 3), "grid": grid_text},
+        "numba_threads": threads,
         "kernel_backprojections_per_s": work / t_kernel,
         "command_backprojections_per_s": work / t_command,
-        "command_fraction_of_kernel": t_kernel / t_command,
+        "command_fraction_of_kernel": statistics.median(fractions),
+        "command_fraction_of_kernel_best_times": t_kernel / t_command,
+        "rounds": [{"command_s": c, "kernel_s": k, "fraction": k / c, "command_cpu_s": cc, "kernel_cpu_s": kc,
+                    "cpu_fraction": kc / cc} for (c, k), (cc, kc) in zip(rounds, cpu_rounds)],
         "command_fraction_of_kernel_per_round": {"median": statistics.median(fractions), "min": min(fractions),
                                                  "max": max(fractions)},
         "command_fraction_of_kernel_cpu_time_per_round": {"median": statistics.median(cpu_fractions),
@@ -272,9 +315,12 @@ def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int) -
         "command_stages_s": stages,
     }
     sec = result["seconds"]
-    print(f"{name}: kernel {work / t_kernel / 1e9:.3f} G/s, form_image {100 * t_kernel / t_form:.0f} %, sarbot image "
-          f"{100 * t_kernel / t_command:.0f} % of the kernel (rounds {100 * min(fractions):.0f}-{100 * max(fractions):.0f} %; "
-          f"CPU time {100 * statistics.median(cpu_fractions):.0f} %);"
+    print(f"{name}: sarbot image {100 * statistics.median(fractions):.1f} % of the kernel per round (median of "
+          f"{len(fractions)}; min {100 * min(fractions):.1f} %, max {100 * max(fractions):.1f} %; CPU time "
+          f"{100 * statistics.median(cpu_fractions):.1f} %); rounds (command s, kernel s): "
+          + ", ".join(f"({c:.2f}, {k:.2f})" for c, k in rounds)
+          + f"; kernel {work / t_kernel / 1e9:.3f} G/s, form_image {100 * t_kernel / t_form:.0f} %, best over best "
+          f"{100 * t_kernel / t_command:.0f} %;"
           " seconds: " + ", ".join(f"{k} {v:.3f}" for k, v in sec.items()), flush=True)
     print(f"{name}: the command's stages (median of {stages['runs']} runs with -v): "
           + ", ".join(f"{k} {v:.3f}" for k, v in stages["median_s"].items()), flush=True)
@@ -358,6 +404,22 @@ def batch_per_image(tmp: Path, n_frames: int, n_px: int, n_images: int, rounds: 
     return result
 
 
+def only_cases(cases: dict, quick: bool) -> int:
+    """``--cases``: measure these cases alone and write each into its key of the JSON, the rest kept."""
+    started_load = load_average()
+    probe_machine()
+    name = "image_command_quick" if quick else "image_command"
+    with tempfile.TemporaryDirectory() as tmp:
+        for case, spec in cases.items():
+            load_before, uptime_before = os.getloadavg(), uptime()
+            result = {**measure_case(Path(tmp), case, *spec), "load_average": {"before": load_before,
+                                                                             "after": os.getloadavg()},
+                      "uptime": {"before": uptime_before, "after": uptime()}}
+            write_results(name, result, started_load=started_load, part=case)
+            print(f"wrote {case} into {RESULTS / (name + '.json')}")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
@@ -365,16 +427,31 @@ def main() -> int:
                     "issue 34's; see benchmarks/command_versions.py)")
     ap.add_argument("--no-baseline", action="store_true",
                     help="keep the JSON's baseline_comparison as it is (command_versions.py measures it alone)")
+    ap.add_argument("--cases", help="only these cases, comma-separated (of benchmark_case, larger_case), each "
+                    "written into its own key of the JSON; nothing else is measured")
+    ap.add_argument("--rounds", type=int, help="interleaved rounds of command and kernel per case (default: 5 for "
+                    "the benchmark case, 4 for the larger one; 1 with --quick)")
     args = ap.parse_args()
-    cases = {"benchmark_case": (4, 128, 1), "larger_case": (8, 256, 1)} if args.quick else \
-        {"benchmark_case": (16, 256, 5), "larger_case": (32, 512, 2)}
+    # name -> (frames, pixels a side, best-of repeats for the kernel, form_image and the files, rounds)
+    cases = {"benchmark_case": (4, 128, 1, 1), "larger_case": (8, 256, 1, 1)} if args.quick else \
+        {"benchmark_case": (16, 256, 5, 5), "larger_case": (32, 512, 2, 4)}
+    if args.rounds is not None:
+        if args.rounds < 1:
+            ap.error(f"--rounds must be at least 1, got {args.rounds}")
+        cases = {name: (*case[:3], args.rounds) for name, case in cases.items()}
+    if args.cases is not None:
+        chosen = [c.strip() for c in args.cases.split(",") if c.strip()]
+        unknown = [c for c in chosen if c not in cases]
+        if unknown or not chosen:
+            ap.error(f"--cases: unknown case(s) {', '.join(unknown) or '(none given)'}; known: {', '.join(cases)}")
+        return only_cases({name: cases[name] for name in chosen}, args.quick)
     started_load = load_average()
     probe_machine()  # the VM's speed before; write_results probes after
     load_before, uptime_before = os.getloadavg(), uptime()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         results = {name: measure_case(tmp, name, *case) for name, case in cases.items()}
-        bench_frames, bench_px, _ = cases["benchmark_case"]
+        bench_frames, bench_px = cases["benchmark_case"][:2]
         batch = batch_per_image(tmp, bench_frames, bench_px, BATCH_IMAGES, 1 if args.quick else 3)
         bench = tmp / "benchmark_case.h5"
         imports = import_times([sys.executable, "-X", "importtime", "-m", "acquisition.cli", "-q", "image", str(bench),

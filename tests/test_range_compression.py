@@ -136,3 +136,16 @@ def test_one_range_bin_spacing_for_the_whole_profile_and_a_window_of_it():
     assert range_compress(x, F0, FSTEP).range_step_m == step_m
     window = range_compress(x, F0, FSTEP, guarded=True, bins=(600, 1000))
     assert window.range_step_m == step_m and window.range_start_m == 600 * step_m
+
+
+@pytest.mark.parametrize("bins", [None, (600, 1000)])
+def test_the_ffts_thread_count_leaves_the_profiles_bit_for_bit(bins):
+    """Every row is transformed alone, so the FFT's thread count (``workers``: form_image asks for one per core)
+    leaves the rows the same bit for bit, whole profiles and windows of bins (the chirp-z transform's two FFTs)
+    alike."""
+    rng = np.random.default_rng(11)
+    x = (rng.standard_normal((300, 175)) + 1j * rng.standard_normal((300, 175))).astype(np.complex64)
+    one = range_compress(x, F0, FSTEP, guarded=True, bins=bins, workers=1)
+    for workers in (2, 3):
+        np.testing.assert_array_equal(range_compress(x, F0, FSTEP, guarded=True, bins=bins, workers=workers).rows,
+                                      one.rows)
