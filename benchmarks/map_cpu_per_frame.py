@@ -28,7 +28,6 @@ import subprocess
 import sys
 import tempfile
 import time
-import types
 from pathlib import Path
 
 import numpy as np
@@ -38,50 +37,22 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import stripmap_capacity as capacity  # noqa: E402
-from acquisition.bus import BusPublisher  # noqa: E402
 from acquisition.messages import PoseBatch, decode  # noqa: E402
-from acquisition.processes import bus_endpoint  # noqa: E402
-from acquisition.workers import pipeline  # noqa: E402
-from acquisition.workers.stripmap import StripMapWorker, StripMapWorkerConfig  # noqa: E402
-from git_baseline import baseline_module  # noqa: E402
-from imaging.core.rig import load_rig  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
+from map_versions import baseline_map, make_worker, soak_map_settings  # noqa: E402
 import imaging.stripmap  # noqa: E402
 import imaging.stripmap.polar as polar_now  # noqa: E402
 from results_file import load_average, probe_machine, write_results  # noqa: E402
 
 #: main when this benchmark was written (wave 3n's start)
 BASELINE = "d92f09a"
-#: the names imaging/stripmap/map.py takes from polar.py (the baseline map is pointed at the baseline's)
-POLAR_NAMES = ("beams_at_masked", "beams_at_points", "frame_axes", "frame_beams", "frame_beams_over", "masked_extent")
-
-
-def baseline_map(commit: str):
-    """The baseline's ``StripMap`` class, its map module calling the baseline's polar module."""
-    polar = baseline_module(commit, "imaging/stripmap/polar.py", "_baseline_polar", in_file=True)
-    map_module = baseline_module(commit, "imaging/stripmap/map.py", "_baseline_map", in_file=True)
-    for name in POLAR_NAMES:
-        if hasattr(map_module, name):
-            setattr(map_module, name, getattr(polar, name))
-    return map_module.StripMap
-
-
-def make_worker(rig, radars, map_config, map_class):
-    """A worker whose map (and warm-up's scratch maps) are ``map_class``, warmed up: kernels compiled."""
-    saved = imaging.stripmap.StripMap
-    imaging.stripmap.StripMap = map_class  # what the worker's __init__ and warm_up import
-    try:
-        pub = BusPublisher(bus_endpoint("bench-map-cpu"))
-        worker = StripMapWorker(StripMapWorkerConfig(rig, radars, map_config, "inproc://none", "unused.h5"), pub)
-        worker.warm_up()
-    finally:
-        imaging.stripmap.StripMap = saved
-    return worker, pub
+#: the modules compared: the baseline map calls the baseline beams
+MODULES = ["imaging/stripmap/polar.py", "imaging/stripmap/map.py"]
 
 
 def one_round(rec, rig, radars, map_config, classes: dict, from_s: float) -> dict:
     """Every message of the lap through a fresh worker per variant, in turn; CPU and wall time per variant."""
-    workers = {v: make_worker(rig, radars, map_config, c) for v, c in classes.items()}
+    workers = {v: make_worker(rig, radars, map_config, c, f"bench-map-cpu-{v}") for v, c in classes.items()}
     spent = {v: np.zeros(3) for v in classes}  # process CPU, thread CPU, wall
     evs, truth = capacity.events(rec, radars, from_s)
     frame_times = {name: rec.frame_time_ns(name) for name in radars}
@@ -218,13 +189,11 @@ def main(argv: list[str]) -> int:
     started_load = load_average()
     probe_machine()
     numba.set_num_threads(1)  # the worker's kernel threads (--map-threads 1)
-    rig = load_rig(capacity.RIG)
-    map_config = pipeline.resolve_map_config(types.SimpleNamespace(rig=rig), capacity.MAP, capacity.RADARS,
-                                             capacity.MAX_SPEED_MPS, None)
+    rig, map_config = soak_map_settings()
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="sarbot-bench-map-cpu-"))
     work.mkdir(parents=True, exist_ok=True)
     path = capacity.simulate(args.seconds, work)
-    classes = {"baseline": baseline_map(args.baseline), "now": imaging.stripmap.StripMap}
+    classes = {"baseline": baseline_map(args.baseline, MODULES)[0], "now": imaging.stripmap.StripMap}
     out = {"scene": "soak_loop", "seconds": args.seconds, "driving_from_s": capacity.DRIVING_FROM_S,
            "baseline": args.baseline, "presum": map_config.presum, "algorithm": map_config.algorithm,
            "changed_files": subprocess.run(["git", "diff", "--name-only", args.baseline, "--", "imaging/stripmap",

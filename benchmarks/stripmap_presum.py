@@ -27,11 +27,9 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
-import types
 from pathlib import Path
 
 import numba
@@ -42,48 +40,15 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import stripmap_capacity as capacity  # noqa: E402
-from acquisition.bus import BusPublisher  # noqa: E402
 from acquisition.messages import PoseBatch, decode  # noqa: E402
-from acquisition.processes import bus_endpoint  # noqa: E402
-from acquisition.workers import pipeline  # noqa: E402
-from acquisition.workers.stripmap import StripMapWorker, StripMapWorkerConfig  # noqa: E402
-from imaging.core.rig import load_rig  # noqa: E402
 from imaging.io.recording import Recording  # noqa: E402
-from git_baseline import baseline_module  # noqa: E402
+from map_versions import baseline_map, make_worker, soak_map_settings  # noqa: E402
 from results_file import load_average, probe_machine, write_results  # noqa: E402
 
 #: main before this round (wave 3l): the commit the soak's 28 % and the map's 3.1 ms a frame were measured at
 BASELINE = "678e496"
 #: the map's modules this round changed, loaded from the baseline where it has them
 MODULES = ["imaging/stripmap/polar.py", "imaging/stripmap/placement.py", "imaging/stripmap/map.py"]
-
-
-def baseline_map(commit: str):
-    """The baseline's ``StripMap`` class: its map.py, with the names it imported from the modules in ``MODULES``
-    bound to the baseline's versions of them."""
-    loaded = {}
-    njit = numba.njit
-
-    def uncached(*args, **kwargs):  # numba caches only functions of a file on disk, not one from git
-        kwargs.pop("cache", None)
-        return njit(*args, **kwargs)
-
-    numba.njit = uncached
-    try:
-        for path in MODULES:
-            exists = subprocess.run(["git", "cat-file", "-e", f"{commit}:{path}"], cwd=ROOT, capture_output=True)
-            if exists.returncode == 0:
-                loaded[path] = baseline_module(commit, path, Path(path).stem + "_baseline")
-    finally:
-        numba.njit = njit
-    mapping = loaded["imaging/stripmap/map.py"]
-    for path, module in loaded.items():
-        if path == "imaging/stripmap/map.py":
-            continue
-        for name in dir(module):  # rebind what map.py imported from the checkout's module to the baseline's
-            if not name.startswith("__") and name in mapping.__dict__ and callable(getattr(module, name)):
-                setattr(mapping, name, getattr(module, name))
-    return mapping.StripMap, sorted(loaded)
 
 
 def messages(rec: Recording) -> list:
@@ -108,18 +73,8 @@ def one_round(msgs: list, rig, map_config, classes: dict, first: int) -> dict:
     """A fresh worker per version over every message, in turn message by message; each one's thread and
     process CPU, frames imaged and final tiles."""
     workers, pubs = {}, {}
-    for v, cls in classes.items():
-        pubs[v] = BusPublisher(bus_endpoint(f"bench-presum-{v}"))
-        w = StripMapWorker(StripMapWorkerConfig(rig, capacity.RADARS, map_config, "inproc://none", "unused.h5"), pubs[v])
-        import imaging.stripmap
-
-        ours, imaging.stripmap.StripMap = imaging.stripmap.StripMap, cls
-        try:  # warm_up images into scratch maps of the version's class: the baseline's kernels compile there
-            w.warm_up()
-        finally:
-            imaging.stripmap.StripMap = ours
-        w.map = cls(map_config, refocus_later=True)
-        workers[v] = w
+    for v, cls in classes.items():  # the version's class also in warm_up's scratch maps: its kernels compile there
+        workers[v], pubs[v] = make_worker(rig, capacity.RADARS, map_config, cls, f"bench-presum-{v}")
     thread = dict.fromkeys(classes, 0.0)
     process = dict.fromkeys(classes, 0.0)
     order = list(classes)
@@ -159,12 +114,10 @@ def main(argv: list[str]) -> int:
     started_load = load_average()
     probe_machine()
     numba.set_num_threads(1)  # the worker's kernel threads (--map-threads 1)
-    rig = load_rig(capacity.RIG)
-    map_config = pipeline.resolve_map_config(types.SimpleNamespace(rig=rig), capacity.MAP, capacity.RADARS,
-                                             capacity.MAX_SPEED_MPS, None)
+    rig, map_config = soak_map_settings()
     from imaging.stripmap import StripMap
 
-    old, loaded = baseline_map(args.baseline)
+    old, loaded = baseline_map(args.baseline, MODULES)
     classes = {"baseline": old, "now": StripMap}
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="sarbot-bench-presum-"))
     work.mkdir(parents=True, exist_ok=True)
