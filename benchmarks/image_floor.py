@@ -81,11 +81,10 @@ mark("sarbot's modules")
 if step == "e":  # where `sarbot image` starts it: after its imports, before the recording is opened
     from imaging import kernel_import
     kernels = kernel_import.start_in_background()
+from imaging.frame_blocks import frame_blocks
 step_frames = 8  # ImagingOptions().frames_per_block
-def bounds(n):  # form_image's blocks: the first a quarter of the others
-    first = max(1, step_frames // 4)
-    starts = [0, *range(first, n, step_frames)] if n else []
-    return list(zip(starts, [*starts[1:], n]))
+def bounds(n):  # form_image's blocks
+    return list(zip(*frame_blocks(n, step_frames)))
 with Recording(path) as rec:
     if step == "c":
         truth = rec.truth()

@@ -16,6 +16,7 @@ from imaging.core.grid import Grid
 from imaging.core.rig import RadarConfig
 from imaging.core.stage_clock import StageClock, timed
 from imaging.core.trajectory import Trajectory
+from imaging.frame_blocks import frame_blocks
 from imaging.io.image_file import SarImage
 from imaging.io.recording import Recording
 from imaging.profiles import chirp_profiles
@@ -276,12 +277,7 @@ def form_image(
     mids, tracks_times, speeds = [], [], []
     boresights = []
     n_profiles = 0
-    step = options.frames_per_block
-    # The first block is a quarter of the others: nothing overlaps its range compression, so the kernel
-    # starts sooner; every later block is compressed while the one before it is backprojected.
-    first = max(1, step // 4)
-    starts = [0, *range(first, frame_indices.size, step)] if frame_indices.size else []
-    ends = [*starts[1:], frame_indices.size]
+    starts, ends = frame_blocks(frame_indices.size, options.frames_per_block)
 
     def prepare(n):
         return reader.block(starts[n], ends[n] - starts[n])
