@@ -207,6 +207,15 @@ def compare(baseline: str, cases: dict, rounds: int, tmp: Path) -> dict:
     return result
 
 
+def chosen_cases(ap: argparse.ArgumentParser, text: str, cases: dict) -> dict:
+    """``--cases``' comma-separated names, each of ``cases``, in their order; else a usage error (exit 2)."""
+    chosen = [c.strip() for c in text.split(",") if c.strip()]
+    unknown = [c for c in chosen if c not in cases]
+    if unknown or not chosen:
+        ap.error(f"--cases: unknown case(s) {', '.join(unknown) or '(none given)'}; known: {', '.join(cases)}")
+    return {name: cases[name] for name in chosen}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--baseline", default=BASELINE, help=f"the earlier commit (default {BASELINE}, issue 34's)")
@@ -218,11 +227,7 @@ def main() -> int:
         ap.error(f"--rounds must be at least 1, got {args.rounds}")
     cases = QUICK_CASES if args.quick else CASES
     if args.cases is not None:
-        chosen = [c.strip() for c in args.cases.split(",") if c.strip()]
-        unknown = [c for c in chosen if c not in cases]
-        if unknown or not chosen:
-            ap.error(f"--cases: unknown case(s) {', '.join(unknown) or '(none given)'}; known: {', '.join(cases)}")
-        cases = {name: cases[name] for name in chosen}
+        cases = chosen_cases(ap, args.cases, cases)
     started_load = load_average()
     probe_machine()  # the VM's speed before; write_results probes after
     load_before = os.getloadavg()

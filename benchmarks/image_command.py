@@ -65,7 +65,7 @@ from imaging.sim.scene import DEFAULT_START_TIME_NS, Scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.sim.targets import PointTarget  # noqa: E402
 from results_file import load_average, probe_machine, write_results  # noqa: E402
-from command_versions import BASELINE, CASES, QUICK_CASES, compare, uptime  # noqa: E402
+from command_versions import BASELINE, CASES, QUICK_CASES, chosen_cases, compare, uptime  # noqa: E402
 
 #: The command's environment: this one without PYTHONDONTWRITEBYTECODE (see the module's docstring).
 COMMAND_ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
@@ -440,11 +440,7 @@ def main() -> int:
             ap.error(f"--rounds must be at least 1, got {args.rounds}")
         cases = {name: (*case[:3], args.rounds) for name, case in cases.items()}
     if args.cases is not None:
-        chosen = [c.strip() for c in args.cases.split(",") if c.strip()]
-        unknown = [c for c in chosen if c not in cases]
-        if unknown or not chosen:
-            ap.error(f"--cases: unknown case(s) {', '.join(unknown) or '(none given)'}; known: {', '.join(cases)}")
-        return only_cases({name: cases[name] for name in chosen}, args.quick)
+        return only_cases(chosen_cases(ap, args.cases, cases), args.quick)
     started_load = load_average()
     probe_machine()  # the VM's speed before; write_results probes after
     load_before, uptime_before = os.getloadavg(), uptime()
