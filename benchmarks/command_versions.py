@@ -140,10 +140,8 @@ class Version:
                 str(self.folder / f"{case}_img.h5"), "--grid", grid, "--radar", "left_front", "--overwrite"]
         if frames:
             line += ["--frames", frames]
-        before, t = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
-        subprocess.run(line, check=True, cwd=self.tree, env=self.env, stdout=subprocess.DEVNULL)
-        wall, after = time.perf_counter() - t, resource.getrusage(resource.RUSAGE_CHILDREN)
-        return wall, after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+        wall, cpu, _ = timed_process(line, self.tree, self.env)
+        return wall, cpu
 
     def close(self) -> None:
         self.worker.stdin.close()
@@ -205,6 +203,17 @@ def compare(baseline: str, cases: dict, rounds: int, tmp: Path) -> dict:
             v.close()
     result["uptime_after"] = uptime()
     return result
+
+
+def timed_process(command_line: list, cwd, env: dict, capture: bool = False) -> tuple[float, float, str]:
+    """``command_line`` run to its end as a new process: its wall seconds, its CPU seconds (the process and its
+    threads, from this one's children's usage) and, with ``capture``, its standard output."""
+    before, t = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
+    run = subprocess.run(command_line, check=True, cwd=cwd, env=env, text=True,
+                         stdout=subprocess.PIPE if capture else subprocess.DEVNULL,
+                         stderr=subprocess.PIPE if capture else None)
+    wall, after = time.perf_counter() - t, resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, run.stdout or ""
 
 
 def chosen_cases(ap: argparse.ArgumentParser, text: str, cases: dict) -> dict:

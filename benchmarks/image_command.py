@@ -41,7 +41,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import statistics
 import subprocess
 import sys
@@ -65,7 +64,7 @@ from imaging.sim.scene import DEFAULT_START_TIME_NS, Scene  # noqa: E402
 from imaging.sim.simulator import simulate_recording  # noqa: E402
 from imaging.sim.targets import PointTarget  # noqa: E402
 from results_file import load_average, probe_machine, write_results  # noqa: E402
-from command_versions import BASELINE, CASES, QUICK_CASES, chosen_cases, compare, uptime  # noqa: E402
+from command_versions import BASELINE, CASES, QUICK_CASES, chosen_cases, compare, timed_process, uptime  # noqa: E402
 
 #: The command's environment: this one without PYTHONDONTWRITEBYTECODE (see the module's docstring).
 COMMAND_ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
@@ -270,10 +269,9 @@ def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int, r
     command_line = [sys.executable, "-m", "acquisition.cli", "-q", "image", str(rec_path), "-o", str(out),
                     "--grid", grid_text, "--overwrite"]
 
-    def command() -> float:
-        t = time.perf_counter()
-        subprocess.run(command_line, check=True, cwd=ROOT, env=COMMAND_ENV, stdout=subprocess.DEVNULL)
-        return time.perf_counter() - t
+    def command() -> tuple[float, float]:
+        wall, cpu, _ = timed_process(command_line, ROOT, COMMAND_ENV)
+        return wall, cpu
 
     command()  # warm: the kernels compiled into numba's cache, sarbot's byte code written, files in the page cache
     # Alternating: the whole command as a new process, then the kernel alone here; ratio per round, in wall
@@ -281,13 +279,11 @@ def measure_case(tmp: Path, name: str, n_frames: int, n_px: int, repeats: int, r
     # moves less.
     rounds, cpu_rounds = [], []
     for _ in range(rounds_n):
-        before = resource.getrusage(resource.RUSAGE_CHILDREN)
-        t_cmd = command()
-        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t_cmd, cpu_cmd = command()
         t, c = time.perf_counter(), time.process_time()
         backproject(profiles, tx_m, rx_m, points)
         rounds.append((t_cmd, time.perf_counter() - t))
-        cpu_rounds.append((after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, time.process_time() - c))
+        cpu_rounds.append((cpu_cmd, time.process_time() - c))
     stages = command_stages(command_line, max(2, repeats // 2))
     t_command = min(r[0] for r in rounds)
     fractions = [k / c for c, k in rounds]

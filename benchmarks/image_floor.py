@@ -41,9 +41,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -52,7 +50,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks"), str(ROOT / "tests")]
 
-from command_versions import CASES, QUICK_CASES, uptime  # noqa: E402
+from command_versions import CASES, QUICK_CASES, timed_process, uptime  # noqa: E402
 from image_command import COMMAND_ENV, make_recording  # noqa: E402
 from results_file import RESULTS, load_average, probe_machine, write_results  # noqa: E402
 
@@ -140,10 +138,9 @@ def run_step(step: str, rec_path: Path | None = None, grid_text: str = "", dump:
         cmd = [sys.executable, "-c", FLOOR, step, str(rec_path), grid_text, *([str(dump)] if dump else [])]
     else:
         raise ValueError(f"no floor step {step!r}")
-    before, t0 = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
-    out = subprocess.run(cmd, check=True, cwd=ROOT, env=COMMAND_ENV, capture_output=True, text=True).stdout
-    wall, after = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_CHILDREN)
-    result = {"wall_s": wall, "cpu_s": after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime}
+    t0 = time.perf_counter()
+    wall, cpu, out = timed_process(cmd, ROOT, COMMAND_ENV, capture=True)
+    result = {"wall_s": wall, "cpu_s": cpu}
     if step in "cde":
         found = json.loads(out.splitlines()[-1])
         result["marks_wall_s"] = {name: t - t0 for name, t, _ in found["marks"]}
@@ -198,10 +195,8 @@ class Case:
         return {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}
 
     def command(self) -> dict:
-        before, t = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
-        subprocess.run(self.command_line, check=True, cwd=ROOT, env=COMMAND_ENV, stdout=subprocess.DEVNULL)
-        wall, after = time.perf_counter() - t, resource.getrusage(resource.RUSAGE_CHILDREN)
-        return {"wall_s": wall, "cpu_s": after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime}
+        wall, cpu, _ = timed_process(self.command_line, ROOT, COMMAND_ENV)
+        return {"wall_s": wall, "cpu_s": cpu}
 
 
 def grid_of(n_px: int) -> str:
